@@ -1,0 +1,21 @@
+"""Known physics as normalized, lifted LTI state-space blocks in plain PyTorch.
+
+parameters -> continuous A(θ), B(θ) (``LTIModel``) -> hold (``discretize``) -> eq. 5-8
+(``normalize``) -> eq. 9-11 (``lifted_matrices``), wrapped by ``LTIBlock``.
+"""
+
+from hypa.physics.discretization import HOLDS, DiscreteLTI, discretize
+from hypa.physics.lifted import LiftedMatrices, lifted_matrices, matrix_powers, simulate_lifted, simulate_recursive
+from hypa.physics.lti import LTIBlock, LTIModel, StateSpace, UnstablePhysicsError
+from hypa.physics.mass_spring_damper import MassSpringDamper
+from hypa.physics.normalized import NormalizedLTI, Scaling, normalize
+from hypa.physics.parameters import ParameterSpec, PhysicalParameters
+from hypa.physics.vehicle import SingleTrack, SteeringGain, VehicleParameters, vehicle_parameters
+
+__all__ = [
+    "HOLDS", "DiscreteLTI", "discretize", "LiftedMatrices", "lifted_matrices", "matrix_powers",
+    "simulate_lifted", "simulate_recursive", "LTIBlock", "LTIModel", "StateSpace",
+    "UnstablePhysicsError", "MassSpringDamper", "NormalizedLTI", "Scaling", "normalize",
+    "ParameterSpec", "PhysicalParameters", "SingleTrack", "SteeringGain", "VehicleParameters",
+    "vehicle_parameters",
+]

@@ -1,0 +1,227 @@
+"""A generic LTI physics block: named parameters θ -> A(θ), B(θ) -> hold -> eq. 5-8 -> eq. 9-11.
+
+``LTIModel`` says what a physical system is (signal names, parameters, continuous matrices);
+``LTIBlock`` turns it into a differentiable, normalized, lifted simulator in plain PyTorch.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+from hypa.physics.discretization import HOLDS, DiscreteLTI, Hold, discretize
+from hypa.physics.lifted import LiftedMatrices, lifted_matrices, simulate_lifted
+from hypa.physics.normalized import NormalizedLTI, Scaling, normalize
+from hypa.physics.parameters import ParameterSpec, PhysicalParameters
+
+
+class UnstablePhysicsError(ValueError):
+    """The configured physical parameters give an unstable (or non-finite) model."""
+
+
+@dataclass(frozen=True)
+class StateSpace:
+    """Continuous dx/dt = A x + B u, y = C x + D u (physical units)."""
+
+    a: Tensor  # (n, n)
+    b: Tensor  # (n, m)
+    c: Tensor  # (p, n)
+    d: Tensor  # (p, m)
+
+
+class LTIModel(ABC):
+    """A physical system: names of its signals and parameters and its continuous matrices."""
+
+    state_names: tuple[str, ...]
+    input_names: tuple[str, ...]
+    output_names: tuple[str, ...]
+
+    @abstractmethod
+    def parameter_specs(self, values: Mapping[str, float]) -> list[ParameterSpec]:
+        """Specs (units, constraints) of the parameters this model reads, valued from ``values``."""
+
+    @abstractmethod
+    def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
+        """Continuous A, B, C, D from physical parameter values (differentiable)."""
+
+    @property
+    def n_states(self) -> int:
+        return len(self.state_names)
+
+    @property
+    def outputs_are_states(self) -> bool:
+        """True when y = x (C = I, D = 0): outputs share the states' names and scaling."""
+        return self.n_states > 0 and self.output_names == self.state_names
+
+
+class LTIBlock(nn.Module):
+    """Normalized, lifted LTI simulator with physical parameters (frozen or trainable).
+
+    Inputs and outputs are normalized (eq. 2). A block's output at window step j is the one
+    produced by consuming input u_{k+j}: ŷ_j = Ĉ x̂_{k+j+1} + D̂ û_{k+j} + Ĝ, so for the
+    single-track model (C = I, D = 0) output j is the state x̂_{k+j+1}, and for a pure gain
+    (no states) it is D̂ û_{k+j}. Sequences of any length are simulated free-running by
+    chaining horizon-long lifted windows through their last state (exact, see ``forward``).
+    """
+
+    def __init__(
+        self,
+        model: LTIModel,
+        parameters: PhysicalParameters,
+        dt: float,
+        horizon: int = 100,
+        hold: Hold = "zoh",
+        scaling: Scaling | None = None,
+    ) -> None:
+        super().__init__()
+        if hold not in HOLDS:
+            raise ValueError(f"unknown hold {hold!r}; choose one of {', '.join(HOLDS)}")
+        if not dt > 0:
+            raise ValueError(f"sample time dt must be positive, got {dt}")
+        if horizon < 1:
+            raise ValueError(f"horizon must be at least 1, got {horizon}")
+        missing = {s.name for s in model.parameter_specs(parameters.as_floats())} - set(parameters.names)
+        if missing:
+            raise ValueError(f"{type(model).__name__} needs parameters {sorted(missing)}")
+        self.model, self.parameters_, self.dt, self.horizon, self.hold = model, parameters, dt, horizon, hold
+        n, m, p = model.n_states, len(model.input_names), len(model.output_names)
+        scaling = scaling or Scaling.identity(n, m, p)
+        if model.outputs_are_states:
+            scaling = dataclasses.replace(scaling, output_mean=scaling.state_mean, output_std=scaling.state_std)
+        for name in ("state_mean", "state_std", "input_mean", "input_std", "output_mean", "output_std"):
+            self.register_buffer(name, getattr(scaling, name).detach().to(torch.float64).clone())
+        self._cache: tuple[tuple, LiftedMatrices, NormalizedLTI] | None = None
+
+    # -- the physics, step by step -------------------------------------------------------
+    @property
+    def n_taps(self) -> int:
+        return 1 if self.hold == "zoh" else 2
+
+    @property
+    def scaling(self) -> Scaling:
+        return Scaling(self.state_mean, self.state_std, self.input_mean, self.input_std,
+                       self.output_mean, self.output_std)
+
+    def set_scaling(self, scaling: Scaling) -> None:
+        """Set μ, σ of states, inputs and outputs (physical units), e.g. from training data."""
+        scaling.validate()
+        if self.model.outputs_are_states:
+            scaling = dataclasses.replace(scaling, output_mean=scaling.state_mean, output_std=scaling.state_std)
+        for name in ("state_mean", "state_std", "input_mean", "input_std", "output_mean", "output_std"):
+            getattr(self, name).copy_(getattr(scaling, name).detach().to(torch.float64))
+
+    def state_space(self) -> StateSpace:
+        return self.model.matrices(self.parameters_.params())
+
+    def discrete(self) -> DiscreteLTI:
+        ss = self.state_space()
+        return discretize(ss.a, ss.b, self.dt, self.hold)
+
+    def normalized(self) -> NormalizedLTI:
+        ss = self.state_space()
+        return normalize(discretize(ss.a, ss.b, self.dt, self.hold), ss.c, ss.d, self.scaling)
+
+    def check_stable(self) -> None:
+        """Raise ``UnstablePhysicsError`` unless every eigenvalue of A has a negative real part."""
+        with torch.no_grad():
+            a = self.state_space().a
+            if a.numel() == 0:
+                return
+            if not bool(torch.isfinite(a).all()):
+                raise UnstablePhysicsError(f"{type(self.model).__name__}: A is not finite: {a.tolist()}")
+            eig = torch.linalg.eigvals(a)
+        if float(eig.real.max()) >= 0:
+            raise UnstablePhysicsError(
+                f"{type(self.model).__name__} is unstable with parameters "
+                f"{self.parameters_.as_floats()}: eigenvalues of A are "
+                f"{[complex(round(e.real, 4), round(e.imag, 4)) for e in eig.tolist()]} "
+                "(a real part >= 0). Check the nominal parameters (e.g. cf*lf vs cr*lr at this velocity)."
+            )
+
+    # -- lifted matrices, rebuilt only when something they depend on changed -----------------
+    def _cache_key(self, dtype: torch.dtype, device: torch.device) -> tuple:
+        tensors = [*self.parameters_.raw.values(), *(getattr(self, n) for n in (
+            "state_mean", "state_std", "input_mean", "input_std", "output_mean", "output_std"))]
+        return (dtype, device, *((id(t), t._version) for t in tensors))
+
+    def lifted(self, dtype: torch.dtype = torch.float32) -> tuple[LiftedMatrices, NormalizedLTI]:
+        """𝒜, ℬ, ℋ (eq. 11) and Â, B̂, Ĥ, Ĉ, D̂, Ĝ, in ``dtype``.
+
+        Built in float64 (the matrices are tiny) and cast once. With trainable parameters and
+        gradients on they are rebuilt every call so gradients reach θ; otherwise cached.
+        """
+        rebuild = torch.is_grad_enabled() and bool(self.parameters_.trainable_names)
+        key = None if rebuild else self._cache_key(dtype, self.state_mean.device)
+        if key is not None and self._cache is not None and self._cache[0] == key:
+            return self._cache[1], self._cache[2]
+        norm = self.normalized()
+        lifted = lifted_matrices(norm.a, norm.b_taps, norm.h, self.horizon)
+        cast = lambda t: t.to(dtype)  # noqa: E731
+        lifted = LiftedMatrices(cast(lifted.a), cast(lifted.b), cast(lifted.h), lifted.horizon, lifted.n_taps)
+        norm = NormalizedLTI(cast(norm.a), tuple(map(cast, norm.b_taps)), cast(norm.h),
+                             cast(norm.c), cast(norm.d), cast(norm.g))
+        if key is not None:
+            self._cache = (key, lifted, norm)
+        return lifted, norm
+
+    # -- simulation ---------------------------------------------------------------------
+    def forward(self, x0: Tensor | None, u: Tensor) -> Tensor:
+        """Normalized outputs ŷ (B, S, p) from initial state x̂_k (B, n) and inputs û (B, S+T-1, m).
+
+        S = horizon is one lifted product; any other S is simulated free-running in horizon-long
+        chunks chained through their last state, all chunks' input responses in one product.
+        """
+        states = self.states(x0, u)
+        _, norm = self.lifted(u.dtype)
+        if self.model.outputs_are_states:
+            return states
+        steps = states.shape[1]
+        y = u[:, :steps] @ norm.d.T + norm.g
+        return y + states @ norm.c.T if self.model.n_states else y
+
+    def states(self, x0: Tensor | None, u: Tensor) -> Tensor:
+        """Normalized states x̂_{k+1..k+S} (B, S, n); see ``forward``."""
+        lifted, norm = self.lifted(u.dtype)
+        batch, n = u.shape[0], self.model.n_states
+        if x0 is None:
+            if n:
+                raise ValueError(f"{type(self.model).__name__} has {n} states: give an initial state")
+            x0 = u.new_zeros(batch, 0)
+        steps = u.shape[1] - self.n_taps + 1
+        if steps < 1:
+            raise ValueError(f"need at least {self.n_taps} input samples, got {u.shape[1]}")
+        if steps == self.horizon:
+            return simulate_lifted(lifted, x0, u)
+        chunks = math.ceil(steps / self.horizon)
+        pad = chunks * self.horizon + self.n_taps - 1 - u.shape[1]
+        u_pad = torch.cat([u, u.new_zeros(batch, pad, u.shape[2])], dim=1)
+        windows = u_pad.unfold(1, lifted.input_length, self.horizon)  # (B, C, m, N+T-1)
+        windows = windows.transpose(2, 3).reshape(batch, chunks, -1)
+        forced = (windows @ lifted.b.T + lifted.h).view(batch, chunks, self.horizon, n)
+        if n:
+            a_n = lifted.a[-n:]  # Â^N
+            starts, x = [], x0
+            for c in range(chunks):
+                starts.append(x)
+                x = x @ a_n.T + forced[:, c, -1]
+            free = (torch.stack(starts, 1) @ lifted.a.T).view(batch, chunks, self.horizon, n)
+            forced = forced + free
+        return forced.reshape(batch, chunks * self.horizon, n)[:, :steps]
+
+    def simulate_physical(self, x0: Tensor | None, u: Tensor) -> Tensor:
+        """``forward`` in physical units: normalize, simulate, de-normalize (x0 (B, n), u (B, L, m))."""
+        dtype = u.dtype
+        x0n = None if x0 is None else (x0 - self.state_mean.to(dtype)) / self.state_std.to(dtype)
+        un = (u - self.input_mean.to(dtype)) / self.input_std.to(dtype)
+        return self(x0n, un) * self.output_std.to(dtype) + self.output_mean.to(dtype)
+
+    def extra_repr(self) -> str:
+        m = self.model
+        return (f"{type(m).__name__}: {list(m.input_names)} -> {list(m.output_names)}, "
+                f"dt={self.dt:g} s, horizon={self.horizon}, hold={self.hold}")

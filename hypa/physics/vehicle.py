@@ -1,0 +1,134 @@
+"""The paper's vehicle instance: linear single-track model and its steering blocks."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import asdict, dataclass, fields
+
+import torch
+from torch import Tensor
+
+from hypa.physics.lti import LTIModel, StateSpace
+from hypa.physics.parameters import ParameterSpec, PhysicalParameters
+
+
+@dataclass(frozen=True)
+class VehicleParameters:
+    """Named physical parameters of the single-track model (SI units).
+
+    mass [kg], izz [kg m^2], lf / lr [m] (centre of gravity to front / rear axle),
+    cf / cr [N/rad] (axle cornering stiffness), steering_ratio [-] (steering-wheel angle /
+    front wheel angle), velocity [m/s], rws_ratio [-] (rear / front wheel angle of a
+    fixed-ratio rear-wheel steering).
+    """
+
+    mass: float = 1900.0
+    izz: float = 3300.0
+    lf: float = 1.42
+    lr: float = 1.53
+    cf: float = 150000.0
+    cr: float = 200000.0
+    steering_ratio: float = 15.0
+    velocity: float = 33.3
+    rws_ratio: float = 0.1
+
+    def __post_init__(self) -> None:
+        for name in ("mass", "izz", "lf", "lr", "cf", "cr", "steering_ratio", "velocity"):
+            value = getattr(self, name)
+            if not value > 0:
+                raise ValueError(f"vehicle parameter {name!r} must be positive, got {value}")
+
+    @property
+    def wheelbase(self) -> float:
+        """lf + lr [m]."""
+        return self.lf + self.lr
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))
+
+
+_UNITS = {"mass": "kg", "izz": "kg m^2", "lf": "m", "lr": "m", "cf": "N/rad", "cr": "N/rad",
+          "steering_ratio": "-", "velocity": "m/s", "rws_ratio": "-"}
+
+
+def parameter_spec(name: str, value: float, trainable: bool = False) -> ParameterSpec:
+    """Spec of a vehicle parameter; all but ``rws_ratio`` (a signed ratio) stay positive."""
+    if name not in _UNITS:
+        raise KeyError(f"unknown vehicle parameter {name!r}; known: {', '.join(_UNITS)}")
+    return ParameterSpec(name, float(value), _UNITS[name], positive=name != "rws_ratio", trainable=trainable)
+
+
+def vehicle_parameters(values: VehicleParameters, trainable: Iterable[str] = ()) -> PhysicalParameters:
+    """All vehicle parameters as a ``PhysicalParameters`` module; ``trainable`` names are learned."""
+    trainable = set(trainable)
+    unknown = trainable - set(_UNITS)
+    if unknown:
+        raise KeyError(f"unknown vehicle parameters {sorted(unknown)}; known: {', '.join(_UNITS)}")
+    return PhysicalParameters(parameter_spec(k, v, k in trainable) for k, v in values.as_dict().items())
+
+
+class SingleTrack(LTIModel):
+    """Linear single-track (bicycle) model at constant speed, as printed in the paper.
+
+    States x = [yaw_rate ψ̇ (rad/s), side_slip β (rad)], inputs u = [front_wheel_angle δf,
+    rear_wheel_angle δr] (rad), or δf alone for the front-steering-only variant:
+
+        A = [[-(cf lf² + cr lr²)/(v Izz),   -(cf lf - cr lr)/Izz      ],
+             [-1 - (cf lf - cr lr)/(v² m),  -(cf + cr)/(v m)          ]]
+        B = [[ cf lf/Izz,   -cr lr/Izz ],
+             [ cf/(v m),     cr/(v m)  ]]
+    """
+
+    state_names = ("yaw_rate", "side_slip")
+    output_names = ("yaw_rate", "side_slip")
+
+    def __init__(self, rear_steering: bool = True) -> None:
+        self.rear_steering = rear_steering
+        self.input_names = ("front_wheel_angle", "rear_wheel_angle") if rear_steering else ("front_wheel_angle",)
+
+    def parameter_specs(self, values: Mapping[str, float]) -> list[ParameterSpec]:
+        return [parameter_spec(k, values[k]) for k in ("mass", "izz", "lf", "lr", "cf", "cr", "velocity")]
+
+    def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
+        m, izz, lf, lr, cf, cr, v = (p[k] for k in ("mass", "izz", "lf", "lr", "cf", "cr", "velocity"))
+        a = torch.stack([
+            torch.stack([-(cf * lf**2 + cr * lr**2) / (v * izz), -(cf * lf - cr * lr) / izz]),
+            torch.stack([-1 - (cf * lf - cr * lr) / (v**2 * m), -(cf + cr) / (v * m)]),
+        ])
+        columns = [torch.stack([cf * lf / izz, cf / (v * m)])]
+        if self.rear_steering:
+            columns.append(torch.stack([-cr * lr / izz, cr / (v * m)]))
+        b = torch.stack(columns, dim=1)
+        eye = torch.eye(2, dtype=a.dtype, device=a.device)
+        return StateSpace(a, b, eye, a.new_zeros(2, b.shape[1]))
+
+
+class SteeringGain(LTIModel):
+    """A static steering transmission: no states, y = D u.
+
+    ``front``: δf = δsw / steering_ratio (a fixed-ratio mechanical steering).
+    ``rear``:  δr = rws_ratio · δsw / steering_ratio (a fixed-ratio rear steering, for V3).
+    """
+
+    state_names: tuple[str, ...] = ()
+    input_names = ("steering_wheel_angle",)
+
+    def __init__(self, axle: str = "front") -> None:
+        if axle not in ("front", "rear"):
+            raise ValueError(f"axle must be 'front' or 'rear', got {axle!r}")
+        self.axle = axle
+        self.output_names = (f"{axle}_wheel_angle",)
+
+    def parameter_specs(self, values: Mapping[str, float]) -> list[ParameterSpec]:
+        names = ("steering_ratio",) if self.axle == "front" else ("steering_ratio", "rws_ratio")
+        return [parameter_spec(k, values[k]) for k in names]
+
+    def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
+        ratio = p["steering_ratio"]
+        gain = 1.0 / ratio if self.axle == "front" else p["rws_ratio"] / ratio
+        empty = ratio.new_zeros(0, 0)
+        return StateSpace(empty, ratio.new_zeros(0, 1), ratio.new_zeros(1, 0), gain.reshape(1, 1))

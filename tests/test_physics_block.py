@@ -1,0 +1,159 @@
+"""LTIBlock: named parameters -> normalized lifted simulation, for the vehicle and a non-vehicle system."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+from scipy.signal import cont2discrete, dlsim
+
+from hypa.physics import (
+    LTIBlock,
+    MassSpringDamper,
+    ParameterSpec,
+    PhysicalParameters,
+    Scaling,
+    SingleTrack,
+    SteeringGain,
+    UnstablePhysicsError,
+    VehicleParameters,
+    simulate_recursive,
+    vehicle_parameters,
+)
+
+DT = 1 / 32
+VP = VehicleParameters()
+
+
+def vehicle_scaling() -> Scaling:
+    t = lambda *v: torch.tensor(v, dtype=torch.float64)  # noqa: E731
+    return Scaling(t(0.002, -0.0004), t(0.09, 0.012), t(0.001, 0.0), t(0.02, 0.003), t(0.002, -0.0004), t(0.09, 0.012))
+
+
+def test_single_track_matrices_as_printed() -> None:
+    ss = SingleTrack().matrices({k: torch.tensor(v, dtype=torch.float64) for k, v in VP.as_dict().items()})
+    m, izz, lf, lr, cf, cr, v = VP.mass, VP.izz, VP.lf, VP.lr, VP.cf, VP.cr, VP.velocity
+    a = [[-(cf * lf**2 + cr * lr**2) / (v * izz), -(cf * lf - cr * lr) / izz],
+         [-1 - (cf * lf - cr * lr) / (v**2 * m), -(cf + cr) / (v * m)]]
+    b = [[cf * lf / izz, -cr * lr / izz], [cf / (v * m), cr / (v * m)]]
+    np.testing.assert_allclose(ss.a.numpy(), a, rtol=1e-14)
+    np.testing.assert_allclose(ss.b.numpy(), b, rtol=1e-14)
+    fws = SingleTrack(rear_steering=False).matrices({k: torch.tensor(v, dtype=torch.float64) for k, v in VP.as_dict().items()})
+    np.testing.assert_allclose(fws.b.numpy(), np.array(b)[:, :1], rtol=1e-14)
+
+
+def test_steady_state_yaw_gain_is_physical() -> None:
+    """ψ̇/δf = v / (L (1 + K v²)) with the understeer gradient K of the linear model."""
+    block = LTIBlock(SingleTrack(rear_steering=False), vehicle_parameters(VP), DT, horizon=100)
+    steps = torch.full((1, 400, 1), 0.01, dtype=torch.float64)  # 0.01 rad front wheel angle
+    yaw = block(torch.zeros(1, 2, dtype=torch.float64), steps)[0, -1, 0].item()
+    k = VP.mass / VP.wheelbase**2 * (VP.lr / VP.cf - VP.lf / VP.cr)
+    expected = VP.velocity / (VP.wheelbase * (1 + k * VP.velocity**2)) * 0.01
+    assert yaw == pytest.approx(expected, rel=1e-6)
+
+
+@pytest.mark.parametrize("hold", ["zoh", "foh"])
+@pytest.mark.parametrize("length", [100, 37, 257])
+def test_normalized_simulation_denormalized_equals_physical(hold: str, length: int) -> None:
+    """Eq. 5-8: simulating in the ANN's scale and scaling back is the physical simulation."""
+    params = vehicle_parameters(VP)
+    block = LTIBlock(SingleTrack(), params, DT, horizon=100, hold=hold, scaling=vehicle_scaling())
+    g = torch.Generator().manual_seed(0)
+    x0 = torch.randn(3, 2, generator=g, dtype=torch.float64) * torch.tensor([0.1, 0.01], dtype=torch.float64)
+    u = torch.randn(3, length + block.n_taps - 1, 2, generator=g, dtype=torch.float64) * 0.02
+    physical = block.simulate_physical(x0, u)
+    d = block.discrete()
+    reference = simulate_recursive(d.phi, d.taps, torch.zeros(2, dtype=torch.float64), x0, u)
+    torch.testing.assert_close(physical, reference, rtol=1e-12, atol=1e-14)
+    assert physical.shape == (3, length, 2)
+
+
+def test_steering_gains() -> None:
+    params = vehicle_parameters(dataclasses.replace(VP, rws_ratio=-0.2))
+    swa = torch.linspace(-0.5, 0.5, 100, dtype=torch.float64).reshape(1, 100, 1)
+    front = LTIBlock(SteeringGain("front"), params, DT).simulate_physical(None, swa)
+    rear = LTIBlock(SteeringGain("rear"), params, DT).simulate_physical(None, swa)
+    torch.testing.assert_close(front, swa / VP.steering_ratio)
+    torch.testing.assert_close(rear, -0.2 * swa / VP.steering_ratio)
+
+
+def test_mass_spring_damper_against_scipy() -> None:
+    params = PhysicalParameters([ParameterSpec("mass", 2.0, "kg"), ParameterSpec("stiffness", 50.0, "N/m"),
+                                 ParameterSpec("damping", 1.5, "N s/m")])
+    block = LTIBlock(MassSpringDamper(), params, dt=0.01, horizon=50)
+    a = np.array([[0, 1], [-25.0, -0.75]])
+    b = np.array([[0], [0.5]])
+    ad, bd, *_ = cont2discrete((a, b, np.eye(2), np.zeros((2, 1))), 0.01)
+    force = np.random.default_rng(1).normal(size=(333, 1))
+    _, expected, _ = dlsim((ad, bd, np.eye(2), np.zeros((2, 1)), 0.01), force, x0=[0.1, 0.0])
+    ours = block.simulate_physical(torch.tensor([[0.1, 0.0]], dtype=torch.float64),
+                                   torch.tensor(force)[None])[0].numpy()
+    np.testing.assert_allclose(ours[:-1], expected[1:], atol=1e-12)
+
+
+def test_gradcheck_block_with_respect_to_physical_parameters() -> None:
+    params = vehicle_parameters(VP, trainable=["cf", "cr", "izz"])
+    block = LTIBlock(SingleTrack(), params, DT, horizon=12, hold="foh", scaling=vehicle_scaling())
+    x0, u = torch.randn(2, 2, dtype=torch.float64), torch.randn(2, 13, 2, dtype=torch.float64)
+    names = [f"parameters_.raw.{n}" for n in ("cf", "cr", "izz")]
+
+    def fn(*raw_values):
+        return torch.func.functional_call(block, dict(zip(names, raw_values)), (x0, u))
+
+    inputs = tuple(params.raw[n.rsplit(".", 1)[1]].detach().clone().requires_grad_() for n in names)
+    grads = torch.autograd.grad(fn(*inputs).sum(), inputs)
+    assert all(g.abs() > 0 for g in grads)  # the output really depends on every parameter
+    assert torch.autograd.gradcheck(fn, inputs)
+
+
+def test_trainable_parameters_get_gradients_frozen_do_not() -> None:
+    params = vehicle_parameters(VP, trainable=["cf"])
+    block = LTIBlock(SingleTrack(), params, DT, horizon=100, scaling=vehicle_scaling())
+    loss = block(torch.zeros(4, 2, dtype=torch.float64), torch.randn(4, 100, 2, dtype=torch.float64)).square().mean()
+    loss.backward()
+    assert params.raw["cf"].grad is not None and params.raw["cf"].grad.abs() > 0
+    assert params.raw["cr"].grad is None
+    assert params.trainable_names == ("cf",)
+
+
+def test_frozen_lifted_matrices_are_cached_and_refreshed_on_change() -> None:
+    params = vehicle_parameters(VP)
+    block = LTIBlock(SingleTrack(), params, DT, horizon=100, scaling=vehicle_scaling())
+    first, _ = block.lifted(torch.float32)
+    assert block.lifted(torch.float32)[0] is first
+    params.set_values({"cf": 120000.0})
+    second, _ = block.lifted(torch.float32)
+    assert second is not first and not torch.equal(second.b, first.b)
+    block.set_scaling(dataclasses.replace(vehicle_scaling(), input_std=torch.tensor([0.05, 0.003], dtype=torch.float64)))
+    assert block.lifted(torch.float32)[0] is not second
+
+
+def test_positive_parameters_stay_positive_and_bad_values_are_refused() -> None:
+    params = vehicle_parameters(VP, trainable=["mass"])
+    with torch.no_grad():
+        params.raw["mass"].sub_(50.0)  # a huge optimizer step
+    assert params.value("mass").item() > 0
+    with pytest.raises(ValueError, match="positive"):
+        ParameterSpec("cf", -1.0, "N/rad")
+    with pytest.raises(ValueError, match="positive"):
+        VehicleParameters(mass=0.0)
+    with pytest.raises(KeyError, match="known"):
+        vehicle_parameters(VP, trainable=["cornering"])
+
+
+def test_unstable_parameters_are_named() -> None:
+    # strong oversteer (cr lr << cf lf) above the critical speed
+    bad = dataclasses.replace(VP, cr=20000.0, velocity=60.0)
+    block = LTIBlock(SingleTrack(), vehicle_parameters(bad), DT)
+    with pytest.raises(UnstablePhysicsError, match="unstable"):
+        block.check_stable()
+    LTIBlock(SingleTrack(), vehicle_parameters(VP), DT).check_stable()
+
+
+def test_float32_block_matches_float64() -> None:
+    block = LTIBlock(SingleTrack(), vehicle_parameters(VP), DT, horizon=100, scaling=vehicle_scaling())
+    x0, u = torch.randn(8, 2, dtype=torch.float64), torch.randn(8, 100, 2, dtype=torch.float64)
+    ref = block(x0, u)
+    out = block(x0.float(), u.float())
+    assert out.dtype == torch.float32
+    assert ((out.double() - ref).norm() / ref.norm()).item() < 1e-5
