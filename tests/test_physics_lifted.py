@@ -85,3 +85,16 @@ def test_wrong_input_length_is_explained() -> None:
     with pytest.raises(ValueError, match="horizon"):
         lifted_matrices(a, b, h, 0)
     assert np.isfinite(lifted.b.numpy()).all()
+
+
+def test_matrix_powers_gradient_matches_taped_recursion() -> None:
+    a = (0.6 * torch.randn(3, 3, dtype=torch.float64)).requires_grad_()
+    weights = torch.randn(40, 3, 3, dtype=torch.float64)
+    (grad,) = torch.autograd.grad((matrix_powers(a, 40) * weights).sum(), a)
+    taped, p = [torch.eye(3, dtype=torch.float64)], torch.eye(3, dtype=torch.float64)
+    for _ in range(39):
+        p = p @ a
+        taped.append(p)
+    (expected,) = torch.autograd.grad((torch.stack(taped) * weights).sum(), a)
+    torch.testing.assert_close(grad, expected, rtol=1e-10, atol=1e-12)
+    assert torch.autograd.gradcheck(lambda a: matrix_powers(a, 9), (a,))

@@ -20,7 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 
 
 @dataclass(frozen=True)
@@ -40,13 +40,66 @@ class LiftedMatrices:
 
 
 def matrix_powers(a: Tensor, count: int) -> Tensor:
-    """[I, A, A², ..., A^{count-1}] as a (count, n, n) tensor, by repeated doubling."""
+    """[I, A, A², ..., A^{count-1}] as a (count, n, n) tensor, all at once (differentiable).
+
+    Binary powering, vectorized over k: A^k = Π_{bits b of k} A^(2^b), so ⌈log2 count⌉ batched
+    products build every power. The backward is analytic (see ``_MatrixPowers``) rather than
+    taped, so rebuilding the lifted matrices every training step stays cheap.
+    """
+    if count < 1:
+        raise ValueError(f"count must be at least 1, got {count}")
+    return _MatrixPowers.apply(a, count)
+
+
+def _binary_powers(a: Tensor, count: int) -> Tensor:
     n = a.shape[-1]
-    powers = torch.stack([torch.eye(n, dtype=a.dtype, device=a.device), a])
-    while powers.shape[0] < count:
-        # powers holds A^0..A^k; A^k @ A^1..A^k appends A^{k+1}..A^{2k}
-        powers = torch.cat([powers, powers[-1] @ powers[1:]])
-    return powers[:count]
+    k = torch.arange(count, device=a.device)
+    eye = torch.eye(n, dtype=a.dtype, device=a.device)
+    powers, square = eye.expand(count, n, n), a
+    for bit in range(max(count - 1, 1).bit_length()):
+        if bit:
+            square = square @ square  # A^(2^bit)
+        powers = powers @ torch.where(((k >> bit) & 1).bool()[:, None, None], square, eye)
+    return powers
+
+
+class _MatrixPowers(torch.autograd.Function):
+    """P_d = A^d, d = 0..count-1, with the adjoint
+
+        dL/dA = Σ_d Σ_{k<d} (A^k)ᵀ Q_d (A^{d-1-k})ᵀ = Σ_k (A^k)ᵀ M_k,   M_k = Σ_l Q_{k+1+l} (A^l)ᵀ
+
+    for Q_d = dL/dP_d; the inner sums are one strided (Toeplitz-like) contraction.
+    """
+
+    @staticmethod
+    def forward(ctx, a: Tensor, count: int) -> Tensor:  # type: ignore[override]
+        powers = _binary_powers(a, count)
+        ctx.save_for_backward(powers)
+        return powers
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad: Tensor) -> tuple[Tensor, None]:  # type: ignore[override]
+        (powers,) = ctx.saved_tensors
+        steps, n = powers.shape[0] - 1, powers.shape[-1]
+        if steps == 0:
+            return torch.zeros_like(powers[0]), None
+        q = torch.cat([grad[1:], grad.new_zeros(steps - 1, n, n)])  # Q_1..Q_L, then zeros
+        windows = q.unfold(0, steps, 1)  # (L, n, n, L): windows[k, ..., l] = Q_{k+1+l}
+        m = torch.einsum("kabl,lcb->kac", windows, powers[:steps])
+        return torch.einsum("kba,kbc->ac", powers[:steps], m), None
+
+
+def block_toeplitz(markov: Tensor) -> Tensor:
+    """Lower block-triangular Toeplitz T[i, :, j, :] = K[i - j] (j <= i), else 0.
+
+    markov: (N, n, m) Markov parameters K_d = Â^d B̂. Returns (N, n, N, m). Built as a strided
+    view of the zero-padded sequence (no gather), so forward and backward are plain copies.
+    """
+    horizon, n, m = markov.shape
+    padded = torch.cat([markov.new_zeros(horizon - 1, n, m), markov])  # padded[s] = K[s - N + 1]
+    windows = padded.unfold(0, horizon, 1)  # (N, n, m, N): windows[i, ..., c] = padded[i + c]
+    return windows.flip(-1).permute(0, 1, 3, 2)  # c = N - 1 - j  ->  K[i - j]
 
 
 def lifted_matrices(a: Tensor, b_taps: tuple[Tensor, ...], h: Tensor, horizon: int) -> LiftedMatrices:
@@ -58,15 +111,12 @@ def lifted_matrices(a: Tensor, b_taps: tuple[Tensor, ...], h: Tensor, horizon: i
     lifted_a = powers[1:].reshape(horizon * n, n)
 
     n_in = horizon + n_taps - 1
-    i = torch.arange(horizon, device=a.device)[:, None]  # output step
-    j = torch.arange(n_in, device=a.device)[None, :]  # input sample
-    blocks = a.new_zeros(horizon, n_in, n, m)
-    for t, b_t in enumerate(b_taps):
-        markov = powers[:horizon] @ b_t  # (N, n, m): Â^d B̂_t
-        d = i - j + t
-        valid = (j >= t) & (d >= 0)
-        blocks = blocks + markov[d.clamp(0, horizon - 1)] * valid[..., None, None].to(a.dtype)
-    lifted_b = blocks.permute(0, 2, 1, 3).reshape(horizon * n, n_in * m)
+    markov = powers[:horizon] @ torch.stack(b_taps)[:, None]  # (T, N, n, m): Â^d B̂_t
+    lifted_b = block_toeplitz(markov[0])
+    for t in range(1, n_taps):  # tap t reads the input t samples later: t columns further right
+        lifted_b = nn.functional.pad(lifted_b, (0, 0, 0, 1)) + nn.functional.pad(
+            block_toeplitz(markov[t]), (0, 0, t, 0))
+    lifted_b = lifted_b.reshape(horizon * n, n_in * m)  # (N n, (N+T-1) m)
 
     lifted_h = torch.cumsum(powers[:horizon] @ h, dim=0).reshape(horizon * n)
     return LiftedMatrices(a=lifted_a, b=lifted_b, h=lifted_h, horizon=horizon, n_taps=n_taps)

@@ -21,6 +21,9 @@ from hypa.physics.normalized import NormalizedLTI, Scaling, normalize
 from hypa.physics.parameters import ParameterSpec, PhysicalParameters
 
 
+_SCALING = ("state_mean", "state_std", "input_mean", "input_std", "output_mean", "output_std")
+
+
 class UnstablePhysicsError(ValueError):
     """The configured physical parameters give an unstable (or non-finite) model."""
 
@@ -41,6 +44,7 @@ class LTIModel(ABC):
     state_names: tuple[str, ...]
     input_names: tuple[str, ...]
     output_names: tuple[str, ...]
+    parameter_names: tuple[str, ...]
 
     @abstractmethod
     def parameter_specs(self, values: Mapping[str, float]) -> list[ParameterSpec]:
@@ -86,7 +90,7 @@ class LTIBlock(nn.Module):
             raise ValueError(f"sample time dt must be positive, got {dt}")
         if horizon < 1:
             raise ValueError(f"horizon must be at least 1, got {horizon}")
-        missing = {s.name for s in model.parameter_specs(parameters.as_floats())} - set(parameters.names)
+        missing = set(model.parameter_names) - set(parameters.names)
         if missing:
             raise ValueError(f"{type(model).__name__} needs parameters {sorted(missing)}")
         self.model, self.parameters_, self.dt, self.horizon, self.hold = model, parameters, dt, horizon, hold
@@ -94,7 +98,7 @@ class LTIBlock(nn.Module):
         scaling = scaling or Scaling.identity(n, m, p)
         if model.outputs_are_states:
             scaling = dataclasses.replace(scaling, output_mean=scaling.state_mean, output_std=scaling.state_std)
-        for name in ("state_mean", "state_std", "input_mean", "input_std", "output_mean", "output_std"):
+        for name in _SCALING:
             self.register_buffer(name, getattr(scaling, name).detach().to(torch.float64).clone())
         self._cache: tuple[tuple, LiftedMatrices, NormalizedLTI] | None = None
 
@@ -113,24 +117,27 @@ class LTIBlock(nn.Module):
         scaling.validate()
         if self.model.outputs_are_states:
             scaling = dataclasses.replace(scaling, output_mean=scaling.state_mean, output_std=scaling.state_std)
-        for name in ("state_mean", "state_std", "input_mean", "input_std", "output_mean", "output_std"):
+        for name in _SCALING:
             getattr(self, name).copy_(getattr(scaling, name).detach().to(torch.float64))
 
-    def state_space(self) -> StateSpace:
-        return self.model.matrices(self.parameters_.params())
+    def state_space(self, dtype: torch.dtype = torch.float64) -> StateSpace:
+        """Continuous matrices from the current parameter values, in ``dtype``."""
+        return self.model.matrices(self.parameters_.values(self.model.parameter_names, dtype))
 
-    def discrete(self) -> DiscreteLTI:
-        ss = self.state_space()
+    def discrete(self, dtype: torch.dtype = torch.float64) -> DiscreteLTI:
+        ss = self.state_space(dtype)
         return discretize(ss.a, ss.b, self.dt, self.hold)
 
-    def normalized(self) -> NormalizedLTI:
-        ss = self.state_space()
-        return normalize(discretize(ss.a, ss.b, self.dt, self.hold), ss.c, ss.d, self.scaling)
+    def normalized(self, dtype: torch.dtype = torch.float64) -> NormalizedLTI:
+        """Â, B̂_t, Ĥ (eq. 6-8) and Ĉ, D̂, Ĝ, in ``dtype``."""
+        ss = self.state_space(dtype)
+        scaling = Scaling(*(getattr(self, name).to(dtype) for name in _SCALING))
+        return normalize(discretize(ss.a, ss.b, self.dt, self.hold), ss.c, ss.d, scaling)
 
     def check_stable(self) -> None:
         """Raise ``UnstablePhysicsError`` unless every eigenvalue of A has a negative real part."""
         with torch.no_grad():
-            a = self.state_space().a
+            a = self.state_space(torch.float64).a
             if a.numel() == 0:
                 return
             if not bool(torch.isfinite(a).all()):
@@ -146,26 +153,21 @@ class LTIBlock(nn.Module):
 
     # -- lifted matrices, rebuilt only when something they depend on changed -----------------
     def _cache_key(self, dtype: torch.dtype, device: torch.device) -> tuple:
-        tensors = [*self.parameters_.raw.values(), *(getattr(self, n) for n in (
-            "state_mean", "state_std", "input_mean", "input_std", "output_mean", "output_std"))]
+        tensors = [*self.parameters_.raw.values(), *(getattr(self, n) for n in _SCALING)]
         return (dtype, device, *((id(t), t._version) for t in tensors))
 
     def lifted(self, dtype: torch.dtype = torch.float32) -> tuple[LiftedMatrices, NormalizedLTI]:
-        """𝒜, ℬ, ℋ (eq. 11) and Â, B̂, Ĥ, Ĉ, D̂, Ĝ, in ``dtype``.
+        """𝒜, ℬ, ℋ (eq. 11) and Â, B̂, Ĥ, Ĉ, D̂, Ĝ, built in ``dtype``.
 
-        Built in float64 (the matrices are tiny) and cast once. With trainable parameters and
-        gradients on they are rebuilt every call so gradients reach θ; otherwise cached.
+        With trainable parameters and gradients on they are rebuilt every call so gradients
+        reach θ; otherwise they are cached until a parameter or the scaling changes.
         """
         rebuild = torch.is_grad_enabled() and bool(self.parameters_.trainable_names)
         key = None if rebuild else self._cache_key(dtype, self.state_mean.device)
         if key is not None and self._cache is not None and self._cache[0] == key:
             return self._cache[1], self._cache[2]
-        norm = self.normalized()
+        norm = self.normalized(dtype)
         lifted = lifted_matrices(norm.a, norm.b_taps, norm.h, self.horizon)
-        cast = lambda t: t.to(dtype)  # noqa: E731
-        lifted = LiftedMatrices(cast(lifted.a), cast(lifted.b), cast(lifted.h), lifted.horizon, lifted.n_taps)
-        norm = NormalizedLTI(cast(norm.a), tuple(map(cast, norm.b_taps)), cast(norm.h),
-                             cast(norm.c), cast(norm.d), cast(norm.g))
         if key is not None:
             self._cache = (key, lifted, norm)
         return lifted, norm
@@ -177,27 +179,28 @@ class LTIBlock(nn.Module):
         S = horizon is one lifted product; any other S is simulated free-running in horizon-long
         chunks chained through their last state, all chunks' input responses in one product.
         """
-        states = self.states(x0, u)
-        _, norm = self.lifted(u.dtype)
+        lifted, norm = self.lifted(u.dtype)
+        states = self._states(lifted, x0, u)
         if self.model.outputs_are_states:
             return states
-        steps = states.shape[1]
-        y = u[:, :steps] @ norm.d.T + norm.g
+        y = u[:, : states.shape[1]] @ norm.d.T + norm.g
         return y + states @ norm.c.T if self.model.n_states else y
 
     def states(self, x0: Tensor | None, u: Tensor) -> Tensor:
         """Normalized states x̂_{k+1..k+S} (B, S, n); see ``forward``."""
-        lifted, norm = self.lifted(u.dtype)
+        return self._states(self.lifted(u.dtype)[0], x0, u)
+
+    def _states(self, lifted: LiftedMatrices, x0: Tensor | None, u: Tensor) -> Tensor:
         batch, n = u.shape[0], self.model.n_states
         if x0 is None:
             if n:
                 raise ValueError(f"{type(self.model).__name__} has {n} states: give an initial state")
             x0 = u.new_zeros(batch, 0)
         steps = u.shape[1] - self.n_taps + 1
-        if steps < 1:
-            raise ValueError(f"need at least {self.n_taps} input samples, got {u.shape[1]}")
         if steps == self.horizon:
             return simulate_lifted(lifted, x0, u)
+        if steps < 1:
+            raise ValueError(f"need at least {self.n_taps} input samples, got {u.shape[1]}")
         chunks = math.ceil(steps / self.horizon)
         pad = chunks * self.horizon + self.n_taps - 1 - u.shape[1]
         u_pad = torch.cat([u, u.new_zeros(batch, pad, u.shape[2])], dim=1)

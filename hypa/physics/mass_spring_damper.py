@@ -22,6 +22,7 @@ class MassSpringDamper(LTIModel):
     state_names = ("position", "velocity")
     input_names = ("force",)
     output_names = ("position", "velocity")
+    parameter_names = ("mass", "stiffness", "damping")
 
     def parameter_specs(self, values: Mapping[str, float]) -> list[ParameterSpec]:
         units = {"mass": "kg", "stiffness": "N/m", "damping": "N s/m"}

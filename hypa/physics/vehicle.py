@@ -85,13 +85,14 @@ class SingleTrack(LTIModel):
 
     state_names = ("yaw_rate", "side_slip")
     output_names = ("yaw_rate", "side_slip")
+    parameter_names = ("mass", "izz", "lf", "lr", "cf", "cr", "velocity")
 
     def __init__(self, rear_steering: bool = True) -> None:
         self.rear_steering = rear_steering
         self.input_names = ("front_wheel_angle", "rear_wheel_angle") if rear_steering else ("front_wheel_angle",)
 
     def parameter_specs(self, values: Mapping[str, float]) -> list[ParameterSpec]:
-        return [parameter_spec(k, values[k]) for k in ("mass", "izz", "lf", "lr", "cf", "cr", "velocity")]
+        return [parameter_spec(k, values[k]) for k in self.parameter_names]
 
     def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
         m, izz, lf, lr, cf, cr, v = (p[k] for k in ("mass", "izz", "lf", "lr", "cf", "cr", "velocity"))
@@ -122,10 +123,10 @@ class SteeringGain(LTIModel):
             raise ValueError(f"axle must be 'front' or 'rear', got {axle!r}")
         self.axle = axle
         self.output_names = (f"{axle}_wheel_angle",)
+        self.parameter_names = ("steering_ratio",) if axle == "front" else ("steering_ratio", "rws_ratio")
 
     def parameter_specs(self, values: Mapping[str, float]) -> list[ParameterSpec]:
-        names = ("steering_ratio",) if self.axle == "front" else ("steering_ratio", "rws_ratio")
-        return [parameter_spec(k, values[k]) for k in names]
+        return [parameter_spec(k, values[k]) for k in self.parameter_names]
 
     def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
         ratio = p["steering_ratio"]

@@ -1,0 +1,9 @@
+"""The one exception type of the data pipeline."""
+
+
+class DataError(ValueError):
+    """Measured data or the data configuration is unusable.
+
+    The message names the file, the column and the row where that applies, and says what
+    was expected. A ``ValueError`` so that callers unaware of hypa still catch it sensibly.
+    """
