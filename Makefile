@@ -1,0 +1,44 @@
+# hypa: every target creates the virtual environment first if it is missing or stale.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed-stamp
+
+.DEFAULT_GOAL := help
+.PHONY: help install train simulate testbench test test-slow test-all bench clean
+
+help: ## list the targets
+	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-12s %s\n", $$1, $$2}'
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	# torch first and pinned: an unpinned torch would pull several GB of CUDA packages
+	$(BIN)/pip install --quiet torch==2.13.0
+	$(BIN)/pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+install: $(STAMP) ## create .venv and install hypa with its dependencies
+
+train: $(STAMP) ## main job on the default data (for now: the data + physics demo, see README)
+	$(BIN)/python -m hypa.simulate $(ARGS)
+
+simulate: $(STAMP) ## nominal physics vs measured data: make simulate ARGS="physics.hold=foh"
+	$(BIN)/python -m hypa.simulate $(ARGS)
+
+testbench: $(STAMP) ## generate (or find cached) test-bench data and print a summary
+	$(BIN)/python -m hypa.testbench $(ARGS)
+
+test: $(STAMP) ## the test suite without the slow checks (what CI runs)
+	$(BIN)/python -m pytest -q $(ARGS)
+
+test-slow: $(STAMP) ## only the checks marked slow
+	$(BIN)/python -m pytest -q -m slow $(ARGS)
+
+test-all: $(STAMP) ## every test
+	$(BIN)/python -m pytest -q -m "slow or not slow" $(ARGS)
+
+bench: $(STAMP) ## lifted physics vs recursion vs bare matmul (prints ratios)
+	$(BIN)/python -m hypa.bench $(ARGS)
+
+clean: ## remove run outputs (not the environment, not the data cache)
+	rm -rf outputs multirun lightning_logs .pytest_cache

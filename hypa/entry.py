@@ -1,0 +1,55 @@
+"""Glue for the Hydra entry points: configuration nodes -> typed objects.
+
+Only entry points (``python -m hypa.*``) import this; everything below them takes typed
+arguments, never a config object.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from omegaconf import DictConfig, OmegaConf
+
+from hypa.data import HypaDataModule, datamodule_from_config
+from hypa.physics import VehicleParameters
+
+log = logging.getLogger(__name__)
+
+
+def vehicle_from_config(node: DictConfig) -> VehicleParameters:
+    """The nominal vehicle parameters (``vehicle`` group); unknown names are an error."""
+    values = OmegaConf.to_container(node, resolve=True)
+    unknown = set(values) - set(VehicleParameters.names())
+    if unknown:
+        raise ValueError(
+            f"unknown vehicle parameters {sorted(unknown)}; known: {', '.join(VehicleParameters.names())}"
+        )
+    return VehicleParameters(**{k: float(v) for k, v in values.items()})
+
+
+def data_dir_from_config(cfg: DictConfig) -> Path:
+    """The folder of measured-data files: the test bench's cache, or the user's ``data.dir``."""
+    source = cfg.data.source
+    if source == "testbench":
+        from hypa.testbench import TestbenchConfig, ensure_dataset
+
+        testbench = TestbenchConfig.from_dict(cfg.get("testbench"))
+        folder = ensure_dataset(testbench)
+        log.info("test-bench data: %s", folder)
+        return folder
+    if source == "files":
+        if cfg.data.get("dir") in (None, "???"):
+            raise ValueError("data=files needs the folder of your files: data.dir=PATH")
+        folder = Path(str(cfg.data.dir)).expanduser()
+        if not folder.is_absolute():
+            from hydra.utils import get_original_cwd
+
+            folder = Path(get_original_cwd()) / folder
+        return folder
+    raise ValueError(f"unknown data.source {source!r}; use data=testbench or data=files data.dir=PATH")
+
+
+def datamodule(cfg: DictConfig) -> HypaDataModule:
+    """Resolve the data folder and build the DataModule from the ``data`` group."""
+    return datamodule_from_config(cfg.data, data_dir_from_config(cfg))
