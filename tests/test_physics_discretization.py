@@ -6,6 +6,7 @@ import torch
 from scipy.signal import cont2discrete, dlsim, lsim
 
 from hypa.physics import discretize, simulate_recursive
+from hypa.physics.discretization import expm
 
 
 def random_stable(n: int, m: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -85,3 +86,25 @@ def test_bad_arguments_raise() -> None:
         discretize(a, b, 0.0)
     with pytest.raises(ValueError, match="A must be"):
         discretize(torch.eye(3), b, 0.1)
+
+
+@pytest.mark.parametrize("scale", [0.0, 1e-3, 1.0, 30.0])
+def test_expm_matches_torch_values_and_gradients(scale: float) -> None:
+    """The custom exponential (and its block-matrix adjoint) against torch's taped one."""
+    g = torch.Generator().manual_seed(3)
+    m = (scale * torch.randn(5, 5, generator=g, dtype=torch.float64)).requires_grad_()
+    weights = torch.randn(5, 5, generator=g, dtype=torch.float64)
+    ours, ref = expm(m), torch.linalg.matrix_exp(m)
+    torch.testing.assert_close(ours, ref, rtol=1e-13, atol=1e-13 * ref.abs().max().item())
+    (grad,) = torch.autograd.grad((ours * weights).sum(), m)
+    (expected,) = torch.autograd.grad((ref * weights).sum(), m)
+    torch.testing.assert_close(grad, expected, rtol=1e-12, atol=1e-12 * expected.abs().max().item())
+    assert torch.autograd.gradcheck(expm, (m,))
+
+
+def test_expm_float32_and_refusals() -> None:
+    m = torch.randn(4, 4, dtype=torch.float64)
+    torch.testing.assert_close(expm(m.float()).double(), torch.linalg.matrix_exp(m), rtol=1e-5, atol=1e-5)
+    assert torch.isnan(expm(torch.full((2, 2), float("inf")))).all()
+    with pytest.raises(ValueError, match="square"):
+        expm(torch.zeros(2, 3))

@@ -98,3 +98,38 @@ def test_matrix_powers_gradient_matches_taped_recursion() -> None:
     (expected,) = torch.autograd.grad((torch.stack(taped) * weights).sum(), a)
     torch.testing.assert_close(grad, expected, rtol=1e-10, atol=1e-12)
     assert torch.autograd.gradcheck(lambda a: matrix_powers(a, 9), (a,))
+
+
+def _taped_lifted(a, b_taps, h, horizon):
+    """The lifted matrices assembled from plain taped ops (reference for ``_Lifting``)."""
+    n, m, taps = a.shape[-1], b_taps[0].shape[-1], len(b_taps)
+    powers = [torch.eye(n, dtype=a.dtype)]
+    for _ in range(horizon):
+        powers.append(powers[-1] @ a)
+    zero = torch.zeros(n, m, dtype=a.dtype)
+    rows = [torch.cat([sum((powers[i - j + t] @ b_taps[t] for t in range(taps) if t <= j <= i + t), zero)
+                       for j in range(horizon + taps - 1)], dim=1) for i in range(horizon)]
+    h_rows = torch.cumsum(torch.stack([p @ h for p in powers[:horizon]]), 0)
+    return torch.cat(powers[1:]), torch.cat(rows), h_rows.reshape(-1)
+
+
+@pytest.mark.parametrize("taps", [1, 2])
+def test_lifting_gradient_matches_taped_assembly(taps: int) -> None:
+    a, b, h = random_normalized(3, 2, taps, 4)
+    leaves = [a.clone().requires_grad_(), *(t.clone().requires_grad_() for t in b), h.clone().requires_grad_()]
+    lifted = lifted_matrices(leaves[0], tuple(leaves[1:-1]), leaves[-1], 9)
+    ref = _taped_lifted(leaves[0], tuple(leaves[1:-1]), leaves[-1], 9)
+    g = torch.Generator().manual_seed(1)
+    weights = [torch.randn(r.shape, generator=g, dtype=torch.float64) for r in ref]
+    for ours, expected in zip((lifted.a, lifted.b, lifted.h), ref):
+        torch.testing.assert_close(ours, expected, rtol=1e-12, atol=1e-12)
+    grads = torch.autograd.grad(sum((o * w).sum() for o, w in zip((lifted.a, lifted.b, lifted.h), weights)), leaves)
+    expected = torch.autograd.grad(sum((r * w).sum() for r, w in zip(ref, weights)), leaves)
+    for got, want in zip(grads, expected):
+        torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
+
+    def fn(*x):
+        out = lifted_matrices(x[0], tuple(x[1:-1]), x[-1], 5)
+        return out.a, out.b, out.h
+
+    assert torch.autograd.gradcheck(fn, tuple(leaves))

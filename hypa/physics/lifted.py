@@ -51,16 +51,31 @@ def matrix_powers(a: Tensor, count: int) -> Tensor:
     return _MatrixPowers.apply(a, count)
 
 
-def _binary_powers(a: Tensor, count: int) -> Tensor:
+def _doubling_powers(a: Tensor, count: int) -> Tensor:
+    """[I, A, ..., A^{count-1}] by doubling: P_{[L, 2L)} = P_{[0, L)} A^L, one batched product per step."""
     n = a.shape[-1]
-    k = torch.arange(count, device=a.device)
-    eye = torch.eye(n, dtype=a.dtype, device=a.device)
-    powers, square = eye.expand(count, n, n), a
-    for bit in range(max(count - 1, 1).bit_length()):
-        if bit:
-            square = square @ square  # A^(2^bit)
-        powers = powers @ torch.where(((k >> bit) & 1).bool()[:, None, None], square, eye)
-    return powers
+    powers = a.new_empty(1 << max(count - 1, 1).bit_length(), n, n)
+    powers[0], powers[1] = torch.eye(n, dtype=a.dtype, device=a.device), a
+    length = 2
+    while length < count:
+        torch.matmul(powers[:length], powers[length - 1] @ a, out=powers[length : 2 * length])
+        length *= 2
+    return powers[:count]
+
+
+def _powers_adjoint(powers: Tensor, q: Tensor) -> Tensor:
+    """dL/dA = Σ_k (A^k)ᵀ M_k,  M_k = Σ_l Q_{k+1+l} (A^l)ᵀ, from Q_d = dL/dP_d (d = 0..L).
+
+    Q_0 is unused (P_0 = I). The inner sums are one product with the block Hankel matrix
+    [Q_{k+1+l}]_{k,l}, whose block row k is a contiguous window of [Q_1, ..., Q_L, 0, ...].
+    """
+    steps, n = powers.shape[0] - 1, powers.shape[-1]
+    if steps == 0:
+        return torch.zeros_like(powers[0])
+    sequence = torch.cat([q[1:], q.new_zeros(steps - 1, n, n)]).transpose(0, 1).reshape(n, -1)
+    hankel = sequence.unfold(1, steps * n, n).transpose(0, 1).reshape(steps * n, steps * n)
+    m = hankel @ powers[:steps].transpose(1, 2).reshape(steps * n, n)  # (L n, n): rows (k, a)
+    return powers[:steps].reshape(steps * n, n).T @ m
 
 
 class _MatrixPowers(torch.autograd.Function):
@@ -68,12 +83,12 @@ class _MatrixPowers(torch.autograd.Function):
 
         dL/dA = Σ_d Σ_{k<d} (A^k)ᵀ Q_d (A^{d-1-k})ᵀ = Σ_k (A^k)ᵀ M_k,   M_k = Σ_l Q_{k+1+l} (A^l)ᵀ
 
-    for Q_d = dL/dP_d; the inner sums are one strided (Toeplitz-like) contraction.
+    for Q_d = dL/dP_d (``_powers_adjoint``).
     """
 
     @staticmethod
     def forward(ctx, a: Tensor, count: int) -> Tensor:  # type: ignore[override]
-        powers = _binary_powers(a, count)
+        powers = _doubling_powers(a, count)
         ctx.save_for_backward(powers)
         return powers
 
@@ -81,45 +96,88 @@ class _MatrixPowers(torch.autograd.Function):
     @torch.autograd.function.once_differentiable
     def backward(ctx, grad: Tensor) -> tuple[Tensor, None]:  # type: ignore[override]
         (powers,) = ctx.saved_tensors
-        steps, n = powers.shape[0] - 1, powers.shape[-1]
-        if steps == 0:
-            return torch.zeros_like(powers[0]), None
-        q = torch.cat([grad[1:], grad.new_zeros(steps - 1, n, n)])  # Q_1..Q_L, then zeros
-        windows = q.unfold(0, steps, 1)  # (L, n, n, L): windows[k, ..., l] = Q_{k+1+l}
-        m = torch.einsum("kabl,lcb->kac", windows, powers[:steps])
-        return torch.einsum("kba,kbc->ac", powers[:steps], m), None
+        return _powers_adjoint(powers, grad), None
 
 
 def block_toeplitz(markov: Tensor) -> Tensor:
     """Lower block-triangular Toeplitz T[i, :, j, :] = K[i - j] (j <= i), else 0.
 
-    markov: (N, n, m) Markov parameters K_d = Â^d B̂. Returns (N, n, N, m). Built as a strided
-    view of the zero-padded sequence (no gather), so forward and backward are plain copies.
+    markov: (N, n, m) Markov parameters K_d = Â^d B̂. Returns (N, n, N, m). Row block i is
+    [K_i, ..., K_0, 0, ...]: a contiguous window of the sequence [K_{N-1}, ..., K_0, 0, ...]
+    starting at N-1-i, so all rows are one strided view gathered in reverse order (a single
+    copy with contiguous rows, much cheaper than permuting a (N, n, m, N) unfold).
     """
     horizon, n, m = markov.shape
-    padded = torch.cat([markov.new_zeros(horizon - 1, n, m), markov])  # padded[s] = K[s - N + 1]
-    windows = padded.unfold(0, horizon, 1)  # (N, n, m, N): windows[i, ..., c] = padded[i + c]
-    return windows.flip(-1).permute(0, 1, 3, 2)  # c = N - 1 - j  ->  K[i - j]
+    reverse = torch.cat([markov.flip(0), markov.new_zeros(horizon - 1, n, m)])  # (2N-1, n, m)
+    sequence = reverse.transpose(0, 1).reshape(n, (2 * horizon - 1) * m)
+    windows = sequence.unfold(1, horizon * m, m).transpose(0, 1)  # (N, n, N m): row N-1-i
+    rows = torch.arange(horizon - 1, -1, -1, device=markov.device)
+    return windows.index_select(0, rows).view(horizon, n, horizon, m)
+
+
+def block_diagonal_sums(grad: Tensor) -> Tensor:
+    """The adjoint of ``block_toeplitz``: S[d] = Σ_{i>=d} G[i, :, i - d, :] for G (N, n, N, m)."""
+    horizon, n, _, m = grad.shape
+    flat = grad.reshape(horizon, n, horizon * m)
+    padded = torch.cat([flat.new_zeros(horizon, n, (horizon - 1) * m), flat], dim=-1)
+    row = padded.stride(0)  # padded[i, :, (e + i) m + c] = G[i, :, i - (N-1-e), c]
+    diagonals = padded.as_strided((horizon, horizon, n, m), (m, row + m, padded.stride(1), 1))
+    return diagonals.sum(1).flip(0)
+
+
+class _Lifting(torch.autograd.Function):
+    """(Â, V = [B̂_0, ..., B̂_{T-1}, Ĥ]) -> (𝒜, ℬ, ℋ) of eq. 11 with an analytic adjoint.
+
+    With P_d = Â^d and the Markov parameters K_d = P_d V (Ĥ is the response to a constant
+    unit input, so ℋ = cumsum_d of the last column), the adjoint of the assembly is
+
+        dL/dK_t[d] = Σ_i dL/dℬ[i, i-d+t]   (block diagonal sums),   dL/dĤ-column[d] = Σ_{i>=d} dL/dℋ[i]
+        dL/dV = Σ_d P_dᵀ dL/dK_d,   dL/dP_d = dL/d𝒜[d-1] + dL/dK_d Vᵀ  ->  dL/dÂ (``_powers_adjoint``)
+
+    one graph node instead of a few dozen taped ones, which matters when the lifted matrices
+    are rebuilt every training step.
+    """
+
+    @staticmethod
+    def forward(ctx, a: Tensor, v: Tensor, horizon: int, n_taps: int):  # type: ignore[override]
+        n, m = a.shape[-1], (v.shape[-1] - 1) // n_taps
+        powers = _doubling_powers(a, horizon + 1)  # (N+1, n, n)
+        markov = powers[:horizon] @ v  # (N, n, T m + 1)
+        lifted_b = block_toeplitz(markov[..., :m])
+        for t in range(1, n_taps):  # tap t reads the input t samples later: t columns further right
+            lifted_b = nn.functional.pad(lifted_b, (0, 0, 0, 1))
+            lifted_b[:, :, t:] += block_toeplitz(markov[..., t * m : (t + 1) * m])
+        lifted_h = markov[..., -1].cumsum(0)
+        ctx.save_for_backward(powers, v)
+        ctx.n_taps = n_taps
+        n_in = horizon + n_taps - 1
+        return (powers[1:].reshape(horizon * n, n), lifted_b.view(horizon * n, n_in * m),
+                lifted_h.reshape(horizon * n))
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad_a: Tensor, grad_b: Tensor, grad_h: Tensor):  # type: ignore[override]
+        powers, v = ctx.saved_tensors
+        horizon, n = powers.shape[0] - 1, powers.shape[-1]
+        m = (v.shape[-1] - 1) // ctx.n_taps
+        grad_b = grad_b.reshape(horizon, n, horizon + ctx.n_taps - 1, m)
+        grad_markov = torch.cat([
+            *(block_diagonal_sums(grad_b[:, :, t : t + horizon]) for t in range(ctx.n_taps)),
+            grad_h.reshape(horizon, n, 1).flip(0).cumsum(0).flip(0),
+        ], dim=-1)  # (N, n, T m + 1)
+        grad_v = powers[:horizon].reshape(-1, n).T @ grad_markov.reshape(horizon * n, -1)  # Σ_d P_dᵀ G_d
+        q = torch.cat([grad_markov @ v.T, grad_markov.new_zeros(1, n, n)])  # dL/dP_d from K_d
+        q[1:] += grad_a.reshape(horizon, n, n)
+        return _powers_adjoint(powers, q), grad_v, None, None
 
 
 def lifted_matrices(a: Tensor, b_taps: tuple[Tensor, ...], h: Tensor, horizon: int) -> LiftedMatrices:
     """Build 𝒜, ℬ, ℋ (eq. 9-11) from the normalized Â, B̂_t, Ĥ for ``horizon`` steps."""
     if horizon < 1:
         raise ValueError(f"horizon must be at least 1, got {horizon}")
-    n, m, n_taps = a.shape[-1], b_taps[0].shape[-1], len(b_taps)
-    powers = matrix_powers(a, horizon + 1)  # (N+1, n, n)
-    lifted_a = powers[1:].reshape(horizon * n, n)
-
-    n_in = horizon + n_taps - 1
-    markov = powers[:horizon] @ torch.stack(b_taps)[:, None]  # (T, N, n, m): Â^d B̂_t
-    lifted_b = block_toeplitz(markov[0])
-    for t in range(1, n_taps):  # tap t reads the input t samples later: t columns further right
-        lifted_b = nn.functional.pad(lifted_b, (0, 0, 0, 1)) + nn.functional.pad(
-            block_toeplitz(markov[t]), (0, 0, t, 0))
-    lifted_b = lifted_b.reshape(horizon * n, n_in * m)  # (N n, (N+T-1) m)
-
-    lifted_h = torch.cumsum(powers[:horizon] @ h, dim=0).reshape(horizon * n)
-    return LiftedMatrices(a=lifted_a, b=lifted_b, h=lifted_h, horizon=horizon, n_taps=n_taps)
+    v = torch.cat([*b_taps, h[:, None]], dim=-1)  # (n, T m + 1)
+    lifted_a, lifted_b, lifted_h = _Lifting.apply(a, v, horizon, len(b_taps))
+    return LiftedMatrices(a=lifted_a, b=lifted_b, h=lifted_h, horizon=horizon, n_taps=len(b_taps))
 
 
 def simulate_lifted(lifted: LiftedMatrices, x0: Tensor, u: Tensor) -> Tensor:

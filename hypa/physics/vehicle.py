@@ -95,17 +95,22 @@ class SingleTrack(LTIModel):
         return [parameter_spec(k, values[k]) for k in self.parameter_names]
 
     def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
+        """The printed A, B, vectorized over the two axles k (few ops: rebuilt every step).
+
+        The axle's lateral force is c_k (δ_k - α_k) with slip angle α_k = β + l_k ψ̇ / v
+        (signed lever arms l = [lf, -lr]); it turns the car through l_k / Izz and bends its path
+        through 1 / (v m). So B = diag(1/Izz, 1/(v m)) [[c_k l_k], [c_k]] and, because the
+        forces from the states are -B α, A = -B [l / v, 1] - [[0, 0], [1, 0]].
+        """
         m, izz, lf, lr, cf, cr, v = (p[k] for k in ("mass", "izz", "lf", "lr", "cf", "cr", "velocity"))
-        a = torch.stack([
-            torch.stack([-(cf * lf**2 + cr * lr**2) / (v * izz), -(cf * lf - cr * lr) / izz]),
-            torch.stack([-1 - (cf * lf - cr * lr) / (v**2 * m), -(cf + cr) / (v * m)]),
-        ])
-        columns = [torch.stack([cf * lf / izz, cf / (v * m)])]
-        if self.rear_steering:
-            columns.append(torch.stack([-cr * lr / izz, cr / (v * m)]))
-        b = torch.stack(columns, dim=1)
+        stiffness, arm = torch.stack([cf, cr]), torch.stack([lf, -lr])  # (2,) per axle
+        moments = torch.stack([stiffness * arm, stiffness])  # (2, 2): rows yaw, lateral
+        b = moments / torch.stack([izz, v * m])[:, None]
+        slip = torch.stack([arm / v, torch.ones_like(arm)], dim=1)  # (2, 2): α_k per unit (ψ̇, β)
+        path = torch.tensor([[0.0, 0.0], [-1.0, 0.0]], dtype=b.dtype, device=b.device)  # β̇ = ... - ψ̇
+        a = torch.addmm(path, b, slip, alpha=-1.0)
         eye = torch.eye(2, dtype=a.dtype, device=a.device)
-        return StateSpace(a, b, eye, a.new_zeros(2, b.shape[1]))
+        return StateSpace(a, b if self.rear_steering else b[:, :1], eye, a.new_zeros(2, 1 + self.rear_steering))
 
 
 class SteeringGain(LTIModel):
