@@ -18,8 +18,11 @@ from hypa.physics import (
     UnstablePhysicsError,
     VehicleParameters,
     simulate_recursive,
+    discretize,
+    normalize,
     vehicle_parameters,
 )
+from hypa.physics.normalized import NormalizingMaps
 
 DT = 1 / 32
 VP = VehicleParameters()
@@ -157,3 +160,44 @@ def test_float32_block_matches_float64() -> None:
     out = block(x0.float(), u.float())
     assert out.dtype == torch.float32
     assert ((out.double() - ref).norm() / ref.norm()).item() < 1e-5
+
+
+@pytest.mark.parametrize("hold", ["zoh", "foh"])
+def test_normalizing_before_the_hold_equals_eq_5_to_8(hold: str) -> None:
+    """One exponential of the rescaled generator (``NormalizingMaps``) = discretize, then eq. 6-8."""
+    g = torch.Generator().manual_seed(4)
+    r = lambda *s: torch.randn(*s, generator=g, dtype=torch.float64)  # noqa: E731
+    a, b, c, d = r(3, 3) - 2 * torch.eye(3, dtype=torch.float64), r(3, 2), r(4, 3), r(4, 2)
+    scaling = Scaling(r(3), r(3).abs() + 0.1, r(2), r(2).abs() + 0.1, r(4), r(4).abs() + 0.1)
+    expected = normalize(discretize(a, b, 0.05, hold), c, d, scaling)
+    maps = NormalizingMaps.build(scaling, 0.05, 1 if hold == "zoh" else 2, torch.float64)
+    rows, out = maps.state_rows(a, b), maps.output_rows(c, d)
+    taps = torch.cat(expected.b_taps, dim=-1)
+    got = (rows[:, :3], rows[:, 3:-1], rows[:, -1], out[:, :3], out[:, 3:-1], out[:, -1])
+    for ours, ref in zip(got, (expected.a, taps, expected.h, expected.c, expected.d, expected.g)):
+        torch.testing.assert_close(ours, ref, rtol=1e-13, atol=1e-14)
+
+
+@pytest.mark.parametrize("hold", ["zoh", "foh"])
+def test_trainable_one_node_window_equals_cached_frozen_path(hold: str) -> None:
+    """The trainable window (``simulate_from_rows``) and the frozen cached product agree, gradients too."""
+    trained = LTIBlock(SingleTrack(), vehicle_parameters(VP, trainable=["cf"]), DT, horizon=20, hold=hold,
+                       scaling=vehicle_scaling())
+    frozen = LTIBlock(SingleTrack(), vehicle_parameters(VP), DT, horizon=20, hold=hold, scaling=vehicle_scaling())
+    x0 = torch.randn(3, 2, dtype=torch.float64, requires_grad=True)
+    u = torch.randn(3, 20 + trained.n_taps - 1, 2, dtype=torch.float64, requires_grad=True)
+    weights = torch.randn(3, 20, 2, dtype=torch.float64)
+    ours, ref = trained(x0, u), frozen(x0, u)
+    torch.testing.assert_close(ours, ref, rtol=1e-12, atol=1e-12)
+    grads = torch.autograd.grad((ours * weights).sum(), (x0, u))
+    expected = torch.autograd.grad((ref * weights).sum(), (x0, u))
+    for got, want in zip(grads, expected):
+        torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-12)
+
+
+def test_frozen_values_carry_no_graph() -> None:
+    params = vehicle_parameters(VP, trainable=["cf"])
+    values = params.values(("mass", "cf", "rws_ratio"), torch.float32)
+    assert values["cf"].requires_grad and not values["mass"].requires_grad
+    assert values["rws_ratio"].item() == pytest.approx(VP.rws_ratio)
+    assert values["mass"].item() == pytest.approx(VP.mass)

@@ -1,7 +1,8 @@
 """Known physics as normalized, lifted LTI state-space blocks in plain PyTorch.
 
 parameters -> continuous A(θ), B(θ) (``LTIModel``) -> hold (``discretize``) -> eq. 5-8
-(``normalize``) -> eq. 9-11 (``lifted_matrices``), wrapped by ``LTIBlock``.
+(``normalize``) -> eq. 9-11 (``lifted_matrices``), wrapped by ``LTIBlock``, which does the
+hold and eq. 5-8 in one matrix exponential (``normalized.NormalizingMaps``).
 """
 
 from hypa.physics.discretization import HOLDS, DiscreteLTI, discretize

@@ -52,15 +52,25 @@ def matrix_powers(a: Tensor, count: int) -> Tensor:
 
 
 def _doubling_powers(a: Tensor, count: int) -> Tensor:
-    """[I, A, ..., A^{count-1}] by doubling: P_{[L, 2L)} = P_{[0, L)} A^L, one batched product per step."""
-    n = a.shape[-1]
-    powers = a.new_empty(1 << max(count - 1, 1).bit_length(), n, n)
-    powers[0], powers[1] = torch.eye(n, dtype=a.dtype, device=a.device), a
-    length = 2
+    """[I, A, ..., A^{count-1}] (count, n, n) by doubling (``_krylov`` of the identity)."""
+    eye = torch.eye(a.shape[-1], dtype=a.dtype, device=a.device)
+    return _krylov(a, eye, count).transpose(0, 1)
+
+
+def _krylov(a: Tensor, w: Tensor, count: int) -> Tensor:
+    """Y_d = A^d W for d = 0..count-1 as an (n, count, k) tensor, by doubling.
+
+    Laid side by side, [Y_L, ..., Y_{2L-1}] = A^L [Y_0, ..., Y_{L-1}] is one plain (n, n) x
+    (n, L k) product, and A^{2L} = (A^L)²: three small ops per doubling, ⌈log2 count⌉ times.
+    """
+    n, k = w.shape
+    krylov, power, length = w, a, 1
     while length < count:
-        torch.matmul(powers[:length], powers[length - 1] @ a, out=powers[length : 2 * length])
+        krylov = torch.cat([krylov, power @ krylov], dim=1)
         length *= 2
-    return powers[:count]
+        if length < count:
+            power = power @ power
+    return krylov.view(n, length, k)[:, :count]
 
 
 def _powers_adjoint(powers: Tensor, q: Tensor) -> Tensor:
@@ -125,8 +135,42 @@ def block_diagonal_sums(grad: Tensor) -> Tensor:
     return diagonals.sum(1).flip(0)
 
 
+def _assemble(rows: Tensor, horizon: int, n_taps: int) -> tuple[Tensor, ...]:
+    """P = [I, Â, ..., Â^N], V, and the flat 𝒜 (N n, n), ℬ (N n, (N+T-1) m), ℋ (N n,) from [Â, V]."""
+    n = rows.shape[0]
+    a, v = rows[:, :n], rows[:, n:]
+    m = (v.shape[-1] - 1) // n_taps
+    krylov = _krylov(a, rows, horizon)  # (n, N, n + T m + 1): Â^d [Â, V] = [Â^{d+1}, K_d]
+    eye = torch.eye(n, dtype=a.dtype, device=a.device)
+    powers = torch.cat([eye[None], krylov[:, :, :n].transpose(0, 1)])  # (N+1, n, n)
+    markov = krylov[:, :, n:].transpose(0, 1)  # (N, n, T m + 1)
+    lifted_b = block_toeplitz(markov[..., :m])
+    for t in range(1, n_taps):  # tap t reads the input t samples later: t columns further right
+        lifted_b = nn.functional.pad(lifted_b, (0, 0, 0, 1))
+        lifted_b[:, :, t:] += block_toeplitz(markov[..., t * m : (t + 1) * m])
+    lifted_h = markov[..., -1].cumsum(0)
+    return (powers, v, powers[1:].reshape(horizon * n, n),
+            lifted_b.view(horizon * n, (horizon + n_taps - 1) * m), lifted_h.reshape(horizon * n))
+
+
+def _assembly_adjoint(powers: Tensor, v: Tensor, n_taps: int, grad_a: Tensor, grad_b: Tensor,
+                      grad_h: Tensor) -> Tensor:
+    """dL/d[Â, V] from dL/d𝒜, dL/dℬ, dL/dℋ (see ``_Lifting``)."""
+    horizon, n = powers.shape[0] - 1, powers.shape[-1]
+    m = (v.shape[-1] - 1) // n_taps
+    grad_b = grad_b.reshape(horizon, n, horizon + n_taps - 1, m)
+    grad_markov = torch.cat([
+        *(block_diagonal_sums(grad_b[:, :, t : t + horizon]) for t in range(n_taps)),
+        grad_h.reshape(horizon, n, 1).flip(0).cumsum(0).flip(0),
+    ], dim=-1)  # (N, n, T m + 1)
+    grad_v = powers[:horizon].reshape(-1, n).T @ grad_markov.reshape(horizon * n, -1)  # Σ_d P_dᵀ G_d
+    q = torch.cat([grad_markov @ v.T, grad_markov.new_zeros(1, n, n)])  # dL/dP_d from K_d
+    q[1:] += grad_a.reshape(horizon, n, n)
+    return torch.cat([_powers_adjoint(powers, q), grad_v], dim=-1)
+
+
 class _Lifting(torch.autograd.Function):
-    """(Â, V = [B̂_0, ..., B̂_{T-1}, Ĥ]) -> (𝒜, ℬ, ℋ) of eq. 11 with an analytic adjoint.
+    """[Â, V] = [Â, B̂_0, ..., B̂_{T-1}, Ĥ] -> (𝒜, ℬ, ℋ) of eq. 11 with an analytic adjoint.
 
     With P_d = Â^d and the Markov parameters K_d = P_d V (Ĥ is the response to a constant
     unit input, so ℋ = cumsum_d of the last column), the adjoint of the assembly is
@@ -139,45 +183,56 @@ class _Lifting(torch.autograd.Function):
     """
 
     @staticmethod
-    def forward(ctx, a: Tensor, v: Tensor, horizon: int, n_taps: int):  # type: ignore[override]
-        n, m = a.shape[-1], (v.shape[-1] - 1) // n_taps
-        powers = _doubling_powers(a, horizon + 1)  # (N+1, n, n)
-        markov = powers[:horizon] @ v  # (N, n, T m + 1)
-        lifted_b = block_toeplitz(markov[..., :m])
-        for t in range(1, n_taps):  # tap t reads the input t samples later: t columns further right
-            lifted_b = nn.functional.pad(lifted_b, (0, 0, 0, 1))
-            lifted_b[:, :, t:] += block_toeplitz(markov[..., t * m : (t + 1) * m])
-        lifted_h = markov[..., -1].cumsum(0)
+    def forward(ctx, rows: Tensor, horizon: int, n_taps: int):  # type: ignore[override]
+        powers, v, lifted_a, lifted_b, lifted_h = _assemble(rows, horizon, n_taps)
         ctx.save_for_backward(powers, v)
         ctx.n_taps = n_taps
-        n_in = horizon + n_taps - 1
-        return (powers[1:].reshape(horizon * n, n), lifted_b.view(horizon * n, n_in * m),
-                lifted_h.reshape(horizon * n))
+        return lifted_a, lifted_b, lifted_h
 
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, grad_a: Tensor, grad_b: Tensor, grad_h: Tensor):  # type: ignore[override]
         powers, v = ctx.saved_tensors
-        horizon, n = powers.shape[0] - 1, powers.shape[-1]
-        m = (v.shape[-1] - 1) // ctx.n_taps
-        grad_b = grad_b.reshape(horizon, n, horizon + ctx.n_taps - 1, m)
-        grad_markov = torch.cat([
-            *(block_diagonal_sums(grad_b[:, :, t : t + horizon]) for t in range(ctx.n_taps)),
-            grad_h.reshape(horizon, n, 1).flip(0).cumsum(0).flip(0),
-        ], dim=-1)  # (N, n, T m + 1)
-        grad_v = powers[:horizon].reshape(-1, n).T @ grad_markov.reshape(horizon * n, -1)  # Σ_d P_dᵀ G_d
-        q = torch.cat([grad_markov @ v.T, grad_markov.new_zeros(1, n, n)])  # dL/dP_d from K_d
-        q[1:] += grad_a.reshape(horizon, n, n)
-        return _powers_adjoint(powers, q), grad_v, None, None
+        return _assembly_adjoint(powers, v, ctx.n_taps, grad_a, grad_b, grad_h), None, None
+
+
+class _LiftedSimulation(torch.autograd.Function):
+    """([Â, V], x̂_k (B, n), Û (B, (N+T-1) m)) -> X̂ = 𝒜 x̂_k + ℬ Û + ℋ (B, N n) in one node.
+
+    For trainable physics, whose 𝒜, ℬ, ℋ are rebuilt every step and used once: with
+    G = dL/dX̂, the adjoint dL/d𝒜 = Gᵀ x̂_k, dL/dℬ = Gᵀ Û, dL/dℋ = Σ_b G goes straight into
+    the assembly's adjoint (``_Lifting``), and dL/dx̂_k = G 𝒜, dL/dÛ = G ℬ; the lifted
+    matrices get no graph nodes of their own.
+    """
+
+    @staticmethod
+    def forward(ctx, rows: Tensor, x0: Tensor, u: Tensor, horizon: int, n_taps: int):  # type: ignore[override]
+        powers, v, lifted_a, lifted_b, lifted_h = _assemble(rows, horizon, n_taps)
+        ctx.save_for_backward(powers, v, lifted_a, lifted_b, x0, u)
+        ctx.n_taps = n_taps
+        return torch.addmm(lifted_h, u, lifted_b.T).addmm_(x0, lifted_a.T)
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad: Tensor):  # type: ignore[override]
+        powers, v, lifted_a, lifted_b, x0, u = ctx.saved_tensors
+        grad_rows = _assembly_adjoint(powers, v, ctx.n_taps, grad.T @ x0, grad.T @ u, grad.sum(0))
+        grad_x0 = grad @ lifted_a if ctx.needs_input_grad[1] else None
+        grad_u = grad @ lifted_b if ctx.needs_input_grad[2] else None
+        return grad_rows, grad_x0, grad_u, None, None
 
 
 def lifted_matrices(a: Tensor, b_taps: tuple[Tensor, ...], h: Tensor, horizon: int) -> LiftedMatrices:
     """Build 𝒜, ℬ, ℋ (eq. 9-11) from the normalized Â, B̂_t, Ĥ for ``horizon`` steps."""
+    return lifted_from_rows(torch.cat([a, *b_taps, h[:, None]], dim=-1), len(b_taps), horizon)
+
+
+def lifted_from_rows(rows: Tensor, n_taps: int, horizon: int) -> LiftedMatrices:
+    """``lifted_matrices`` from [Â, B̂_0, ..., B̂_{T-1}, Ĥ] as one (n, n + T m + 1) tensor."""
     if horizon < 1:
         raise ValueError(f"horizon must be at least 1, got {horizon}")
-    v = torch.cat([*b_taps, h[:, None]], dim=-1)  # (n, T m + 1)
-    lifted_a, lifted_b, lifted_h = _Lifting.apply(a, v, horizon, len(b_taps))
-    return LiftedMatrices(a=lifted_a, b=lifted_b, h=lifted_h, horizon=horizon, n_taps=len(b_taps))
+    lifted_a, lifted_b, lifted_h = _Lifting.apply(rows, horizon, n_taps)
+    return LiftedMatrices(a=lifted_a, b=lifted_b, h=lifted_h, horizon=horizon, n_taps=n_taps)
 
 
 def simulate_lifted(lifted: LiftedMatrices, x0: Tensor, u: Tensor) -> Tensor:
@@ -196,6 +251,20 @@ def simulate_lifted(lifted: LiftedMatrices, x0: Tensor, u: Tensor) -> Tensor:
     if n:
         flat = flat.addmm(x0, lifted.a.T)
     return flat.view(batch, lifted.horizon, n)
+
+
+def simulate_from_rows(rows: Tensor, n_taps: int, x0: Tensor, u: Tensor) -> Tensor:
+    """``simulate_lifted(lifted_from_rows(rows, n_taps, N), x0, u)`` as one graph node, N = L - T + 1.
+
+    rows: [Â, B̂_0, ..., B̂_{T-1}, Ĥ] (n, n + T m + 1), n >= 1; x0: (B, n); u: (B, L, m).
+    Returns (B, N, n). For physics rebuilt every step; cached matrices use ``simulate_lifted``.
+    """
+    batch, n = x0.shape
+    horizon = u.shape[1] - n_taps + 1
+    if horizon < 1:
+        raise ValueError(f"need at least {n_taps} input samples, got {u.shape[1]}")
+    flat = _LiftedSimulation.apply(rows, x0, u.reshape(batch, -1), horizon, n_taps)
+    return flat.view(batch, horizon, n)
 
 
 def simulate_recursive(a: Tensor, b_taps: tuple[Tensor, ...], h: Tensor, x0: Tensor, u: Tensor) -> Tensor:

@@ -16,8 +16,8 @@ import torch
 from torch import Tensor, nn
 
 from hypa.physics.discretization import HOLDS, DiscreteLTI, Hold, discretize
-from hypa.physics.lifted import LiftedMatrices, lifted_matrices, simulate_lifted
-from hypa.physics.normalized import NormalizedLTI, Scaling, normalize
+from hypa.physics.lifted import LiftedMatrices, lifted_from_rows, simulate_from_rows, simulate_lifted
+from hypa.physics.normalized import NormalizedLTI, NormalizingMaps, Scaling
 from hypa.physics.parameters import ParameterSpec, PhysicalParameters
 
 
@@ -101,6 +101,7 @@ class LTIBlock(nn.Module):
         for name in _SCALING:
             self.register_buffer(name, getattr(scaling, name).detach().to(torch.float64).clone())
         self._cache: tuple[tuple, LiftedMatrices, NormalizedLTI] | None = None
+        self._maps: tuple[tuple, NormalizingMaps] | None = None
 
     # -- the physics, step by step -------------------------------------------------------
     @property
@@ -130,9 +131,30 @@ class LTIBlock(nn.Module):
 
     def normalized(self, dtype: torch.dtype = torch.float64) -> NormalizedLTI:
         """Â, B̂_t, Ĥ (eq. 6-8) and Ĉ, D̂, Ĝ, in ``dtype``."""
+        return self._normalized(dtype)[1]
+
+    def _normalized(self, dtype: torch.dtype) -> tuple[Tensor, NormalizedLTI]:
+        """[Â, B̂_0, ..., Ĥ] as one (n, n + T m + 1) tensor (what the lifting reads) and its parts.
+
+        Normalizing before the hold (``NormalizingMaps``) makes eq. 6-8 part of the one matrix
+        exponential instead of a dozen taped ops after it: fewer graph nodes per training step.
+        """
         ss = self.state_space(dtype)
-        scaling = Scaling(*(getattr(self, name).to(dtype) for name in _SCALING))
-        return normalize(discretize(ss.a, ss.b, self.dt, self.hold), ss.c, ss.d, scaling)
+        maps = self._normalizing_maps(dtype, ss.a.device)
+        rows, out = maps.state_rows(ss.a, ss.b), maps.output_rows(ss.c, ss.d)
+        n, m = ss.b.shape
+        taps = tuple(rows[:, n + t * m : n + (t + 1) * m] for t in range(self.n_taps))
+        norm = NormalizedLTI(a=rows[:, :n], b_taps=taps, h=rows[:, -1], c=out[:, :n], d=out[:, n:-1], g=out[:, -1])
+        return rows, norm
+
+    def _normalizing_maps(self, dtype: torch.dtype, device: torch.device) -> NormalizingMaps:
+        """The scaling's constant maps in ``dtype``, rebuilt only when the scaling changes."""
+        buffers = [getattr(self, name) for name in _SCALING]
+        key = (dtype, device, *((id(t), t._version) for t in buffers))
+        if self._maps is None or self._maps[0] != key:
+            scaling = Scaling(*(t.to(device) for t in buffers))
+            self._maps = (key, NormalizingMaps.build(scaling, self.dt, self.n_taps, dtype))
+        return self._maps[1]
 
     def check_stable(self) -> None:
         """Raise ``UnstablePhysicsError`` unless every eigenvalue of A has a negative real part."""
@@ -156,18 +178,24 @@ class LTIBlock(nn.Module):
         tensors = [*self.parameters_.raw.values(), *(getattr(self, n) for n in _SCALING)]
         return (dtype, device, *((id(t), t._version) for t in tensors))
 
+    def _rebuilds(self) -> bool:
+        """Whether the physics must be rebuilt on every call so that gradients reach θ."""
+        return torch.is_grad_enabled() and bool(self.parameters_.trainable_names)
+
     def lifted(self, dtype: torch.dtype = torch.float32) -> tuple[LiftedMatrices, NormalizedLTI]:
         """𝒜, ℬ, ℋ (eq. 11) and Â, B̂, Ĥ, Ĉ, D̂, Ĝ, built in ``dtype``.
 
         With trainable parameters and gradients on they are rebuilt every call so gradients
         reach θ; otherwise they are cached until a parameter or the scaling changes.
         """
-        rebuild = torch.is_grad_enabled() and bool(self.parameters_.trainable_names)
+        return self._lifted(dtype, self._rebuilds())
+
+    def _lifted(self, dtype: torch.dtype, rebuild: bool) -> tuple[LiftedMatrices, NormalizedLTI]:
         key = None if rebuild else self._cache_key(dtype, self.state_mean.device)
         if key is not None and self._cache is not None and self._cache[0] == key:
             return self._cache[1], self._cache[2]
-        norm = self.normalized(dtype)
-        lifted = lifted_matrices(norm.a, norm.b_taps, norm.h, self.horizon)
+        rows, norm = self._normalized(dtype)
+        lifted = lifted_from_rows(rows, self.n_taps, self.horizon)
         if key is not None:
             self._cache = (key, lifted, norm)
         return lifted, norm
@@ -179,8 +207,7 @@ class LTIBlock(nn.Module):
         S = horizon is one lifted product; any other S is simulated free-running in horizon-long
         chunks chained through their last state, all chunks' input responses in one product.
         """
-        lifted, norm = self.lifted(u.dtype)
-        states = self._states(lifted, x0, u)
+        states, norm = self._simulate(x0, u)
         if self.model.outputs_are_states:
             return states
         y = u[:, : states.shape[1]] @ norm.d.T + norm.g
@@ -188,7 +215,16 @@ class LTIBlock(nn.Module):
 
     def states(self, x0: Tensor | None, u: Tensor) -> Tensor:
         """Normalized states x̂_{k+1..k+S} (B, S, n); see ``forward``."""
-        return self._states(self.lifted(u.dtype)[0], x0, u)
+        return self._simulate(x0, u)[0]
+
+    def _simulate(self, x0: Tensor | None, u: Tensor) -> tuple[Tensor, NormalizedLTI]:
+        """States and the normalized system; one window of trainable physics is one graph node."""
+        rebuild = self._rebuilds()
+        if rebuild and x0 is not None and x0.shape[-1] and u.shape[1] - self.n_taps + 1 == self.horizon:
+            rows, norm = self._normalized(u.dtype)
+            return simulate_from_rows(rows, self.n_taps, x0, u), norm
+        lifted, norm = self._lifted(u.dtype, rebuild)
+        return self._states(lifted, x0, u), norm
 
     def _states(self, lifted: LiftedMatrices, x0: Tensor | None, u: Tensor) -> Tensor:
         batch, n = u.shape[0], self.model.n_states

@@ -15,12 +15,13 @@ and the output y = C x + D u, scaled by (μy, σy), becomes ŷ = Ĉ x̂ + D̂ û
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
-from hypa.physics.discretization import DiscreteLTI
+from hypa.physics.discretization import DiscreteLTI, expm
 
 
 @dataclass(frozen=True)
@@ -72,3 +73,60 @@ def normalize(system: DiscreteLTI, c: Tensor, d: Tensor, scaling: Scaling) -> No
     d_hat = inv_sy[:, None] * d * s.input_std[None, :]
     g_hat = (c @ s.state_mean + d @ s.input_mean - s.output_mean) * inv_sy
     return NormalizedLTI(a=a_hat, b_taps=b_hat, h=h_hat, c=c_hat, d=d_hat, g=g_hat)
+
+
+@dataclass(frozen=True)
+class NormalizingMaps:
+    """Constant matrices that apply eq. 5-8 to [A, B] and [C, D] as products (built once per scaling).
+
+    With S_x = diag(σx), S_u = diag(σu) and the affine map W = [[S_x, 0, μx], [0, S_u, μu]]
+    ((n+m, n+m+1), x = W [x̂; û; 1]), the normalized continuous system and the output are
+
+        dx̂/dt = S_x⁻¹ [A, B] W [x̂; û; 1],        ŷ = S_y⁻¹ ([C, D] W [x̂; û; 1] - μy)
+
+    The constant term is an input held at 1, exact under either hold, so one exponential
+
+        M = [[dt S_x⁻¹ [A, B] W_hold], [the hold's input dynamics]],   e^M[:n] = [Â, B̂_0, ..., Ĥ]
+
+    gives eq. 6-8 directly: e^{D⁻¹ M D} = D⁻¹ e^M D for the rescaling D, and Ĥ of eq. 8 is
+    S_x⁻¹ ∫_0^dt e^{Aτ} dτ (A μx + B μu) because Φ - I = ∫ e^{Aτ} dτ A and Σ_t Γ_t = ∫ e^{Aτ} dτ B.
+    ZOH: W_hold = W and the inputs (û, 1) are constant (zero rows). FOH (see ``discretize``):
+    W_hold has zero columns for û_{k+1}, and the input ramp is written in the basis of its end
+    points (û_k, û_{k+1}) by the similarity T = blockdiag(I, [[I, 0], [-I, I]], 1), which leaves
+    the top rows e^M[:n] T = [Φ̂, E_1 - E_2, E_2, Ĥ] = [Â, B̂_0, B̂_1, Ĥ] and turns the ramp's
+    dynamics [[0, I], [0, 0]] into [[-I, I], [-I, I]].
+    """
+
+    state_left: Tensor  # (k, n): [dt S_x⁻¹; 0], k = n + T m + 1
+    state_right: Tensor  # (n+m, k): W_hold
+    state_rest: Tensor  # (k, k): the hold's input dynamics in rows n..k
+    output_left: Tensor  # (p, p): S_y⁻¹
+    output_right: Tensor  # (n+m, n+m+1): W
+    output_rest: Tensor  # (p, n+m+1): [0, 0, -μy/σy]
+
+    @staticmethod
+    def build(scaling: Scaling, dt: float, n_taps: int, dtype: torch.dtype) -> "NormalizingMaps":
+        s = Scaling(*(t.to(dtype) for t in dataclasses.astuple(scaling)))
+        n, m, p = s.state_mean.numel(), s.input_mean.numel(), s.output_mean.numel()
+        k = n + n_taps * m + 1
+        w = torch.zeros(n + m, n + m + 1, dtype=dtype, device=s.state_mean.device)
+        w[:n, :n], w[n:, n : n + m] = torch.diag(s.state_std), torch.diag(s.input_std)
+        w[:, -1] = torch.cat([s.state_mean, s.input_mean])
+        w_hold = torch.cat([w[:, :-1], w.new_zeros(n + m, k - n - m - 1), w[:, -1:]], dim=1)
+        rest = w.new_zeros(k, k)
+        if n_taps == 2:
+            eye = torch.eye(m, dtype=dtype, device=w.device)
+            rest[n : n + 2 * m, n : n + 2 * m] = torch.cat([torch.cat([-eye, eye], 1)] * 2)
+        left = torch.cat([torch.diag(dt / s.state_std), w.new_zeros(k - n, n)])
+        rest_out = torch.cat([w.new_zeros(p, n + m), (-s.output_mean / s.output_std)[:, None]], 1)
+        return NormalizingMaps(left, w_hold, rest, torch.diag(1 / s.output_std), w, rest_out)
+
+    def state_rows(self, a: Tensor, b: Tensor) -> Tensor:
+        """[Â, B̂_0, ..., B̂_{T-1}, Ĥ] (n, n + T m + 1) from continuous A, B: one exponential."""
+        n = a.shape[-1]
+        generator = torch.addmm(self.state_rest, self.state_left, torch.cat([a, b], -1) @ self.state_right)
+        return expm(generator)[:n]
+
+    def output_rows(self, c: Tensor, d: Tensor) -> Tensor:
+        """[Ĉ, D̂, Ĝ] (p, n + m + 1) from C, D."""
+        return torch.addmm(self.output_rest, self.output_left, torch.cat([c, d], -1) @ self.output_right)

@@ -43,6 +43,7 @@ class PhysicalParameters(nn.Module):
         super().__init__()
         self.specs: dict[str, ParameterSpec] = {}
         self.raw = nn.ParameterDict()
+        self._positive: dict[tuple, Tensor | None] = {}  # masks of positive parameters, by names and device
         for spec in specs:
             if spec.name in self.specs:
                 raise ValueError(f"parameter {spec.name!r} given twice")
@@ -71,14 +72,27 @@ class PhysicalParameters(nn.Module):
         """Physical values of ``names`` in ``dtype``, computed in one vectorized pass.
 
         Same values as ``value(name)``; a handful of tensor ops instead of a few per parameter
-        matters when the physics is rebuilt every training step.
+        matters when the physics is rebuilt every training step. Frozen values come back
+        without a graph, so the backward pass computes no gradients only to drop them.
         """
         unknown = [n for n in names if n not in self.specs]
         if unknown:
             raise KeyError(f"unknown parameters {unknown}; known: {', '.join(self.specs)}")
+        trainable = tuple(n for n in names if self.raw[n].requires_grad) if torch.is_grad_enabled() else ()
+        with torch.no_grad():
+            values = self._physical(names, dtype)
+        if trainable:  # taped separately: no gradients computed for frozen values only to be dropped
+            values.update(self._physical(trainable, dtype))
+        return values
+
+    def _physical(self, names: tuple[str, ...], dtype: torch.dtype | None) -> dict[str, Tensor]:
         raw = torch.stack([self.raw[n] for n in names])
-        positive = torch.tensor([self.specs[n].positive for n in names], device=raw.device)
-        physical = torch.where(positive, raw.exp(), raw)
+        key = (names, raw.device)
+        if key not in self._positive:  # the specs never change: build each mask once (None: all positive)
+            mask = [self.specs[n].positive for n in names]
+            self._positive[key] = None if all(mask) else torch.tensor(mask, device=raw.device)
+        positive = self._positive[key]
+        physical = raw.exp() if positive is None else torch.where(positive, raw.exp(), raw)
         return dict(zip(names, (physical if dtype is None else physical.to(dtype)).unbind()))
 
     def as_floats(self) -> dict[str, float]:
