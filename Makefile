@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 
 .DEFAULT_GOAL := help
-.PHONY: help install train simulate testbench test test-slow test-all bench clean
+.PHONY: help install train simulate testbench tensorboard test test-slow test-all bench clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-12s %s\n", $$1, $$2}'
@@ -19,14 +19,18 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP) ## create .venv and install hypa with its dependencies
 
-train: $(STAMP) ## main job on the default data (for now: the data + physics demo, see README)
-	$(BIN)/python -m hypa.simulate $(ARGS)
+train: $(STAMP) ## main job: the paper's V2 (LSTM) on the default data; more: ARGS="model=v1 ann=s4"
+	$(BIN)/python -m hypa.train model=v2 ann=lstm $(ARGS)
 
 simulate: $(STAMP) ## nominal physics vs measured data: make simulate ARGS="physics.hold=foh"
 	$(BIN)/python -m hypa.simulate $(ARGS)
 
 testbench: $(STAMP) ## generate (or find cached) test-bench data and print a summary
 	$(BIN)/python -m hypa.testbench $(ARGS)
+
+tensorboard: $(STAMP) ## open TensorBoard over all runs (outputs/ and multirun/)
+	mkdir -p outputs multirun
+	$(BIN)/tensorboard --logdir_spec runs:outputs,sweeps:multirun $(ARGS)
 
 test: $(STAMP) ## the test suite without the slow checks (what CI runs)
 	$(BIN)/python -m pytest -q $(ARGS)

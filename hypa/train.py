@@ -1,0 +1,109 @@
+"""Train a HyPA-Net (or a baseline) on measured data.
+
+    python -m hypa.train model=v2 ann=lstm                 # the paper's V2 on the default data
+    python -m hypa.train model=physical                    # physics only, parameters fitted
+    python -m hypa.train model=blackbox ann=transformer    # a pure network
+    python -m hypa.train -m model=v1,v2,v3 ann=lstm,s4 seed=0,1,2     # a sweep (parallel)
+    python -m hypa.train data=files data.dir=PATH vehicle.cf=...       # your data
+
+Writes the best and last checkpoints and TensorBoard logs into the Hydra run folder and prints
+where; returns the best validation loss (for Hydra sweepers).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import hydra
+import lightning as L
+import torch
+from hydra.core.hydra_config import HydraConfig
+from lightning.pytorch.callbacks import EarlyStopping, ModelCheckpoint
+from lightning.pytorch.loggers import TensorBoardLogger
+from omegaconf import DictConfig, OmegaConf
+
+log = logging.getLogger(__name__)
+
+
+def run_name(model: str, ann: str, blocks: Any) -> str:
+    """Folder name of a run: the model, and its network where it has one."""
+    has_ann = any(b.get("kind") == "ann" for b in (blocks or {}).values())
+    return f"{model}-{ann}" if has_ann else model
+
+
+OmegaConf.register_new_resolver("run_name", run_name, replace=True)
+
+
+def train(cfg: DictConfig) -> dict[str, Any]:
+    """Fit the configured model; returns the best validation loss and the output paths."""
+    from hypa.entry import datamodule, vehicle_from_config
+    from hypa.models import parse_model_spec
+    from hypa.training import HybridModule, StagedTraining, ValidationFigures
+
+    L.seed_everything(int(cfg.seed), workers=True)
+    torch.set_num_threads(int(cfg.torch_threads))
+    out = Path(HydraConfig.get().runtime.output_dir)
+    dm = datamodule(cfg)
+    dm.setup()
+    model_config = OmegaConf.to_container(cfg.model, resolve=True)
+    ann = OmegaConf.to_container(cfg.ann, resolve=True)
+    module = HybridModule(
+        model_config=model_config,
+        physical_values=vehicle_from_config(cfg.vehicle).as_dict(),
+        normalization=dm.normalization.state_dict(),
+        input_names=dm.input_names, state_names=dm.state_names, eval_names=dm.eval_names,
+        dt=dm.dt, horizon=int(cfg.data.window), hold=str(cfg.physics.hold),
+        ann_name=str(ann.pop("name")), ann_hparams=ann,
+        lr=float(cfg.optimizer.lr), physics_lr=float(cfg.optimizer.physics_lr),
+        weight_decay=float(cfg.optimizer.weight_decay),
+    )
+    stages = parse_model_spec(model_config).stages
+    epochs = int(cfg.trainer.max_epochs)
+    checkpoint = ModelCheckpoint(dirpath=out / "checkpoints", filename="best-{epoch:02d}", monitor="val/loss",
+                                 mode="min", save_top_k=1, save_last=True)
+    callbacks: list[L.Callback] = [
+        EarlyStopping(monitor="val/loss", mode="min", patience=int(cfg.early_stopping.patience),
+                      min_delta=float(cfg.early_stopping.min_delta), check_on_train_epoch_end=False),
+    ]
+    if stages:
+        callbacks.append(StagedTraining(stages, max_epochs=epochs))
+    if cfg.figures.enabled:
+        callbacks.append(ValidationFigures(float(cfg.figures.seconds), float(cfg.figures.start_s),
+                                           int(cfg.figures.every_n_epochs)))
+    callbacks.append(checkpoint)
+    logger = TensorBoardLogger(save_dir=str(out), name="tensorboard", version="", default_hp_metric=False)
+    trainer_args = OmegaConf.to_container(cfg.trainer, resolve=True)
+    trainer_args["max_epochs"] = epochs * max(len(stages), 1)
+    trainer = L.Trainer(**trainer_args, callbacks=callbacks, logger=logger, default_root_dir=str(out))
+    log.info("model %s:\n%s", model_config["name"], module.model)
+    trainer.fit(module, datamodule=dm, ckpt_path=cfg.ckpt_path)
+
+    best = checkpoint.best_model_score
+    result = {"best_val_loss": float(best) if best is not None else float("nan"),
+              "checkpoint": checkpoint.best_model_path, "last_checkpoint": checkpoint.last_model_path,
+              "tensorboard": str(out / "tensorboard"), "epochs": trainer.current_epoch}
+    logger.log_hyperparams(_flat(OmegaConf.to_container(cfg, resolve=True)), {"hp/best_val_loss": result["best_val_loss"]})
+    print(f"best val/loss {result['best_val_loss']:.5g} after {result['epochs']} epochs\n"
+          f"checkpoint:  {result['checkpoint']}\n"
+          f"tensorboard: tensorboard --logdir {result['tensorboard']}")
+    return result
+
+
+def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:
+    """Nested config -> {'a/b': value} with scalars only (what TensorBoard's hparams take)."""
+    if isinstance(tree, dict):
+        return {k: v for key, sub in tree.items() for k, v in _flat(sub, f"{prefix}{key}/").items()}
+    if isinstance(tree, (int, float, str, bool)) or tree is None:
+        return {prefix.rstrip("/"): "null" if tree is None else tree}
+    return {prefix.rstrip("/"): str(tree)}
+
+
+@hydra.main(config_path="../conf", config_name="train", version_base="1.3")
+def main(cfg: DictConfig) -> float:
+    return train(cfg)["best_val_loss"]
+
+
+if __name__ == "__main__":
+    main()

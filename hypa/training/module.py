@@ -1,0 +1,118 @@
+"""The LightningModule: loss, optimizer and metrics around a composed model (no physics here)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import lightning as L
+import torch
+from torch import Tensor, nn
+from torchmetrics import MeanAbsoluteError, MeanSquaredError, MetricCollection, PearsonCorrCoef, R2Score
+
+from hypa.data import Normalization
+from hypa.models import ComposedModel, parse_model_spec
+
+REAR_WHEEL_ANGLE = "rear_wheel_angle"
+
+
+class HybridModule(L.LightningModule):
+    """Trains a :class:`ComposedModel` with MSE on the normalized states (paper, Sec. 5).
+
+    Everything needed to rebuild the model is a plain, serializable argument, so
+    ``HybridModule.load_from_checkpoint(path)`` restores the model with its normalization.
+
+    Args:
+        model_config: the ``model`` config group (blocks, outputs, stages) as a plain dict.
+        physical_values: nominal physical parameters by name (SI units).
+        normalization: training-set statistics (``Normalization.state_dict()``).
+        input_names / state_names: measured inputs and states in data order.
+        eval_names: SI evaluation channels present in validation batches (never trained on).
+        dt: sample time [s]; horizon: window length N; hold: ``zoh`` | ``foh``.
+        ann_name / ann_hparams: the network of every ANN block.
+        lr: NAdam learning rate of the networks; physics_lr: of the physical parameters
+            (they live in log space, where a step is relative, so they take a larger one).
+        weight_decay: NAdam weight decay of the networks.
+    """
+
+    def __init__(
+        self,
+        model_config: Mapping[str, Any],
+        physical_values: Mapping[str, float],
+        normalization: Mapping[str, Any],
+        input_names: Sequence[str],
+        state_names: Sequence[str],
+        eval_names: Sequence[str] = (),
+        dt: float = 1 / 32,
+        horizon: int = 100,
+        hold: str = "zoh",
+        ann_name: str = "lstm",
+        ann_hparams: Mapping[str, Any] | None = None,
+        lr: float = 5e-4,
+        physics_lr: float = 1e-2,
+        weight_decay: float = 0.0,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        norm = Normalization.from_state_dict(normalization)
+        scale = lambda names: {n: (float(m), float(s)) for n, m, s in zip(  # noqa: E731
+            names, norm.subset(names).mean.tolist(), norm.subset(names).std.tolist())}
+        self.model = ComposedModel(
+            parse_model_spec(model_config), physical_values, input_names, state_names,
+            scale(input_names), scale(state_names), dt, horizon, hold, ann_name, ann_hparams,
+        )
+        self.state_names, self.eval_names = tuple(state_names), tuple(eval_names)
+        self.loss = nn.MSELoss()
+        per_state = lambda: MetricCollection({"mae": MeanAbsoluteError(), "mse": MeanSquaredError(),  # noqa: E731
+                                              "r2": R2Score()})
+        self.val_metrics = nn.ModuleDict({s: per_state() for s in self.state_names})
+        self.rear_metrics = MetricCollection({"corr": PearsonCorrCoef(), "rmse": MeanSquaredError(squared=False)})
+
+    def forward(self, u: Tensor, x0: Tensor) -> Tensor:
+        """Normalized predicted states (B, L-1, p) from inputs (B, L, m) and initial states (B, p)."""
+        return self.model(u, x0)
+
+    def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
+        y = batch["y"]
+        loss = self.loss(self(batch["u"], y[:, 0]), y[:, 1:])
+        self.log("train/loss", loss, on_step=True, on_epoch=True, prog_bar=True, batch_size=y.shape[0])
+        return loss
+
+    def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
+        u, y = batch["u"], batch["y"]
+        signals = self.model.signals(u, y[:, 0])
+        pred = self.model.outputs(signals)
+        self.log("val/loss", self.loss(pred, y[:, 1:]), prog_bar=True, batch_size=y.shape[0])
+        for i, name in enumerate(self.state_names):  # metrics in SI units
+            p = self.model.to_physical(name, pred[..., i]).flatten()
+            t = self.model.to_physical(name, y[:, 1:, i]).flatten()
+            self.val_metrics[name].update(p, t)
+        # (not in the sanity check: a zero-initialized rear angle has no variance to correlate)
+        if REAR_WHEEL_ANGLE in signals and REAR_WHEEL_ANGLE in self.eval_names and not self.trainer.sanity_checking:
+            values, start = signals[REAR_WHEEL_ANGLE]
+            learned = self.model.to_physical(REAR_WHEEL_ANGLE, values[..., 0])
+            measured = batch["eval"][:, start : start + learned.shape[1], self.eval_names.index(REAR_WHEEL_ANGLE)]
+            self.rear_metrics.update(learned.flatten().float(), measured.flatten().float())
+
+    def on_validation_epoch_end(self) -> None:
+        for name, metrics in self.val_metrics.items():
+            self.log_dict({f"val/{name}/{k}": v for k, v in metrics.compute().items()})
+            metrics.reset()
+        if self.rear_metrics["rmse"].update_count:
+            self.log_dict({f"val/{REAR_WHEEL_ANGLE}/{k}": v for k, v in self.rear_metrics.compute().items()})
+            self.rear_metrics.reset()
+
+    def on_train_epoch_end(self) -> None:
+        params = self.model.parameters_
+        for name in self.model.trainable_physics:
+            self.log(f"physics/{name}", params.value(name).detach().float())
+
+    def configure_optimizers(self) -> torch.optim.Optimizer:
+        # Every parameter is handed over, frozen ones too: a staged training only flips
+        # requires_grad, and NAdam skips parameters without gradients.
+        physics = list(self.model.parameters_.parameters())
+        ids = {id(p) for p in physics}
+        networks = [p for p in self.model.parameters() if id(p) not in ids]
+        groups = [{"params": networks, "lr": self.hparams.lr, "weight_decay": self.hparams.weight_decay},
+                  {"params": physics, "lr": self.hparams.physics_lr, "weight_decay": 0.0}]
+        return torch.optim.NAdam([g for g in groups if g["params"]])

@@ -1,0 +1,281 @@
+"""ANN blocks: the sequence contract (shapes, causality, chunking with state, zero init,
+gradients), the registry and its configs, the math of the S4D and selective-scan cores, and a
+small learning check per block."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+from hypa.ann import (
+    ANN_BLOCKS, S4DKernel, SequenceBlock, ann_hyperparameters, build_ann, selective_scan,
+)
+from hypa.ann.s4 import causal_convolution
+
+NAMES = sorted(ANN_BLOCKS)
+# Every block with its defaults, plus non-default settings that take other code paths.
+VARIANTS = [pytest.param(name, {}, id=name) for name in NAMES] + [
+    pytest.param("lstm", {"input_proj": 8, "num_layers": 2}, id="lstm-proj-2layers"),
+    pytest.param("transformer", {"context": 7, "n_heads": 3, "d_model": 12}, id="transformer-7"),
+    pytest.param("s4", {"init": "inv", "n_layers": 1}, id="s4-inv"),
+    pytest.param("mamba", {"d_conv": 1, "expand": 2, "dt_rank": 3}, id="mamba-noconv-x2"),
+]
+CONF_ANN = Path(__file__).resolve().parents[1] / "conf" / "ann"
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():  # noqa: ANN201
+    """These small models run faster on one intra-op thread; two threads on a shared 2-core
+    machine were measured up to 10x slower (threads waiting for each other)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def make(name: str, d_in: int = 2, d_out: int = 1, dtype: torch.dtype = torch.float32,
+         seed: int = 0, **hparams: object) -> SequenceBlock:
+    torch.manual_seed(seed)
+    return build_ann(name, d_in, d_out, **hparams).to(dtype).eval()
+
+
+def random_input(batch: int, length: int, d_in: int, dtype: torch.dtype = torch.float32,
+                 seed: int = 1) -> torch.Tensor:
+    g = torch.Generator().manual_seed(seed)
+    return torch.randn(batch, length, d_in, generator=g, dtype=dtype)
+
+
+# -- the contract ----------------------------------------------------------------------------
+@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("batch,length,d_in,d_out",
+                         [(2, 17, 1, 1), (3, 1, 3, 2), (1, 6, 2, 2), (4, 33, 1, 2)])
+def test_shape_contract(name: str, batch: int, length: int, d_in: int, d_out: int) -> None:
+    block = make(name, d_in, d_out)
+    y, state = block(random_input(batch, length, d_in))
+    assert y.shape == (batch, length, d_out) and y.dtype == torch.float32
+    assert torch.isfinite(y).all()
+    y2, _ = block(random_input(batch, length, d_in), state)  # the returned state is accepted
+    assert y2.shape == (batch, length, d_out)
+    with pytest.raises(ValueError, match="expects input of shape"):
+        block(random_input(batch, length, d_in + 1))
+
+
+@pytest.mark.parametrize("name,hparams", VARIANTS)
+def test_causal_perturbing_step_k_changes_only_steps_from_k(name: str, hparams: dict) -> None:
+    block = make(name, d_in=2, d_out=2, dtype=torch.float64, **hparams)
+    x = random_input(2, 40, 2, torch.float64)
+    k = 17
+    x_perturbed = x.clone()
+    x_perturbed[:, k] += 1.0
+    with torch.no_grad():
+        y, _ = block(x)
+        y_perturbed, _ = block(x_perturbed)
+    assert torch.equal(y[:, :k], y_perturbed[:, :k]), "an output before step k saw input k"
+    change = (y_perturbed - y)[:, k:].abs().amax(dim=(0, 2))  # (L - k,)
+    if name == "transformer":  # banded: through n layers it reaches n (context - 1) steps on
+        change = change[: len(block.layers) * (block.context - 1) + 1]
+    assert (change > 1e-12).all(), f"outputs at steps >= k did not react: {change}"
+
+
+SPLITS = [(40, [1, 39]), (40, [17, 23]), (40, [13, 1, 12, 14]), (300, [129, 1, 170]), (300, [300])]
+
+
+@pytest.mark.parametrize("name,hparams", VARIANTS)
+@pytest.mark.parametrize("dtype,tol", [(torch.float32, 2e-5), (torch.float64, 1e-11)])
+def test_chunked_with_state_equals_whole(name: str, hparams: dict, dtype: torch.dtype,
+                                         tol: float) -> None:
+    block = make(name, d_in=3, d_out=2, dtype=dtype, **hparams)
+    for length, chunks in SPLITS:
+        x = random_input(2, length, 3, dtype)
+        with torch.no_grad():
+            whole, _ = block(x)
+            state, parts = block.default_state(2, x.device, dtype), []
+            for piece in x.split(chunks, dim=1):
+                before = state
+                y, state = block(piece, before)
+                again, _ = block(piece, before)  # a state is an input, never modified in place
+                assert torch.equal(y, again)
+                parts.append(y)
+        torch.testing.assert_close(torch.cat(parts, dim=1), whole, rtol=tol, atol=tol)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_zero_init_outputs_exactly_zero_and_trains_the_head(name: str) -> None:
+    block = make(name, d_in=2, d_out=2, zero_init=True)
+    x = random_input(3, 25, 2)
+    y, state = block(x)
+    assert torch.equal(y, torch.zeros_like(y))
+    y_next, _ = block(x, state)
+    assert torch.equal(y_next, torch.zeros_like(y_next))
+    ((y - torch.ones_like(y)) ** 2).mean().backward()
+    assert block.head.weight.grad.abs().sum() > 0 and block.head.bias.grad.abs().sum() > 0
+
+
+@pytest.mark.parametrize("name,hparams", VARIANTS)
+def test_gradients_reach_every_parameter(name: str, hparams: dict) -> None:
+    block = make(name, d_in=2, d_out=2, **hparams).train()
+    y, _ = block(random_input(4, 40, 2))
+    ((y - 0.5) ** 2).mean().backward()
+    for pname, p in block.named_parameters():
+        assert p.grad is not None, f"{pname} gets no gradient"
+        assert torch.isfinite(p.grad).all(), f"{pname} has a non-finite gradient"
+        assert p.grad.abs().sum() > 0, f"{pname} has a zero gradient"
+
+
+def test_transformer_attends_to_a_band_of_context_steps() -> None:
+    """Through n layers an input reaches outputs up to n (context - 1) steps later, no further."""
+    context, n_layers = 5, 2
+    block = make("transformer", d_in=1, d_out=1, dtype=torch.float64, context=context,
+                 n_layers=n_layers)
+    x = random_input(1, 30, 1, torch.float64)
+    x_perturbed = x.clone()
+    x_perturbed[:, 10] += 1.0
+    with torch.no_grad():
+        diff = (block(x_perturbed)[0] - block(x)[0])[0, :, 0].abs()  # (L,)
+    reach = 10 + n_layers * (context - 1)
+    assert (diff[10:reach + 1] > 0).all()
+    assert torch.equal(diff[reach + 1:], torch.zeros_like(diff[reach + 1:]))
+
+
+def test_transformer_long_record_is_processed_in_query_blocks() -> None:
+    """L = 6000 runs in O(L · context) memory (an L×L float64 mask alone would be 288 MB)."""
+    block = make("transformer", d_in=1, d_out=1, context=100)
+    with torch.no_grad():
+        y, cache = block(random_input(1, 6000, 1))
+    assert y.shape == (1, 6000, 1) and all(k.shape[2] == 99 for k, _ in cache)
+
+
+# -- the cores against their definitions -----------------------------------------------------
+def test_s4d_kernel_equals_its_zoh_recurrence() -> None:
+    """y_k = 2 Re(C x_k) + D u_k with x_k = Ā x_{k-1} + B̄ u_k, Ā = exp(ΔA), B̄ = (Ā - 1)/A."""
+    torch.manual_seed(0)
+    ssm = S4DKernel(d_model=3, d_state=8, init="inv", dt_min=0.01, dt_max=0.5).double()
+    u = torch.randn(2, 3, 150, dtype=torch.float64)  # longer than the direct path: FFT
+    x0 = torch.randn(2, 3, 4, dtype=torch.complex128)
+    y, x_last = ssm(u, x0)
+    with torch.no_grad():
+        a = torch.complex(-ssm.a_re_log.exp(), ssm.a_im)
+        a_bar = torch.exp(ssm.log_dt.exp()[:, None] * a)
+        b_bar, c = (a_bar - 1) / a, torch.view_as_complex(ssm.c)
+        x, ys = x0, []
+        for k in range(u.shape[-1]):
+            x = a_bar * x + b_bar * u[..., k, None]
+            ys.append(2 * (c * x).sum(-1).real + ssm.d * u[..., k])
+    torch.testing.assert_close(y, torch.stack(ys, dim=-1), rtol=1e-10, atol=1e-10)
+    torch.testing.assert_close(x_last, x, rtol=1e-10, atol=1e-10)
+
+
+def test_fft_and_direct_convolution_agree() -> None:
+    length = 90
+    u = torch.randn(2, 4, length, dtype=torch.float64)
+    kernel = torch.randn(4, length, dtype=torch.float64)
+    reference = torch.stack(
+        [(kernel[:, : k + 1].flip(-1) * u[..., : k + 1]).sum(-1) for k in range(length)], dim=-1
+    )
+    fft = causal_convolution(u, kernel, direct_max_len=0)
+    direct = causal_convolution(u, kernel, direct_max_len=length)
+    torch.testing.assert_close(fft, reference)
+    torch.testing.assert_close(direct, reference)
+
+
+def _selective_scan_reference(u: torch.Tensor, delta: torch.Tensor, a: torch.Tensor,
+                              b: torch.Tensor, c: torch.Tensor, d: torch.Tensor, h0: torch.Tensor
+                              ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The definition, step by step (differentiated by autograd)."""
+    h, ys = h0, []
+    for k in range(u.shape[1]):
+        drive = (delta[:, k] * u[:, k])[..., None] * b[:, k, None, :]
+        h = torch.exp(delta[:, k, :, None] * a) * h + drive
+        ys.append((h * c[:, k, None, :]).sum(-1) + d * u[:, k])
+    return torch.stack(ys, dim=1), h
+
+
+@pytest.mark.parametrize("length,steps_per_block", [(7, None), (7, 1), (7, 3), (1, None)])
+def test_selective_scan_values_and_handwritten_gradients(length: int,
+                                                         steps_per_block: int | None) -> None:
+    g = torch.Generator().manual_seed(3)
+    batch, d_inner, n = 2, 3, 4
+    args = [torch.randn(batch, length, d_inner, generator=g),
+            torch.rand(batch, length, d_inner, generator=g),
+            -torch.rand(d_inner, n, generator=g) - 0.1,
+            torch.randn(batch, length, n, generator=g),
+            torch.randn(batch, length, n, generator=g),
+            torch.randn(d_inner, generator=g),
+            torch.randn(batch, d_inner, n, generator=g)]
+    args = [t.double().requires_grad_() for t in args]
+
+    def scan(*inputs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return selective_scan(*inputs, steps_per_block=steps_per_block)
+
+    y, h = scan(*args)
+    y_ref, h_ref = _selective_scan_reference(*args)
+    torch.testing.assert_close(y, y_ref)
+    torch.testing.assert_close(h, h_ref)
+    assert torch.autograd.gradcheck(scan, args)  # y and the final state, w.r.t. all inputs
+
+
+# -- registry and configs --------------------------------------------------------------------
+def test_build_ann_rejects_unknown_names_and_hyperparameters() -> None:
+    with pytest.raises(ValueError, match="unknown ANN block 'gru'.*lstm.*mamba.*s4.*transformer"):
+        build_ann("gru", 1, 1)
+    with pytest.raises(TypeError, match="hidden_sise.*accepted: hidden_size"):
+        build_ann("lstm", 1, 1, hidden_sise=32)
+    with pytest.raises(ValueError, match="divisible"):
+        build_ann("transformer", 1, 1, d_model=30, n_heads=4)
+    with pytest.raises(ValueError, match="d_in"):
+        build_ann("s4", 0, 1)
+
+
+def test_every_block_has_a_config_with_its_defaults() -> None:
+    assert sorted(p.stem for p in CONF_ANN.glob("*.yaml")) == NAMES
+    with initialize_config_dir(config_dir=str(CONF_ANN.parent), version_base=None):
+        for name in NAMES:
+            cfg = OmegaConf.to_container(compose(overrides=[f"+ann={name}"]).ann)
+            assert cfg.pop("name") == name
+            defaults = ann_hyperparameters(name)
+            defaults.pop("zero_init")
+            assert cfg == defaults, f"conf/ann/{name}.yaml differs from the code defaults"
+            block = build_ann(name, 2, 1, **cfg)
+            assert block(torch.zeros(1, 3, 2))[0].shape == (1, 3, 1)
+
+
+# -- learning ------------------------------------------------------------------------------------
+def _first_order_lag(batch: int, length: int, g: torch.Generator
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Piecewise-constant input levels and y_k = 0.9 y_{k-1} + 0.1 x_k, scaled to unit size."""
+    levels = torch.randn(batch, length // 8 + 1, 1, generator=g)
+    x = levels.repeat_interleave(8, dim=1)[:, :length]  # (B, L, 1)
+    y, ys = torch.zeros(batch, 1), []
+    for k in range(length):
+        y = 0.9 * y + 0.1 * x[:, k]
+        ys.append(y)
+    return x, torch.stack(ys, dim=1) / 0.6
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_learns_a_first_order_lag(name: str) -> None:
+    g = torch.Generator().manual_seed(0)
+    block = make(name, d_in=1, d_out=1).train()
+    x_val, y_val = _first_order_lag(16, 48, g)
+
+    def val_loss() -> float:
+        with torch.no_grad():
+            return torch.mean((block(x_val)[0] - y_val) ** 2).item()
+
+    initial = val_loss()
+    opt = torch.optim.Adam(block.parameters(), lr=3e-3)
+    for _ in range(150):
+        x, y = _first_order_lag(8, 48, g)
+        loss = torch.mean((block(x)[0] - y) ** 2)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    final = val_loss()
+    target_power = y_val.square().mean().item()
+    assert math.isfinite(final) and final < 0.2 * initial, (initial, final)
+    assert final < 0.1 * target_power, (final, target_power)
