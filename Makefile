@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 
 .DEFAULT_GOAL := help
-.PHONY: help install train simulate testbench tensorboard test test-slow test-all bench clean
+.PHONY: help install train evaluate reproduce simulate testbench tensorboard test test-slow test-all bench clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-12s %s\n", $$1, $$2}'
@@ -21,6 +21,12 @@ install: $(STAMP) ## create .venv and install hypa with its dependencies
 
 train: $(STAMP) ## main job: the paper's V2 (LSTM) on the default data; more: ARGS="model=v1 ann=s4"
 	$(BIN)/python -m hypa.train model=v2 ann=lstm $(ARGS)
+
+evaluate: $(STAMP) ## evaluate a run: make evaluate ARGS="run=outputs/train/v2-lstm/<time>"
+	$(BIN)/python -m hypa.evaluate $(ARGS)
+
+reproduce: $(STAMP) ## train + evaluate every Table 1 row over 3 seeds -> results/REPORT.md
+	$(BIN)/python -m hypa.reproduce $(ARGS)
 
 simulate: $(STAMP) ## nominal physics vs measured data: make simulate ARGS="physics.hold=foh"
 	$(BIN)/python -m hypa.simulate $(ARGS)
@@ -46,3 +52,4 @@ bench: $(STAMP) ## lifted physics vs recursion vs bare matmul (prints ratios)
 
 clean: ## remove run outputs (not the environment, not the data cache)
 	rm -rf outputs multirun lightning_logs .pytest_cache
+	@echo "(results/ of make reproduce kept)"

@@ -1,0 +1,95 @@
+"""Regression metrics of the paper's Table 1: MAE, MSE, MAPE and R², per state and overall.
+
+All inputs are numpy arrays in SI units (rad/s for the yaw rate, rad for the side slip); the
+numbers are computed with torchmetrics' functional API in float64 so they match a hand
+calculation to ~1e-12.
+
+MAPE is *floored* here, because the plain definition is useless for vehicle states:
+
+    plain:    MAPE   = 100 % · mean_k |ŷ_k - y_k| / |y_k|
+    floored:  MAPE_δ = 100 % · mean_k |ŷ_k - y_k| / max(|y_k|, δ),   δ = 0.1 · RMS(y)
+
+The yaw rate and the side slip change sign at every steering reversal, so some samples sit
+arbitrarily close to y = 0 and one of them can dominate the plain mean (|e| / 1e-9 ~ 1e7 %).
+Flooring the denominator at 10 % of the channel's RMS keeps the familiar "percent of the
+value" reading wherever the signal is large, while near a zero crossing the error is measured
+against a typical signal level instead. It is bounded by MAPE_δ ≤ 100 % · MAE / δ. δ comes from
+the target only, so every model on a record is divided by the same numbers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+from torchmetrics.functional import mean_absolute_error, mean_squared_error, r2_score
+
+METRICS = ("mae", "mse", "mape", "r2")
+
+# δ as a fraction of the target's RMS: small enough that MAPE_δ equals the plain MAPE on most
+# samples of a sine-like signal (|sin| < 0.1·RMS on only ~4.5 % of a period).
+MAPE_FLOOR_FRACTION = 0.1
+
+
+def _checked(pred: np.ndarray, target: np.ndarray, ndim: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Both arrays as float64 tensors, after checking shape, length and finiteness."""
+    pred, target = np.asarray(pred, dtype=np.float64), np.asarray(target, dtype=np.float64)
+    if pred.shape != target.shape:
+        raise ValueError(f"pred and target shapes differ: {pred.shape} vs {target.shape}")
+    if target.ndim != ndim:
+        raise ValueError(f"expected {ndim}-D arrays (time first), got shape {target.shape}")
+    if target.shape[0] < 2:
+        raise ValueError(f"need at least 2 samples along time, got {target.shape[0]}")
+    for name, array in (("pred", pred), ("target", target)):
+        if not np.all(np.isfinite(array)):
+            bad = int(np.size(array) - np.count_nonzero(np.isfinite(array)))
+            raise ValueError(f"{name} has {bad} non-finite values (NaN or inf)")
+    return torch.from_numpy(pred), torch.from_numpy(target)
+
+
+def floored_mape(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """MAPE_δ in percent, δ = ``MAPE_FLOOR_FRACTION`` · RMS(target) (see the module docstring)."""
+    delta = MAPE_FLOOR_FRACTION * target.square().mean().sqrt()
+    return 100.0 * ((pred - target).abs() / target.abs().clamp_min(delta)).mean()
+
+
+def regression_metrics(pred: np.ndarray, target: np.ndarray) -> dict[str, float]:
+    """MAE, MSE, floored MAPE [%] and R² of one channel, shape (T,), in the channel's SI unit.
+
+        MAE = mean |ŷ - y|          [unit]
+        MSE = mean (ŷ - y)²         [unit²]
+        MAPE = MAPE_δ               [%]   (floored, see the module docstring)
+        R²  = 1 - Σ(ŷ - y)² / Σ(y - ȳ)²   [-]   (1: perfect; 0: as good as predicting ȳ)
+
+    Raises ValueError for mismatched shapes, non-finite values, or a constant target (for
+    which R² is undefined and δ can be 0).
+    """
+    p, y = _checked(pred, target, ndim=1)
+    if torch.all(y == y[0]):
+        raise ValueError("target is constant: R² (and the MAPE floor) are undefined")
+    return {
+        "mae": float(mean_absolute_error(p, y)),
+        "mse": float(mean_squared_error(p, y)),
+        "mape": float(floored_mape(p, y)),
+        "r2": float(r2_score(p, y)),
+    }
+
+
+def state_metrics(pred: np.ndarray, target: np.ndarray, names: Sequence[str]) -> dict[str, dict[str, float]]:
+    """Metrics per state of (T, p) arrays, plus ``"overall"``: each metric's mean over the states.
+
+    Both vehicle states are in rad-based SI units (yaw rate rad/s, side slip rad) of similar
+    size, so a plain mean over states is meaningful; the paper reports a single Table 1 row
+    per model, which we read as this mean. (MAPE and R² are scale-free anyway.)
+    """
+    names = tuple(names)
+    pred, target = np.asarray(pred), np.asarray(target)
+    _checked(pred, target, ndim=2)
+    if len(names) != target.shape[1] or len(set(names)) != len(names):
+        raise ValueError(f"need {target.shape[1]} distinct state names for shape {target.shape}, got {names}")
+    if "overall" in names:
+        raise ValueError("'overall' is reserved for the mean over states")
+    result = {name: regression_metrics(pred[:, i], target[:, i]) for i, name in enumerate(names)}
+    result["overall"] = {m: float(np.mean([result[n][m] for n in names])) for m in METRICS}
+    return result

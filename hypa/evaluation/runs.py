@@ -1,0 +1,126 @@
+"""A trained run (checkpoint + its configuration) and its predictions on measured data.
+
+Two ways to evaluate, as a simulation user needs both: windowed (N steps from each measured
+initial state, exactly as in training) and free-running over a whole record (the model starts
+from the record's first measured state and never sees a measured state again).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from hypa.data import HypaDataModule, Record
+from hypa.training import HybridModule
+
+
+@dataclass
+class TrainedRun:
+    """A run folder of ``python -m hypa.train``: its best checkpoint and its configuration."""
+
+    folder: Path
+    checkpoint: Path
+    config: DictConfig
+    module: HybridModule
+
+    @property
+    def label(self) -> str:
+        """Table-1 style name: the model, with its network where it has one (``v1 lstm``)."""
+        model = self.module.model
+        has_ann = any(b.kind == "ann" for b in model.spec.blocks)
+        return f"{model.spec.name} {self.module.hparams.ann_name}" if has_ann else model.spec.name
+
+
+def find_checkpoint(folder: Path) -> Path:
+    """The best checkpoint of a run folder (``checkpoints/best-*.ckpt``, else ``last.ckpt``)."""
+    best = sorted((folder / "checkpoints").glob("best-*.ckpt"))
+    if best:
+        return best[-1]
+    last = folder / "checkpoints" / "last.ckpt"
+    if last.is_file():
+        return last
+    raise FileNotFoundError(f"no checkpoint in {folder / 'checkpoints'} (is {folder} a hypa.train run folder?)")
+
+
+def load_run(path: Path | str) -> TrainedRun:
+    """Load a run from its folder or from one of its checkpoints (CPU)."""
+    path = Path(path).expanduser().resolve()
+    if not path.exists():
+        raise FileNotFoundError(f"{path} does not exist: give a hypa.train run folder or a .ckpt file")
+    if path.is_file():
+        checkpoint, folder = path, path.parent.parent if path.parent.name == "checkpoints" else path.parent
+    else:
+        folder, checkpoint = path, find_checkpoint(path)
+    config_file = folder / ".hydra" / "config.yaml"
+    if not config_file.is_file():
+        raise FileNotFoundError(f"{config_file} is missing: {folder} is not a hypa.train run folder")
+    module = HybridModule.load_from_checkpoint(checkpoint, map_location="cpu")
+    module.eval()
+    return TrainedRun(folder=folder, checkpoint=checkpoint, config=OmegaConf.load(config_file), module=module)
+
+
+@dataclass
+class Prediction:
+    """Measured and predicted signals of one record (SI units, the record's 32 Hz time base).
+
+    ``predicted`` holds the model outputs; ``signals`` the model's internal physical signals
+    (e.g. an implicitly learned ``rear_wheel_angle``), each on its own sample range.
+    """
+
+    record: str
+    time: np.ndarray  # (T,)
+    measured: dict[str, np.ndarray]  # states and evaluation channels, (T,)
+    predicted: dict[str, np.ndarray]  # states, (T,), sample 0 = the measured initial state
+    inputs: dict[str, np.ndarray]
+    signals: dict[str, tuple[np.ndarray, int]] = field(default_factory=dict)  # values, first sample
+
+    def signal_on_grid(self, name: str) -> np.ndarray:
+        """An internal signal on the record's time base (NaN where the model has no value)."""
+        values, start = self.signals[name]
+        out = np.full_like(self.time, np.nan, dtype=float)
+        out[start : start + len(values)] = values[: len(out) - start]
+        return out
+
+
+@torch.no_grad()
+def free_run(module: HybridModule, dm: HypaDataModule, record: Record) -> Prediction:
+    """Simulate the whole record from its first measured state, never seeing measured states again."""
+    model, norm = module.model, dm.normalization
+    u = torch.as_tensor(norm.normalize(record.stack(dm.input_names), dm.input_names), dtype=torch.float32)
+    y = record.stack(dm.state_names)
+    x0 = torch.as_tensor(norm.normalize(y[:1], dm.state_names), dtype=torch.float32)
+    signals = model.signals(u[None], x0)
+    pred = model.outputs(signals)[0]
+    predicted = {n: np.concatenate([y[:1, i], model.to_physical(n, pred[:, i]).double().numpy()])
+                 for i, n in enumerate(dm.state_names)}
+    internal = {}
+    for name, (values, start) in signals.items():
+        if name not in dm.input_names and name not in model.spec.outputs:
+            internal[name] = (model.to_physical(name, values[0, :, 0]).double().numpy(), start)
+    measured = {n: record[n] for n in (*dm.state_names, *dm.eval_channels) if n in record}
+    return Prediction(record.name, record.time, measured, predicted,
+                      {n: record[n] for n in dm.input_names}, internal)
+
+
+@torch.no_grad()
+def windowed(module: HybridModule, dm: HypaDataModule, split: str) -> dict[str, np.ndarray]:
+    """All windows of a split: ``pred`` and ``target`` (W, N, p) in SI, ``record`` and ``start``
+    (W,) to locate each window, and ``rear_wheel_angle`` (W, N+1) learned, where the model has one."""
+    model, out = module.model, {"pred": [], "target": [], "record": [], "start": [], "rear": []}
+    loader = dm.val_dataloader() if split == "val" else dm.test_dataloader()
+    for batch in loader:
+        u, y = batch["u"], batch["y"]
+        signals = model.signals(u, y[:, 0])
+        pred = model.outputs(signals)
+        out["pred"].append(torch.stack([model.to_physical(n, pred[..., i]) for i, n in enumerate(dm.state_names)], -1))
+        out["target"].append(torch.stack([model.to_physical(n, y[:, 1:, i]) for i, n in enumerate(dm.state_names)], -1))
+        out["record"].append(batch["record"])
+        out["start"].append(batch["start"])
+        if "rear_wheel_angle" in signals and signals["rear_wheel_angle"][1] == 0:
+            out["rear"].append(model.to_physical("rear_wheel_angle", signals["rear_wheel_angle"][0][..., 0]))
+    result = {k: torch.cat(v).double().numpy() for k, v in out.items() if v}
+    return result

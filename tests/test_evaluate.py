@@ -1,0 +1,84 @@
+"""Evaluation of trained runs: free run against the physics, the CLI, and make reproduce (tiny)."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import SHORT_OVERRIDES
+from test_train import run_train
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ["trainer.max_epochs=1", "trainer.limit_train_batches=3", "trainer.limit_val_batches=2",
+        "trainer.enable_progress_bar=false", "figures.enabled=false", "ann.hidden_size=8"]
+# a validation record with the maneuvers, so the out-of-distribution split is exercised
+WITH_MANEUVERS = ["testbench.records.val.maneuvers=[lane_change,step_steer]"]
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory, hypa_cache) -> dict[str, Path]:
+    runs = {}
+    for model in ("physical", "v1"):
+        folder = tmp_path_factory.mktemp(model)
+        overrides = [f"model={model}", "ann=lstm", *TINY, *WITH_MANEUVERS]
+        run_train(folder, overrides)
+        (folder / ".hydra").mkdir(exist_ok=True)  # what the command line's Hydra run would write
+        _write_config(folder, overrides)
+        runs[model] = folder
+    return runs
+
+
+def _write_config(folder: Path, overrides: list[str]) -> None:
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        cfg = compose(config_name="train", overrides=[*SHORT_OVERRIDES, *overrides])
+    OmegaConf.save(cfg, folder / ".hydra" / "config.yaml")
+
+
+def test_free_run_of_physical_model_equals_the_physics_recursion(trained, hypa_cache) -> None:
+    from hypa.evaluation.runs import free_run, load_run
+    from hypa.evaluate import run_datamodule
+    from hypa.physics import VehicleParameters
+    from hypa.simulate import simulate_vehicle
+
+    run = load_run(trained["physical"])
+    dm = run_datamodule(run)
+    record = dm.records("val")[0]
+    prediction = free_run(run.module, dm, record)
+    fitted = VehicleParameters(**run.module.model.parameters_.as_floats())
+    y = record.stack(("yaw_rate", "side_slip"))
+    expected = simulate_vehicle(fitted, record["steering_wheel_angle"][None], y[None, 0], dm.dt)[0]
+    for i, name in enumerate(("yaw_rate", "side_slip")):
+        scale = np.abs(expected[:, i]).max()
+        assert np.abs(prediction.predicted[name] - expected[:, i]).max() < 1e-4 * scale  # float32 model
+
+
+def test_evaluate_cli_writes_metrics_figures_and_report(trained, hypa_cache, tmp_path) -> None:
+    folder = trained["v1"]
+    env = {**os.environ, "HYPA_CACHE_DIR": str(hypa_cache)}
+    result = subprocess.run([sys.executable, "-m", "hypa.evaluate", f"run={folder}", f"out={tmp_path / 'ev'}",
+                             f"hydra.run.dir={tmp_path / 'hydra'}"], cwd=ROOT, env=env, capture_output=True,
+                            text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    metrics = json.loads((tmp_path / "ev" / "metrics.json").read_text())
+    val = metrics["splits"]["val"]
+    for mode in ("windowed", "free_run"):
+        assert {"all", "stochastic", "maneuvers", "lane_change", "step_steer"} <= set(val[mode])
+        assert set(val[mode]["all"]) == {"yaw_rate", "side_slip", "overall"}
+        assert set(val[mode]["all"]["overall"]) == {"mae", "mse", "mape", "r2"}
+    assert -1.0 <= val["rear_wheel_angle"]["corr"] <= 1.0
+    for name in ("metrics.csv", "summary.md", "yaw_transfer.png", "free_run.png", "rear_wheel_angle.png"):
+        assert (tmp_path / "ev" / name).stat().st_size > 100
+    assert "report:" in result.stdout
+
+
+def test_evaluate_cli_explains_a_wrong_path(tmp_path) -> None:
+    result = subprocess.run([sys.executable, "-m", "hypa.evaluate", f"run={tmp_path / 'nope'}",
+                             f"hydra.run.dir={tmp_path / 'hydra'}"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert result.returncode != 0 and "does not exist" in result.stderr
