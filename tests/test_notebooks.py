@@ -1,0 +1,39 @@
+"""The notebooks run top to bottom on tiny results."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import nbformat
+from nbclient import NotebookClient
+
+from conftest import SHORT_OVERRIDES
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_reproduce_notebook_runs_on_a_tiny_reproduction(tmp_path: Path, hypa_cache: Path) -> None:
+    tiny = ["trainer.max_epochs=1", "trainer.limit_train_batches=2", "trainer.limit_val_batches=2",
+            "ann.hidden_size=8", *SHORT_OVERRIDES]
+    env = {**os.environ, "HYPA_CACHE_DIR": str(hypa_cache)}
+    result = subprocess.run(
+        [sys.executable, "-m", "hypa.reproduce", "rows=[physical,v1_lstm]", "seeds=[0]", f"out={tmp_path / 'results'}",
+         f"hydra.run.dir={tmp_path / 'hydra'}", "n_jobs=1", "train_overrides=[" + ",".join(f"'{o}'" for o in tiny) + "]"],
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "wall time" in result.stdout
+    for name in ("table1.md", "table1.csv", "yaw_transfer.png", "rear_steer.png", "REPORT.md"):
+        assert (tmp_path / "results" / name).is_file(), name
+    assert "V1 LSTM" in (tmp_path / "results" / "table1.md").read_text()
+
+    notebook = nbformat.read(ROOT / "notebooks" / "01_reproduce_paper.ipynb", as_version=4)
+    os.environ["HYPA_RESULTS"] = str(tmp_path / "results")
+    try:
+        NotebookClient(notebook, timeout=120, kernel_name="python3",
+                       resources={"metadata": {"path": str(ROOT / "notebooks")}}).execute()
+    finally:
+        del os.environ["HYPA_RESULTS"]
+    outputs = [o for cell in notebook.cells if cell.cell_type == "code" for o in cell.get("outputs", [])]
+    assert not [o for o in outputs if o.get("output_type") == "error"]
+    assert any("image/png" in o.get("data", {}) for o in outputs)
