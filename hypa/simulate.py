@@ -75,9 +75,10 @@ def fit_metrics(measured: np.ndarray, simulated: np.ndarray) -> dict[str, float]
 def _windowed(dm, vehicle: VehicleParameters, hold: str, rear: str) -> dict[str, dict[str, float]]:
     """Metrics over all validation windows (N steps from each measured initial state)."""
     norm, measured, simulated = dm.normalization, [], []
+    swa, states = dm.input_names.index("steering_wheel_angle"), [dm.state_names.index(s) for s in STATES]
     for batch in dm.val_dataloader():
-        u = norm.denormalize(batch["u"].double(), dm.input_names).numpy()[..., 0]
-        y = norm.denormalize(batch["y"].double(), dm.state_names).numpy()
+        u = norm.denormalize(batch["u"].double(), dm.input_names).numpy()[..., swa]
+        y = norm.denormalize(batch["y"].double(), dm.state_names).numpy()[..., states]
         simulated.append(simulate_vehicle(vehicle, u, y[:, 0], dm.dt, hold, rear)[:, 1:])
         measured.append(y[:, 1:])
     measured, simulated = np.concatenate(measured), np.concatenate(simulated)

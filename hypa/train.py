@@ -12,6 +12,7 @@ where; returns the best validation loss (for Hydra sweepers).
 
 from __future__ import annotations
 
+import json
 import logging
 from pathlib import Path
 from typing import Any
@@ -38,15 +39,30 @@ OmegaConf.register_new_resolver("run_name", run_name, replace=True)
 
 def train(cfg: DictConfig) -> dict[str, Any]:
     """Fit the configured model; returns the best validation loss and the output paths."""
-    from hypa.entry import datamodule, vehicle_from_config
+    from hypa.data import datamodule_from_config
+    from hypa.entry import data_dir_from_config, vehicle_from_config
     from hypa.models import parse_model_spec
     from hypa.training import HybridModule, StagedTraining, ValidationFigures
 
     L.seed_everything(int(cfg.seed), workers=True)
     torch.set_num_threads(int(cfg.torch_threads))
-    out = Path(HydraConfig.get().runtime.output_dir)
-    dm = datamodule(cfg)
+    out, ckpt_path = Path(HydraConfig.get().runtime.output_dir), None
+    if cfg.ckpt_path:
+        from hydra.utils import get_original_cwd
+
+        ckpt_path = Path(str(cfg.ckpt_path)).expanduser()
+        ckpt_path = ckpt_path if ckpt_path.is_absolute() else Path(get_original_cwd()) / ckpt_path
+        if not ckpt_path.is_file():
+            raise FileNotFoundError(f"ckpt_path={ckpt_path} does not exist")
+        if ckpt_path.parent.name == "checkpoints":  # resume in the interrupted run's own folder
+            out = ckpt_path.parent.parent
+            log.info("resuming %s in %s", ckpt_path.name, out)
+    data_dir = data_dir_from_config(cfg)
+    dm = datamodule_from_config(cfg.data, data_dir)
     dm.setup()
+    # where the data were, resolved, so hypa.evaluate finds them from any working directory
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "run.json").write_text(json.dumps({"data_dir": str(data_dir.resolve())}, indent=2))
     model_config = OmegaConf.to_container(cfg.model, resolve=True)
     ann = OmegaConf.to_container(cfg.ann, resolve=True)
     module = HybridModule(
@@ -78,7 +94,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     trainer_args["max_epochs"] = epochs * max(len(stages), 1)
     trainer = L.Trainer(**trainer_args, callbacks=callbacks, logger=logger, default_root_dir=str(out))
     log.info("model %s:\n%s", model_config["name"], module.model)
-    trainer.fit(module, datamodule=dm, ckpt_path=cfg.ckpt_path)
+    trainer.fit(module, datamodule=dm, ckpt_path=ckpt_path)
 
     best = checkpoint.best_model_score
     result = {"best_val_loss": float(best) if best is not None else float("nan"),

@@ -87,8 +87,8 @@ def test_stages_freeze_and_bypass() -> None:
 
 def test_physical_model_fits_named_parameters_only() -> None:
     model = build(load("physical"))
-    assert set(model.trainable_physics) == {"cf", "cr", "izz"}
-    assert set(model.parameters_.trainable_names) == {"cf", "cr", "izz"}
+    assert set(model.trainable_physics) == {"cf", "cr", "izz", "rws_ratio"}
+    assert set(model.parameters_.trainable_names) == {"cf", "cr", "izz", "rws_ratio"}
 
 
 def test_measured_states_never_enter_as_sequences() -> None:

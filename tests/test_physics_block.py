@@ -201,3 +201,18 @@ def test_frozen_values_carry_no_graph() -> None:
     assert values["cf"].requires_grad and not values["mass"].requires_grad
     assert values["rws_ratio"].item() == pytest.approx(VP.rws_ratio)
     assert values["mass"].item() == pytest.approx(VP.mass)
+
+
+def test_signed_parameters_step_relative_to_their_nominal_size() -> None:
+    """rws_ratio (signed, ~0.1) is stored divided by |nominal|: an optimizer step of 0.01 on the
+    raw value moves it by 1 %, as for the log-stored positive parameters."""
+    params = vehicle_parameters(dataclasses.replace(VP, rws_ratio=0.1), trainable=["rws_ratio", "cf"])
+    with torch.no_grad():
+        params.raw["rws_ratio"].add_(0.01)
+        params.raw["cf"].add_(0.01)
+    values = params.as_floats()
+    assert values["rws_ratio"] == pytest.approx(0.101, rel=1e-12)
+    assert values["cf"] == pytest.approx(VP.cf * np.exp(0.01), rel=1e-12)
+    params.set_values({"rws_ratio": -0.05})
+    assert params.value("rws_ratio").item() == pytest.approx(-0.05)
+    assert params.values(("rws_ratio", "cf"))["rws_ratio"].item() == pytest.approx(-0.05)

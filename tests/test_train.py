@@ -137,3 +137,16 @@ def test_misspelled_model_lists_what_exists(tmp_path: Path) -> None:
                             cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert result.returncode != 0
     assert "v4" in result.stderr and all(name in result.stderr for name in ("v1", "v2", "v3", "physical", "blackbox"))
+
+
+def test_staged_training_checkpoints_the_stage_best_weights() -> None:
+    """Resumed in stage 1, the switch to stage 2 must still start from stage 1's best weights."""
+    from hypa.models import StageSpec
+    from hypa.training import StagedTraining
+
+    stages = [StageSpec("a", ("rear_steering",), ("correction",)), StageSpec("b", ("correction",))]
+    saved = StagedTraining(stages, max_epochs=5)
+    saved._best, saved._best_weights = 0.5, {"w": torch.ones(3)}
+    restored = StagedTraining(stages, max_epochs=5)
+    restored.load_state_dict(saved.state_dict())
+    assert restored._best == 0.5 and torch.equal(restored._best_weights["w"], torch.ones(3))

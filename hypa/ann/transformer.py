@@ -116,7 +116,7 @@ class TransformerBlock(SequenceBlock):
         n_layers: int = 2,
         dim_feedforward: int = 64,
         dropout: float = 0.0,
-        context: int = 100,
+        context: int = 101,
         zero_init: bool = False,
     ) -> None:
         super().__init__(d_in, d_out, zero_init=zero_init)

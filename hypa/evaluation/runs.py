@@ -7,6 +7,7 @@ from the record's first measured state and never sees a measured state again).
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,6 +27,7 @@ class TrainedRun:
     checkpoint: Path
     config: DictConfig
     module: HybridModule
+    data_dir: Path | None = None  # the resolved data folder the run was trained on (run.json)
 
     @property
     def label(self) -> str:
@@ -60,7 +62,10 @@ def load_run(path: Path | str) -> TrainedRun:
         raise FileNotFoundError(f"{config_file} is missing: {folder} is not a hypa.train run folder")
     module = HybridModule.load_from_checkpoint(checkpoint, map_location="cpu")
     module.eval()
-    return TrainedRun(folder=folder, checkpoint=checkpoint, config=OmegaConf.load(config_file), module=module)
+    info = folder / "run.json"
+    data_dir = Path(json.loads(info.read_text())["data_dir"]) if info.is_file() else None
+    return TrainedRun(folder=folder, checkpoint=checkpoint, config=OmegaConf.load(config_file), module=module,
+                      data_dir=data_dir)
 
 
 @dataclass
@@ -109,8 +114,8 @@ def free_run(module: HybridModule, dm: HypaDataModule, record: Record) -> Predic
 @torch.no_grad()
 def windowed(module: HybridModule, dm: HypaDataModule, split: str) -> dict[str, np.ndarray]:
     """All windows of a split: ``pred`` and ``target`` (W, N, p) in SI, ``record`` and ``start``
-    (W,) to locate each window, and ``rear_wheel_angle`` (W, N+1) learned, where the model has one."""
-    model, out = module.model, {"pred": [], "target": [], "record": [], "start": [], "rear": []}
+    (W,) to locate each window."""
+    model, out = module.model, {"pred": [], "target": [], "record": [], "start": []}
     loader = dm.val_dataloader() if split == "val" else dm.test_dataloader()
     for batch in loader:
         u, y = batch["u"], batch["y"]
@@ -120,7 +125,4 @@ def windowed(module: HybridModule, dm: HypaDataModule, split: str) -> dict[str, 
         out["target"].append(torch.stack([model.to_physical(n, y[:, 1:, i]) for i, n in enumerate(dm.state_names)], -1))
         out["record"].append(batch["record"])
         out["start"].append(batch["start"])
-        if "rear_wheel_angle" in signals and signals["rear_wheel_angle"][1] == 0:
-            out["rear"].append(model.to_physical("rear_wheel_angle", signals["rear_wheel_angle"][0][..., 0]))
-    result = {k: torch.cat(v).double().numpy() for k, v in out.items() if v}
-    return result
+    return {k: torch.cat(v).double().numpy() for k, v in out.items()}

@@ -17,6 +17,8 @@ class ParameterSpec:
     ``positive`` parameters (mass, stiffness, inertia, ...) are stored as their logarithm, so
     an optimizer can never push them through zero and a step is relative to the value's scale
     (a cornering stiffness of 1.5e5 N/rad and a length of 1.4 m learn at the same pace).
+    Signed parameters (a rear/front steering ratio) are stored divided by the magnitude of
+    their nominal value, so an optimizer step is relative for them too.
     """
 
     name: str
@@ -43,12 +45,14 @@ class PhysicalParameters(nn.Module):
         super().__init__()
         self.specs: dict[str, ParameterSpec] = {}
         self.raw = nn.ParameterDict()
-        self._positive: dict[tuple, Tensor | None] = {}  # masks of positive parameters, by names and device
+        self._scale: dict[str, float] = {}  # signed parameters: raw = value / |nominal value|
+        self._positive: dict[tuple, tuple[Tensor, Tensor] | None] = {}  # (positive mask, signed scale) by names, device
         for spec in specs:
             if spec.name in self.specs:
                 raise ValueError(f"parameter {spec.name!r} given twice")
             self.specs[spec.name] = spec
-            raw = math.log(spec.value) if spec.positive else spec.value
+            self._scale[spec.name] = 1.0 if spec.positive else (abs(spec.value) or 1.0)
+            raw = math.log(spec.value) if spec.positive else spec.value / self._scale[spec.name]
             self.raw[spec.name] = nn.Parameter(
                 torch.tensor(raw, dtype=dtype), requires_grad=spec.trainable
             )
@@ -62,7 +66,7 @@ class PhysicalParameters(nn.Module):
         if name not in self.specs:
             raise KeyError(f"unknown parameter {name!r}; known: {', '.join(self.specs)}")
         raw = self.raw[name]
-        return raw.exp() if self.specs[name].positive else raw
+        return raw.exp() if self.specs[name].positive else raw * self._scale[name]
 
     def params(self) -> dict[str, Tensor]:
         """All physical values by name."""
@@ -90,9 +94,10 @@ class PhysicalParameters(nn.Module):
         key = (names, raw.device)
         if key not in self._positive:  # the specs never change: build each mask once (None: all positive)
             mask = [self.specs[n].positive for n in names]
-            self._positive[key] = None if all(mask) else torch.tensor(mask, device=raw.device)
-        positive = self._positive[key]
-        physical = raw.exp() if positive is None else torch.where(positive, raw.exp(), raw)
+            scale = torch.tensor([self._scale[n] for n in names], dtype=raw.dtype, device=raw.device)
+            self._positive[key] = None if all(mask) else (torch.tensor(mask, device=raw.device), scale)
+        signed = self._positive[key]
+        physical = raw.exp() if signed is None else torch.where(signed[0], raw.exp(), raw * signed[1])
         return dict(zip(names, (physical if dtype is None else physical.to(dtype)).unbind()))
 
     def as_floats(self) -> dict[str, float]:
@@ -118,7 +123,7 @@ class PhysicalParameters(nn.Module):
                 raise KeyError(f"unknown parameter {name!r}; known: {', '.join(self.specs)}")
             if spec.positive and not value > 0:
                 raise ValueError(f"parameter {name!r} must be positive, got {value}")
-            self.raw[name].fill_(math.log(value) if spec.positive else value)
+            self.raw[name].fill_(math.log(value) if spec.positive else value / self._scale[name])
 
     def extra_repr(self) -> str:
         parts = []

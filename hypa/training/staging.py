@@ -73,6 +73,8 @@ class StagedTraining(Callback):
         for callback in trainer.callbacks:
             if isinstance(callback, EarlyStopping):
                 callback.wait_count, callback.stopped_epoch = 0, 0
+                if hasattr(callback, "stopping_reason_message"):
+                    callback.stopping_reason_message = None
                 callback.best_score = torch.tensor(math.inf if callback.mode == "min" else -math.inf)
         self.apply(module)
         message = (f"stage {finished!r} done after epoch {trainer.current_epoch}: switching to stage "
@@ -84,9 +86,12 @@ class StagedTraining(Callback):
                 experiment.add_text("stages", message, trainer.global_step)
 
     def state_dict(self) -> dict[str, Any]:
-        return {"stage": self.stage, "stage_start_epoch": self.stage_start_epoch, "best": self._best}
+        # the stage's best weights too: a run resumed in stage 1 must still start stage 2 from them
+        return {"stage": self.stage, "stage_start_epoch": self.stage_start_epoch, "best": self._best,
+                "best_weights": self._best_weights}
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         self.stage = int(state_dict["stage"])
         self.stage_start_epoch = int(state_dict["stage_start_epoch"])
         self._best = float(state_dict.get("best", math.inf))
+        self._best_weights = state_dict.get("best_weights")
