@@ -45,8 +45,10 @@ class _Fitted:
     cause = ""
     n_params = 0
 
-    def __init__(self, base: ModelSpec, dt: float, weights: np.ndarray) -> None:
+    def __init__(self, base: ModelSpec, dt: float, weights: np.ndarray, only: str | None = None) -> None:
+        """``only``: restrict a multi-choice candidate (parameter, offset channel) to one choice."""
         self.base, self.dt, self.weights = base, float(dt), np.asarray(weights, dtype=float)
+        self.only = only
         self.spec: ModelSpec | None = None
         self.estimate: dict = {}
         self._records: Sequence[Record] = ()
@@ -75,15 +77,17 @@ class _Fitted:
                 values = np.linspace(values[max(i - 1, 0)], values[min(i + 1, len(values) - 1)], points)
         return best, best_error
 
-    def linear_solve(self, make: Callable[[float], ModelSpec], step: float) -> float:
-        """θ minimizing J where ŷ(θ) ≈ ŷ(0) + θ S, S = (ŷ(h) - ŷ(0)) / h (weighted least squares)."""
-        num = den = 0.0
+    def linear_solve(self, makes: Sequence[Callable[[float], ModelSpec]], steps: Sequence[float]) -> list[float]:
+        """Per make: θ minimizing J where ŷ(θ) ≈ ŷ(0) + θ S, S = (ŷ(h) - ŷ(0)) / h (weighted least
+        squares); all 2 x len(makes) simulations in one batch."""
+        n = len(makes)
+        num, den = np.zeros(n), np.zeros(n)
         for record in self._records:
-            y0, yh = self.simulate([make(0.0), make(step)], record)
-            sensitivity = (yh - y0) / step
-            num += float(np.sum(sensitivity * (record.stack(STATES) - y0) * self.weights))
-            den += float(np.sum(sensitivity**2 * self.weights))
-        return num / den if den > 0 else 0.0
+            sims = self.simulate([m(0.0) for m in makes] + [m(h) for m, h in zip(makes, steps)], record)
+            sensitivity = (sims[n:] - sims[:n]) / np.asarray(steps)[:, None, None]  # (n, L, 2)
+            num += np.einsum("kld,kld,d->k", sensitivity, record.stack(STATES)[None] - sims[:n], self.weights)
+            den += np.einsum("kld,d->k", sensitivity**2, self.weights)
+        return [float(a / b) if b > 0 else 0.0 for a, b in zip(num, den)]
 
     def fit(self, train_records: Sequence[Record]) -> dict:
         self._records = list(train_records)
@@ -92,6 +96,10 @@ class _Fitted:
 
     def _fit(self) -> tuple[ModelSpec, dict]:
         raise NotImplementedError
+
+    def choice(self) -> str | None:
+        """Which of its options a multi-choice candidate took (to refit just that one later)."""
+        return None
 
     def predict(self, record: Record) -> np.ndarray:
         if self.spec is None:
@@ -122,17 +130,19 @@ class ParameterMismatch(_Fitted):
     def _fit(self):
         nominal = self.base.vehicle.as_dict()
         factors = np.geomspace(0.4, 2.5, 15)
-        coarse = [(n, f) for n in PARAMETERS for f in factors]
+        coarse = [(n, f) for n in ([self.only] if self.only else PARAMETERS) for f in factors]
         errors = self.errors([self.base.with_vehicle(**{n: nominal[n] * f}) for n, f in coarse])
         name = coarse[int(np.argmin(errors))][0]
         factor, _ = self.grid_search(lambda f: self.base.with_vehicle(**{name: nominal[name] * f}), factors)
         value = nominal[name] * factor
-        return self.base.with_vehicle(**{name: value}), {"parameter": name, "value": float(value),
-                                                          "nominal": float(nominal[name])}
+        return self.base.with_vehicle(**{name: value}), {"parameter": name, "value": float(value)}
+
+    def choice(self) -> str:
+        return self.estimate["parameter"]
 
     def summary(self) -> str:
         e = self.estimate
-        return f"{e['parameter']} = {e['value']:.4g} {_UNITS[e['parameter']]} instead of {e['nominal']:.4g}"
+        return f"{e['parameter']} = {e['value']:.4g} {_UNITS[e['parameter']]}"
 
 
 class InputDelay(_Fitted):
@@ -183,14 +193,16 @@ class SensorOffset(_Fitted):
     _STEPS = {"steering_wheel_angle": 0.01, "yaw_rate": 0.01, "side_slip": 0.005}  # sensitivity steps
 
     def _fit(self):
-        specs = []
-        for channel in OFFSET_CHANNELS:
-            start = self.base.offsets[OFFSET_CHANNELS.index(channel)]
-            make = lambda b, c=channel, s=start: self.base.with_offset(c, s + b)  # noqa: E731
-            specs.append(make(self.linear_solve(make, self._STEPS[channel])))
-        best = int(np.argmin(self.errors(specs)))
-        channel = OFFSET_CHANNELS[best]
-        return specs[best], {"channel": channel, "offset": float(specs[best].offsets[best])}
+        channels = [self.only] if self.only else list(OFFSET_CHANNELS)
+        makes = [lambda b, c=c: self.base.with_offset(c, self.base.offsets[OFFSET_CHANNELS.index(c)] + b)
+                 for c in channels]
+        specs = [m(b) for m, b in zip(makes, self.linear_solve(makes, [self._STEPS[c] for c in channels]))]
+        best = int(np.argmin(self.errors(specs))) if len(specs) > 1 else 0
+        channel = channels[best]
+        return specs[best], {"channel": channel, "offset": float(specs[best].offsets[OFFSET_CHANNELS.index(channel)])}
+
+    def choice(self) -> str:
+        return self.estimate["channel"]
 
     def summary(self) -> str:
         e = self.estimate
@@ -209,7 +221,7 @@ class UnmodeledInput(_Fitted):
         taus = np.array([0.0, 0.02, 0.05, 0.08, 0.12, 0.18, 0.25, 0.35])
         for _ in range(2):
             makes = [lambda k, t=t: self.base.replace(rear_ratio=k, rear_tau_s=t) for t in taus]
-            specs = [make(self.linear_solve(make, 0.1)) for make in makes]
+            specs = [make(k) for make, k in zip(makes, self.linear_solve(makes, [0.1] * len(makes)))]
             i = int(np.argmin(self.errors(specs)))
             best = specs[i]
             taus = np.linspace(taus[max(i - 1, 0)], taus[min(i + 1, len(taus) - 1)], 5)
@@ -222,9 +234,5 @@ class UnmodeledInput(_Fitted):
                 "acting through the rear-wheel-angle column of B")
 
 
-def catalogue(base: ModelSpec, dt: float, weights: np.ndarray) -> list[_Fitted]:
-    """One fresh candidate per catalogue cause on top of ``base`` (no discretization if already FOH)."""
-    kinds = [ParameterMismatch, UnmodeledInput, InputDelay, UnmodeledLag, Saturation, SensorOffset]
-    if base.hold == "zoh":
-        kinds.append(Discretization)
-    return [kind(base, dt, weights) for kind in kinds]
+CATALOGUE: dict[str, type[_Fitted]] = {kind.cause: kind for kind in (
+    ParameterMismatch, UnmodeledInput, InputDelay, UnmodeledLag, Saturation, SensorOffset, Discretization)}

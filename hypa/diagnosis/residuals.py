@@ -17,8 +17,8 @@ first measured state; the residual is e = ŷ - y per state (yaw_rate [rad/s], si
   peak, not a single crossing. A peak of ρ_ue at a positive lag means the residual follows
   the input: missing input dynamics (delay, lag, a second actuator);
 * **transfer function** δsw -> yaw rate: the H1 estimate from the measured data against the
-  nominal model's analytic response, with the gain ratio and phase difference averaged over
-  the coherent band (γ² ≥ 0.8).
+  nominal model's analytic response, with the median gain ratio and phase difference over the
+  coherent band (γ² ≥ 0.8; Welch segments of ≤ 16 s, at least 8 per record set).
 """
 
 from __future__ import annotations
@@ -69,8 +69,8 @@ class ResidualAnalysis:
     cross_correlation: dict[str, Correlation]  # steering_wheel_angle vs each state's residual
     measured: TransferEstimate  # H1 δsw -> yaw rate [1/s]
     model: TransferEstimate  # analytic nominal response at the same frequencies
-    gain_ratio: float  # mean |H_measured| / |H_model| over the coherent band [-]
-    phase_difference_deg: float  # mean arg H_measured - arg H_model over the coherent band [deg]
+    gain_ratio: float  # median |H_measured| / |H_model| over the coherent band [-]
+    phase_difference_deg: float  # median arg H_measured - arg H_model over the coherent band [deg]
 
 
 def correlation(x: np.ndarray, y: np.ndarray, lags: np.ndarray) -> np.ndarray:
@@ -123,9 +123,10 @@ def analyze_residuals(records: Sequence[Record], vehicle: VehicleParameters, dt:
     auto_lags, cross_lags = np.arange(1, max_lag + 1), np.arange(-max_lag, max_lag + 1)
     auto = {s: Correlation(auto_lags, correlation(error[:, i], error[:, i], auto_lags), bound) for i, s in enumerate(STATES)}
     cross = {s: Correlation(cross_lags, correlation(u, error[:, i], cross_lags), bound) for i, s in enumerate(STATES)}
-    h1 = h1_estimate(u, y[:, 0], 1.0 / dt)
+    # ≥ ~15 Welch averages: with a handful, γ² is biased high and a bin without input power can look coherent
+    h1 = h1_estimate(u, y[:, 0], 1.0 / dt, segment_s=min(16.0, u.size * dt / 8))
     model = TransferEstimate.analytic(h1.frequency_hz, model_yaw_response(vehicle, h1.frequency_hz, rear_steering))
     good = h1.coherence >= COHERENT
-    ratio = float(np.mean(h1.magnitude[good] / model.magnitude[good])) if good.any() else float("nan")
-    phase = float(np.degrees(np.mean(np.angle(h1.response[good] / model.response[good])))) if good.any() else float("nan")
+    ratio = float(np.median(h1.magnitude[good] / model.magnitude[good])) if good.any() else float("nan")
+    phase = float(np.degrees(np.median(np.angle(h1.response[good] / model.response[good])))) if good.any() else float("nan")
     return ResidualAnalysis(channels, edges, ay_rmse, counts, auto, cross, h1, model, ratio, phase)
