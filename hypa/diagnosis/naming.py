@@ -106,7 +106,8 @@ def _refit_adopted(current: ModelSpec, adopted: list[dict], train_records: Seque
 
 
 def _row(cause: str, summary: str, e_cur: float, e_c: float, e0: float, gain: float, p: float) -> dict:
-    return {"cause": cause, "score": (e_cur - e_c) / e0, "estimate": {}, "evidence": summary + _tail(e_cur, e_c, e0, gain, p)}
+    return {"cause": cause, "score": (e_cur - e_c) / e0, "estimate": {},
+            "evidence": summary + _tail(e_cur, e_c, e0, gain, p)}
 
 
 def _tail(e_cur: float, e_c: float, e0: float, gain: float, p: float) -> str:
@@ -132,7 +133,8 @@ def name_causes(train_records: Sequence[Record], val_records: Sequence[Record], 
     def held_out(spec: ModelSpec, n_params: int) -> tuple[list[np.ndarray], float, float, float]:
         after = sample_losses(spec, val_records, dt, weights)
         e_c = float(sum(loss.sum() for loss in after))
-        return after, e_c, (e_cur - e_c) / e_cur - PENALTY_PER_PARAMETER * n_params, improvement_p(losses, after, block)
+        gain = (e_cur - e_c) / e_cur - PENALTY_PER_PARAMETER * n_params
+        return after, e_c, gain, improvement_p(losses, after, block)
 
     def describe(candidate) -> str:
         text = candidate.summary()
@@ -145,12 +147,19 @@ def name_causes(train_records: Sequence[Record], val_records: Sequence[Record], 
     for _ in range(MAX_CAUSES):
         tested = []
         for cause, kind in CATALOGUE.items():
-            if any(a["row"]["cause"] == cause for a in adopted) or (cause == "discretization" and current.hold == "foh"):
+            done = any(a["row"]["cause"] == cause for a in adopted)
+            if done or (cause == "discretization" and current.hold == "foh"):
                 continue
             candidate = kind(current, dt, weights)
             candidate.fit(train_records)
+            if cause == "discretization" and adopted:
+                # The hold shifts the input by dt/2, which an adopted dead time or lag has absorbed
+                # (a ZOH model fits a delay dt/2 short): the hold is only judged with them refitted.
+                trial = [{**a, "row": dict(a["row"])} for a in adopted]
+                candidate.spec = _refit_adopted(candidate.spec, trial, train_records, dt, weights, rounds=1)
             after, e_c, gain, p = held_out(candidate.spec, candidate.n_params)
-            rows[cause] = {**_row(cause, describe(candidate), e_cur, e_c, e0, gain, p), "estimate": candidate.estimate}
+            rows[cause] = {**_row(cause, describe(candidate), e_cur, e_c, e0, gain, p),
+                           "estimate": candidate.estimate}
             tested.append((gain, candidate, after, e_c, p))
         if not tested:
             break

@@ -82,7 +82,8 @@ def correlation(x: np.ndarray, y: np.ndarray, lags: np.ndarray) -> np.ndarray:
     return np.array([np.dot(x[:n - t], y[t:]) if t >= 0 else np.dot(x[-t:], y[:n + t]) for t in lags]) / scale
 
 
-def model_yaw_response(vehicle: VehicleParameters, frequency_hz: np.ndarray, rear_steering: str = "none") -> np.ndarray:
+def model_yaw_response(vehicle: VehicleParameters, frequency_hz: np.ndarray,
+                       rear_steering: str = "none") -> np.ndarray:
     """Continuous nominal response δsw -> yaw rate [1/s]: δf = δsw / i_s (+ δr = rws_ratio δf)."""
     a, b = continuous_matrices(vehicle)
     rear = vehicle.rws_ratio if rear_steering == "fixed" else 0.0
@@ -121,12 +122,13 @@ def analyze_residuals(records: Sequence[Record], vehicle: VehicleParameters, dt:
                    for i, s in enumerate(STATES)}
     bound = CONFIDENCE_Z / np.sqrt(error.shape[0])
     auto_lags, cross_lags = np.arange(1, max_lag + 1), np.arange(-max_lag, max_lag + 1)
-    auto = {s: Correlation(auto_lags, correlation(error[:, i], error[:, i], auto_lags), bound) for i, s in enumerate(STATES)}
+    auto = {s: Correlation(auto_lags, correlation(error[:, i], error[:, i], auto_lags), bound)
+            for i, s in enumerate(STATES)}
     cross = {s: Correlation(cross_lags, correlation(u, error[:, i], cross_lags), bound) for i, s in enumerate(STATES)}
     # ≥ ~15 Welch averages: with a handful, γ² is biased high and a bin without input power can look coherent
     h1 = h1_estimate(u, y[:, 0], 1.0 / dt, segment_s=min(16.0, u.size * dt / 8))
     model = TransferEstimate.analytic(h1.frequency_hz, model_yaw_response(vehicle, h1.frequency_hz, rear_steering))
     good = h1.coherence >= COHERENT
-    ratio = float(np.median(h1.magnitude[good] / model.magnitude[good])) if good.any() else float("nan")
-    phase = float(np.degrees(np.median(np.angle(h1.response[good] / model.response[good])))) if good.any() else float("nan")
+    relative = h1.response[good] / model.response[good] if good.any() else np.array([np.nan])
+    ratio, phase = float(np.median(np.abs(relative))), float(np.degrees(np.median(np.angle(relative))))
     return ResidualAnalysis(channels, edges, ay_rmse, counts, auto, cross, h1, model, ratio, phase)
