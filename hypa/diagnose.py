@@ -1,0 +1,215 @@
+"""Diagnose what the nominal physics gets wrong, name the cause, fix it and measure the gain.
+
+    python -m hypa.diagnose                                          # default test-bench data
+    python -m hypa.diagnose testbench.rear_steering.enabled=false    # hide / reveal effects
+    python -m hypa.diagnose data=files data.dir=PATH vehicle.cf=140000
+
+Writes into the Hydra run folder ``diagnosis.md`` (the report), ``diagnosis.json`` (the
+numbers) and the figures. Steps: (1) residuals of the nominal free run (error per channel,
+against |a_y|, correlations, transfer function), (2) the named causes with estimates
+(:func:`hypa.diagnosis.name_causes`), (3) the nominal model with the named causes applied and
+its gain on the validation records.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import hydra
+import numpy as np
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig
+
+from hypa.data import DataError, Record
+from hypa.physics import LTIBlock, SingleTrack, UnstablePhysicsError, VehicleParameters, vehicle_parameters
+
+log = logging.getLogger(__name__)
+
+COHERENT = 0.8  # γ² above which a transfer-function bin enters the summary (as in step 1)
+
+
+def check_nominal(vehicle: VehicleParameters, dt: float, hold: str, rear_steering: str) -> None:
+    """Raise ``UnstablePhysicsError`` (naming the parameters) if the nominal single track is unstable."""
+    track = LTIBlock(SingleTrack(rear_steering=rear_steering == "fixed"), vehicle_parameters(vehicle), dt, 100,
+                     hold=hold)
+    try:
+        track.check_stable()
+    except UnstablePhysicsError as error:
+        from hypa.diagnosis.model import continuous_matrices
+
+        eigenvalues = ", ".join(f"{e:.4g}" for e in np.linalg.eigvals(continuous_matrices(vehicle)[0]))
+        nominal = ", ".join(f"{k}={v:g}" for k, v in vehicle.as_dict().items())
+        raise UnstablePhysicsError(
+            f"the nominal single track is unstable with vehicle parameters {nominal} (eigenvalues of A: "
+            f"{eigenvalues} 1/s), nothing to diagnose. Check vehicle.cf, vehicle.cr, vehicle.lf, vehicle.lr "
+            "(an axle balance cf*lf vs cr*lr that oversteers beyond its critical speed) and vehicle.velocity."
+        ) from None
+
+
+def transfer_mismatch(measured, model) -> dict[str, float]:
+    """Median |H_measured / H_model| and arg of it [deg] over the bins with measured γ² ≥ 0.8."""
+    good = measured.coherence >= COHERENT
+    if not good.any():
+        return {"gain_ratio": float("nan"), "phase_difference_deg": float("nan")}
+    relative = measured.response[good] / model.response[good]
+    return {"gain_ratio": float(np.median(np.abs(relative))),
+            "phase_difference_deg": float(np.degrees(np.median(np.angle(relative))))}
+
+
+def _spec_dict(spec) -> dict:
+    out = dataclasses.asdict(spec)
+    out["vehicle"] = spec.vehicle.as_dict()
+    out["mu"] = None if math.isinf(spec.mu) else spec.mu  # JSON has no infinity: null = linear axles
+    return out
+
+
+def diagnose(train: Sequence[Record], val: Sequence[Record], vehicle: VehicleParameters, dt: float, out: Path,
+             hold: str = "foh", rear_steering: str = "none", high_ay: float = 4.0, plot: bool = True,
+             progress: Callable[[str], None] = print) -> dict:
+    """Steps 1-3 over decimated SI records; writes diagnosis.json, diagnosis.md and figures into ``out``.
+
+    ``high_ay`` [m/s²]: |a_y| from which samples count as "high" in the gain. Returns the result
+    dict (the content of diagnosis.json).
+    """
+    from hypa.diagnosis import ModelSpec, analyze_residuals, name_causes
+    from hypa.diagnosis.extension import (extended_spec, free_runs, gain_metrics, rear_angle_agreement,
+                                          recovered_rear_angle, relative_change, transfer_functions)
+    from hypa.diagnosis.report import markdown
+    from hypa.diagnosis.residuals import AY_EDGES
+
+    out.mkdir(parents=True, exist_ok=True)
+    states = ("yaw_rate", "side_slip")
+    started = time.perf_counter()
+    progress("step 1/3: residuals of the nominal physics on the validation records")
+    analysis = analyze_residuals(val, vehicle, dt, hold=hold, rear_steering=rear_steering)
+    progress(f"step 2/3: naming the causes (fits every catalogue cause on {len(train)} training records; "
+             "takes a few seconds to a minute)")
+    diagnosis = name_causes(train, val, vehicle, dt, hold=hold, rear_steering=rear_steering)
+    progress(f"          named: {', '.join(diagnosis.causes) or 'none'} ({time.perf_counter() - started:.0f} s)")
+    progress("step 3/3: the nominal model with the named causes, against the nominal one")
+    nominal = ModelSpec(vehicle, hold=hold, rear_ratio=vehicle.rws_ratio if rear_steering == "fixed" else 0.0)
+    extended = extended_spec(nominal, diagnosis)
+    runs = free_runs({"nominal": nominal, "extended": extended}, val, dt, vehicle.velocity)
+    metrics = gain_metrics(runs, high_ay, AY_EDGES)
+    before, after = metrics["models"]["nominal"], metrics["models"]["extended"]
+    transfer = transfer_functions(runs, dt)
+    gain = {"all": relative_change(before["all"], after["all"]),
+            "high_ay": (relative_change(before["high_ay"], after["high_ay"])
+                        if before["high_ay"] is not None else {}),
+            "high_ay_threshold": float(high_ay), "high_ay_samples": metrics["high_ay_samples"],
+            "transfer": {name: transfer_mismatch(transfer["measured"], transfer[name])
+                         for name in ("nominal", "extended")}}
+    result = {**diagnosis.to_dict(),
+              "nominal": {"vehicle": vehicle.as_dict(), "hold": hold, "rear_steering": rear_steering},
+              "data": {"dt": dt, "train_records": len(train), "val_records": len(val)},
+              "residuals": {
+                  "channels": analysis.channels,
+                  "gain_ratio": analysis.gain_ratio, "phase_difference_deg": analysis.phase_difference_deg,
+                  "autocorrelation_outside": {s: c.outside for s, c in analysis.autocorrelation.items()},
+                  "cross_correlation_outside": {s: c.outside for s, c in analysis.cross_correlation.items()},
+                  "cross_correlation_peak_lag_s": {s: c.peak_lag * dt for s, c in analysis.cross_correlation.items()},
+              },
+              "baseline": {"metrics": before},
+              "extended": {"config": None, "spec": _spec_dict(extended), "metrics": after,
+                           "config_note": "writing a HyPA-Net model config from the diagnosis is not implemented "
+                                          "yet; the re-fitted model lives only in `extended.spec`."},
+              "gain": gain}
+
+    rear_rows = []
+    if "unmodeled_input" in diagnosis.causes:
+        rear_rows = [(r, recovered_rear_angle(extended, r, dt)) for r in val if "rear_wheel_angle" in r]
+        if rear_rows:
+            recovered = np.concatenate([a for _, a in rear_rows])
+            measured_rear = np.concatenate([r["rear_wheel_angle"] for r, _ in rear_rows])
+            result["extended"]["rear_wheel_angle"] = rear_angle_agreement(recovered, measured_rear)
+
+    figures: dict[str, list[str] | str] = {}
+    if plot:
+        progress("          figures")
+        figures = _figures(out, val, runs, analysis, metrics, transfer, rear_rows, dt, states)
+    result["figures"] = figures
+    (out / "diagnosis.json").write_text(json.dumps(result, indent=2, default=float))
+    (out / "diagnosis.md").write_text(markdown(result, figures))
+    return result
+
+
+def _figures(out, val, runs, analysis, metrics, transfer, rear_rows, dt, states) -> dict:
+    import matplotlib.pyplot as plt
+
+    from hypa.diagnosis import plots
+    from hypa.evaluation.plots import bode, rear_steer
+    from hypa.plots import time_series
+
+    names: dict[str, list[str] | str] = {}
+
+    def save(fig, name: str) -> str:
+        fig.savefig(out / name, dpi=100)
+        plt.close(fig)
+        return name
+
+    starts = np.concatenate([[0], runs.record_ends[:-1]])
+    names["time_series"] = []
+    for record, start, end in zip(val, starts, runs.record_ends):
+        fig = time_series(runs.time[start:end], {s: runs.measured[start:end, i] for i, s in enumerate(states)},
+                          {m: {s: sim[start:end, i] for i, s in enumerate(states)}
+                           for m, sim in runs.simulated.items()},
+                          units=plots.UNITS, scale={s: float(np.degrees(1.0)) for s in states},
+                          title=f"measured vs simulated (free run) over {record.name}")
+        names["time_series"].append(save(fig, f"time_series_{Path(record.name).stem}.png"))
+    rmse = {m: entry["ay_bin_rmse"] for m, entry in metrics["models"].items()}
+    names["error_vs_ay"] = save(plots.error_vs_ay(analysis.ay_edges, rmse, analysis.ay_counts), "error_vs_ay.png")
+    names["transfer"] = save(bode({"measured": analysis.measured, "nominal (analytic)": analysis.model},
+                                  title="δsw → yaw rate: measured (H1) vs nominal"), "transfer_nominal.png")
+    auto = {s: (c.lags, c.rho) for s, c in analysis.autocorrelation.items()}
+    cross = {s: (c.lags, c.rho) for s, c in analysis.cross_correlation.items()}
+    bound = next(iter(analysis.autocorrelation.values())).bound
+    names["correlations"] = save(plots.correlations(auto, cross, bound, dt), "correlations.png")
+    means = {m: {s: float(np.mean(sim[:, i] - runs.measured[:, i])) for i, s in enumerate(states)}
+             for m, sim in runs.simulated.items()}
+    names["mean_error"] = save(plots.mean_error(means), "mean_error.png")
+    names["transfer_gain"] = save(bode(transfer, title="δsw → yaw rate before / after (same input, free runs)"),
+                                  "transfer_before_after.png")
+    if rear_rows:
+        record, angle = rear_rows[0]
+        names["rear_wheel_angle"] = save(
+            rear_steer(np.arange(len(record)) * dt, record["rear_wheel_angle"], {"recovered (unmodeled_input)": angle},
+                       title=f"rear-wheel angle over {record.name}"), "rear_wheel_angle.png")
+    return names
+
+
+@hydra.main(config_path="../conf", config_name="diagnose", version_base="1.3")
+def main(cfg: DictConfig) -> None:
+    from hypa.entry import datamodule, vehicle_from_config
+
+    out = Path(HydraConfig.get().runtime.output_dir)
+    hold, rear = str(cfg.physics.hold), str(cfg.physics.rear_steering)
+    try:
+        vehicle = vehicle_from_config(cfg.vehicle)
+        check_nominal(vehicle, 1.0 / float(cfg.data.rate_hz), hold, rear)  # before any data is generated or read
+        print("reading the data", flush=True)
+        dm = datamodule(cfg)
+        dm.setup()
+    except (DataError, UnstablePhysicsError, ValueError, FileNotFoundError) as error:
+        print(f"hypa.diagnose: error: {error}", file=sys.stderr, flush=True)
+        sys.exit(1)
+
+    def progress(text: str) -> None:
+        print(text, flush=True)
+
+    result = diagnose(dm.records("train"), dm.records("val"), vehicle, dm.dt, out, hold=hold, rear_steering=rear,
+                      high_ay=float(cfg.high_ay), plot=bool(cfg.plot), progress=progress)
+    change = result["gain"]["all"].get("overall")
+    change_text = "" if change is None else f", validation MSE {100 * change:+.1f} % with them applied"
+    print(f"named causes: {', '.join(result['causes']) or 'none'} (estimate {result['estimate']}){change_text}; "
+          f"report: {out / 'diagnosis.md'}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,120 @@
+"""diagnosis.md: the engineer's report of a ``python -m hypa.diagnose`` run, from its result dict
+(the content of diagnosis.json) and the figure file names. Text only; it computes nothing."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+DEG = float(np.degrees(1.0))
+UNITS = {"yaw_rate": ("deg/s", DEG), "side_slip": ("deg", DEG)}
+WHAT = {
+    "parameter_mismatch": "a nominal vehicle parameter is wrong",
+    "input_delay": "a dead time between the measured steering-wheel angle and the front wheels",
+    "unmodeled_lag": "a first-order lag between the steering wheel and the front wheels",
+    "sensor_offset": "a constant sensor bias",
+    "discretization": "the zero-order hold's half-sample lag (the input is smooth: a first-order hold fits)",
+    "saturation": "the axles saturate at large lateral acceleration (the physics is linear)",
+    "unmodeled_input": "an input the physics does not know acts through the rear axle (rear-wheel steering)",
+    "none": "nothing the catalogue can name: the physics explains the held-out data down to the noise",
+}
+
+
+def _metrics_table(baseline: Mapping, extended: Mapping, gain: Mapping) -> list[str]:
+    lines = ["| subset | channel | RMSE nominal | RMSE extended | MSE change | R² nominal | R² extended |",
+             "|---|---|---|---|---|---|---|"]
+    for subset in ("all", "high_ay"):
+        before, after = baseline.get(subset), extended.get(subset)
+        if before is None or after is None:
+            continue
+        for channel in (*UNITS, "overall"):
+            unit, k = UNITS.get(channel, ("(SI, mean over states)", 1.0))
+            rmse_b, rmse_a = np.sqrt(before[channel]["mse"]) * k, np.sqrt(after[channel]["mse"]) * k
+            change = gain[subset].get(channel)
+            change_text = "" if change is None else f"{100 * change:+.1f} %"
+            lines.append(f"| {subset} | {channel} | {rmse_b:.4g} {unit} | {rmse_a:.4g} {unit} | {change_text} | "
+                         f"{before[channel]['r2']:.4f} | {after[channel]['r2']:.4f} |")
+    return lines
+
+
+def markdown(result: Mapping, figures: Mapping[str, str | list[str]]) -> str:
+    """The report. ``figures`` maps a figure's role (``time_series``, ``error_vs_ay``, ``transfer``,
+    ``correlations``, ``mean_error``, ``transfer_gain``, ``rear_wheel_angle``) to file name(s)."""
+    def fig(role: str, caption: str) -> list[str]:
+        names = figures.get(role)
+        if not names:
+            return []
+        names = [names] if isinstance(names, str) else names
+        return [f"![{caption}]({name})" for name in names] + [""]
+
+    nominal, residuals = result["nominal"], result["residuals"]
+    rows = {row["cause"]: row for row in result["candidates"]}
+    causes = result["causes"] or ["none"]
+    lines = ["# Diagnosis: what the physics gets wrong", "",
+             f"Nominal physics: linear single track, hold = {nominal['hold']}, rear steering = "
+             f"{nominal['rear_steering']}; data: {result['data']['train_records']} training and "
+             f"{result['data']['val_records']} validation records at {1 / result['data']['dt']:.4g} Hz.", "",
+             "## 1. What is wrong", ""]
+    for cause in causes:
+        row = rows.get(cause, {"estimate": {}, "evidence": ""})
+        lines.append(f"- **{cause}**: {WHAT.get(cause, cause)}. Estimate: `{row['estimate']}`.")
+    lines += ["", "## 2. Why we think so", "",
+              "The nominal model free-runs over each validation record from its first measured state. "
+              "Its residual e = ŷ - y per channel:", "",
+              "| channel | mean error | RMSE | NRMSE |", "|---|---|---|---|"]
+    for channel, m in residuals["channels"].items():
+        unit, k = UNITS.get(channel, ("SI", 1.0))
+        lines.append(f"| {channel} | {m['mean'] * k:.4g} {unit} | {m['rmse'] * k:.4g} {unit} | {m['nrmse']:.4f} |")
+    lines += ["",
+              f"Transfer function δsw → yaw rate over the coherent band (γ² ≥ 0.8): measured / model gain "
+              f"ratio {residuals['gain_ratio']:.3f}, phase difference {residuals['phase_difference_deg']:+.1f}° "
+              "(a phase lag growing with frequency at unchanged gain points at a delay or lag; a gain ratio ≠ 1 "
+              "at a parameter or an unmodeled input).", ""]
+    lines += fig("time_series", "measured and simulated over time")
+    lines += fig("transfer", "transfer function measured vs nominal")
+    lines += fig("error_vs_ay", "error against |a_y|")
+    lines += ["Residual correlations against the 99 % band of white noise: share of lags outside "
+              + ", ".join(f"{s}: ρ_ee {100 * residuals['autocorrelation_outside'][s]:.0f} %, ρ_ue "
+                          f"{100 * residuals['cross_correlation_outside'][s]:.0f} % (peak at "
+                          f"{1000 * residuals['cross_correlation_peak_lag_s'][s]:.0f} ms)"
+                          for s in residuals["channels"])
+              + ". A white residual that is independent of the input would leave ~1 % outside.", ""]
+    lines += fig("correlations", "residual autocorrelation and input-residual cross-correlation")
+    lines += fig("mean_error", "mean error per channel")
+    lines += ["Each catalogue cause was fitted on the training records and scored on the validation records "
+              "(greedy search, penalized held-out gain and a signed-rank test; see `hypa/diagnosis/naming.py`):", "",
+              "| cause | score (share of nominal error explained) | estimate | evidence |", "|---|---|---|---|"]
+    for row in result["candidates"]:
+        mark = "**" if row["cause"] in result["causes"] else ""
+        lines.append(f"| {mark}{row['cause']}{mark} | {row['score']:.3f} | `{row['estimate']}` | {row['evidence']} |")
+    extended, gain = result["extended"], result["gain"]
+    lines += ["", "## 3. What we changed", ""]
+    if not result["causes"]:
+        lines += ["Nothing: no cause was named, so the extended model is the nominal one.", ""]
+    else:
+        lines += ["The nominal model with every named cause applied at its jointly re-fitted estimate "
+                  "(simulated by the diagnosis' numpy model):", "", f"`{extended['spec']}`", ""]
+    if extended.get("config"):
+        lines += [f"HyPA-Net config for training: `{extended['config']}`; train it with", "",
+                  f"    {extended['train_command']}", ""]
+    else:
+        lines += [f"No HyPA-Net model config was written (`extended.config` is null): {extended['config_note']}", ""]
+    lines += ["## 4. What it gained", "",
+              f"Free runs over the validation records; high |a_y|: |a_y| ≥ {gain['high_ay_threshold']:g} m/s² "
+              f"({gain['high_ay_samples']} samples). MSE change = (extended - nominal) / nominal.", ""]
+    lines += _metrics_table(result["baseline"]["metrics"], extended["metrics"], gain)
+    transfer = gain.get("transfer", {})
+    if transfer:
+        lines += ["", f"Transfer function (measured / model over the coherent band): nominal gain ratio "
+                      f"{transfer['nominal']['gain_ratio']:.3f}, phase "
+                      f"{transfer['nominal']['phase_difference_deg']:+.1f}°; "
+                      f"extended gain ratio {transfer['extended']['gain_ratio']:.3f}, phase "
+                      f"{transfer['extended']['phase_difference_deg']:+.1f}°.", ""]
+    lines += fig("transfer_gain", "transfer function before and after")
+    rear = extended.get("rear_wheel_angle")
+    if rear:
+        lines += [f"Recovered rear-wheel angle against the measured `rear_wheel_angle` (never used by the fit): "
+                  f"correlation {rear['correlation']:.3f}, RMSE {rear['rmse'] * DEG:.3f} deg.", ""]
+        lines += fig("rear_wheel_angle", "recovered vs measured rear-wheel angle")
+    return "\n".join(lines) + "\n"
