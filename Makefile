@@ -47,8 +47,9 @@ test-slow: $(STAMP) ## only the checks marked slow
 test-all: $(STAMP) ## every test
 	$(BIN)/python -m pytest -q -m "slow or not slow" $(ARGS)
 
-bench: $(STAMP) ## lifted physics vs recursion vs bare matmul (prints ratios)
+bench: $(STAMP) ## lifted physics vs recursion vs bare matmul (ratios); time to name the cause (diagnose)
 	$(BIN)/python -m hypa.bench $(ARGS)
+	$(BIN)/python -m hypa.bench_diagnosis
 
 clean: ## remove run outputs (not the environment, not the data cache)
 	rm -rf outputs multirun lightning_logs .pytest_cache
