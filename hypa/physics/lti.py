@@ -174,13 +174,17 @@ class LTIBlock(nn.Module):
             )
 
     # -- lifted matrices, rebuilt only when something they depend on changed -----------------
+    # Both run on every forward: they read the parameter dict's underlying ``_parameters`` (a
+    # plain dict, which also sees parameters swapped in by torch.func.functional_call) because
+    # going through ParameterDict's accessors costs more than the frozen window's matmul.
     def _cache_key(self, dtype: torch.dtype, device: torch.device) -> tuple:
-        tensors = [*self.parameters_.raw.values(), *(getattr(self, n) for n in _SCALING)]
+        buffers = self._buffers
+        tensors = (*self.parameters_.raw._parameters.values(), *(buffers[n] for n in _SCALING))
         return (dtype, device, *((id(t), t._version) for t in tensors))
 
     def _rebuilds(self) -> bool:
         """Whether the physics must be rebuilt on every call so that gradients reach θ."""
-        return torch.is_grad_enabled() and bool(self.parameters_.trainable_names)
+        return torch.is_grad_enabled() and any(p.requires_grad for p in self.parameters_.raw._parameters.values())
 
     def lifted(self, dtype: torch.dtype = torch.float32) -> tuple[LiftedMatrices, NormalizedLTI]:
         """𝒜, ℬ, ℋ (eq. 11) and Â, B̂, Ĥ, Ĉ, D̂, Ĝ, built in ``dtype``.
