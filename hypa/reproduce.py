@@ -133,7 +133,9 @@ def main(cfg: DictConfig) -> None:
     folders = sorted(d for d in sweep.iterdir() if (d / ".hydra").is_dir()) if sweep.is_dir() else []
     if not folders:
         raise FileNotFoundError(f"no runs in {sweep}")
-    order = {f"{OmegaConf.load(ROOT / 'conf' / 'row' / f'{r}.yaml').table1_row}": i for i, r in enumerate(cfg.rows)}
+    # Table 1's order: the default rows, then any others asked for
+    rows = list(dict.fromkeys([*OmegaConf.load(ROOT / "conf" / "reproduce.yaml").rows, *cfg.rows]))
+    order = {str(OmegaConf.load(ROOT / "conf" / "row" / f"{r}.yaml").table1_row): i for i, r in enumerate(rows)}
     evaluations: dict[str, list[Evaluation]] = defaultdict(list)
     for i, folder in enumerate(folders, 1):
         run = load_run(folder)
