@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from hypa.data.channels import SI_UNITS
 from hypa.testbench.config import SensorConfig
 from hypa.testbench.excitation import NOISE_STREAM
 
@@ -16,15 +17,8 @@ CHANNELS = (
     "velocity",
     "rear_wheel_angle",
 )
-UNITS = {
-    "time": "s",
-    "steering_wheel_angle": "rad",
-    "yaw_rate": "rad/s",
-    "side_slip": "rad",
-    "lateral_acceleration": "m/s^2",
-    "velocity": "m/s",
-    "rear_wheel_angle": "rad",
-}
+# The files are written in the measured-data format hypa reads: its standard names and SI units.
+UNITS = dict(SI_UNITS)
 
 
 def measure(
