@@ -145,7 +145,7 @@ def _figures(out, val, runs, analysis, metrics, transfer, rear_rows, dt, states)
 
     from hypa.diagnosis import plots
     from hypa.evaluation.plots import bode, rear_steer
-    from hypa.plots import time_series
+    from hypa.plots import DEG, time_series
 
     names: dict[str, list[str] | str] = {}
 
@@ -160,7 +160,7 @@ def _figures(out, val, runs, analysis, metrics, transfer, rear_rows, dt, states)
         fig = time_series(runs.time[start:end], {s: runs.measured[start:end, i] for i, s in enumerate(states)},
                           {m: {s: sim[start:end, i] for i, s in enumerate(states)}
                            for m, sim in runs.simulated.items()},
-                          units=plots.UNITS, scale={s: float(np.degrees(1.0)) for s in states},
+                          units=plots.UNITS, scale={s: DEG for s in states},
                           title=f"measured vs simulated (free run) over {record.name}")
         names["time_series"].append(save(fig, f"time_series_{Path(record.name).stem}.png"))
     rmse = {m: entry["ay_bin_rmse"] for m, entry in metrics["models"].items()}

@@ -31,10 +31,9 @@ from hypa.evaluation.metrics import state_metrics
 from hypa.evaluation.plots import bode, rear_steer
 from hypa.evaluation.runs import Prediction, TrainedRun, free_run, load_run, windowed
 from hypa.evaluation.transfer import TransferEstimate, h1_estimate
-from hypa.plots import time_series
+from hypa.plots import DEG, DISPLAY_UNITS, time_series
 
 log = logging.getLogger(__name__)
-DEG = float(np.degrees(1.0))
 MANEUVERS = "maneuvers"
 
 
@@ -151,7 +150,7 @@ def evaluate_run(run: TrainedRun, out_dir: Path, tensorboard: bool = True) -> Ev
                 log.warning("no yaw transfer function: %s", error)
         figures["free_run"] = time_series(first.time, {n: first.measured[n] for n in dm.state_names},
                                           {run.label: {n: first.predicted[n] for n in dm.state_names}},
-                                          units={"yaw_rate": "deg/s", "side_slip": "deg"},
+                                          units=DISPLAY_UNITS,
                                           scale={n: DEG for n in dm.state_names},
                                           title=f"{run.label}: free run over {first.record}", spans=segments)
         if "rear_wheel_angle" in first.signals:

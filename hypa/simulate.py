@@ -23,6 +23,7 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
+from hypa.plots import DEG, DISPLAY_UNITS
 from hypa.physics import LTIBlock, SingleTrack, SteeringGain, VehicleParameters, vehicle_parameters
 
 log = logging.getLogger(__name__)
@@ -88,10 +89,9 @@ def _windowed(dm, vehicle: VehicleParameters, hold: str, rear: str) -> dict[str,
 def report(results: dict, hold: str, rear: str) -> str:
     lines = [f"nominal physics (hold={hold}, rear_steering={rear}) against the validation data:",
              f"{'':<26}{'channel':<12}{'RMSE':>14}{'mean err':>14}{'R2':>8}{'NRMSE':>8}"]
-    units = {"yaw_rate": ("deg/s", np.degrees(1.0)), "side_slip": ("deg", np.degrees(1.0))}
     for label, metrics in results.items():
         for channel, m in metrics.items():
-            unit, k = units[channel]
+            unit, k = DISPLAY_UNITS[channel], DEG
             lines.append(f"{label:<26}{channel:<12}{m['rmse'] * k:>8.3f} {unit:<5}{m['mean_error'] * k:>8.3f} "
                          f"{unit:<5}{m['r2']:>8.3f}{m['nrmse']:>8.3f}")
     return "\n".join(lines)
@@ -115,8 +115,7 @@ def main(cfg: DictConfig) -> float:
         if cfg.plot:
             fig = time_series(record.time, {s: y[:, i] for i, s in enumerate(STATES)},
                               {"physics": {s: sim[:, i] for i, s in enumerate(STATES)}},
-                              units={"yaw_rate": "deg/s", "side_slip": "deg"},
-                              scale={s: float(np.degrees(1.0)) for s in STATES},
+                              units=DISPLAY_UNITS, scale={s: DEG for s in STATES},
                               title=f"nominal physics free-running over {record.name}")
             fig.savefig(out / f"free_run_{Path(record.name).stem}.png", dpi=110)
             log.info("figure: %s", out / f"free_run_{Path(record.name).stem}.png")

@@ -13,7 +13,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-UNITS = {"yaw_rate": "deg/s", "side_slip": "deg"}
+from hypa.plots import DISPLAY_UNITS  # noqa: E402
+
+UNITS = {name: DISPLAY_UNITS[name] for name in ("yaw_rate", "side_slip")}  # the states
 
 
 def error_vs_ay(edges: np.ndarray, rmse: Mapping[str, Mapping[str, Sequence[float | None]]],

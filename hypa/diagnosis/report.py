@@ -7,8 +7,9 @@ from collections.abc import Mapping
 
 import numpy as np
 
-DEG = float(np.degrees(1.0))
-UNITS = {"yaw_rate": ("deg/s", DEG), "side_slip": ("deg", DEG)}
+from hypa.plots import DEG, DISPLAY_UNITS
+
+UNITS = {name: (DISPLAY_UNITS[name], DEG) for name in ("yaw_rate", "side_slip")}  # the states
 WHAT = {
     "parameter_mismatch": "a nominal vehicle parameter is wrong",
     "input_delay": "a dead time between the measured steering-wheel angle and the front wheels",

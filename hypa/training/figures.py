@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 import lightning as L
-import numpy as np
 import torch
 from lightning.pytorch.callbacks import Callback
 
-from hypa.plots import time_series
-
-DEG = float(np.degrees(1.0))
-UNITS = {"yaw_rate": "deg/s", "side_slip": "deg", "rear_wheel_angle": "deg"}
+from hypa.plots import DEG, time_series
+from hypa.plots import DISPLAY_UNITS as UNITS
 
 
 class ValidationFigures(Callback):
