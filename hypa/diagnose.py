@@ -5,10 +5,11 @@
     python -m hypa.diagnose data=files data.dir=PATH vehicle.cf=140000
 
 Writes into the Hydra run folder ``diagnosis.md`` (the report), ``diagnosis.json`` (the
-numbers) and the figures. Steps: (1) residuals of the nominal free run (error per channel,
-against |a_y|, correlations, transfer function), (2) the named causes with estimates
-(:func:`hypa.diagnosis.name_causes`), (3) the nominal model with the named causes applied and
-its gain on the validation records.
+numbers), the figures and ``conf/model/diagnosed.yaml``. Steps: (1) residuals of the nominal
+free run (error per channel, against |a_y|, correlations, transfer function), (2) the named
+causes with estimates (:func:`hypa.diagnosis.name_causes`), (3) the extended model as a hypa
+model config (:mod:`hypa.diagnosis.config`) with the command that trains it, (4) the gain of
+the nominal model with the named causes applied on the validation records.
 """
 
 from __future__ import annotations
@@ -72,13 +73,19 @@ def _spec_dict(spec) -> dict:
 
 def diagnose(train: Sequence[Record], val: Sequence[Record], vehicle: VehicleParameters, dt: float, out: Path,
              hold: str = "foh", rear_steering: str = "none", high_ay: float = 4.0, plot: bool = True,
+             unmodeled_input: str = "ann", train_overrides: Sequence[str] = (),
              progress: Callable[[str], None] = print) -> dict:
-    """Steps 1-3 over decimated SI records; writes diagnosis.json, diagnosis.md and figures into ``out``.
+    """Steps 1-4 over decimated SI records; writes diagnosis.json, diagnosis.md, figures and the
+    extended model's config (``conf/model/diagnosed.yaml``) into ``out``.
 
-    ``high_ay`` [m/s²]: |a_y| from which samples count as "high" in the gain. Returns the result
-    dict (the content of diagnosis.json).
+    ``high_ay`` [m/s²]: |a_y| from which samples count as "high" in the gain.
+    ``unmodeled_input``: ``ann`` (V1-style network) or ``physics`` (the fitted ratio and lag) in
+    the written model. ``train_overrides``: command-line overrides that select the same data and
+    vehicle for ``hypa.train`` (printed in the train command). Returns the result dict (the
+    content of diagnosis.json).
     """
     from hypa.diagnosis import ModelSpec, analyze_residuals, name_causes
+    from hypa.diagnosis.config import describe, extension_model, train_command, write_model
     from hypa.diagnosis.extension import (extended_spec, free_runs, gain_metrics, rear_angle_agreement,
                                           recovered_rear_angle, relative_change, transfer_functions)
     from hypa.diagnosis.report import markdown
@@ -87,15 +94,22 @@ def diagnose(train: Sequence[Record], val: Sequence[Record], vehicle: VehiclePar
     out.mkdir(parents=True, exist_ok=True)
     states = ("yaw_rate", "side_slip")
     started = time.perf_counter()
-    progress("step 1/3: residuals of the nominal physics on the validation records")
+    progress("step 1/4: residuals of the nominal physics on the validation records")
     analysis = analyze_residuals(val, vehicle, dt, hold=hold, rear_steering=rear_steering)
-    progress(f"step 2/3: naming the causes (fits every catalogue cause on {len(train)} training records; "
+    progress(f"step 2/4: naming the causes (fits every catalogue cause on {len(train)} training records; "
              "takes a few seconds to a minute)")
     diagnosis = name_causes(train, val, vehicle, dt, hold=hold, rear_steering=rear_steering)
     progress(f"          named: {', '.join(diagnosis.causes) or 'none'} ({time.perf_counter() - started:.0f} s)")
-    progress("step 3/3: the nominal model with the named causes, against the nominal one")
+    progress("step 3/4: the extended model (the nominal one with the named causes) as a hypa model")
     nominal = ModelSpec(vehicle, hold=hold, rear_ratio=vehicle.rws_ratio if rear_steering == "fixed" else 0.0)
     extended = extended_spec(nominal, diagnosis)
+    model = extension_model(diagnosis.named, hold, rear_steering, unmodeled_input)
+    header = [f"hypa.diagnose: the nominal single track (hold {hold}, rear steering {rear_steering}) extended by",
+              *(f"  {row['cause']}: {row['evidence']}" for row in diagnosis.named),
+              "Train: " + train_command(out / "conf", train_overrides)]
+    config_path = write_model(model, out / "conf", header)
+    progress(f"          {config_path}")
+    progress("step 4/4: the extended model against the nominal one on the validation records")
     runs = free_runs({"nominal": nominal, "extended": extended}, val, dt, vehicle.velocity)
     metrics = gain_metrics(runs, high_ay, AY_EDGES)
     before, after = metrics["models"]["nominal"], metrics["models"]["extended"]
@@ -117,9 +131,8 @@ def diagnose(train: Sequence[Record], val: Sequence[Record], vehicle: VehiclePar
                   "cross_correlation_peak_lag_s": {s: c.peak_lag * dt for s, c in analysis.cross_correlation.items()},
               },
               "baseline": {"metrics": before},
-              "extended": {"config": None, "spec": _spec_dict(extended), "metrics": after,
-                           "config_note": "writing a HyPA-Net model config from the diagnosis is not implemented "
-                                          "yet; the re-fitted model lives only in `extended.spec`."},
+              "extended": {"config": str(config_path), "train_command": train_command(out / "conf", train_overrides),
+                           "config_blocks": describe(model), "spec": _spec_dict(extended), "metrics": after},
               "gain": gain}
 
     rear_rows = []
@@ -204,11 +217,21 @@ def main(cfg: DictConfig) -> None:
         print(text, flush=True)
 
     result = diagnose(dm.records("train"), dm.records("val"), vehicle, dm.dt, out, hold=hold, rear_steering=rear,
-                      high_ay=float(cfg.high_ay), plot=bool(cfg.plot), progress=progress)
+                      high_ay=float(cfg.high_ay), plot=bool(cfg.plot), unmodeled_input=str(cfg.extension.unmodeled_input),
+                      train_overrides=data_overrides(HydraConfig.get().overrides.task), progress=progress)
     change = result["gain"]["all"].get("overall")
     change_text = "" if change is None else f", validation MSE {100 * change:+.1f} % with them applied"
     print(f"named causes: {', '.join(result['causes']) or 'none'} (estimate {result['estimate']}){change_text}; "
           f"report: {out / 'diagnosis.md'}", flush=True)
+    print(f"extended model: {result['extended']['config']}; train it with\n  {result['extended']['train_command']}",
+          flush=True)
+
+
+def data_overrides(overrides: Sequence[str]) -> list[str]:
+    """The command-line overrides that choose the data and the vehicle (``data``, ``testbench``,
+    ``vehicle`` groups and their keys): what ``hypa.train`` needs to see the same data."""
+    groups = ("data", "testbench", "vehicle")
+    return [o for o in overrides if o.lstrip("+~").split("=", 1)[0].split(".", 1)[0] in groups]
 
 
 if __name__ == "__main__":

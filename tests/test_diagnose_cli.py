@@ -12,11 +12,14 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+import torch
+import yaml
 
 from data_helpers import ALL_CHANNELS, make_data_dir
 
@@ -64,7 +67,33 @@ def test_extended_model_gains_on_the_validation_records(delay_run) -> None:
     transfer = diagnosis["gain"]["transfer"]
     assert transfer["nominal"]["phase_difference_deg"] < -10.0
     assert abs(transfer["extended"]["phase_difference_deg"]) < 3.0
-    assert diagnosis["extended"]["config"] is None
+
+
+def test_extended_model_is_a_hypa_model_that_trains(delay_run, tmp_path: Path) -> None:
+    """Step 3 as a hypa model: the written config has the dead time at the estimate, and the
+    printed command trains it through the real CLI (one short epoch) with the delay trainable."""
+    result, run = delay_run
+    diagnosis = json.loads((run / "diagnosis.json").read_text())
+    config = Path(diagnosis["extended"]["config"])
+    assert config == run / "conf" / "model" / "diagnosed.yaml"
+    model = yaml.safe_load(config.read_text())
+    assert model["hold"] == "foh"
+    assert model["blocks"]["dead_time"]["parameters"]["delay_s"] == pytest.approx(diagnosis["estimate"]["delay_s"])
+    assert model["blocks"]["dead_time"]["trainable"] == ["delay_s"]
+    command = diagnosis["extended"]["train_command"]
+    assert command in result.stdout and command in (run / "diagnosis.md").read_text()
+    words = shlex.split(command)
+    assert words[:3] == ["python", "-m", "hypa.train"] and "testbench.steering.delay_s=0.06" in words
+    env = {**os.environ, "HYPA_CACHE_DIR": str(run.parent / "cache")}
+    trained = subprocess.run(
+        [sys.executable, *words[1:], f"hydra.run.dir={tmp_path / 'train'}", "trainer.max_epochs=1",
+         "trainer.limit_train_batches=3", "figures.enabled=false", "trainer.enable_progress_bar=false"],
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert trained.returncode == 0, trained.stderr[-3000:]
+    checkpoint = torch.load(next((tmp_path / "train" / "checkpoints").glob("best-*.ckpt")), weights_only=False)
+    delay = checkpoint["state_dict"]["model.parameters_.raw.dead_time/delay_s"].exp().item()
+    assert delay == pytest.approx(diagnosis["estimate"]["delay_s"], abs=0.01)
+    assert delay != diagnosis["estimate"]["delay_s"]  # trained, not only loaded
 
 
 def test_report_and_figures_are_written(delay_run) -> None:

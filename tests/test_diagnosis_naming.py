@@ -141,6 +141,18 @@ def test_two_effects_at_once_are_both_listed(cache: Path) -> None:
     assert scores == sorted(scores, reverse=True)
 
 
+def test_two_biased_sensors_are_named_once_each(cache: Path) -> None:
+    """Each biased channel is a cause of its own, with its own estimate (15 %, as above)."""
+    truth = {"yaw_rate": -0.008, "side_slip": 0.005}
+    sensors = {"bias_scale": 1.0, **NO_BIAS, **{c: {"bias": b} for c, b in truth.items()}}
+    diagnosis, _ = diagnose({"sensors": sensors}, "foh", cache)
+    assert diagnosis.causes == ["sensor_offset", "sensor_offset"], diagnosis.to_dict()
+    found = {row["estimate"]["channel"]: row["estimate"]["offset"] for row in diagnosis.named}
+    assert set(found) == set(truth)
+    for channel, offset in truth.items():
+        assert found[channel] == pytest.approx(offset, rel=0.15)
+
+
 def test_diagnosis_json_shape(cache: Path) -> None:
     diagnosis, _ = diagnose({"steering": {"delay_s": 0.05}}, "foh", cache)
     d = diagnosis.to_dict()

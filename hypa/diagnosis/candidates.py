@@ -45,10 +45,12 @@ class _Fitted:
     cause = ""
     n_params = 0
 
-    def __init__(self, base: ModelSpec, dt: float, weights: np.ndarray, only: str | None = None) -> None:
-        """``only``: restrict a multi-choice candidate (parameter, offset channel) to one choice."""
+    def __init__(self, base: ModelSpec, dt: float, weights: np.ndarray, only: str | None = None,
+                 exclude: Sequence[str] = ()) -> None:
+        """``only``: restrict a multi-choice candidate (parameter, offset channel) to one choice;
+        ``exclude``: choices it may not take (channels whose offset is already adopted)."""
         self.base, self.dt, self.weights = base, float(dt), np.asarray(weights, dtype=float)
-        self.only = only
+        self.only, self.exclude = only, tuple(exclude)
         self.spec: ModelSpec | None = None
         self.estimate: dict = {}
         self._records: Sequence[Record] = ()
@@ -60,10 +62,11 @@ class _Fitted:
     def errors(self, specs: Sequence[ModelSpec]) -> np.ndarray:
         """J of each spec over the training records, (K,)."""
         total = np.zeros(len(specs))
-        for record in self._records:
-            residual = self.simulate(specs, record) - record.stack(STATES)[None]
-            total += np.einsum("kld,d->k", residual**2, self.weights)
-        return total
+        with np.errstate(over="ignore", invalid="ignore"):  # a grid point that diverges scores inf
+            for record in self._records:
+                residual = self.simulate(specs, record) - record.stack(STATES)[None]
+                total += np.einsum("kld,d->k", residual**2, self.weights)
+        return np.where(np.isfinite(total), total, np.inf)
 
     def grid_search(self, make: Callable[[float], ModelSpec], grid: np.ndarray, rounds: int = 2,
                     points: int = 7) -> tuple[float, float]:
@@ -187,13 +190,14 @@ class Saturation(_Fitted):
 
 
 class SensorOffset(_Fitted):
-    """A constant bias on one channel (the one with the lowest J of the three)."""
+    """A constant bias on one channel (the one with the lowest J of the three). Each biased
+    channel is a cause of its own: after one is adopted, the others are tested again."""
 
     cause, n_params = "sensor_offset", 1
     _STEPS = {"steering_wheel_angle": 0.01, "yaw_rate": 0.01, "side_slip": 0.005}  # sensitivity steps
 
     def _fit(self):
-        channels = [self.only] if self.only else list(OFFSET_CHANNELS)
+        channels = [self.only] if self.only else [c for c in OFFSET_CHANNELS if c not in self.exclude]
         makes = [lambda b, c=c: self.base.with_offset(c, self.base.offsets[OFFSET_CHANNELS.index(c)] + b)
                  for c in channels]
         specs = [m(b) for m, b in zip(makes, self.linear_solve(makes, [self._STEPS[c] for c in channels]))]

@@ -41,10 +41,9 @@ def apply_cause(spec: ModelSpec, cause: str, estimate: Mapping) -> ModelSpec:
 
 def extended_spec(nominal: ModelSpec, diagnosis: Diagnosis) -> ModelSpec:
     """The nominal spec with every named cause of ``diagnosis`` applied (``nominal`` for ``none``)."""
-    rows = {row["cause"]: row for row in diagnosis.candidates}
     spec = nominal
-    for cause in diagnosis.causes:
-        spec = apply_cause(spec, cause, rows[cause]["estimate"])
+    for row in diagnosis.named:
+        spec = apply_cause(spec, row["cause"], row["estimate"])
     return spec
 
 

@@ -83,11 +83,14 @@ def discrete_matrices(vehicle: VehicleParameters, dt: float, hold: str) -> tuple
     return d.phi.numpy(), taps[0], taps[1]
 
 
-def first_order_lag(u: np.ndarray, tau_s: float, dt: float) -> np.ndarray:
-    """τ ẏ = u - y, exact for u linear between samples, starting in equilibrium y0 = u0."""
+def first_order_lag(u: np.ndarray, tau_s: float, dt: float, hold: str = "foh") -> np.ndarray:
+    """τ ẏ = u - y, exact for u linear (``foh``) or constant (``zoh``) between samples, starting
+    in equilibrium y0 = u0 (as the ``first_order_lag`` block of a hypa model)."""
     if tau_s <= 0.0:
         return u
     a = math.exp(-dt / tau_s)
+    if hold == "zoh":  # y_{k+1} = a y_k + (1 - a) u_k
+        return lfilter([0.0, 1.0 - a], [1.0, -a], u, zi=[u[0]])[0]
     b0 = 1.0 - tau_s / dt * (1.0 - a)
     b1 = tau_s / dt * (1.0 - a) - a
     return lfilter([b0, b1], [1.0, -a], u, zi=[(1.0 - b0) * u[0]])[0]
@@ -97,11 +100,11 @@ def wheel_angles(spec: ModelSpec, steering_wheel_angle: np.ndarray, dt: float) -
     """[δf, δr] (L, 2) [rad]. The dead time interpolates linearly (fractional samples)."""
     u = np.asarray(steering_wheel_angle, dtype=float) - spec.offsets[0]
     front = u / spec.vehicle.steering_ratio
-    rear = spec.rear_ratio * first_order_lag(front, spec.rear_tau_s, dt)
+    rear = spec.rear_ratio * first_order_lag(front, spec.rear_tau_s, dt, spec.hold)
     if spec.delay_s > 0.0:
         t = np.arange(front.size) * dt
         front = np.interp(t - spec.delay_s, t, front, left=front[0])
-    return np.stack([first_order_lag(front, spec.lag_tau_s, dt), rear], axis=-1)
+    return np.stack([first_order_lag(front, spec.lag_tau_s, dt, spec.hold), rear], axis=-1)
 
 
 def _drive(phi_g0_g1, angles: np.ndarray) -> np.ndarray:

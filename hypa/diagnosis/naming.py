@@ -42,7 +42,7 @@ from scipy.stats import wilcoxon
 
 from hypa.data import Record
 from hypa.diagnosis.candidates import CATALOGUE
-from hypa.diagnosis.model import STATES, ModelSpec, simulate_batch
+from hypa.diagnosis.model import OFFSET_CHANNELS, STATES, ModelSpec, simulate_batch
 from hypa.physics import VehicleParameters
 
 PENALTY_PER_PARAMETER = 0.02  # [share of the remaining held-out error]
@@ -50,7 +50,7 @@ MIN_GAIN = 0.05  # [share of the remaining held-out error], after the penalty
 MAX_P = 0.01  # one-sided p of the signed-rank test
 MIN_SCORE = 0.01  # [share of the baseline held-out error]
 BLOCK_S = 1.0  # [s] block length of the test
-MAX_CAUSES = 4
+MAX_CAUSES = 5
 POLISH_ROUNDS = 2  # more rounds for the reported estimates of several causes
 JOINT_ROUNDS = 2  # coordinate-descent rounds over the adopted causes and the winner
 
@@ -65,6 +65,11 @@ class Diagnosis:
     causes: list[str]
     candidates: list[dict] = field(default_factory=list)
     baseline_error: float = 0.0  # E0 [-]
+
+    @property
+    def named(self) -> list[dict]:
+        """The rows of the named causes, most important first (``sensor_offset`` once per channel)."""
+        return [dict(c) for c in self.candidates[: len(self.causes)]]
 
     def to_dict(self) -> dict:
         return {"cause": self.cause, "estimate": self.estimate, "causes": list(self.causes),
@@ -147,10 +152,12 @@ def name_causes(train_records: Sequence[Record], val_records: Sequence[Record], 
     for _ in range(MAX_CAUSES):
         tested = []
         for cause, kind in CATALOGUE.items():
-            done = any(a["row"]["cause"] == cause for a in adopted)
+            biased = [a["choice"] for a in adopted if a["row"]["cause"] == "sensor_offset"]
+            done = any(a["row"]["cause"] == cause for a in adopted) and not (
+                cause == "sensor_offset" and len(biased) < len(OFFSET_CHANNELS))
             if done or (cause == "discretization" and current.hold == "foh"):
                 continue
-            candidate = kind(current, dt, weights)
+            candidate = kind(current, dt, weights, exclude=biased)
             candidate.fit(train_records)
             if cause == "discretization" and adopted:
                 # The hold shifts the input by dt/2, which an adopted dead time or lag has absorbed

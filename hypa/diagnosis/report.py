@@ -50,16 +50,14 @@ def markdown(result: Mapping, figures: Mapping[str, str | list[str]]) -> str:
         return [f"![{caption}]({name})" for name in names] + [""]
 
     nominal, residuals = result["nominal"], result["residuals"]
-    rows = {row["cause"]: row for row in result["candidates"]}
-    causes = result["causes"] or ["none"]
+    named = result["candidates"][: len(result["causes"])] or [{"cause": "none", "estimate": {}}]
     lines = ["# Diagnosis: what the physics gets wrong", "",
              f"Nominal physics: linear single track, hold = {nominal['hold']}, rear steering = "
              f"{nominal['rear_steering']}; data: {result['data']['train_records']} training and "
              f"{result['data']['val_records']} validation records at {1 / result['data']['dt']:.4g} Hz.", "",
              "## 1. What is wrong", ""]
-    for cause in causes:
-        row = rows.get(cause, {"estimate": {}, "evidence": ""})
-        lines.append(f"- **{cause}**: {WHAT.get(cause, cause)}. Estimate: `{row['estimate']}`.")
+    for row in named:
+        lines.append(f"- **{row['cause']}**: {WHAT.get(row['cause'], row['cause'])}. Estimate: `{row['estimate']}`.")
     lines += ["", "## 2. Why we think so", "",
               "The nominal model free-runs over each validation record from its first measured state. "
               "Its residual e = ŷ - y per channel:", "",
@@ -86,8 +84,8 @@ def markdown(result: Mapping, figures: Mapping[str, str | list[str]]) -> str:
     lines += ["Each catalogue cause was fitted on the training records and scored on the validation records "
               "(greedy search, penalized held-out gain and a signed-rank test; see `hypa/diagnosis/naming.py`):", "",
               "| cause | score (share of nominal error explained) | estimate | evidence |", "|---|---|---|---|"]
-    for row in result["candidates"]:
-        mark = "**" if row["cause"] in result["causes"] else ""
+    for i, row in enumerate(result["candidates"]):
+        mark = "**" if i < len(result["causes"]) else ""
         lines.append(f"| {mark}{row['cause']}{mark} | {row['score']:.3f} | `{row['estimate']}` | {row['evidence']} |")
     extended, gain = result["extended"], result["gain"]
     lines += ["", "## 3. What we changed", ""]
@@ -95,12 +93,14 @@ def markdown(result: Mapping, figures: Mapping[str, str | list[str]]) -> str:
         lines += ["Nothing: no cause was named, so the extended model is the nominal one.", ""]
     else:
         lines += ["The nominal model with every named cause applied at its jointly re-fitted estimate "
-                  "(simulated by the diagnosis' numpy model):", "", f"`{extended['spec']}`", ""]
+                  "(the parametric extension; section 4 measures it):", "", f"`{extended['spec']}`", ""]
     if extended.get("config"):
-        lines += [f"HyPA-Net config for training: `{extended['config']}`; train it with", "",
+        lines += ["As a hypa model (the same physics; an ANN where the cause calls for a HyPA-Net variant: "
+                  "V1-style on an unmodeled input, a V2-style correction for saturation), written to "
+                  f"`{extended['config']}`:", ""]
+        lines += [f"- {line}" for line in extended.get("config_blocks", [])]
+        lines += ["", "Train it (then `python -m hypa.evaluate run=<its run folder>`) with", "",
                   f"    {extended['train_command']}", ""]
-    else:
-        lines += [f"No HyPA-Net model config was written (`extended.config` is null): {extended['config_note']}", ""]
     lines += ["## 4. What it gained", "",
               f"Free runs over the validation records; high |a_y|: |a_y| ≥ {gain['high_ay_threshold']:g} m/s² "
               f"({gain['high_ay_samples']} samples). MSE change = (extended - nominal) / nominal.", ""]

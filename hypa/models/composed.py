@@ -18,7 +18,8 @@ from torch import Tensor, nn
 
 from hypa.ann import build_ann
 from hypa.models.spec import BlockSpec, ModelSpec, ModelSpecError
-from hypa.physics import LTIBlock, PhysicalParameters, Scaling
+from hypa.physics import LTIBlock, ParameterSpec, PhysicalParameters, Scaling
+from hypa.physics.elements import DeadTime, local_name
 from hypa.physics.systems import build_system
 
 Signal = tuple[Tensor, int]  # (B, T, 1) normalized values, index of the first sample
@@ -33,7 +34,8 @@ class ComposedModel(nn.Module):
         input_names / state_names: measured inputs and states, in data order.
         input_scale / state_scale: (mean, std) per measured signal in SI units (the training
             set's normalization).
-        dt: sample time [s]; horizon: lifted window length N; hold: ``zoh`` or ``foh``.
+        dt: sample time [s]; horizon: lifted window length N; hold: ``zoh`` or ``foh`` (unless
+            the spec fixes its own).
         ann_name / ann_hparams: the network used by every ANN block (``ann`` config group).
     """
 
@@ -56,10 +58,14 @@ class ComposedModel(nn.Module):
         self.scales: dict[str, tuple[float, float]] = {**input_scale}
         self.measured_state_scale = dict(state_scale)
         self.order = self._dependency_order(spec)
+        self._trainable_of: dict[str, tuple[str, ...]] = {}
         self.parameters_ = self._physical_parameters(spec, physical_values)
+        self.hold = spec.hold or hold
+        self._register_offsets(spec.sensor_offsets)
         self.blocks = nn.ModuleDict()
         for block in self.order:
-            self.blocks[block.name] = self._build_block(block, dt, horizon, hold, ann_name, dict(ann_hparams or {}))
+            self.blocks[block.name] = self._build_block(block, dt, horizon, self.hold, ann_name,
+                                                        dict(ann_hparams or {}))
         missing = [o for o in spec.outputs if o not in self.scales]
         if missing:
             raise ModelSpecError(f"model outputs {missing} are written by no block; signals: {sorted(self.scales)}")
@@ -89,25 +95,57 @@ class ComposedModel(nn.Module):
         return order
 
     def _physical_parameters(self, spec: ModelSpec, values: Mapping[str, float]) -> PhysicalParameters:
-        specs, trainable = {}, set()
+        """One set of named parameters: shared ones (vehicle, overridden by the spec's
+        ``parameters``) and each block's own, stored as ``<block>/<name>``."""
+        values = {**values, **spec.parameters}
+        specs: dict[str, ParameterSpec] = {}
+        trainable: set[str] = set()
         for b in spec.blocks:
-            if b.kind != "physics":
+            if b.kind == "ann":
                 continue
-            system = build_system(b.system)
-            missing = [p for p in system.parameter_names if p not in values]
+            local = {local_name(b.name, k): v for k, v in b.parameters.items()}
+            names = (local_name(b.name, "delay_s"),) if b.kind == "delay" else build_system(b.system, b.name).parameter_names
+            unknown_local = set(local) - set(names)
+            if unknown_local:
+                raise ModelSpecError(f"block {b.name!r}: parameters {sorted(unknown_local)} are not its own; "
+                                     f"it has {', '.join(names)}")
+            missing = [p for p in names if p not in values and p not in local]
             if missing:
-                raise ModelSpecError(f"block {b.name!r} ({b.system}) needs parameters {missing}")
-            unknown = set(b.trainable) - set(system.parameter_names)
+                raise ModelSpecError(f"block {b.name!r} ({b.system or b.kind}) needs parameters {missing}; give "
+                                     "them in the vehicle config or the block's parameters")
+            if b.kind == "delay":
+                block_specs = [ParameterSpec(names[0], local[names[0]], "s")]
+            else:
+                block_specs = build_system(b.system, b.name).parameter_specs({**values, **local})
+            resolved = {t: local_name(b.name, t) if local_name(b.name, t) in names else t for t in b.trainable}
+            unknown = [t for t, full in resolved.items() if full not in names]
             if unknown:
-                raise ModelSpecError(f"block {b.name!r}: {sorted(unknown)} are not parameters of {b.system}; "
-                                     f"it has {', '.join(system.parameter_names)}")
-            for s in system.parameter_specs(values):
+                raise ModelSpecError(f"block {b.name!r}: {sorted(unknown)} are not parameters of "
+                                     f"{b.system or b.kind}; it has {', '.join(names)}")
+            for s in block_specs:
                 specs[s.name] = s
-            trainable |= set(b.trainable)
+            trainable |= set(resolved.values())
+            self._trainable_of[b.name] = tuple(resolved.values())
+        unread = set(spec.parameters) - set(specs)
+        if unread:
+            raise ModelSpecError(f"model {spec.name!r}: parameters {sorted(unread)} are read by no block; "
+                                 f"read: {', '.join(specs)}")
         params = PhysicalParameters(specs.values())
         params.set_trainable(trainable, True)
         self.trainable_physics = tuple(sorted(trainable))
         return params
+
+    def _register_offsets(self, offsets: Mapping[str, float]) -> None:
+        """Normalized sensor offsets b/σ of the measured inputs and states (zeros where none)."""
+        unknown = set(offsets) - set(self.input_names) - set(self.state_names)
+        if unknown:
+            raise ModelSpecError(f"sensor_offsets {sorted(unknown)} are not measured signals; measured: "
+                                 f"{', '.join((*self.input_names, *self.state_names))}")
+        norm = lambda names, scale: torch.tensor([offsets.get(n, 0.0) / scale[n][1] for n in names],  # noqa: E731
+                                             dtype=torch.float64)
+        self.register_buffer("input_offset", norm(self.input_names, self.scales), persistent=False)
+        self.register_buffer("state_offset", norm(self.state_names, self.measured_state_scale), persistent=False)
+        self.has_offsets = bool(offsets)
 
     def _scale_of(self, names: Sequence[str], where: str) -> list[tuple[float, float]]:
         missing = [n for n in names if n not in self.scales and n not in self.measured_state_scale]
@@ -137,13 +175,23 @@ class ComposedModel(nn.Module):
             d_in = len(b.inputs) + len(b.initial_state)
             return build_ann(ann, d_in, len(b.outputs), zero_init=zero_init, **hparams)
 
-        system = build_system(b.system)
+        if b.kind == "delay":  # a shift: outputs keep their inputs' scale
+            self.scales.update(zip(b.outputs, inputs))
+            return DeadTime(self.parameters_, local_name(b.name, "delay_s"), dt)
+
+        system = build_system(b.system, b.name)
         if len(b.inputs) != len(system.input_names) or len(b.outputs) != len(system.output_names):
             raise ModelSpecError(f"block {b.name!r}: {b.system} maps {list(system.input_names)} -> "
                                  f"{list(system.output_names)}; got {list(b.inputs)} -> {list(b.outputs)}")
         nominal = {k: torch.tensor(v, dtype=torch.float64) for k, v in self.parameters_.as_floats().items()}
         d = system.matrices(nominal).d
-        if system.n_states:
+        if system.n_states and b.steady:  # states nobody measures: scaled like scale_as, else the inputs
+            states = self._scale_of(b.scale_as, f"block {b.name!r} scale_as") if b.scale_as else inputs
+            if not system.outputs_are_states or len(states) != system.n_states:
+                raise ModelSpecError(f"block {b.name!r}: a steady start needs a system whose outputs are its "
+                                     f"{system.n_states} states, scaled by scale_as (or by its inputs)")
+            outputs = states
+        elif system.n_states:
             initial = b.initial_state or system.state_names
             missing = [s for s in initial if s not in self.measured_state_scale]
             if missing:
@@ -182,7 +230,7 @@ class ComposedModel(nn.Module):
             if b.kind == "ann":
                 self.blocks[b.name].requires_grad_(b.name in active and b.name not in self.bypassed)
             elif b.name in active:
-                physics |= set(b.trainable)
+                physics |= set(self._trainable_of[b.name])
         self.parameters_.set_trainable(None, False)
         self.parameters_.set_trainable(physics, True)
 
@@ -203,10 +251,14 @@ class ComposedModel(nn.Module):
             if start > 1:
                 raise ModelSpecError(f"output {name!r} starts at sample {start}; it must cover sample 1")
             outputs.append(values[:, 1 - start :])
-        return torch.cat(outputs, dim=-1)
+        y = torch.cat(outputs, dim=-1)
+        return y + self.state_offset.to(y.dtype) if self.has_offsets else y
 
     def signals(self, u: Tensor, x0: Tensor) -> dict[str, Signal]:
         """Every signal of the composition: name -> ((B, T, 1) normalized values, first sample)."""
+        if self.has_offsets:  # the true signals behind the biased sensors
+            u = u - self.input_offset.to(u.dtype)
+            x0 = x0 - self.state_offset.to(x0.dtype)
         signals: dict[str, Signal] = {n: (u[..., i : i + 1], 0) for i, n in enumerate(self.input_names)}
         initial = {n: x0[:, i : i + 1] for i, n in enumerate(self.state_names)}
         for b in self.order:
@@ -231,6 +283,14 @@ class ComposedModel(nn.Module):
                         x = torch.cat([x, impulse], dim=-1)
                     y, _ = block(x)  # (B, T, outputs)
                     y = y + aligned(b.residual_of) if b.residual_of else y
+                out_start = start
+            elif b.kind == "delay":
+                y, out_start = block(aligned(b.inputs)), start
+            elif b.steady:  # starts in equilibrium with its first input: outputs from sample `start` on
+                steps = end - start - 1
+                inputs = aligned(b.inputs)
+                x_init = block.steady_state(inputs[:, 0])
+                y = torch.cat([x_init[:, None], block(x_init, inputs[:, : steps + block.n_taps - 1])], dim=1)
                 out_start = start
             elif block.model.n_states:
                 if start != 0:

@@ -8,13 +8,16 @@ pure networks are YAML files in ``conf/model/``, not Python classes.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from hypa.physics.systems import PHYSICS_SYSTEMS
 
-BLOCK_KINDS = ("physics", "ann")
+BLOCK_KINDS = ("physics", "ann", "delay")
+STEADY = "steady"  # initial_state of a block that starts in equilibrium with its first input
+HOLDS = ("zoh", "foh")
 
 
 class ModelSpecError(ValueError):
@@ -25,11 +28,15 @@ class ModelSpecError(ValueError):
 class BlockSpec:
     """One block of a composition.
 
-    kind: ``physics`` (an LTI system from ``hypa.physics.systems``) or ``ann`` (a network of
-        the ``ann`` config group).
+    kind: ``physics`` (an LTI system from ``hypa.physics.systems``), ``ann`` (a network of
+        the ``ann`` config group) or ``delay`` (a dead time, ``hypa.physics.elements.DeadTime``:
+        each input delayed by the block's parameter ``delay_s``).
     inputs / outputs: signal names read / written, in the block's own order.
     system: physics only, the registered system name (``single_track``, ``front_steering``, ...).
-    trainable: physics only, parameter names learned from data (grey-box).
+    trainable: physics and delay, parameter names learned from data (grey-box); a block's own
+        parameters by their short name (``tau_s``).
+    parameters: physics and delay, values [SI] of the block's own parameters (a lag's
+        ``tau_s``, a dead time's ``delay_s``), stored as ``<block>/<name>``.
     residual_of: ann only, signals the network's output is added to (a correction network);
         when the block is bypassed (first stage of a staged training) its output is exactly
         these signals.
@@ -37,7 +44,8 @@ class BlockSpec:
         physical meaning (a learned rear-wheel angle in units of the front angle's σ, with zero
         mean so that an output of 0 is 0 rad); physics blocks take (μ, σ).
     initial_state: physics blocks with states, the measured signals whose first sample
-        starts the block (default: the system's state names); ann blocks, measured states
+        starts the block (default: the system's state names), or ``steady``: in equilibrium
+        with the block's first input (for states nobody measures, e.g. a lag's); ann blocks, measured states
         given to the network as an impulse at sample 0 (a pure network has no other way to
         know where a window starts).
     """
@@ -51,6 +59,11 @@ class BlockSpec:
     residual_of: tuple[str, ...] = ()
     scale_as: tuple[str, ...] = ()
     initial_state: tuple[str, ...] = ()
+    parameters: Mapping[str, float] = field(default_factory=dict)
+
+    @property
+    def steady(self) -> bool:
+        return self.initial_state == (STEADY,)
 
 
 @dataclass(frozen=True)
@@ -64,10 +77,22 @@ class StageSpec:
 
 @dataclass(frozen=True)
 class ModelSpec:
+    """A composition. Besides blocks, outputs and stages, a model may fix:
+
+    hold: the physics' hold (``zoh`` | ``foh``), overriding ``physics.hold`` of the run.
+    parameters: values [SI] of shared physical parameters, overriding the ``vehicle`` config
+        (e.g. a stiffness re-fitted by ``hypa.diagnose``).
+    sensor_offsets: constant biases [SI] of measured signals (measured - true): subtracted from
+        a measured input and from a measured initial state, added to the model output.
+    """
+
     name: str
     blocks: tuple[BlockSpec, ...]
     outputs: tuple[str, ...]
     stages: tuple[StageSpec, ...] = field(default_factory=tuple)
+    hold: str | None = None
+    parameters: Mapping[str, float] = field(default_factory=dict)
+    sensor_offsets: Mapping[str, float] = field(default_factory=dict)
 
     @property
     def block_names(self) -> tuple[str, ...]:
@@ -80,7 +105,9 @@ class ModelSpec:
         raise ModelSpecError(f"model {self.name!r} has no block {name!r}; blocks: {', '.join(self.block_names)}")
 
 
-_BLOCK_KEYS = {"kind", "inputs", "outputs", "system", "trainable", "residual_of", "scale_as", "initial_state"}
+_BLOCK_KEYS = {"kind", "inputs", "outputs", "system", "trainable", "residual_of", "scale_as", "initial_state",
+               "parameters"}
+_MODEL_KEYS = {"name", "blocks", "outputs", "stages", "hold", "parameters", "sensor_offsets"}
 
 
 def _names(value: Any, where: str) -> tuple[str, ...]:
@@ -93,9 +120,32 @@ def _names(value: Any, where: str) -> tuple[str, ...]:
     return tuple(str(v) for v in value)
 
 
+def _values(value: Any, where: str) -> dict[str, float]:
+    """A mapping name -> finite number (SI)."""
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        raise ModelSpecError(f"{where} must map names to numbers, got {value!r}")
+    out = {}
+    for key, v in value.items():
+        try:
+            out[str(key)] = float(v)
+        except (TypeError, ValueError):
+            raise ModelSpecError(f"{where}.{key} must be a number, got {v!r}") from None
+        if not math.isfinite(out[str(key)]):
+            raise ModelSpecError(f"{where}.{key} must be finite, got {v!r}")
+    return out
+
+
 def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
     """Parse and check the ``model`` config (a plain mapping) into a :class:`ModelSpec`."""
     name = str(config.get("name", "model"))
+    unknown = set(config) - _MODEL_KEYS
+    if unknown:
+        raise ModelSpecError(f"model {name!r}: unknown keys {sorted(unknown)}; known: {sorted(_MODEL_KEYS)}")
+    hold = config.get("hold")
+    if hold is not None and hold not in HOLDS:
+        raise ModelSpecError(f"model {name!r}: hold must be one of {HOLDS} or null, got {hold!r}")
     blocks_cfg = config.get("blocks") or {}
     if not blocks_cfg:
         raise ModelSpecError(f"model {name!r} has no blocks")
@@ -119,13 +169,21 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
             residual_of=_names(b.get("residual_of"), f"{block_name}.residual_of"),
             scale_as=_names(b.get("scale_as"), f"{block_name}.scale_as"),
             initial_state=_names(b.get("initial_state"), f"{block_name}.initial_state"),
+            parameters=_values(b.get("parameters"), f"{block_name}.parameters"),
         ))
+        if kind == "ann" and (blocks[-1].parameters or blocks[-1].trainable):
+            raise ModelSpecError(f"block {block_name!r}: an ann block has no physical parameters or trainable")
+        if kind == "delay" and "delay_s" not in blocks[-1].parameters:
+            raise ModelSpecError(f"block {block_name!r}: a delay block needs parameters: {{delay_s: <seconds>}}")
+        if kind == "delay" and len(blocks[-1].inputs) != len(blocks[-1].outputs):
+            raise ModelSpecError(f"block {block_name!r}: a delay block writes one output per input")
     stages = []
     for s in config.get("stages") or []:
         stages.append(StageSpec(name=str(s["name"]), train=_names(s.get("train"), "stage.train"),
                                 bypass=_names(s.get("bypass"), "stage.bypass")))
     spec = ModelSpec(name=name, blocks=tuple(blocks), outputs=_names(config.get("outputs"), "outputs"),
-                     stages=tuple(stages))
+                     stages=tuple(stages), hold=hold, parameters=_values(config.get("parameters"), "parameters"),
+                     sensor_offsets=_values(config.get("sensor_offsets"), "sensor_offsets"))
     for stage in spec.stages:
         for block_name in (*stage.train, *stage.bypass):
             spec.block(block_name)  # raises with the list of blocks

@@ -217,6 +217,17 @@ class LTIBlock(nn.Module):
         y = u[:, : states.shape[1]] @ norm.d.T + norm.g
         return y + states @ norm.c.T if self.model.n_states else y
 
+    def steady_state(self, u0: Tensor) -> Tensor:
+        """Normalized equilibrium x̂ (B, n) for the constant normalized input û0 (B, m).
+
+        0 = A x + B u gives x = -A⁻¹ B u in physical units (the same for either hold, which is
+        exact for a constant input); a block started there needs no measured initial state.
+        """
+        ss = self.state_space(u0.dtype)
+        u_phys = u0 * self.input_std.to(u0.dtype) + self.input_mean.to(u0.dtype)
+        x = -torch.linalg.solve(ss.a, (u_phys @ ss.b.T).T).T  # (B, n)
+        return (x - self.state_mean.to(u0.dtype)) / self.state_std.to(u0.dtype)
+
     def states(self, x0: Tensor | None, u: Tensor) -> Tensor:
         """Normalized states x̂_{k+1..k+S} (B, S, n); see ``forward``."""
         return self._simulate(x0, u)[0]

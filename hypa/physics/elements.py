@@ -1,0 +1,87 @@
+"""Generic input-path elements: a first-order lag (an LTI system) and a dead time (a shift).
+
+Both carry their own parameter (a time constant, a delay), so several of them can sit in one
+model: their parameter names are prefixed with the block's name (``front_lag/tau_s``), while
+the vehicle's parameters (``cf``, ``steering_ratio``, ...) stay shared by every block.
+They are what the diagnosis adds when it names an ``unmodeled_lag`` or an ``input_delay``
+(``hypa.diagnosis.config``), and any model YAML can use them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import torch
+from torch import Tensor, nn
+
+from hypa.physics.lti import LTIModel, StateSpace
+from hypa.physics.parameters import ParameterSpec, PhysicalParameters
+
+
+def local_name(prefix: str, name: str) -> str:
+    """The parameter name of a block-local parameter: ``<block>/<name>`` (``""``: ``name``)."""
+    return f"{prefix}/{name}" if prefix else name
+
+
+class FirstOrderLag(LTIModel):
+    """τ ẏ = u - y: unit static gain, time constant ``tau_s`` [s] (actuator bandwidth, compliance).
+
+    One state, the output itself, so the output shares the state's name and scaling. Started
+    in equilibrium with its first input (``initial_state: steady`` in a model YAML) it needs
+    no measured state.
+    """
+
+    state_names = ("lagged",)
+    input_names = ("input",)
+    output_names = ("lagged",)
+
+    def __init__(self, prefix: str = "") -> None:
+        self.parameter_names = (local_name(prefix, "tau_s"),)
+
+    def parameter_specs(self, values: Mapping[str, float]) -> list[ParameterSpec]:
+        (name,) = self.parameter_names
+        return [ParameterSpec(name, float(values[name]), "s")]
+
+    def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
+        tau = p[self.parameter_names[0]]
+        rate = (-1.0 / tau).reshape(1, 1)
+        one = torch.ones(1, 1, dtype=tau.dtype, device=tau.device)
+        return StateSpace(rate, -rate, one, tau.new_zeros(1, 1))
+
+
+class DeadTime(nn.Module):
+    """y(t) = u(t - delay_s) on the sample grid: dead time between a command and its effect.
+
+    A dead time is not a finite-dimensional LTI system, so it is a shift, not a state space:
+    with delay = (k + f) dt, y_n = (1 - f) u_{n-k} + f u_{n-k-1}. That is exact for an input
+    linear between samples, the first-order hold's assumption, and differentiable in the delay
+    through f. Before the window's first sample the input is held at that sample (the same
+    steady start as a lag's). Channels are shifted independently; scaling is unchanged.
+    """
+
+    def __init__(self, parameters: PhysicalParameters, name: str, dt: float) -> None:
+        super().__init__()
+        if name not in parameters.names:
+            raise ValueError(f"DeadTime needs the parameter {name!r}")
+        if not dt > 0:
+            raise ValueError(f"sample time dt must be positive, got {dt}")
+        self.parameters_, self.name, self.dt = parameters, name, dt
+
+    def delay_s(self) -> Tensor:
+        return self.parameters_.value(self.name)
+
+    def forward(self, u: Tensor) -> Tensor:
+        """u (B, T, m) -> delayed u (B, T, m); gradients reach the delay where it is trainable."""
+        samples = self.delay_s().to(u.dtype) / self.dt
+        whole = int(math.floor(float(samples.detach())))
+        frac = samples - whole
+        pad = u[:, :1].expand(-1, whole + 1, -1)
+        padded = torch.cat([pad, u], dim=1)  # padded[j] = u[j - whole - 1], held before the start
+        length = u.shape[1]
+        newer = padded[:, 1 : length + 1]  # u_{n - whole}
+        older = padded[:, :length]  # u_{n - whole - 1}
+        return newer + frac * (older - newer)
+
+    def extra_repr(self) -> str:
+        return f"{self.name}={float(self.delay_s().detach()):.4g} s, dt={self.dt:g} s"
