@@ -29,6 +29,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from hypa.data import DataError, Record
+from hypa.diagnosis.trained import ExtensionTrainingError, TrainedExtension
 from hypa.physics import LTIBlock, SingleTrack, UnstablePhysicsError, VehicleParameters, vehicle_parameters
 
 log = logging.getLogger(__name__)
@@ -74,6 +75,7 @@ def _spec_dict(spec) -> dict:
 def diagnose(train: Sequence[Record], val: Sequence[Record], vehicle: VehicleParameters, dt: float, out: Path,
              hold: str = "foh", rear_steering: str = "none", high_ay: float = 4.0, plot: bool = True,
              unmodeled_input: str = "ann", train_overrides: Sequence[str] = (),
+             train_extension: Callable[[Path], TrainedExtension] | None = None,
              progress: Callable[[str], None] = print) -> dict:
     """Steps 1-4 over decimated SI records; writes diagnosis.json, diagnosis.md, figures and the
     extended model's config (``conf/model/diagnosed.yaml``) into ``out``.
@@ -81,8 +83,9 @@ def diagnose(train: Sequence[Record], val: Sequence[Record], vehicle: VehiclePar
     ``high_ay`` [m/s²]: |a_y| from which samples count as "high" in the gain.
     ``unmodeled_input``: ``ann`` (V1-style network) or ``physics`` (the fitted ratio and lag) in
     the written model. ``train_overrides``: command-line overrides that select the same data and
-    vehicle for ``hypa.train`` (printed in the train command). Returns the result dict (the
-    content of diagnosis.json).
+    vehicle for ``hypa.train`` (printed in the train command). ``train_extension``: given the
+    written config's folder, trains it and free-runs it over ``val`` (``hypa.diagnosis.trained``);
+    its gain joins the report. Returns the result dict (the content of diagnosis.json).
     """
     from hypa.diagnosis import ModelSpec, analyze_residuals, name_causes
     from hypa.diagnosis.config import describe, extension_model, train_command, write_model
@@ -109,17 +112,26 @@ def diagnose(train: Sequence[Record], val: Sequence[Record], vehicle: VehiclePar
               "Train: " + train_command(out / "conf", train_overrides)]
     config_path = write_model(model, out / "conf", header)
     progress(f"          {config_path}")
+    trained = None
+    if train_extension is not None:
+        progress("          training it with hypa.train (progress below)")
+        trained = train_extension(config_path.parent.parent)
     progress("step 4/4: the extended model against the nominal one on the validation records")
     runs = free_runs({"nominal": nominal, "extended": extended}, val, dt, vehicle.velocity)
+    if trained is not None:
+        runs.simulated["trained"] = np.concatenate(trained.states)
     metrics = gain_metrics(runs, high_ay, AY_EDGES)
     before, after = metrics["models"]["nominal"], metrics["models"]["extended"]
     transfer = transfer_functions(runs, dt)
-    gain = {"all": relative_change(before["all"], after["all"]),
-            "high_ay": (relative_change(before["high_ay"], after["high_ay"])
-                        if before["high_ay"] is not None else {}),
+
+    def change(model: dict) -> dict:
+        return {"all": relative_change(before["all"], model["all"]),
+                "high_ay": (relative_change(before["high_ay"], model["high_ay"])
+                            if before["high_ay"] is not None else {})}
+
+    gain = {**change(after),
             "high_ay_threshold": float(high_ay), "high_ay_samples": metrics["high_ay_samples"],
-            "transfer": {name: transfer_mismatch(transfer["measured"], transfer[name])
-                         for name in ("nominal", "extended")}}
+            "transfer": {name: transfer_mismatch(transfer["measured"], transfer[name]) for name in runs.simulated}}
     result = {**diagnosis.to_dict(),
               "nominal": {"vehicle": vehicle.as_dict(), "hold": hold, "rear_steering": rear_steering},
               "data": {"dt": dt, "train_records": len(train), "val_records": len(val)},
@@ -134,6 +146,9 @@ def diagnose(train: Sequence[Record], val: Sequence[Record], vehicle: VehiclePar
               "extended": {"config": str(config_path), "train_command": train_command(out / "conf", train_overrides),
                            "config_blocks": describe(model), "spec": _spec_dict(extended), "metrics": after},
               "gain": gain}
+    if trained is not None:
+        result["extended"]["trained"] = {"run": str(trained.folder), "metrics": metrics["models"]["trained"],
+                                         "gain": change(metrics["models"]["trained"])}
 
     rear_rows = []
     if "unmodeled_input" in diagnosis.causes:
@@ -142,6 +157,13 @@ def diagnose(train: Sequence[Record], val: Sequence[Record], vehicle: VehiclePar
             recovered = np.concatenate([a for _, a in rear_rows])
             measured_rear = np.concatenate([r["rear_wheel_angle"] for r, _ in rear_rows])
             result["extended"]["rear_wheel_angle"] = rear_angle_agreement(recovered, measured_rear)
+    if trained is not None:
+        pairs = [(r["rear_wheel_angle"], a) for r, a in zip(val, trained.rear_wheel_angle)
+                 if a is not None and "rear_wheel_angle" in r]
+        if pairs:
+            measured_rear, learned = (np.concatenate(x) for x in zip(*pairs))
+            ok = np.isfinite(learned)
+            result["extended"]["trained"]["rear_wheel_angle"] = rear_angle_agreement(learned[ok], measured_rear[ok])
 
     figures: dict[str, list[str] | str] = {}
     if plot:
@@ -216,15 +238,33 @@ def main(cfg: DictConfig) -> None:
     def progress(text: str) -> None:
         print(text, flush=True)
 
-    result = diagnose(dm.records("train"), dm.records("val"), vehicle, dm.dt, out, hold=hold, rear_steering=rear,
-                      high_ay=float(cfg.high_ay), plot=bool(cfg.plot), unmodeled_input=str(cfg.extension.unmodeled_input),
-                      train_overrides=data_overrides(HydraConfig.get().overrides.task), progress=progress)
+    overrides = data_overrides(HydraConfig.get().overrides.task)
+    trainer = None
+    if cfg.extension.train:
+        from hypa.diagnosis.trained import train_extension
+
+        def trainer(config_dir: Path) -> TrainedExtension:
+            return train_extension(config_dir, out / "extended_run", dm, overrides,
+                                   [str(o) for o in cfg.extension.train_overrides])
+    try:
+        result = diagnose(dm.records("train"), dm.records("val"), vehicle, dm.dt, out, hold=hold, rear_steering=rear,
+                          high_ay=float(cfg.high_ay), plot=bool(cfg.plot),
+                          unmodeled_input=str(cfg.extension.unmodeled_input), train_overrides=overrides,
+                          train_extension=trainer, progress=progress)
+    except ExtensionTrainingError as error:
+        print(f"hypa.diagnose: error: {error}", file=sys.stderr, flush=True)
+        sys.exit(1)
     change = result["gain"]["all"].get("overall")
     change_text = "" if change is None else f", validation MSE {100 * change:+.1f} % with them applied"
     print(f"named causes: {', '.join(result['causes']) or 'none'} (estimate {result['estimate']}){change_text}; "
           f"report: {out / 'diagnosis.md'}", flush=True)
-    print(f"extended model: {result['extended']['config']}; train it with\n  {result['extended']['train_command']}",
-          flush=True)
+    trained = result["extended"].get("trained")
+    if trained:
+        print(f"trained extension ({trained['run']}): validation MSE {100 * trained['gain']['all']['overall']:+.1f} % "
+              "against the nominal physics", flush=True)
+    else:
+        print(f"extended model: {result['extended']['config']}; train it with\n  {result['extended']['train_command']}",
+              flush=True)
 
 
 def data_overrides(overrides: Sequence[str]) -> list[str]:

@@ -121,3 +121,26 @@ def test_unstable_nominal_parameters_fail_before_reading_data(tmp_path: Path) ->
     assert "unstable" in result.stderr, result.stderr[-2000:]
     assert "cr=20000" in result.stderr and "vehicle.cr" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_extension_train_true_trains_and_reports_the_trained_gain(delay_run) -> None:
+    """extension.train=true runs hypa.train on the written model inside the diagnosis folder and
+    puts its free-run metrics beside the nominal and parametric ones (one short epoch here)."""
+    _, first = delay_run
+    env = {**os.environ, "HYPA_CACHE_DIR": str(first.parent / "cache")}  # the fixture's generated data
+    run = first.parent / "run_trained"
+    result = subprocess.run(
+        [sys.executable, "-m", "hypa.diagnose", f"hydra.run.dir={run}", *SHORT, *DELAY_ONLY, "plot=false",
+         "extension.train=true",
+         'extension.train_overrides=["trainer.max_epochs=1","trainer.limit_train_batches=3","figures.enabled=false"]'],
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    diagnosis = json.loads((run / "diagnosis.json").read_text())
+    trained = diagnosis["extended"]["trained"]
+    assert Path(trained["run"]) == run / "extended_run"
+    assert next((run / "extended_run" / "checkpoints").glob("best-*.ckpt"))
+    # the dead time starts at its estimate, so even one short epoch keeps most of the gain
+    assert trained["gain"]["all"]["overall"] < -0.8
+    assert set(trained["metrics"]["all"]) == {"yaw_rate", "side_slip", "overall"}
+    assert "trained extension" in result.stdout and "stage" not in diagnosis["extended"]["train_command"]
+    assert "RMSE trained" in (run / "diagnosis.md").read_text()

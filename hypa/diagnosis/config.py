@@ -145,12 +145,14 @@ def write_model(model: Mapping, folder: Path, header: Sequence[str] = ()) -> Pat
     return path
 
 
-def train_command(config_dir: Path, overrides: Sequence[str] = (), ann: str = "lstm") -> str:
+def train_arguments(config_dir: Path, overrides: Sequence[str] = ()) -> list[str]:
+    """``python -m hypa.train`` arguments that train the written model on the diagnosed data."""
+    return ["--config-dir", str(config_dir), f"model={MODEL_NAME}", *overrides]
+
+
+def train_command(config_dir: Path, overrides: Sequence[str] = ()) -> str:
     """The shell command that trains the written model on the diagnosed data."""
-    words = ["python -m hypa.train", f"--config-dir {config_dir}", f"model={MODEL_NAME}"]
-    if ann != "lstm":
-        words.append(f"ann={ann}")
-    return " ".join([*words, *(_quote(o) for o in overrides)])
+    return " ".join(["python -m hypa.train", *(_quote(word) for word in train_arguments(config_dir, overrides))])
 
 
 def _quote(word: str) -> str:

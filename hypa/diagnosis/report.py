@@ -22,8 +22,8 @@ WHAT = {
 }
 
 
-def _metrics_table(baseline: Mapping, extended: Mapping, gain: Mapping) -> list[str]:
-    lines = ["| subset | channel | RMSE nominal | RMSE extended | MSE change | R² nominal | R² extended |",
+def _metrics_table(baseline: Mapping, extended: Mapping, gain: Mapping, name: str = "extended") -> list[str]:
+    lines = [f"| subset | channel | RMSE nominal | RMSE {name} | MSE change | R² nominal | R² {name} |",
              "|---|---|---|---|---|---|---|"]
     for subset in ("all", "high_ay"):
         before, after = baseline.get(subset), extended.get(subset)
@@ -105,13 +105,19 @@ def markdown(result: Mapping, figures: Mapping[str, str | list[str]]) -> str:
               f"Free runs over the validation records; high |a_y|: |a_y| ≥ {gain['high_ay_threshold']:g} m/s² "
               f"({gain['high_ay_samples']} samples). MSE change = (extended - nominal) / nominal.", ""]
     lines += _metrics_table(result["baseline"]["metrics"], extended["metrics"], gain)
+    trained = extended.get("trained")
+    if trained:
+        lines += ["", f"The hypa model above, trained (`{trained['run']}`), free-running over the same records:", ""]
+        lines += _metrics_table(result["baseline"]["metrics"], trained["metrics"], trained["gain"], "trained")
+        if trained.get("rear_wheel_angle"):
+            rear = trained["rear_wheel_angle"]
+            lines += ["", f"Its learned rear-wheel angle against the measured one: correlation {rear['correlation']:.3f}, "
+                          f"RMSE {rear['rmse'] * DEG:.3f} deg."]
     transfer = gain.get("transfer", {})
     if transfer:
-        lines += ["", f"Transfer function (measured / model over the coherent band): nominal gain ratio "
-                      f"{transfer['nominal']['gain_ratio']:.3f}, phase "
-                      f"{transfer['nominal']['phase_difference_deg']:+.1f}°; "
-                      f"extended gain ratio {transfer['extended']['gain_ratio']:.3f}, phase "
-                      f"{transfer['extended']['phase_difference_deg']:+.1f}°.", ""]
+        lines += ["", "Transfer function (measured / model over the coherent band): "
+                  + "; ".join(f"{name} gain ratio {t['gain_ratio']:.3f}, phase {t['phase_difference_deg']:+.1f}°"
+                              for name, t in transfer.items()) + ".", ""]
     lines += fig("transfer_gain", "transfer function before and after")
     rear = extended.get("rear_wheel_angle")
     if rear:
