@@ -50,7 +50,7 @@ MIN_GAIN = 0.05  # [share of the remaining held-out error], after the penalty
 MAX_P = 0.01  # one-sided p of the signed-rank test
 MIN_SCORE = 0.01  # [share of the baseline held-out error]
 BLOCK_S = 1.0  # [s] block length of the test
-MAX_CAUSES = 5
+MAX_CAUSES = 4  # each round after a saturation is adopted runs the slow time loop: ~15 s more per round
 POLISH_ROUNDS = 2  # more rounds for the reported estimates of several causes
 JOINT_ROUNDS = 2  # coordinate-descent rounds over the adopted causes and the winner
 
