@@ -165,8 +165,8 @@ def describe(model: Mapping) -> list[str]:
     the model-level settings: for diagnosis.md."""
     lines = []
     for name, block in model["blocks"].items():
-        what = block.get("system") or block["kind"]
-        text = f"`{name}` ({block['kind']}: {what}): {', '.join(block['inputs'])} → {', '.join(block['outputs'])}"
+        what = f"{block['kind']}: {block['system']}" if block.get("system") else block["kind"]
+        text = f"`{name}` ({what}): {', '.join(block['inputs'])} → {', '.join(block['outputs'])}"
         if block.get("parameters"):
             text += "; " + ", ".join(f"{k} = {v:.4g}" for k, v in block["parameters"].items())
         if block.get("trainable"):
