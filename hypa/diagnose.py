@@ -107,9 +107,9 @@ def diagnose(train: Sequence[Record], val: Sequence[Record], vehicle: VehiclePar
     nominal = ModelSpec(vehicle, hold=hold, rear_ratio=vehicle.rws_ratio if rear_steering == "fixed" else 0.0)
     extended = extended_spec(nominal, diagnosis)
     model = extension_model(diagnosis.named, hold, rear_steering, unmodeled_input)
+    command = train_command(out / "conf", train_overrides)
     header = [f"hypa.diagnose: the nominal single track (hold {hold}, rear steering {rear_steering}) extended by",
-              *(f"  {row['cause']}: {row['evidence']}" for row in diagnosis.named),
-              "Train: " + train_command(out / "conf", train_overrides)]
+              *(f"  {row['cause']}: {row['evidence']}" for row in diagnosis.named), "Train: " + command]
     config_path = write_model(model, out / "conf", header)
     progress(f"          {config_path}")
     trained = None
@@ -143,7 +143,7 @@ def diagnose(train: Sequence[Record], val: Sequence[Record], vehicle: VehiclePar
                   "cross_correlation_peak_lag_s": {s: c.peak_lag * dt for s, c in analysis.cross_correlation.items()},
               },
               "baseline": {"metrics": before},
-              "extended": {"config": str(config_path), "train_command": train_command(out / "conf", train_overrides),
+              "extended": {"config": str(config_path), "train_command": command,
                            "config_blocks": describe(model), "spec": _spec_dict(extended), "metrics": after},
               "gain": gain}
     if trained is not None:

@@ -9,15 +9,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from scipy.io import savemat
 
+from hypa.testbench.sensors import CHANNELS
+
 SAMPLE_RATE_HZ = 1024.0
-ALL_CHANNELS = (
-    "steering_wheel_angle",
-    "yaw_rate",
-    "side_slip",
-    "lateral_acceleration",
-    "velocity",
-    "rear_wheel_angle",
-)
+ALL_CHANNELS = CHANNELS  # every channel the test bench measures
 
 
 def synthetic_channels(

@@ -104,7 +104,8 @@ class ComposedModel(nn.Module):
             if b.kind == "ann":
                 continue
             local = {local_name(b.name, k): v for k, v in b.parameters.items()}
-            names = (local_name(b.name, "delay_s"),) if b.kind == "delay" else build_system(b.system, b.name).parameter_names
+            system = None if b.kind == "delay" else build_system(b.system, b.name)
+            names = (local_name(b.name, "delay_s"),) if system is None else system.parameter_names
             unknown_local = set(local) - set(names)
             if unknown_local:
                 raise ModelSpecError(f"block {b.name!r}: parameters {sorted(unknown_local)} are not its own; "
@@ -113,10 +114,10 @@ class ComposedModel(nn.Module):
             if missing:
                 raise ModelSpecError(f"block {b.name!r} ({b.system or b.kind}) needs parameters {missing}; give "
                                      "them in the vehicle config or the block's parameters")
-            if b.kind == "delay":
+            if system is None:
                 block_specs = [ParameterSpec(names[0], local[names[0]], "s")]
             else:
-                block_specs = build_system(b.system, b.name).parameter_specs({**values, **local})
+                block_specs = system.parameter_specs({**values, **local})
             resolved = {t: local_name(b.name, t) if local_name(b.name, t) in names else t for t in b.trainable}
             unknown = [t for t, full in resolved.items() if full not in names]
             if unknown:
