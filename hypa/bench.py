@@ -6,6 +6,11 @@ Prints forward+backward wall times and the ratios measured in this one run (abso
 depend on the machine; the ratios are what the lifted form is for). Goals at N = 100, B = 32:
 frozen physics >= 30x faster than the recursion and <= 2x a bare matmul of the same shape;
 trainable physics (lifted matrices rebuilt every step) >= 5x faster than the recursion.
+
+Then the velocity-scheduled single track at N = 100 (matrices per sample: one vmap of the
+system, one batched matrix exponential, a parallel-prefix scan), forward and forward+backward,
+against the python recursion over the same per-sample matrices and against the constant-matrix
+lifted block (trainable cf, cr in all three).
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ import torch
 from torch.utils.benchmark import Timer
 
 from hypa.physics import LTIBlock, Scaling, SingleTrack, VehicleParameters, simulate_recursive, vehicle_parameters
+from hypa.physics.scheduled import simulate_scheduled_recursive
 
 GOALS = {"frozen_vs_recursion": 30.0, "frozen_vs_matmul": 2.0, "trainable_vs_recursion": 5.0}
 
@@ -28,11 +34,40 @@ def _time(fn: Callable[[], None], min_time: float) -> float:
     return Timer(stmt="fn()", globals={"fn": fn}).blocked_autorange(min_run_time=min_time).median
 
 
-def _vehicle_block(horizon: int, trainable: bool) -> LTIBlock:
+def _vehicle_block(horizon: int, trainable: bool, scheduled: tuple[str, ...] = ()) -> LTIBlock:
     t = lambda *v: torch.tensor(v, dtype=torch.float64)  # noqa: E731
     scaling = Scaling(t(0.0, 0.0), t(0.09, 0.012), t(0.0, 0.0), t(0.02, 0.003), t(0.0, 0.0), t(0.09, 0.012))
     params = vehicle_parameters(VehicleParameters(), trainable=["cf", "cr"] if trainable else [])
-    return LTIBlock(SingleTrack(), params, dt=1 / 32, horizon=horizon, scaling=scaling)
+    return LTIBlock(SingleTrack(), params, dt=1 / 32, horizon=horizon, scaling=scaling, scheduled=scheduled)
+
+
+def measure_scheduled(horizon: int, batch: int, min_time: float) -> dict[str, float]:
+    """Seconds of the scheduled block, the per-sample recursion and the lifted block; forward and +backward."""
+    x0 = torch.randn(batch, 2, requires_grad=True)
+    u = torch.randn(batch, horizon, 2, requires_grad=True)
+    velocity = torch.linspace(5.0, 30.0, horizon).expand(batch, horizon)[..., None] + torch.rand(batch, horizon, 1)
+    scheduled = _vehicle_block(horizon, trainable=True, scheduled=("velocity",))
+    lifted = _vehicle_block(horizon, trainable=True)
+
+    def recursion() -> torch.Tensor:  # the same per-sample matrices, then one python step per sample
+        return simulate_scheduled_recursive(scheduled.normalized_rows(velocity), 1, x0, u)
+
+    def naive() -> torch.Tensor:  # each step builds its own matrices (for the batch), then steps
+        x, states = x0, []
+        for j in range(horizon):
+            rows = scheduled.normalized_rows(velocity[:, j : j + 1])  # (B, 1, n, n + m + 1)
+            x = simulate_scheduled_recursive(rows, 1, x, u[:, j : j + 1])[:, 0]
+            states.append(x)
+        return torch.stack(states, 1)
+
+    variants = {"scheduled": lambda: scheduled(x0, u, velocity), "recursion": recursion, "naive": naive,
+                "lifted": lambda: lifted(x0, u)}
+    times = {}
+    for name, fn in variants.items():
+        with torch.no_grad():
+            times[name] = _time(fn, min_time)
+        times[name + "_backward"] = _time(lambda fn=fn: fn().sum().backward(), min_time)
+    return times
 
 
 def measure(horizon: int, batch: int, min_time: float) -> dict[str, float]:
@@ -112,6 +147,16 @@ def main(argv: list[str] | None = None) -> int:
         for label, value, op, goal in checks:
             ok = value >= goal if op == ">=" else value <= goal
             print(f"  {label:<32} {value:8.2f}x  (goal {op} {goal:g}x)  {'met' if ok else 'NOT met'}")
+    t = measure_scheduled(100, args.batch, args.min_time)
+    print(f"\nscheduled single track (velocity per sample, trainable cf, cr), N = 100, batch {args.batch}:")
+    print(f"  {'':<17} {'scheduled':>10} {'recursion':>10} {'naive':>10} {'lifted':>10} {'rec/sched':>10}"
+          f" {'naive/sched':>12} {'sched/lifted':>13}")
+    for label, key in (("forward", ""), ("forward+backward", "_backward")):
+        s, r, a, c = (t[name + key] for name in ("scheduled", "recursion", "naive", "lifted"))
+        print(f"  {label:<17} {s * 1e3:9.3f}m {r * 1e3:9.3f}m {a * 1e3:9.3f}m {c * 1e3:9.3f}m {r / s:9.1f}x"
+              f" {a / s:11.1f}x {s / c:12.1f}x")
+    print("  recursion: all per-sample matrices at once, then a python loop over the samples; naive: the loop\n"
+          "  builds each sample's matrices too; lifted: the constant-matrix block (eq. 11) at one velocity")
     return 0
 
 

@@ -2,7 +2,7 @@
 
     python -m hypa.diagnose                                          # default test-bench data
     python -m hypa.diagnose testbench.rear_steering.enabled=false    # hide / reveal effects
-    python -m hypa.diagnose data=files data.dir=PATH vehicle.cf=140000
+    python -m hypa.diagnose dataset=files data.dir=PATH vehicle.cf=140000
 
 Writes into the Hydra run folder ``diagnosis.md`` (the report), ``diagnosis.json`` (the
 numbers), the figures and ``conf/model/diagnosed.yaml``. Steps: (1) residuals of the nominal
@@ -43,7 +43,7 @@ def check_nominal(vehicle: VehicleParameters, dt: float, hold: str, rear_steerin
                      hold=hold)
     try:
         track.check_stable()
-    except UnstablePhysicsError as error:
+    except UnstablePhysicsError:
         from hypa.diagnosis.model import continuous_matrices
 
         eigenvalues = ", ".join(f"{e:.4g}" for e in np.linalg.eigvals(continuous_matrices(vehicle)[0]))
@@ -268,9 +268,9 @@ def main(cfg: DictConfig) -> None:
 
 
 def data_overrides(overrides: Sequence[str]) -> list[str]:
-    """The command-line overrides that choose the data and the vehicle (``data``, ``testbench``,
-    ``vehicle`` groups and their keys): what ``hypa.train`` needs to see the same data."""
-    groups = ("data", "testbench", "vehicle")
+    """The command-line overrides that choose the data and the vehicle (``dataset``, ``data``,
+    ``testbench``, ``vehicle`` groups and their keys): what ``hypa.train`` needs to see the same data."""
+    groups = ("dataset", "data", "testbench", "vehicle")
     return [o for o in overrides if o.lstrip("+~").split("=", 1)[0].split(".", 1)[0] in groups]
 
 

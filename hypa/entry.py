@@ -29,7 +29,8 @@ def vehicle_from_config(node: DictConfig) -> VehicleParameters:
 
 
 def data_dir_from_config(cfg: DictConfig) -> Path:
-    """The folder of measured-data files: the test bench's cache, or the user's ``data.dir``."""
+    """The folder of measured-data files: the test bench's cache, or ``data.dir`` (a relative
+    folder is taken from where the command was run, also when Hydra changed the directory)."""
     source = cfg.data.source
     if source == "testbench":
         from hypa.testbench import TestbenchConfig, ensure_dataset
@@ -39,17 +40,29 @@ def data_dir_from_config(cfg: DictConfig) -> Path:
         log.info("test-bench data: %s", folder)
         return folder
     if source == "files":
-        if cfg.data.get("dir") in (None, "???"):
-            raise ValueError("data=files needs the folder of your files: data.dir=PATH")
+        if OmegaConf.is_missing(cfg.data, "dir") or cfg.data.dir is None:
+            raise ValueError("dataset=files needs the folder of your files: data.dir=PATH")
         folder = Path(str(cfg.data.dir)).expanduser()
         if not folder.is_absolute():
-            from hydra.utils import get_original_cwd
-
-            folder = Path(get_original_cwd()) / folder
+            folder = _original_cwd() / folder
         return folder
-    raise ValueError(f"unknown data.source {source!r}; use data=testbench or data=files data.dir=PATH")
+    raise ValueError(
+        f"unknown data.source {source!r}; use testbench or files (dataset=testbench, "
+        f"dataset=files data.dir=PATH, or a conf/dataset/*.yaml)"
+    )
+
+
+def _original_cwd() -> Path:
+    """Where the command was run: Hydra's original working directory inside a Hydra app."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if HydraConfig.initialized():
+        from hydra.utils import get_original_cwd
+
+        return Path(get_original_cwd())
+    return Path.cwd()
 
 
 def datamodule(cfg: DictConfig) -> HypaDataModule:
-    """Resolve the data folder and build the DataModule from the ``data`` group."""
+    """Resolve the data folder and build the DataModule from the ``data`` node."""
     return datamodule_from_config(cfg.data, data_dir_from_config(cfg))

@@ -54,8 +54,8 @@ def aggregate(evaluations: dict[str, list[Evaluation]]) -> list[dict[str, Any]]:
                 values = [v for v in values if v is not None]
                 if values:
                     row[f"{mode}/{segment}/{metric}"] = (float(np.mean(values)), float(np.std(values)))
-        rear = [e.metrics["splits"]["val"]["rear_wheel_angle"]["corr"] for e in evals
-                if "rear_wheel_angle" in e.metrics["splits"]["val"]]
+        rear = [e.metrics["splits"]["val"]["signals"]["rear_wheel_angle"]["corr"] for e in evals
+                if "rear_wheel_angle" in e.metrics["splits"]["val"].get("signals", {})]
         if rear:
             row["rear_wheel_angle/corr"] = (float(np.mean(rear)), float(np.std(rear)))
         table.append(row)
@@ -155,8 +155,8 @@ def main(cfg: DictConfig) -> None:
                    reference="measured", gain_unit="1/s")
         fig.savefig(out / "yaw_transfer.png", dpi=120)
         plt.close(fig)
-    learned = {label: e.rear for label, e in first.items()
-               if e.rear is not None and any(b.kind == "ann" and "rear_wheel_angle" in b.outputs
+    learned = {label: e.signals["rear_wheel_angle"] for label, e in first.items()
+               if "rear_wheel_angle" in e.signals and any(b.kind == "ann" and "rear_wheel_angle" in b.outputs
                                              for b in e.model_blocks)}
     if learned:
         t, truth, _ = next(iter(learned.values()))

@@ -2,7 +2,7 @@
 
     python -m hypa.simulate                               # default test-bench data
     python -m hypa.simulate physics.hold=foh vehicle.cf=140000
-    python -m hypa.simulate data=files data.dir=PATH data.units.steering_wheel_angle=deg
+    python -m hypa.simulate dataset=files data.dir=PATH data.channels.steering_wheel_angle.unit=deg
 
 The physics (steering-wheel angle -> front (and fixed-ratio rear) wheel angle -> linear single
 track) runs two ways on each validation record: windowed, 100 steps from each measured initial
@@ -76,10 +76,10 @@ def fit_metrics(measured: np.ndarray, simulated: np.ndarray) -> dict[str, float]
 def _windowed(dm, vehicle: VehicleParameters, hold: str, rear: str) -> dict[str, dict[str, float]]:
     """Metrics over all validation windows (N steps from each measured initial state)."""
     norm, measured, simulated = dm.normalization, [], []
-    swa, states = dm.input_names.index("steering_wheel_angle"), [dm.state_names.index(s) for s in STATES]
+    swa, states = dm.input_names.index("steering_wheel_angle"), [dm.output_names.index(s) for s in STATES]
     for batch in dm.val_dataloader():
         u = norm.denormalize(batch["u"].double(), dm.input_names).numpy()[..., swa]
-        y = norm.denormalize(batch["y"].double(), dm.state_names).numpy()[..., states]
+        y = norm.denormalize(batch["y"].double(), dm.output_names).numpy()[..., states]
         simulated.append(simulate_vehicle(vehicle, u, y[:, 0], dm.dt, hold, rear)[:, 1:])
         measured.append(y[:, 1:])
     measured, simulated = np.concatenate(measured), np.concatenate(simulated)

@@ -4,7 +4,7 @@
     python -m hypa.train model=physical                    # physics only, parameters fitted
     python -m hypa.train model=blackbox ann=transformer    # a pure network
     python -m hypa.train -m model=v1,v2,v3 ann=lstm,s4 seed=0,1,2     # a sweep (parallel)
-    python -m hypa.train data=files data.dir=PATH vehicle.cf=...       # your data
+    python -m hypa.train dataset=files data.dir=PATH vehicle.cf=...    # your data
 
 Writes the best and last checkpoints and TensorBoard logs into the Hydra run folder and prints
 where; returns the best validation loss (for Hydra sweepers).
@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import logging
+import time
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +35,14 @@ def run_name(model: str, ann: str, blocks: Any) -> str:
     return f"{model}-{ann}" if has_ann else model
 
 
+def channels(*roles: str, _root_: DictConfig) -> list[str]:
+    """``${channels:input,scheduling}``: the data set's channels with these roles, in declared order
+    (so one model YAML, e.g. ``blackbox``, serves every data set)."""
+    return [name for name, c in _root_.data.channels.items() if c.role in roles]
+
+
 OmegaConf.register_new_resolver("run_name", run_name, replace=True)
+OmegaConf.register_new_resolver("channels", channels, replace=True)
 
 
 def train(cfg: DictConfig) -> dict[str, Any]:
@@ -67,9 +75,10 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     ann = OmegaConf.to_container(cfg.ann, resolve=True)
     module = HybridModule(
         model_config=model_config,
-        physical_values=vehicle_from_config(cfg.vehicle).as_dict(),
+        physical_values=vehicle_from_config(cfg.vehicle).as_dict() if cfg.vehicle else {},
         normalization=dm.normalization.state_dict(),
-        input_names=dm.input_names, state_names=dm.state_names, eval_names=dm.eval_names,
+        input_names=dm.input_names, output_names=dm.output_names, eval_names=dm.eval_names,
+        scheduling_names=dm.scheduling_names, past=dm.past,
         dt=dm.dt, horizon=int(cfg.data.window), hold=str(cfg.physics.hold),
         ann_name=str(ann.pop("name")), ann_hparams=ann,
         lr=float(cfg.optimizer.lr), physics_lr=float(cfg.optimizer.physics_lr),
@@ -94,12 +103,17 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     trainer_args["max_epochs"] = epochs * max(len(stages), 1)
     trainer = L.Trainer(**trainer_args, callbacks=callbacks, logger=logger, default_root_dir=str(out))
     log.info("model %s:\n%s", model_config["name"], module.model)
+    started = time.perf_counter()
     trainer.fit(module, datamodule=dm, ckpt_path=ckpt_path)
+    training_time_s = time.perf_counter() - started
 
     best = checkpoint.best_model_score
     result = {"best_val_loss": float(best) if best is not None else float("nan"),
               "checkpoint": checkpoint.best_model_path, "last_checkpoint": checkpoint.last_model_path,
-              "tensorboard": str(out / "tensorboard"), "epochs": trainer.current_epoch}
+              "tensorboard": str(out / "tensorboard"), "epochs": trainer.current_epoch,
+              "training_time_s": training_time_s}
+    (out / "run.json").write_text(json.dumps({"data_dir": str(data_dir.resolve()), "training_time_s": training_time_s,
+                                              "best_val_loss": result["best_val_loss"]}, indent=2))
     logger.log_hyperparams(_flat(OmegaConf.to_container(cfg, resolve=True)), {"hp/best_val_loss": result["best_val_loss"]})
     print(f"best val/loss {result['best_val_loss']:.5g} after {result['epochs']} epochs\n"
           f"checkpoint:  {result['checkpoint']}\n"

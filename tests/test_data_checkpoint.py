@@ -17,7 +17,7 @@ class _Linear(L.LightningModule):
         self.layer = torch.nn.Linear(1, 2)
 
     def training_step(self, batch, batch_idx):
-        assert set(batch) == {"u", "y"}  # nothing for evaluation in a training batch
+        assert set(batch) == {"u", "y", "s"}  # nothing for evaluation in a training batch
         return torch.nn.functional.mse_loss(self.layer(batch["u"]), batch["y"])
 
     def validation_step(self, batch, batch_idx):

@@ -15,9 +15,26 @@ from data_helpers import (
     write_table,
 )
 
-from hypa.data import DataError, find_split_files, load_dataset, load_record, unit_factor
+from hypa.data import (
+    TESTBENCH_CHANNELS,
+    ChannelSpec,
+    DataError,
+    find_split_files,
+    load_dataset,
+    load_record,
+    read_columns,
+    unit_factor,
+)
 
+BENCH = {c.name: c for c in TESTBENCH_CHANNELS}
 MODEL = ["steering_wheel_angle", "yaw_rate", "side_slip"]
+SPECS = [BENCH[name] for name in MODEL]
+
+
+def _specs(**changes: dict) -> list[ChannelSpec]:
+    """The test bench's model channels, some declared differently."""
+    return [ChannelSpec(**{"name": c.name, "role": c.role, "file_unit": c.file_unit,
+                           **changes.get(c.name, {})}) for c in SPECS]
 
 
 def _record_file(tmp_path, name="train_a.csv", duration_s=1.0, **kwargs):
@@ -27,8 +44,9 @@ def _record_file(tmp_path, name="train_a.csv", duration_s=1.0, **kwargs):
 @pytest.mark.parametrize("suffix", [".parquet", ".mat"])
 def test_csv_parquet_and_mat_read_the_same_content(tmp_path, suffix):
     data = synthetic_channels(1.0, seed=3)
-    reference = load_record(write_table(tmp_path / "a.csv", data), MODEL, ["rear_wheel_angle"])
-    other = load_record(write_table(tmp_path / f"a{suffix}", data), MODEL, ["rear_wheel_angle"])
+    specs = [*SPECS, BENCH["rear_wheel_angle"]]
+    reference = load_record(write_table(tmp_path / "a.csv", data), specs)
+    other = load_record(write_table(tmp_path / f"a{suffix}", data), specs)
     np.testing.assert_array_equal(other.time, reference.time)
     assert other.names == reference.names == (*MODEL, "rear_wheel_angle")
     for name in reference.names:
@@ -38,50 +56,53 @@ def test_csv_parquet_and_mat_read_the_same_content(tmp_path, suffix):
 
 def test_mat_column_vectors_are_read_like_row_vectors(tmp_path):
     data = synthetic_channels(0.5)
-    rows = load_record(write_table(tmp_path / "r.mat", data, mat_oned_as="row"), MODEL)
-    cols = load_record(write_table(tmp_path / "c.mat", data, mat_oned_as="column"), MODEL)
+    rows = load_record(write_table(tmp_path / "r.mat", data, mat_oned_as="row"), SPECS)
+    cols = load_record(write_table(tmp_path / "c.mat", data, mat_oned_as="column"), SPECS)
     for name in MODEL:
         np.testing.assert_array_equal(rows[name], cols[name])
 
 
-def test_file_in_degrees_with_unit_override_gives_the_same_si_values(tmp_path):
+def test_file_in_degrees_with_declared_units_gives_the_same_si_values(tmp_path):
     data = synthetic_channels(1.0)
-    si = load_record(write_table(tmp_path / "si.csv", data), MODEL)
+    si = load_record(write_table(tmp_path / "si.csv", data), SPECS)
     in_deg = dict(data, SWA_deg=np.degrees(data["steering_wheel_angle"]))
     del in_deg["steering_wheel_angle"]
     in_deg["yaw_rate"] = np.degrees(data["yaw_rate"])
     in_deg["time"] = data["time"] * 1e3
     path = write_table(tmp_path / "deg.csv", in_deg)
-    converted = load_record(
-        path,
-        MODEL,
-        columns={"steering_wheel_angle": "SWA_deg"},
-        units={"steering_wheel_angle": "deg", "yaw_rate": "deg/s", "time": "ms"},
-    )
+    specs = _specs(steering_wheel_angle={"column": "SWA_deg", "file_unit": "deg"},
+                   yaw_rate={"file_unit": "deg/s"})
+    converted = load_record(path, specs, time_unit="ms")
     np.testing.assert_allclose(converted.time, si.time, rtol=1e-15, atol=1e-15)
     for name in MODEL:
         np.testing.assert_allclose(converted[name], si[name], rtol=1e-14, atol=1e-16)
 
 
 @pytest.mark.parametrize(
-    ("unit", "channel", "factor"),
-    [("rad", "side_slip", 1.0), ("deg", "steering_wheel_angle", math.pi / 180),
-     ("deg/s", "yaw_rate", math.pi / 180), ("m/s2", "lateral_acceleration", 1.0),
-     ("g", "lateral_acceleration", 9.80665), ("km/h", "velocity", 1 / 3.6), ("ms", "time", 1e-3),
-     (0.5, "yaw_rate", 0.5), ("2.5", "velocity", 2.5)],
+    ("unit", "factor"),
+    [("rad", 1.0), ("deg", math.pi / 180), ("deg/s", math.pi / 180), ("m/s2", 1.0),
+     ("g", 9.80665), ("km/h", 1 / 3.6), ("ms", 1e-3), ("mV", 1e-3), ("mm", 1e-3), ("kN", 1e3),
+     ("kPa", 1e3), ("bar", 1e5), ("%", 0.01), ("-", 1.0), ("Nm", 1.0), ("kg", 1.0)],
 )
-def test_unit_factors(unit, channel, factor):
-    assert unit_factor(unit, channel) == pytest.approx(factor, rel=1e-15)
+def test_unit_factors(unit, factor):
+    assert unit_factor(unit, "x") == pytest.approx(factor, rel=1e-15)
 
 
-def test_unknown_unit_lists_the_known_ones():
-    with pytest.raises(DataError, match=r"unknown unit 'grad'.*deg/s.*km/h"):
-        unit_factor("grad", "steering_wheel_angle")
+def test_unknown_unit_names_the_channel_and_lists_the_known_ones():
+    with pytest.raises(DataError, match=r"unknown unit 'grad' of channel 'steering'.*deg/s.*km/h"):
+        unit_factor("grad", "steering")
+    with pytest.raises(DataError, match=r"unknown unit 'degree' of channel 'yaw_rate'"):
+        ChannelSpec("yaw_rate", "output", "degree")
 
 
-def test_unit_of_the_wrong_dimension_is_rejected():
-    with pytest.raises(DataError, match=r"'deg' is a unit of angle.*'yaw_rate'.*deg/s"):
-        unit_factor("deg", "yaw_rate")
+def test_display_unit_of_another_dimension_is_rejected():
+    with pytest.raises(DataError, match=r"display unit 'deg' of channel 'yaw_rate' is a unit of angle"
+                                        r".*'rad/s'.*deg/s"):
+        ChannelSpec("yaw_rate", "output", "rad/s", display_unit="deg")
+    spec = ChannelSpec("velocity", "scheduling", "m/s", display_unit="km/h")
+    assert (spec.unit, spec.display_unit, spec.display_factor) == ("m/s", "km/h", pytest.approx(3.6))
+    spec = ChannelSpec("position", "output", "mm")
+    assert (spec.unit, spec.factor, spec.display_unit, spec.display_factor) == ("m", 1e-3, "m", 1.0)
 
 
 def test_missing_column_suggests_the_closest_and_lists_the_file(tmp_path):
@@ -89,17 +110,28 @@ def test_missing_column_suggests_the_closest_and_lists_the_file(tmp_path):
     data["yawrate"] = data.pop("yaw_rate")
     path = write_table(tmp_path / "train_x.csv", data)
     with pytest.raises(DataError) as error:
-        load_record(path, MODEL)
+        load_record(path, SPECS)
     message = str(error.value)
     assert "train_x.csv" in message and "'yaw_rate'" in message
     assert "did you mean 'yawrate'" in message
     assert "steering_wheel_angle, side_slip" in message  # what the file has
+    assert "data.channels.yaw_rate.column" in message
 
 
-def test_mapped_column_that_is_missing_names_both_names(tmp_path):
+def test_declared_column_that_is_missing_names_both_names(tmp_path):
     path = _record_file(tmp_path)
     with pytest.raises(DataError, match=r"column 'SWA' for channel 'steering_wheel_angle'"):
-        load_record(path, MODEL, columns={"steering_wheel_angle": "SWA"})
+        load_record(path, _specs(steering_wheel_angle={"column": "SWA"}))
+
+
+def test_missing_scheduling_channel_names_file_column_and_closest_match(tmp_path):
+    data = synthetic_channels(0.5)
+    data["vx"] = data.pop("velocity")
+    path = write_table(tmp_path / "train_v.csv", data)
+    specs = [*SPECS, ChannelSpec("velocity", "scheduling", "m/s", column="v_x")]
+    with pytest.raises(DataError, match=r"train_v.csv: column 'v_x' for channel 'velocity' not "
+                                        r"found \(did you mean 'vx'\?\)"):
+        load_record(path, specs)
 
 
 @pytest.mark.parametrize("suffix", [".csv", ".parquet", ".mat"])
@@ -109,7 +141,7 @@ def test_non_finite_values_name_file_column_first_row_and_count(tmp_path, suffix
     data["side_slip"][[17, 40, 41]] = bad
     path = write_table(tmp_path / f"val_1{suffix}", data)
     with pytest.raises(DataError) as error:
-        load_record(path, MODEL)
+        load_record(path, SPECS)
     message = str(error.value)
     assert f"val_1{suffix}" in message and "'side_slip'" in message
     assert "3 missing or non-finite" in message and "row 17" in message
@@ -122,11 +154,32 @@ def test_empty_and_text_cells_in_csv(tmp_path):
     rows = [[f"{i / 1024!r}", "0.1", "0.2", "0.3"] for i in range(8)]
     rows[5][2] = ""
     with pytest.raises(DataError, match=r"'yaw_rate'.*1 missing.*row 5"):
-        load_record(write_csv_text(tmp_path / "a.csv", header, rows), MODEL)
+        load_record(write_csv_text(tmp_path / "a.csv", header, rows), SPECS)
     rows[5][2] = "0.2"
     rows[6][3] = "n/a?"
     with pytest.raises(DataError, match=r"'side_slip'.*row 6.*'n/a\?' is not a number"):
-        load_record(write_csv_text(tmp_path / "b.csv", header, rows), MODEL)
+        load_record(write_csv_text(tmp_path / "b.csv", header, rows), SPECS)
+
+
+def test_comment_header_trailing_commas_and_no_time_column(tmp_path):
+    """A '# ' header line (as the race car's logger writes it) is the header; an unnamed empty
+    column from trailing commas (as in Silverbox's CSV) is dropped; without a time column
+    sample i lies at i / sample_rate_hz."""
+    path = tmp_path / "log.csv"
+    path.write_text("# t(s),vx(m/s),u\n" + "".join(f"{1.7e9 + i / 25!r},{i},{i * i}\n" for i in range(6)))
+    assert list(read_columns(path)) == ["t(s)", "vx(m/s)", "u"]
+    channels = [ChannelSpec("u", "input", "-"), ChannelSpec("v", "output", "m/s", column="vx(m/s)")]
+    record = load_record(path, channels, time_column="t(s)", sample_rate_hz=25.0)
+    np.testing.assert_allclose(record.time, np.arange(6) / 25, atol=1e-6)  # Unix time starts at 0
+    np.testing.assert_array_equal(record["v"], np.arange(6.0))
+    path = tmp_path / "sb.csv"
+    path.write_text('"V1","V2",\n' + "".join(f"{i},{-i},\n" for i in range(5)) + "\n")
+    assert list(read_columns(path)) == ["V1", "V2"]
+    channels = [ChannelSpec("u", "input", "V", column="V1"),
+                ChannelSpec("y", "output", "mV", column="V2")]
+    record = load_record(path, channels, time_column=None, sample_rate_hz=4.0)
+    np.testing.assert_array_equal(record.time, np.arange(5) / 4.0)
+    np.testing.assert_array_equal(record["y"], -np.arange(5) * 1e-3)
 
 
 def test_non_increasing_time_names_the_row(tmp_path):
@@ -135,15 +188,15 @@ def test_non_increasing_time_names_the_row(tmp_path):
     path = write_table(tmp_path / "train_t.parquet", data)
     expected = r"train_t.parquet: column 'time', row 100: time is not strictly increasing"
     with pytest.raises(DataError, match=expected):
-        load_record(path, MODEL)
+        load_record(path, SPECS)
 
 
 def test_sample_rate_other_than_configured_is_rejected(tmp_path):
     path = write_table(tmp_path / "a.csv", synthetic_channels(0.5, sample_rate_hz=1000.0))
     expected = r"a.csv.*measured sample rate 1000 Hz.*sample_rate_hz=1024"
     with pytest.raises(DataError, match=expected):
-        load_record(path, MODEL, sample_rate_hz=1024.0)
-    load_record(path, MODEL, sample_rate_hz=1000.0)  # the right configuration reads it
+        load_record(path, SPECS, sample_rate_hz=1024.0)
+    load_record(path, SPECS, sample_rate_hz=1000.0)  # the right configuration reads it
 
 
 def test_irregular_time_step_names_the_first_row(tmp_path):
@@ -151,7 +204,7 @@ def test_irregular_time_step_names_the_first_row(tmp_path):
     data["time"][300:] += 0.5 / 1024  # a gap of half a step
     path = write_table(tmp_path / "a.mat", data)
     with pytest.raises(DataError, match=r"a.mat: column 'time', row 300: irregular time step"):
-        load_record(path, MODEL)
+        load_record(path, SPECS)
 
 
 def test_folder_errors(tmp_path):
@@ -180,36 +233,21 @@ def test_split_files_are_sorted_and_test_is_optional(tmp_path):
 
 def test_matlab_v73_file_asks_for_v7(tmp_path):
     with pytest.raises(DataError, match=r"a.mat.*v7.3.*-v7.*CSV"):
-        load_record(fake_mat73(tmp_path / "a.mat"), MODEL)
+        load_record(fake_mat73(tmp_path / "a.mat"), SPECS)
 
 
 def test_dataset_keeps_eval_channels_out_of_training_records(tmp_path):
     data_dir = make_data_dir(tmp_path / "d", n_test=1, duration_s=1.0)
-    dataset = load_dataset(data_dir, ["steering_wheel_angle"], ["yaw_rate", "side_slip"],
-                           ["rear_wheel_angle", "lateral_acceleration"])
+    dataset = load_dataset(data_dir, BENCH)
     assert all("rear_wheel_angle" not in r for r in dataset["train"])
     assert all("rear_wheel_angle" in r and "lateral_acceleration" in r for r in dataset["val"])
     assert len(dataset["test"]) == 1 and dataset.metadata == {}
+    assert list(dataset.test_sets) == ["test"]
 
 
 def test_metadata_is_read_when_present(tmp_path):
     data_dir = make_data_dir(tmp_path / "d", duration_s=0.5)
     meta = {"segments": {"val_00.csv": [[0.0, 0.25, "lane change"]]}}
     (data_dir / "dataset.json").write_text(json.dumps(meta))
-    dataset = load_dataset(data_dir, ["steering_wheel_angle"], ["yaw_rate"])
+    dataset = load_dataset(data_dir, {c.name: c for c in SPECS})
     assert dataset.metadata == meta
-
-
-def test_evaluation_only_channel_cannot_be_a_model_channel(tmp_path):
-    data_dir = make_data_dir(tmp_path / "d", duration_s=0.5)
-    with pytest.raises(DataError, match="rear_wheel_angle.*evaluation only"):
-        load_dataset(data_dir, ["steering_wheel_angle", "rear_wheel_angle"], ["yaw_rate"])
-
-
-def test_misspelled_mapping_key_and_bad_unit_fail_before_reading(tmp_path):
-    data_dir = make_data_dir(tmp_path / "d", duration_s=0.5)
-    with pytest.raises(DataError, match=r"data.units has unknown channel name\(s\) \['steering'\]"):
-        load_dataset(data_dir, ["steering_wheel_angle"], ["yaw_rate"], units={"steering": "deg"})
-    with pytest.raises(DataError, match="unknown unit 'degree'"):
-        load_dataset(data_dir, ["steering_wheel_angle"], ["yaw_rate"],
-                     units={"steering_wheel_angle": "degree"})

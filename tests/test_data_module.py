@@ -8,19 +8,19 @@ import numpy as np
 import pytest
 import torch
 from data_helpers import make_data_dir, synthetic_channels, write_table
-from omegaconf import OmegaConf
 
 from hypa.data import (
+    TESTBENCH_CHANNELS,
+    ChannelSpec,
     DataError,
     HypaDataModule,
     Normalization,
-    datamodule_from_config,
     decimate,
     load_record,
 )
 
 WINDOW, STRIDE, EVAL_STRIDE = 20, 3, 7
-CONF = Path(__file__).resolve().parents[1] / "conf" / "data"
+CONF = Path(__file__).resolve().parents[1] / "conf" / "dataset"
 
 
 def _module(data_dir: Path, **kwargs) -> HypaDataModule:
@@ -54,11 +54,12 @@ def test_statistics_come_from_the_training_split_only(data_dir):
 
 def test_round_trip_file_to_windows_to_si_equals_decimated_file(data_dir):
     dm = _module(data_dir)
-    names = dm.input_names + dm.state_names
+    names = dm.input_names + dm.output_names
+    specs = [c for c in TESTBENCH_CHANNELS if c.name in names]
     for split in ("train", "val"):
         paths = sorted(data_dir.glob(f"{split}_*.csv"))
         expected = [
-            {n: decimate(load_record(p, names)[n], 32) for n in names} for p in paths
+            {n: decimate(load_record(p, specs)[n], 32) for n in names} for p in paths
         ]
         dataset = dm.dataset(split)
         for item, (record, start) in enumerate(dataset.index):
@@ -92,11 +93,12 @@ def test_windows_count_stride_and_never_cross_records(data_dir):
 def test_batch_format(data_dir):
     dm = _module(data_dir)
     train = next(iter(dm.train_dataloader()))
-    assert set(train) == {"u", "y"}
+    assert set(train) == {"u", "y", "s"}
     assert train["u"].shape == (4, WINDOW + 1, 1) and train["y"].shape == (4, WINDOW + 1, 2)
-    assert train["u"].dtype == train["y"].dtype == torch.float32
+    assert train["s"].shape == (4, WINDOW + 1, 0)  # the test bench schedules nothing
+    assert train["u"].dtype == train["y"].dtype == train["s"].dtype == torch.float32
     val = next(iter(dm.val_dataloader()))
-    assert set(val) == {"u", "y", "eval", "record", "start"}
+    assert set(val) == {"u", "y", "s", "eval", "record", "start"}
     assert dm.eval_names == ("rear_wheel_angle", "lateral_acceleration")
     assert val["eval"].shape == (4, WINDOW + 1, 2) and val["eval"].dtype == torch.float32
     # eval channels are SI and locate back to the decimated record
@@ -115,9 +117,16 @@ def test_rear_wheel_angle_never_reaches_training(data_dir):
     assert all("rear_wheel_angle" in r for r in dm.records("val"))
     assert not dm.dataset("train").with_eval and dm.dataset("train").eval_names == ()
     for batch in dm.train_dataloader():
-        assert set(batch) == {"u", "y"}
-    with pytest.raises(DataError, match="evaluation only"):
-        HypaDataModule(data_dir, states=("yaw_rate", "rear_wheel_angle"))
+        assert set(batch) == {"u", "y", "s"}
+    # a training channel reading the evaluation channel's column is refused
+    leak = [*TESTBENCH_CHANNELS, ChannelSpec("rear", "input", "rad", column="rear_wheel_angle")]
+    with pytest.raises(DataError, match=r"evaluation channel 'rear_wheel_angle' is used as input "
+                                        r"by channel 'rear'"):
+        HypaDataModule(data_dir, channels=leak)
+    leak = [*TESTBENCH_CHANNELS, ChannelSpec("rear", "scheduling", "rad",
+                                             expression="2 * rear_wheel_angle")]
+    with pytest.raises(DataError, match="evaluation channel 'rear_wheel_angle' is used as scheduling"):
+        HypaDataModule(data_dir, channels=leak)
 
 
 def test_eval_channels_missing_from_a_file_are_left_out(tmp_path):
@@ -190,23 +199,10 @@ def test_given_normalization_must_cover_the_channels(data_dir):
         HypaDataModule(data_dir, normalization=partial)
 
 
-@pytest.mark.parametrize("name", ["files", "testbench"])
-def test_config_files_build_the_module(tmp_path, name):
-    cfg = OmegaConf.load(CONF / f"{name}.yaml")
-    assert cfg.source == name
-    OmegaConf.set_struct(cfg, True)  # as under Hydra: overrides may only touch existing keys
-    cfg.merge_with_dotlist(["units.steering_wheel_angle=deg", "window=20"])
-    data_dir = tmp_path / "d"
-    data_dir.mkdir()
-    for seed, file_name in enumerate(("train_deg.parquet", "val_deg.csv")):
-        data = synthetic_channels(5.0, seed=seed)
-        deg = dict(data, steering_wheel_angle=np.degrees(data["steering_wheel_angle"]))
-        write_table(data_dir / file_name, deg)
-    data = synthetic_channels(5.0, seed=0)
-    dm = datamodule_from_config(cfg, data_dir)
-    dm.setup("fit")
-    assert dm.window == 20 and dm.rate_hz == 32.0
-    np.testing.assert_allclose(
-        dm.records("train")[0]["steering_wheel_angle"],
-        decimate(data["steering_wheel_angle"], 32), rtol=1e-12, atol=1e-14,
-    )
+def test_state_names_alias_and_checkpoint_state(data_dir):
+    dm = _module(data_dir, past=4)
+    assert dm.state_names == dm.output_names == ("yaw_rate", "side_slip")
+    state = dm.state_dict()
+    assert state["output_names"] == ["yaw_rate", "side_slip"] and state["past"] == 4
+    assert state["scheduling_names"] == [] and state["input_names"] == ["steering_wheel_angle"]
+    assert dm.dataset("train")[0]["u"].shape == (4 + WINDOW + 1, 1)

@@ -109,14 +109,14 @@ def test_report_and_figures_are_written(delay_run) -> None:
 
 def test_missing_column_names_the_column(tmp_path: Path) -> None:
     folder = make_data_dir(tmp_path / "data", channels=tuple(c for c in ALL_CHANNELS if c != "side_slip"))
-    result = run_diagnose(tmp_path, "data=files", f"data.dir={folder}")
+    result = run_diagnose(tmp_path, "dataset=files", f"data.dir={folder}")
     assert result.returncode != 0
     assert "side_slip" in result.stderr and "Traceback" not in result.stderr
 
 
 def test_unstable_nominal_parameters_fail_before_reading_data(tmp_path: Path) -> None:
     """A weak rear axle makes the single track oversteer beyond its critical speed (unstable at 33 m/s)."""
-    result = run_diagnose(tmp_path, "data=files", f"data.dir={tmp_path / 'nowhere'}", "vehicle.cr=20000")
+    result = run_diagnose(tmp_path, "dataset=files", f"data.dir={tmp_path / 'nowhere'}", "vehicle.cr=20000")
     assert result.returncode != 0
     assert "unstable" in result.stderr, result.stderr[-2000:]
     assert "cr=20000" in result.stderr and "vehicle.cr" in result.stderr

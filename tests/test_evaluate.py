@@ -50,7 +50,7 @@ def test_free_run_of_physical_model_equals_the_physics_recursion(trained, hypa_c
     run = load_run(trained["physical"])
     dm = run_datamodule(run)
     record = dm.records("val")[0]
-    prediction = free_run(run.module, dm, record)
+    prediction = free_run(run.module.model, dm, record)
     fitted = VehicleParameters(**run.module.model.parameters_.as_floats())
     y = record.stack(("yaw_rate", "side_slip"))
     expected = simulate_vehicle(fitted, record["steering_wheel_angle"][None], y[None, 0], dm.dt)[0]
@@ -72,8 +72,9 @@ def test_evaluate_cli_writes_metrics_figures_and_report(trained, hypa_cache, tmp
         assert {"all", "stochastic", "maneuvers", "lane_change", "step_steer"} <= set(val[mode])
         assert set(val[mode]["all"]) == {"yaw_rate", "side_slip", "overall"}
         assert set(val[mode]["all"]["overall"]) == {"mae", "mse", "mape", "r2"}
-    assert -1.0 <= val["rear_wheel_angle"]["corr"] <= 1.0
-    for name in ("metrics.csv", "summary.md", "yaw_transfer.png", "free_run.png", "rear_wheel_angle.png"):
+    assert -1.0 <= val["signals"]["rear_wheel_angle"]["corr"] <= 1.0
+    for name in ("metrics.csv", "summary.md", "transfer_steering_wheel_angle_yaw_rate.png",
+                 "transfer_steering_wheel_angle_side_slip.png", "free_run.png", "rear_wheel_angle.png"):
         assert (tmp_path / "ev" / name).stat().st_size > 100
     assert "report:" in result.stdout
 

@@ -81,8 +81,8 @@ def test_written_yaml_round_trips_and_describes_itself(tmp_path: Path) -> None:
     lines = describe(config)
     assert any("dead_time" in line and "delay_s = 0.047" in line for line in lines)
     assert "sensor offsets side_slip = 0.0003" in lines[-1] and "cf = 130000" in lines[-1]
-    command = train_command(tmp_path / "conf", ["data=files", "data.dir=/my data"])
-    assert command == f"python -m hypa.train --config-dir {tmp_path / 'conf'} model=diagnosed data=files 'data.dir=/my data'"
+    command = train_command(tmp_path / "conf", ["dataset=files", "data.dir=/my data"])
+    assert command == f"python -m hypa.train --config-dir {tmp_path / 'conf'} model=diagnosed dataset=files 'data.dir=/my data'"
 
 
 def test_unmodeled_input_becomes_v1_and_saturation_a_v2_correction() -> None:

@@ -18,7 +18,17 @@ STATE_SCALE = {"yaw_rate": (0.002, 0.09), "side_slip": (-0.0005, 0.012)}
 
 
 def load(name: str) -> dict:
-    return yaml.safe_load((CONF / f"{name}.yaml").read_text())
+    """A shipped model YAML with ``${channels:...}`` resolved for the test bench's channels."""
+    roles = {"input": INPUTS, "output": STATES, "scheduling": ()}
+
+    def resolve(node):
+        if isinstance(node, dict):
+            return {k: resolve(v) for k, v in node.items()}
+        if isinstance(node, str) and node.startswith("${channels:"):
+            return [n for role in node[len("${channels:"):-1].split(",") for n in roles[role]]
+        return node
+
+    return resolve(yaml.safe_load((CONF / f"{name}.yaml").read_text()))
 
 
 def build(config: dict, hold: str = "zoh", values: VehicleParameters = VehicleParameters(), **kw) -> ComposedModel:

@@ -81,8 +81,7 @@ def test_steering_gains() -> None:
 
 
 def test_mass_spring_damper_against_scipy() -> None:
-    params = PhysicalParameters([ParameterSpec("mass", 2.0, "kg"), ParameterSpec("stiffness", 50.0, "N/m"),
-                                 ParameterSpec("damping", 1.5, "N s/m")])
+    params = PhysicalParameters(MassSpringDamper().parameter_specs({"mass": 2.0, "stiffness": 50.0, "damping": 1.5}))
     block = LTIBlock(MassSpringDamper(), params, dt=0.01, horizon=50)
     a = np.array([[0, 1], [-25.0, -0.75]])
     b = np.array([[0], [0.5]])
@@ -91,7 +90,42 @@ def test_mass_spring_damper_against_scipy() -> None:
     _, expected, _ = dlsim((ad, bd, np.eye(2), np.zeros((2, 1)), 0.01), force, x0=[0.1, 0.0])
     ours = block.simulate_physical(torch.tensor([[0.1, 0.0]], dtype=torch.float64),
                                    torch.tensor(force)[None])[0].numpy()
-    np.testing.assert_allclose(ours[:-1], expected[1:], atol=1e-12)
+    np.testing.assert_allclose(ours[:-1, 0], expected[1:, 0], atol=1e-12)  # the output is the position
+
+
+@pytest.mark.parametrize("hold", ["zoh", "foh"])
+def test_drift_e_against_scipy(hold: str) -> None:
+    """dx/dt = A x + B u + e: the drift is a constant input, exact under either hold (folded into Ĥ)."""
+    from scipy.linalg import expm
+
+    model = MassSpringDamper()
+    params = PhysicalParameters(model.parameter_specs({"mass": 2.0, "stiffness": 50.0, "damping": 1.5,
+                                                       "offset_force": 3.0}))
+    t = lambda *v: torch.tensor(v, dtype=torch.float64)  # noqa: E731
+    scaling = Scaling(t(0.05, 0.0), t(0.1, 0.5), t(0.5), t(2.0), t(0.05), t(0.1))
+    block = LTIBlock(model, params, dt=0.01, horizon=50, hold=hold, scaling=scaling)
+    a, b, e = np.array([[0, 1], [-25.0, -0.75]]), np.array([[0], [0.5]]), np.array([0.0, 1.5])
+    force = np.random.default_rng(1).normal(size=(121, 1))
+    if hold == "zoh":  # scipy: e as a second input held at 1
+        ad, bd, *_ = cont2discrete((a, np.hstack([b, e[:, None]]), np.eye(2), np.zeros((2, 2))), 0.01)
+        x, steps = np.array([0.1, 0.0]), []
+        for f in force:
+            x = ad @ x + bd @ np.r_[f, 1.0]
+            steps.append(x[0])
+    else:  # FOH: expm([[A, B, e, 0], [0, 0, 0, I], 0] dt): x+ = Φ x + (E1 - E2) u_k + E2 u_{k+1} + γ
+        gen = np.zeros((5, 5))
+        gen[:2, :2], gen[:2, 2:3], gen[:2, 3], gen[2, 4] = a * 0.01, b * 0.01, e * 0.01, 1.0
+        big = expm(gen)
+        e1, e2 = big[:2, 2:3], big[:2, 4:5]
+        x, steps = np.array([0.1, 0.0]), []
+        for k in range(len(force) - 1):
+            x = big[:2, :2] @ x + (e1 - e2) @ force[k] + e2 @ force[k + 1] + big[:2, 3]
+            steps.append(x[0])
+    ours = block.simulate_physical(t(0.1, 0.0)[None], torch.tensor(force)[None])[0, :, 0].numpy()
+    np.testing.assert_allclose(ours, steps, rtol=1e-11, atol=1e-12)
+    d = block.discrete()  # the drift of ``discretize`` too
+    np.testing.assert_allclose(d.drift.numpy(), expm(np.block([[a, e[:, None]], [np.zeros((1, 3))]]) * 0.01)[:2, 2],
+                               rtol=1e-12)
 
 
 def test_gradcheck_block_with_respect_to_physical_parameters() -> None:
@@ -169,9 +203,12 @@ def test_normalizing_before_the_hold_equals_eq_5_to_8(hold: str) -> None:
     r = lambda *s: torch.randn(*s, generator=g, dtype=torch.float64)  # noqa: E731
     a, b, c, d = r(3, 3) - 2 * torch.eye(3, dtype=torch.float64), r(3, 2), r(4, 3), r(4, 2)
     scaling = Scaling(r(3), r(3).abs() + 0.1, r(2), r(2).abs() + 0.1, r(4), r(4).abs() + 0.1)
-    expected = normalize(discretize(a, b, 0.05, hold), c, d, scaling)
+    e = r(3)
+    expected = normalize(discretize(a, b, 0.05, hold, e), c, d, scaling)
     maps = NormalizingMaps.build(scaling, 0.05, 1 if hold == "zoh" else 2, torch.float64)
-    rows, out = maps.state_rows(a, b), maps.output_rows(c, d)
+    rows, out = maps.state_rows(a, b, e), maps.output_rows(c, d)
+    batched = maps.state_rows(torch.stack([a, a]), torch.stack([b, b]), torch.stack([e, e]))  # one matrix_exp
+    torch.testing.assert_close(batched, torch.stack([rows, rows]), rtol=1e-13, atol=1e-14)
     taps = torch.cat(expected.b_taps, dim=-1)
     got = (rows[:, :3], rows[:, 3:-1], rows[:, -1], out[:, :3], out[:, 3:-1], out[:, -1])
     for ours, ref in zip(got, (expected.a, taps, expected.h, expected.c, expected.d, expected.g)):

@@ -108,3 +108,21 @@ def test_expm_float32_and_refusals() -> None:
     assert torch.isnan(expm(torch.full((2, 2), float("inf")))).all()
     with pytest.raises(ValueError, match="square"):
         expm(torch.zeros(2, 3))
+
+
+def test_expm_of_a_stack_matches_torch_values_and_gradients() -> None:
+    """A stack (one matrix per sample of a scheduled block) shares one scaling; the values and adjoint stay exact."""
+    g = torch.Generator().manual_seed(5)
+    scales = torch.tensor([1e-3, 0.3, 1.0, 30.0], dtype=torch.float64)[:, None, None, None]  # very different norms
+    m = (scales * torch.randn(4, 3, 5, 5, generator=g, dtype=torch.float64)).requires_grad_()
+    weights = torch.randn(4, 3, 5, 5, generator=g, dtype=torch.float64)
+    ours, ref = expm(m), torch.linalg.matrix_exp(m)
+    assert ours.shape == (4, 3, 5, 5)
+    for i in range(4):  # relative to each matrix's own size, however small
+        torch.testing.assert_close(ours[i], ref[i], rtol=1e-12, atol=1e-12 * ref[i].abs().max().item())
+    (grad,) = torch.autograd.grad((ours * weights).sum(), m)
+    (expected,) = torch.autograd.grad((ref * weights).sum(), m)
+    torch.testing.assert_close(grad, expected, rtol=1e-10, atol=1e-10 * expected.abs().max().item())
+    assert torch.autograd.gradcheck(expm, (m[:2, :1, :3, :3].detach().clone().requires_grad_(),))
+    stack = torch.randn(6, 4, 4, dtype=torch.float64)
+    torch.testing.assert_close(expm(stack.float()).double(), torch.linalg.matrix_exp(stack), rtol=1e-5, atol=1e-5)

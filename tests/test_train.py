@@ -65,7 +65,7 @@ def test_cli_run_with_loggers_early_stopping_and_checkpoint(tmp_path: Path, hypa
     scalars = set(acc.Tags()["scalars"])
     assert {"train/loss_epoch", "val/loss", "val/yaw_rate/r2", "val/side_slip/mae"} <= scalars
     assert "val/rear_wheel_angle/corr" in scalars
-    assert {"val/states", "val/rear_wheel_angle"} <= set(acc.Tags()["images"])
+    assert {"val/outputs", "val/rear_wheel_angle"} <= set(acc.Tags()["images"])
 
 
 def test_two_stage_schedule_switches_and_freezes_stage_one(tmp_path: Path, hypa_cache: Path, monkeypatch) -> None:
@@ -121,7 +121,7 @@ def test_rear_wheel_angle_never_reaches_training(tmp_path: Path, hypa_cache: Pat
 
     monkeypatch.setattr(HybridModule, "training_step", spy)
     run_train(tmp_path, ["model=v1", "ann=lstm", *TINY])
-    assert seen and all(keys == {"u", "y"} for keys in seen)
+    assert seen and all(keys == {"u", "y", "s"} for keys in seen)
 
 
 def test_same_seed_repeats_the_run(tmp_path: Path, hypa_cache: Path) -> None:

@@ -1,52 +1,66 @@
-"""Measured data: files -> validated SI records -> anti-aliased decimation -> normalized windows.
+"""Measured data: declared channels -> files -> SI records -> pieces -> decimated -> selected
+-> normalized windows.
 
-The flow, one module per step: :mod:`channels` (standard names, units), :mod:`io` (reading
-and validation), :mod:`decimation`, :mod:`records`, :mod:`normalization`, :mod:`windows`
-and :mod:`datamodule` (the Lightning DataModule that ties them together).
+One module per step: :mod:`units`, :mod:`expressions` and :mod:`channels` (what a channel is),
+:mod:`files` (reading files as they are), :mod:`io` (one file -> an SI record), :mod:`splits`,
+:mod:`decimation`, :mod:`selection`, :mod:`dataset` (the steps in order), :mod:`records`,
+:mod:`normalization`, :mod:`windows` and :mod:`datamodule` (the Lightning DataModule that ties
+them together); :mod:`schema` and :mod:`from_config` meet the configuration.
+
+Names are imported lazily (PEP 562), so ``import hypa`` can register the config schema without
+importing Lightning.
 """
 
-from hypa.data.channels import (
-    DEFAULT_EVAL_CHANNELS,
-    DEFAULT_INPUTS,
-    DEFAULT_STATES,
-    EVAL_ONLY_CHANNELS,
-    KNOWN_UNITS,
-    SI_UNITS,
-    unit_factor,
-)
-from hypa.data.datamodule import HypaDataModule
-from hypa.data.decimation import decimate, decimate_time, decimation_factor, lowpass_taps
-from hypa.data.errors import DataError
-from hypa.data.from_config import datamodule_from_config
-from hypa.data.io import find_split_files, load_dataset, load_record, read_columns, read_metadata
-from hypa.data.normalization import Normalization
-from hypa.data.records import SPLITS, DataSet, Record
-from hypa.data.windows import WindowDataset, window_starts
+from __future__ import annotations
 
-__all__ = [
-    "DEFAULT_EVAL_CHANNELS",
-    "DEFAULT_INPUTS",
-    "DEFAULT_STATES",
-    "EVAL_ONLY_CHANNELS",
-    "KNOWN_UNITS",
-    "SI_UNITS",
-    "SPLITS",
-    "DataError",
-    "DataSet",
-    "HypaDataModule",
-    "Normalization",
-    "Record",
-    "WindowDataset",
-    "datamodule_from_config",
-    "decimate",
-    "decimate_time",
-    "decimation_factor",
-    "find_split_files",
-    "load_dataset",
-    "load_record",
-    "lowpass_taps",
-    "read_columns",
-    "read_metadata",
-    "unit_factor",
-    "window_starts",
-]
+import importlib
+from typing import Any
+
+_EXPORTS: dict[str, str] = {
+    "ChannelSpec": "channels",
+    "ROLES": "channels",
+    "SI_UNITS": "channels",
+    "TESTBENCH_CHANNELS": "channels",
+    "DataConfig": "schema",
+    "ChannelConfig": "schema",
+    "DataError": "errors",
+    "DataSet": "records",
+    "Record": "records",
+    "SPLITS": "records",
+    "Expression": "expressions",
+    "HypaDataModule": "datamodule",
+    "Normalization": "normalization",
+    "Piece": "splits",
+    "SplitSpec": "splits",
+    "Condition": "selection",
+    "WindowDataset": "windows",
+    "window_starts": "windows",
+    "datamodule_from_config": "from_config",
+    "decimate": "decimation",
+    "decimate_time": "decimation",
+    "decimation_factor": "decimation",
+    "lowpass_taps": "decimation",
+    "find_split_files": "files",
+    "read_columns": "files",
+    "read_metadata": "files",
+    "load_record": "io",
+    "load_dataset": "dataset",
+    "KNOWN_UNITS": "units",
+    "UNITS": "units",
+    "unit": "units",
+    "unit_factor": "units",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'hypa.data' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"hypa.data.{_EXPORTS[name]}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})

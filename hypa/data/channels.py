@@ -1,19 +1,122 @@
-"""Standard channel names, their SI units, and conversion of file units to SI.
+"""Channel declarations: a name, a role, where the values come from, and their units.
 
-Every array inside hypa carries one of the standard names below and is in SI units.
-Measured files may use other column names and units; the data configuration maps them
-(``columns: {standard name: file column}``, ``units: {standard name: file unit}``) and
-:func:`unit_factor` converts on read, so that ``SI value = file value * factor``.
+Roles:
+
+* ``input``: a model input u (normalized in windows);
+* ``output``: a measured output y, the training target (normalized in windows);
+* ``scheduling``: a measured signal ρ the physics depends on per sample (SI in windows);
+* ``evaluation``: read for val/test only, never part of a training record or batch;
+* ``auxiliary``: read for ``select`` conditions, never shown to the model.
+
+A channel is a file ``column`` (default: its name) or an ``expression`` over the file's columns
+(:mod:`hypa.data.expressions`), in ``unit``; inside hypa it is SI (:mod:`hypa.data.units`).
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Mapping, Sequence
+import difflib
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
 
 from hypa.data.errors import DataError
+from hypa.data.expressions import Expression
+from hypa.data.units import display_factor, unit
 
-#: Standard channel name -> SI unit.
+ROLES: tuple[str, ...] = ("input", "output", "scheduling", "evaluation", "auxiliary")
+MODEL_ROLES: tuple[str, ...] = ("input", "output", "scheduling")  # what a training batch holds
+
+
+@dataclass(frozen=True)
+class ChannelSpec:
+    """A declared channel. ``file_unit`` is the unit in the file; :attr:`unit` is SI.
+
+    Attributes resolved on construction: ``unit`` (the SI unit), ``factor`` (file -> SI),
+    ``display_unit`` (the SI unit when not given) and ``display_factor`` (SI -> display,
+    ``shown = SI * display_factor``). Raises :class:`DataError` for an unknown role or unit,
+    a display unit of another dimension, or an invalid expression.
+    """
+
+    name: str
+    role: str
+    file_unit: str = "-"
+    column: str | None = None
+    display_unit: str | None = None
+    expression: str | None = None
+    unit: str = field(init=False)
+    factor: float = field(init=False)
+    display_factor: float = field(init=False)
+
+    def __post_init__(self) -> None:
+        if self.role not in ROLES:
+            guess = difflib.get_close_matches(str(self.role), ROLES, n=1)
+            hint = f" (did you mean {guess[0]!r}?)" if guess else ""
+            raise DataError(
+                f"channel {self.name!r} has the unknown role {self.role!r}{hint}; roles: "
+                f"{', '.join(ROLES)}"
+            )
+        if self.name == "time":
+            raise DataError("'time' is the time base (data.time), not a channel; rename it")
+        if self.column is not None and self.expression is not None:
+            raise DataError(
+                f"channel {self.name!r} has both a column ({self.column!r}) and an expression "
+                f"({self.expression!r}); give one"
+            )
+        measured = unit(self.file_unit, self.name)
+        factor = display_factor(self.file_unit, self.display_unit, self.name)
+        object.__setattr__(self, "unit", measured.si)
+        object.__setattr__(self, "factor", measured.factor)
+        object.__setattr__(self, "display_unit", self.display_unit or measured.si)
+        object.__setattr__(self, "display_factor", factor)
+        if self.expression is not None:
+            Expression(self.expression, self.name)  # a syntax error fails here, not in setup()
+
+    @property
+    def source(self) -> str:
+        """The file column (``column`` or the name), or the expression."""
+        return self.expression if self.expression is not None else (self.column or self.name)
+
+    def file_names(self) -> tuple[str, ...]:
+        """Column and scalar names of a file this channel reads."""
+        if self.expression is not None:
+            return Expression(self.expression, self.name).names
+        return (self.column or self.name,)
+
+
+def check_channels(channels: Iterable[ChannelSpec]) -> dict[str, ChannelSpec]:
+    """Channels by name, checked as a whole: at least one input and one output, and no
+    training channel reading a column that an evaluation channel declares."""
+    checked: dict[str, ChannelSpec] = {}
+    for channel in channels:
+        if channel.name in checked:
+            raise DataError(f"channel {channel.name!r} is declared twice")
+        checked[channel.name] = channel
+    for role in ("input", "output"):
+        if not any(c.role == role for c in checked.values()):
+            raise DataError(
+                f"no {role} channel is declared; channels: "
+                f"{', '.join(f'{n} ({c.role})' for n, c in checked.items()) or 'none'}"
+            )
+    evaluated = {name: c for name, c in checked.items() if c.role == "evaluation"}
+    columns = {column: name for name, c in evaluated.items() for column in c.file_names()}
+    for name, c in checked.items():
+        if c.role == "evaluation":
+            continue
+        for column in c.file_names():
+            if column in columns:
+                owner = columns[column]
+                raise DataError(
+                    f"evaluation channel {owner!r} is used as {c.role} by channel {name!r} "
+                    f"(it reads {column!r}); evaluation channels never reach a training batch"
+                )
+    return checked
+
+
+def names_with_role(channels: Mapping[str, ChannelSpec], *roles: str) -> tuple[str, ...]:
+    """Names of the channels with any of ``roles``, in declared order."""
+    return tuple(name for name, c in channels.items() if c.role in roles)
+
+
+#: Standard names and SI units of the test bench's files (its measurement chain writes them).
 SI_UNITS: dict[str, str] = {
     "time": "s",
     "steering_wheel_angle": "rad",
@@ -24,111 +127,12 @@ SI_UNITS: dict[str, str] = {
     "rear_wheel_angle": "rad",
 }
 
-#: Channels used only to evaluate a trained model (the paper trains without the measured
-#: rear wheel angle and uses it afterwards to judge the implicitly learned RWS block).
-EVAL_ONLY_CHANNELS: frozenset[str] = frozenset({"rear_wheel_angle"})
-
-DEFAULT_INPUTS: tuple[str, ...] = ("steering_wheel_angle",)
-DEFAULT_STATES: tuple[str, ...] = ("yaw_rate", "side_slip")
-DEFAULT_EVAL_CHANNELS: tuple[str, ...] = ("rear_wheel_angle", "lateral_acceleration")
-
-_STANDARD_GRAVITY = 9.80665  # [m/s^2], ISO 80000-3
-
-# Unit -> (physical dimension, factor to SI). The dimension catches a mapping such as
-# ``yaw_rate: deg`` (an angle where a rate is expected) before it silently trains a model
-# on values off by a factor of the sample rate.
-_UNITS: dict[str, tuple[str, float]] = {
-    "rad": ("angle", 1.0),
-    "deg": ("angle", math.pi / 180.0),
-    "rad/s": ("angular rate", 1.0),
-    "deg/s": ("angular rate", math.pi / 180.0),
-    "m/s^2": ("acceleration", 1.0),
-    "m/s2": ("acceleration", 1.0),
-    "m/s²": ("acceleration", 1.0),
-    "g": ("acceleration", _STANDARD_GRAVITY),
-    "m/s": ("speed", 1.0),
-    "km/h": ("speed", 1.0 / 3.6),
-    "s": ("time", 1.0),
-    "ms": ("time", 1e-3),
-}
-_SI_DIMENSION: dict[str, str] = {name: _UNITS[unit][0] for name, unit in SI_UNITS.items()}
-
-KNOWN_UNITS: tuple[str, ...] = tuple(_UNITS)
-
-
-def unit_factor(unit: str | float | int, channel: str | None = None) -> float:
-    """Factor that converts a file value in ``unit`` to SI (``SI = value * factor``).
-
-    ``unit`` is one of :data:`KNOWN_UNITS` or a plain positive number (given as a number
-    or a numeric string), which is taken as the factor itself. When ``channel`` is a
-    standard name, a named unit must have that channel's dimension (e.g. an angle for
-    ``steering_wheel_angle``).
-    """
-    if isinstance(unit, bool):  # bool is an int; ``True`` is certainly not a unit
-        raise DataError(f"unit {unit!r} for channel {channel!r} is not a unit")
-    if isinstance(unit, (int, float)):
-        return _positive_factor(float(unit), channel)
-    text = str(unit).strip()
-    if text in _UNITS:
-        dimension, factor = _UNITS[text]
-        expected = _SI_DIMENSION.get(channel or "")
-        if expected is not None and dimension != expected:
-            raise DataError(
-                f"unit {text!r} is a unit of {dimension}, but channel {channel!r} is a "
-                f"{expected} in {SI_UNITS[channel]!r}; units of {expected}: "
-                f"{', '.join(u for u, (d, _) in _UNITS.items() if d == expected)}"
-            )
-        return factor
-    try:
-        return _positive_factor(float(text), channel)
-    except ValueError:
-        pass
-    raise DataError(
-        f"unknown unit {text!r} for channel {channel!r}; known units: "
-        f"{', '.join(KNOWN_UNITS)}, or a plain number (SI value = file value * number)"
-    )
-
-
-def _positive_factor(value: float, channel: str | None) -> float:
-    if not (math.isfinite(value) and value > 0):
-        raise DataError(
-            f"unit factor for channel {channel!r} must be a positive number, got {value}"
-        )
-    return value
-
-
-def check_channel_roles(
-    inputs: Sequence[str], states: Sequence[str], eval_channels: Sequence[str]
-) -> None:
-    """Reject channel lists that would leak evaluation-only data into training."""
-    if not inputs:
-        raise DataError("at least one input channel is required")
-    if not states:
-        raise DataError("at least one state channel is required")
-    for role, names in (("input", inputs), ("state", states)):
-        leaked = [name for name in names if name in EVAL_ONLY_CHANNELS]
-        if leaked:
-            raise DataError(
-                f"{leaked} may not be used as {role} channel(s): they are for evaluation only "
-                f"and must never reach a training batch (list them in eval_channels)"
-            )
-        if "time" in names:
-            raise DataError(f"'time' is the time base, not an {role} channel")
-    everything = [*inputs, *states]
-    duplicated = sorted({name for name in everything if everything.count(name) > 1})
-    if duplicated:
-        raise DataError(f"channel(s) {duplicated} appear more than once among inputs and states")
-    overlap = sorted(set(eval_channels) & set(everything))
-    if overlap:
-        raise DataError(f"channel(s) {overlap} are both model channels and eval_channels")
-
-
-def check_mapping_keys(mapping: Mapping[str, object], what: str, used: Sequence[str]) -> None:
-    """A key that is neither a standard name nor a used channel is almost surely a typo."""
-    allowed = set(SI_UNITS) | set(used)
-    unknown = sorted(key for key in mapping if key not in allowed)
-    if unknown:
-        raise DataError(
-            f"data.{what} has unknown channel name(s) {unknown}; keys are standard names: "
-            f"{', '.join(SI_UNITS)}"
-        )
+#: The default data set's declarations (mirrors conf/dataset/testbench.yaml): the paper trains
+#: without the measured rear wheel angle and uses it afterwards to judge the learned RWS block.
+TESTBENCH_CHANNELS: tuple[ChannelSpec, ...] = (
+    ChannelSpec("steering_wheel_angle", "input", "rad", display_unit="deg"),
+    ChannelSpec("yaw_rate", "output", "rad/s", display_unit="deg/s"),
+    ChannelSpec("side_slip", "output", "rad", display_unit="deg"),
+    ChannelSpec("rear_wheel_angle", "evaluation", "rad", display_unit="deg"),
+    ChannelSpec("lateral_acceleration", "evaluation", "m/s^2"),
+)

@@ -1,12 +1,13 @@
-"""The Lightning DataModule: data folder -> decimated records -> normalized windows.
+"""The Lightning DataModule: declared channels and splits -> SI records -> normalized windows.
 
-It owns the splits, the decimation and the normalization (fitted on the training split
-only, or given, e.g. from a checkpoint), so a model never sees how the data was prepared.
+It owns the splits, the decimation, the selection and the normalization (fitted on the
+training records only, or given, e.g. from a checkpoint), so a model never sees how the data
+was prepared.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -14,35 +15,38 @@ import lightning as L
 import torch
 from torch.utils.data import DataLoader
 
-from hypa.data.channels import (
-    DEFAULT_EVAL_CHANNELS,
-    DEFAULT_INPUTS,
-    DEFAULT_STATES,
-    check_channel_roles,
-)
+from hypa.data.channels import TESTBENCH_CHANNELS, ChannelSpec, check_channels, names_with_role
+from hypa.data.dataset import load_dataset
 from hypa.data.decimation import decimation_factor
 from hypa.data.errors import DataError
-from hypa.data.io import load_dataset
 from hypa.data.normalization import Normalization
 from hypa.data.records import DataSet, Record
-from hypa.data.windows import WindowDataset, check_record_length
+from hypa.data.selection import Condition
+from hypa.data.splits import SplitSpec
+from hypa.data.units import unit
+from hypa.data.windows import WindowDataset
 
 
 class HypaDataModule(L.LightningDataModule):
-    """Measured vehicle-dynamics data for training and evaluating a hybrid model.
+    """Measured data of any system for training and evaluating a hybrid model.
 
     Args:
-        data_dir: folder with ``train*``, ``val*`` and optional ``test*`` files
-            (.csv, .parquet, .mat) and an optional ``dataset.json``.
-        inputs: model inputs (default steering_wheel_angle [rad]).
-        states: measured states (default yaw_rate [rad/s], side_slip [rad]).
-        eval_channels: SI channels handed to val/test batches when the files have them
-            (default rear_wheel_angle [rad], lateral_acceleration [m/s^2]); never trained on.
-        columns: standard name -> column name in the files (identity otherwise).
-        units: standard name -> unit of the file column (``deg``, ``km/h``, a factor, ...).
+        data_dir: folder of the files (``train*``, ``val*``, ``test*`` unless ``splits`` names
+            them; .csv, .parquet, .mat) and an optional ``dataset.json``.
+        channels: the declared channels (:class:`ChannelSpec`), in order; default: the test
+            bench's (steering_wheel_angle -> yaw_rate, side_slip; rear_wheel_angle and
+            lateral_acceleration for evaluation).
+        time_column: the files' time column (its offset removed), or ``None``: sample ``i``
+            lies at ``i / sample_rate_hz``.
+        time_unit: unit of the time column.
         sample_rate_hz: sample rate of the files [Hz] (checked against the time column).
-        rate_hz: model rate after anti-aliased decimation [Hz]; ``dt = 1 / rate_hz``.
-        window: predicted steps N per window; a window has N + 1 samples.
+        rate_hz: model rate [Hz] after anti-aliased decimation by an integer factor;
+            ``None``: no decimation. ``dt = 1 / rate_hz``.
+        splits: explicit pieces of files per split (:class:`SplitSpec`); ``None``: the files.
+        select: conditions ``"channel op number"`` that must hold (e.g. ``"velocity > 5"``);
+            records are cut where they fail.
+        window: predicted samples N per window.
+        past: samples P before the window start (a window holds P + N + 1 samples).
         stride: samples between training window starts.
         eval_stride: samples between val/test window starts.
         batch_size: windows per batch.
@@ -55,14 +59,15 @@ class HypaDataModule(L.LightningDataModule):
     def __init__(
         self,
         data_dir: Path | str,
-        inputs: Sequence[str] = DEFAULT_INPUTS,
-        states: Sequence[str] = DEFAULT_STATES,
-        eval_channels: Sequence[str] = DEFAULT_EVAL_CHANNELS,
-        columns: Mapping[str, str] | None = None,
-        units: Mapping[str, str | float] | None = None,
+        channels: Iterable[ChannelSpec] | Mapping[str, ChannelSpec] | None = None,
+        time_column: str | None = "time",
+        time_unit: str = "s",
         sample_rate_hz: float = 1024.0,
-        rate_hz: float = 32.0,
+        rate_hz: float | None = 32.0,
+        splits: SplitSpec | None = None,
+        select: Sequence[str] = (),
         window: int = 100,
+        past: int = 0,
         stride: int = 5,
         eval_stride: int = 50,
         batch_size: int = 32,
@@ -71,31 +76,52 @@ class HypaDataModule(L.LightningDataModule):
         seed: int = 0,
     ) -> None:
         super().__init__()
-        check_channel_roles(inputs, states, eval_channels)
-        decimation_factor(sample_rate_hz, rate_hz)  # fail at construction, not in setup()
+        declared = TESTBENCH_CHANNELS if channels is None else channels
+        if isinstance(declared, Mapping):
+            declared = declared.values()
+        self.channels: dict[str, ChannelSpec] = check_channels(declared)
+        unit(time_unit, "time")
+        if rate_hz is not None:
+            decimation_factor(sample_rate_hz, rate_hz)  # fail at construction, not in setup()
         for name, value in (("window", window), ("stride", stride), ("eval_stride", eval_stride),
                             ("batch_size", batch_size)):
             if int(value) < 1:
-                raise ValueError(f"{name} must be >= 1, got {value}")
+                raise DataError(f"data.{name} must be >= 1, got {value}")
+        if int(past) < 0:
+            raise DataError(f"data.past must be >= 0, got {past}")
         self.data_dir = Path(data_dir)
-        self.input_names: tuple[str, ...] = tuple(inputs)
-        self.state_names: tuple[str, ...] = tuple(states)
-        self.eval_channels: tuple[str, ...] = tuple(eval_channels)
-        self.columns = dict(columns or {})
-        self.units = dict(units or {})
+        self.input_names = names_with_role(self.channels, "input")
+        self.output_names = names_with_role(self.channels, "output")
+        self.scheduling_names = names_with_role(self.channels, "scheduling")
+        self.eval_channels = names_with_role(self.channels, "evaluation")
+        self.time_column = time_column
+        self.time_unit = time_unit
         self.sample_rate_hz = float(sample_rate_hz)
-        self.rate_hz = float(rate_hz)
+        self.rate_hz = float(rate_hz) if rate_hz is not None else self.sample_rate_hz
+        self.split_spec = splits
+        self.select = tuple(Condition.parse(text, self.channels) for text in select)
         self.window = int(window)
+        self.past = int(past)
         self.stride = int(stride)
         self.eval_stride = int(eval_stride)
         self.batch_size = int(batch_size)
         self.num_workers = int(num_workers)
         self.seed = int(seed)
         self._normalization = self._as_normalization(normalization)
-        self._data: DataSet | None = None  # decimated records, SI
+        self._data: DataSet | None = None  # SI records at the model rate
         self._datasets: dict[str, WindowDataset] = {}
 
     # -- what the model and the evaluation need to know --------------------------------
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        """Alias of :attr:`output_names` for older callers (the measured outputs)."""
+        return self.output_names
+
+    @property
+    def normalized_names(self) -> tuple[str, ...]:
+        """Channels the normalization covers: inputs, outputs, scheduling signals."""
+        return (*self.input_names, *self.output_names, *self.scheduling_names)
 
     @property
     def dt(self) -> float:
@@ -104,15 +130,15 @@ class HypaDataModule(L.LightningDataModule):
 
     @property
     def normalization(self) -> Normalization:
-        """Statistics of inputs and states; available after ``setup()`` or when given."""
+        """Statistics of inputs, outputs and scheduling signals; after ``setup()`` or given."""
         if self._normalization is None:
             raise RuntimeError("normalization is fitted in setup(); call setup() first")
         return self._normalization
 
     @property
     def eval_names(self) -> tuple[str, ...]:
-        """Evaluation channels present in every val/test record, in configured order."""
-        evaluated = [r for split in ("val", "test") for r in self.records(split)]
+        """Evaluation channels present in every val/test record, in declared order."""
+        evaluated = [*self.records("val"), *self.records("test")]
         return tuple(n for n in self.eval_channels if all(n in r for r in evaluated))
 
     @property
@@ -125,46 +151,38 @@ class HypaDataModule(L.LightningDataModule):
         return tuple(self._dataset().splits)
 
     def records(self, split: str) -> list[Record]:
-        """Decimated SI records of a split (for whole-record simulation); ``[]`` for an
-        absent ``test`` split."""
+        """SI records of a split at the model rate (for whole-record simulation); ``test``
+        holds every test set's records in turn; ``[]`` without test data."""
         if split not in ("train", "val", "test"):
             raise KeyError(f"unknown split {split!r}; use 'train', 'val' or 'test'")
         return self._dataset().splits.get(split, [])
+
+    def test_sets(self) -> dict[str, list[Record]]:
+        """Test-set name -> its records (``{"test": [...]}`` for unnamed test files)."""
+        return dict(self._dataset().test_sets)
 
     def dataset(self, split: str) -> WindowDataset:
         """Window dataset of a split (after ``setup()``)."""
         if self._data is None:
             raise RuntimeError("windows are built in setup(); call setup() first")
         if split not in self._datasets:
-            raise DataError(f"no {split} windows: {self.data_dir} has no {split}* file")
+            raise DataError(f"no {split} windows: {self.data_dir} has no {split} data")
         return self._datasets[split]
 
     # -- Lightning hooks ----------------------------------------------------------------
 
     def setup(self, stage: str | None = None) -> None:
-        """Read, validate and decimate all splits, fit the normalization, build windows.
+        """Read, cut, decimate and select all splits, fit the normalization, build windows.
 
         Idempotent: Lightning calls it once per stage, the files are read once.
         """
         if self._data is None:
-            raw = load_dataset(
-                self.data_dir,
-                self.input_names,
-                self.state_names,
-                self.eval_channels,
-                self.columns,
-                self.units,
-                self.sample_rate_hz,
+            self._data = load_dataset(
+                self.data_dir, self.channels, self.split_spec, self.time_column, self.time_unit,
+                self.sample_rate_hz, self.rate_hz, self.select, self.window, self.past,
             )
-            data = raw.decimated(self.rate_hz)
-            for records in data.splits.values():
-                for record in records:
-                    check_record_length(record, self.window, self.sample_rate_hz)
-            self._data = data
         if self._normalization is None:
-            self._normalization = Normalization.fit(
-                self._data["train"], [*self.input_names, *self.state_names]
-            )
+            self._normalization = Normalization.fit(self._data.train, self.normalized_names)
         if not self._datasets:
             self._build_datasets()
 
@@ -176,14 +194,9 @@ class HypaDataModule(L.LightningDataModule):
         for split, records in self._data.splits.items():
             training = split == "train"
             self._datasets[split] = WindowDataset(
-                records,
-                self.input_names,
-                self.state_names,
-                self._normalization,
-                self.window,
-                self.stride if training else self.eval_stride,
-                eval_names=() if training else eval_names,
-                with_eval=not training,
+                records, self.input_names, self.output_names, self._normalization, self.window,
+                self.stride if training else self.eval_stride, self.scheduling_names, self.past,
+                eval_names=() if training else eval_names, with_eval=not training,
             )
 
     def train_dataloader(self) -> DataLoader:
@@ -213,9 +226,11 @@ class HypaDataModule(L.LightningDataModule):
         return {
             "normalization": self._normalization.state_dict(),
             "input_names": list(self.input_names),
-            "state_names": list(self.state_names),
+            "output_names": list(self.output_names),
+            "scheduling_names": list(self.scheduling_names),
             "rate_hz": self.rate_hz,
             "window": self.window,
+            "past": self.past,
         }
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
@@ -246,16 +261,14 @@ class HypaDataModule(L.LightningDataModule):
     ) -> Normalization | None:
         if value is None:
             return None
-        if isinstance(value, Normalization):
-            normalization = value
-        else:
-            normalization = Normalization.from_state_dict(value)
+        normalization = (
+            value if isinstance(value, Normalization) else Normalization.from_state_dict(value)
+        )
         self._check_covers(normalization)
         return normalization
 
     def _check_covers(self, normalization: Normalization) -> None:
-        needed = (*self.input_names, *self.state_names)
-        missing = [name for name in needed if name not in normalization.names]
+        missing = [name for name in self.normalized_names if name not in normalization.names]
         if missing:
             raise DataError(
                 f"the given normalization has no statistics for {missing} "

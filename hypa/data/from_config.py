@@ -1,46 +1,134 @@
-"""The one place where the data configuration (``conf/data/*.yaml``) meets typed code.
+"""The one place where the data configuration (``conf/dataset/*.yaml``) meets typed code.
 
-Entry points call :func:`datamodule_from_config`; everything below it takes typed
-arguments. ``source`` and ``dir`` are the entry point's business (it resolves the test
-bench cache or the user's folder into ``data_dir``) and are not read here.
+Entry points call :func:`datamodule_from_config`; everything below it takes typed arguments.
+The node is checked against the schema (:mod:`hypa.data.schema`) first, so a misspelled key,
+also inside a channel declaration or a split piece, is a :class:`DataError` naming the key and
+the known ones, whether the node comes from Hydra, a plain YAML file or a run's stored config.
+``source`` and ``dir`` are the entry point's business (it resolves the test bench's cache or
+the user's folder into ``data_dir``) and are not read here.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
-from hypa.data.datamodule import HypaDataModule
+from hypa.data.channels import ChannelSpec
+from hypa.data.errors import DataError
 from hypa.data.normalization import Normalization
+from hypa.data.schema import ChannelConfig, DataConfig, PieceConfig
+from hypa.data.splits import Piece, SplitSpec
 
 
 def datamodule_from_config(
     data_cfg: DictConfig | Mapping[str, Any],
     data_dir: Path,
     normalization: Normalization | Mapping[str, Any] | None = None,
-) -> HypaDataModule:
-    """Build the DataModule from the ``data`` config group and the resolved data folder."""
-    if isinstance(data_cfg, DictConfig):
-        cfg = OmegaConf.to_container(data_cfg, resolve=True)
-    else:
-        cfg = dict(data_cfg)
+):
+    """Build the :class:`~hypa.data.HypaDataModule` from the ``data`` node and the resolved
+    data folder (``normalization``: e.g. a checkpoint's, instead of fitting it)."""
+    from hypa.data.datamodule import HypaDataModule
+
+    cfg = validated(data_cfg)
     return HypaDataModule(
         data_dir=Path(data_dir),
-        inputs=list(cfg["inputs"]),
-        states=list(cfg["states"]),
-        eval_channels=list(cfg.get("eval_channels") or []),
-        columns=dict(cfg.get("columns") or {}),
-        units=dict(cfg.get("units") or {}),
-        sample_rate_hz=float(cfg["sample_rate_hz"]),
-        rate_hz=float(cfg["rate_hz"]),
-        window=int(cfg["window"]),
-        stride=int(cfg["stride"]),
-        eval_stride=int(cfg["eval_stride"]),
-        batch_size=int(cfg["batch_size"]),
-        num_workers=int(cfg.get("num_workers", 0)),
+        channels=channels_from_config(cfg.channels),
+        time_column=cfg.time.column,
+        time_unit=cfg.time.unit,
+        sample_rate_hz=float(cfg.sample_rate_hz),
+        rate_hz=None if cfg.rate_hz is None else float(cfg.rate_hz),
+        splits=splits_from_config(cfg.splits),
+        select=list(cfg.select),
+        window=cfg.window,
+        past=cfg.past,
+        stride=cfg.stride,
+        eval_stride=cfg.eval_stride,
+        batch_size=cfg.batch_size,
+        num_workers=cfg.num_workers,
         normalization=normalization,
-        seed=int(cfg.get("seed", 0)),
+        seed=cfg.seed,
     )
+
+
+def validated(data_cfg: DictConfig | Mapping[str, Any]) -> DataConfig:
+    """The node as a :class:`DataConfig` (resolved; interpolations such as ``${oc.env:...}``
+    evaluated), or a :class:`DataError` naming the first bad key."""
+    cfg = _typed(DataConfig, data_cfg, "data")
+    cfg.channels = {
+        str(name): _typed(ChannelConfig, node, f"data.channels.{name}")
+        for name, node in (cfg.channels or {}).items()
+    }
+    return cfg
+
+
+def channels_from_config(channels: Mapping[str, ChannelConfig]) -> list[ChannelSpec]:
+    """Channel declarations -> :class:`ChannelSpec` (the YAML's ``unit`` is the file unit)."""
+    return [
+        ChannelSpec(name, c.role, c.unit, column=c.column, display_unit=c.display_unit,
+                    expression=c.expression)
+        for name, c in channels.items()
+    ]
+
+
+def splits_from_config(splits: Any) -> SplitSpec | None:
+    """``data.splits`` -> :class:`SplitSpec` (``None``: the folder's train*/val*/test* files)."""
+    if splits is None:
+        return None
+    train = [_piece(p, f"data.splits.train.{i}") for i, p in enumerate(splits.train)]
+    val = [_piece(p, f"data.splits.val.{i}") for i, p in enumerate(splits.val)]
+    test = splits.test
+    if test is None:
+        return SplitSpec.of(train, val)
+    if isinstance(test, Mapping):
+        named = {}
+        for name, pieces in test.items():
+            if not isinstance(pieces, (list, tuple)):
+                raise DataError(f"data.splits.test.{name} must be a list of pieces, got {pieces!r}")
+            named[str(name)] = [_piece(p, f"data.splits.test.{name}.{i}")
+                                for i, p in enumerate(pieces)]
+        return SplitSpec.of(train, val, named)
+    if isinstance(test, (list, tuple)):
+        pieces = [_piece(p, f"data.splits.test.{i}") for i, p in enumerate(test)]
+        return SplitSpec.of(train, val, pieces)
+    raise DataError(
+        f"data.splits.test must be a list of pieces or a mapping test-set name -> pieces, "
+        f"got {test!r}"
+    )
+
+
+def _piece(node: Any, where: str) -> Piece:
+    piece = node if isinstance(node, PieceConfig) else _typed(PieceConfig, node, where)
+    return Piece(piece.file, piece.start, piece.stop)
+
+
+def _typed(schema: type, node: Any, where: str):
+    """``node`` merged onto ``schema`` and converted to the dataclass; errors name the key."""
+    if isinstance(node, DictConfig):
+        node = OmegaConf.to_container(node, resolve=True)
+    if dataclasses.is_dataclass(node):
+        node = dataclasses.asdict(node)
+    if not isinstance(node, Mapping):
+        raise DataError(f"{where} must be a mapping of keys {_keys(schema)}, got {node!r}")
+    try:
+        merged = OmegaConf.merge(OmegaConf.structured(schema), node)
+        return OmegaConf.to_object(merged)
+    except OmegaConfBaseException as error:
+        key = getattr(error, "full_key", None) or getattr(error, "key", None) or ""
+        first = str(error).splitlines()[0] if str(error) else type(error).__name__
+        name = f"{where}.{key}" if key else where
+        if "not in" in first or type(error).__name__ == "ConfigKeyError":
+            raise DataError(f"{name}: unknown key; {where} has the keys {_keys(schema)}") from None
+        if type(error).__name__ == "MissingMandatoryValue":
+            raise DataError(
+                f"{name} is missing (required); {where} has the keys {_keys(schema)}"
+            ) from None
+        raise DataError(f"{name}: {first}") from None
+
+
+def _keys(schema: type) -> str:
+    return ", ".join(f.name for f in dataclasses.fields(schema))

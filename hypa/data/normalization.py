@@ -69,7 +69,7 @@ class Normalization:
                 raise DataError(
                     f"channel {name!r} is constant ({mean:g}) over all training records "
                     f"({files}); its standard deviation is 0, so it cannot be normalized. "
-                    f"Remove it from inputs/states or use data with excitation in it"
+                    f"Declare it with another role (e.g. auxiliary) or use data that excite it"
                 )
             means.append(mean)
             stds.append(std)

@@ -50,7 +50,7 @@ def train_extension(config_dir: Path, run_dir: Path, dm: HypaDataModule, data_ov
     run = load_run(run_dir)
     states, rear = [], []
     for record in dm.records("val"):
-        prediction = free_run(run.module, dm, record)
+        prediction = free_run(run.module.model, dm, record)
         states.append(np.stack([prediction.predicted[s] for s in STATES], axis=-1))
         rear.append(prediction.signal_on_grid("rear_wheel_angle") if "rear_wheel_angle" in prediction.signals
                     else None)

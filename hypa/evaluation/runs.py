@@ -16,6 +16,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from hypa.data import HypaDataModule, Record
+from hypa.models import ComposedModel
 from hypa.training import HybridModule
 
 
@@ -70,18 +71,21 @@ def load_run(path: Path | str) -> TrainedRun:
 
 @dataclass
 class Prediction:
-    """Measured and predicted signals of one record (SI units, the record's 32 Hz time base).
+    """Measured and predicted signals of one record (SI units, the record's time base).
 
-    ``predicted`` holds the model outputs; ``signals`` the model's internal physical signals
-    (e.g. an implicitly learned ``rear_wheel_angle``), each on its own sample range.
+    ``predicted`` holds the model outputs: samples before ``first`` are the measured ones that
+    started the model (the past and the window start), the rest the prediction; ``signals``
+    the model's internal physical signals (e.g. an implicitly learned ``rear_wheel_angle``),
+    each on its own sample range.
     """
 
     record: str
     time: np.ndarray  # (T,)
-    measured: dict[str, np.ndarray]  # states and evaluation channels, (T,)
-    predicted: dict[str, np.ndarray]  # states, (T,), sample 0 = the measured initial state
+    measured: dict[str, np.ndarray]  # outputs and evaluation channels, (T,)
+    predicted: dict[str, np.ndarray]  # outputs, (T,)
     inputs: dict[str, np.ndarray]
     signals: dict[str, tuple[np.ndarray, int]] = field(default_factory=dict)  # values, first sample
+    first: int = 1  # first predicted sample (past + 1)
 
     def signal_on_grid(self, name: str) -> np.ndarray:
         """An internal signal on the record's time base (NaN where the model has no value)."""
@@ -91,38 +95,53 @@ class Prediction:
         return out
 
 
+def model_inputs(dm: HypaDataModule, record: Record, stretch: slice = slice(None)) -> tuple[torch.Tensor, ...]:
+    """(u, y_past, s) of one record for the model, batch of one: normalized inputs, normalized
+    measured outputs up to the window start (the first ``past`` + 1 samples), SI scheduling."""
+    norm, past = dm.normalization, dm.past
+    u = norm.normalize(record.stack(dm.input_names)[stretch], dm.input_names)
+    y = norm.normalize(record.stack(dm.output_names)[stretch][: past + 1], dm.output_names)
+    s = record.stack(dm.scheduling_names)[stretch]
+    return tuple(torch.as_tensor(a, dtype=torch.float32)[None] for a in (u, y, s))
+
+
 @torch.no_grad()
-def free_run(module: HybridModule, dm: HypaDataModule, record: Record) -> Prediction:
-    """Simulate the whole record from its first measured state, never seeing measured states again."""
-    model, norm = module.model, dm.normalization
-    u = torch.as_tensor(norm.normalize(record.stack(dm.input_names), dm.input_names), dtype=torch.float32)
-    y = record.stack(dm.state_names)
-    x0 = torch.as_tensor(norm.normalize(y[:1], dm.state_names), dtype=torch.float32)
-    signals = model.signals(u[None], x0)
-    pred = model.outputs(signals)[0]
-    predicted = {n: np.concatenate([y[:1, i], model.to_physical(n, pred[:, i]).double().numpy()])
-                 for i, n in enumerate(dm.state_names)}
+def free_run(model: ComposedModel, dm: HypaDataModule, record: Record, stretch: slice = slice(None)) -> Prediction:
+    """Simulate a record (or a stretch of it) from its start, never seeing a measured output after it.
+
+    The first ``dm.past`` + 1 samples start the model (the measured state, or the estimate of
+    an unmeasured one from the past); every later sample is predicted.
+    """
+    device = next(model.buffers(), torch.zeros(0)).device
+    u, y_past, s = (t.to(device) for t in model_inputs(dm, record, stretch))
+    first = dm.past + 1
+    signals = model.signals(u, y_past, s)
+    pred = model.outputs(signals, dm.past)[0].cpu()
+    y = record.stack(dm.output_names)[stretch]
+    predicted = {n: np.concatenate([y[:first, i], model.to_physical(n, pred[:, i]).double().numpy()])
+                 for i, n in enumerate(dm.output_names)}
     internal = {}
     for name, (values, start) in signals.items():
         if name not in dm.input_names and name not in model.spec.outputs:
-            internal[name] = (model.to_physical(name, values[0, :, 0]).double().numpy(), start)
-    measured = {n: record[n] for n in (*dm.state_names, *dm.eval_channels) if n in record}
-    return Prediction(record.name, record.time, measured, predicted,
-                      {n: record[n] for n in dm.input_names}, internal)
+            internal[name] = (model.to_physical(name, values[0, :, 0]).double().cpu().numpy(), start)
+    measured = {n: record[n][stretch] for n in (*dm.output_names, *dm.eval_channels) if n in record}
+    return Prediction(record.name, record.time[stretch], measured, predicted,
+                      {n: record[n][stretch] for n in dm.input_names}, internal, first)
 
 
 @torch.no_grad()
 def windowed(module: HybridModule, dm: HypaDataModule, split: str) -> dict[str, np.ndarray]:
     """All windows of a split: ``pred`` and ``target`` (W, N, p) in SI, ``record`` and ``start``
-    (W,) to locate each window."""
-    model, out = module.model, {"pred": [], "target": [], "record": [], "start": []}
+    (W,) to locate each window (``start`` is its first sample, the first past one)."""
+    model, first = module.model, dm.past + 1
+    out = {"pred": [], "target": [], "record": [], "start": []}
     loader = dm.val_dataloader() if split == "val" else dm.test_dataloader()
     for batch in loader:
         u, y = batch["u"], batch["y"]
-        signals = model.signals(u, y[:, 0])
-        pred = model.outputs(signals)
-        out["pred"].append(torch.stack([model.to_physical(n, pred[..., i]) for i, n in enumerate(dm.state_names)], -1))
-        out["target"].append(torch.stack([model.to_physical(n, y[:, 1:, i]) for i, n in enumerate(dm.state_names)], -1))
+        pred = model(u, y[:, :first], batch.get("s"))
+        out["pred"].append(torch.stack([model.to_physical(n, pred[..., i]) for i, n in enumerate(dm.output_names)], -1))
+        out["target"].append(torch.stack([model.to_physical(n, y[:, first:, i])
+                                          for i, n in enumerate(dm.output_names)], -1))
         out["record"].append(batch["record"])
         out["start"].append(batch["start"])
     return {k: torch.cat(v).double().numpy() for k, v in out.items()}

@@ -1,11 +1,12 @@
 """Execute a composition: physics and ANN blocks wired by named, normalized signals.
 
 Every signal is kept in the normalized scale of the paper (eq. 2) together with the sample
-index it starts at. Measured inputs start at sample 0 of a window; a physics block with states
-starts its outputs one sample later (it predicts x_{k+1} from u_k); networks and static gains
-keep their inputs' start. Blocks align their inputs on the samples all of them cover, so any
-sequence length works: a 101-sample training window and a whole record free-running alike.
-Measured states enter only as initial states, never as sequences, so targets cannot leak.
+index it starts at. A sequence holds P past samples, the window start (sample P, the paper's
+k) and the samples to predict; the measured outputs are given up to the window start only, so
+targets cannot leak. Measured inputs and scheduling signals start at sample 0; a physics block
+with states starts its outputs one sample after the window start (it predicts x_{k+1} from
+u_k); networks, gains and delays keep their inputs' start. Blocks align their inputs on the
+samples all of them cover, so any length works: a training window and a whole record alike.
 """
 
 from __future__ import annotations
@@ -16,11 +17,8 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from hypa.ann import build_ann
+from hypa.models.building import ESTIMATE, MEASURED, STEADY, BlockBuilder, collect_parameters
 from hypa.models.spec import BlockSpec, ModelSpec, ModelSpecError
-from hypa.physics import LTIBlock, ParameterSpec, PhysicalParameters, Scaling
-from hypa.physics.elements import DeadTime, local_name
-from hypa.physics.systems import build_system
 
 Signal = tuple[Tensor, int]  # (B, T, 1) normalized values, index of the first sample
 
@@ -30,13 +28,15 @@ class ComposedModel(nn.Module):
 
     Args:
         spec: the composition.
-        physical_values: nominal values of every physical parameter the systems read.
-        input_names / state_names: measured inputs and states, in data order.
-        input_scale / state_scale: (mean, std) per measured signal in SI units (the training
+        physical_values: nominal values of shared physical parameters (the ``vehicle`` group);
+            a system's own nominal values fill in the rest.
+        input_names / output_names: measured inputs and outputs (targets), in data order.
+        input_scale / output_scale: (mean, std) per measured signal in SI units (the training
             set's normalization).
         dt: sample time [s]; horizon: lifted window length N; hold: ``zoh`` or ``foh`` (unless
             the spec fixes its own).
         ann_name / ann_hparams: the network used by every ANN block (``ann`` config group).
+        scheduling_names / scheduling_scale: measured scheduling signals and their (mean, std).
     """
 
     def __init__(
@@ -44,46 +44,51 @@ class ComposedModel(nn.Module):
         spec: ModelSpec,
         physical_values: Mapping[str, float],
         input_names: Sequence[str],
-        state_names: Sequence[str],
+        output_names: Sequence[str],
         input_scale: Mapping[str, tuple[float, float]],
-        state_scale: Mapping[str, tuple[float, float]],
+        output_scale: Mapping[str, tuple[float, float]],
         dt: float,
         horizon: int = 100,
         hold: str = "zoh",
         ann_name: str = "lstm",
         ann_hparams: Mapping[str, Any] | None = None,
+        scheduling_names: Sequence[str] = (),
+        scheduling_scale: Mapping[str, tuple[float, float]] | None = None,
     ) -> None:
         super().__init__()
-        self.spec, self.input_names, self.state_names = spec, tuple(input_names), tuple(state_names)
-        self.scales: dict[str, tuple[float, float]] = {**input_scale}
-        self.measured_state_scale = dict(state_scale)
+        self.spec, self.input_names, self.output_names = spec, tuple(input_names), tuple(output_names)
+        self.scheduling_names = tuple(scheduling_names)
+        self.measured_scale = dict(output_scale)
         self.order = self._dependency_order(spec)
-        self._trainable_of: dict[str, tuple[str, ...]] = {}
-        self.parameters_ = self._physical_parameters(spec, physical_values)
+        self.parameters_, self._trainable_of = collect_parameters(spec, physical_values)
+        self.trainable_physics = tuple(sorted({t for ts in self._trainable_of.values() for t in ts}))
         self.hold = spec.hold or hold
-        self._register_offsets(spec.sensor_offsets)
-        self.blocks = nn.ModuleDict()
-        for block in self.order:
-            self.blocks[block.name] = self._build_block(block, dt, horizon, self.hold, ann_name,
-                                                        dict(ann_hparams or {}))
+        self._register_offsets(spec.sensor_offsets, input_scale)
+        scales = {**input_scale, **(scheduling_scale or {})}
+        builder = BlockBuilder(self.parameters_, scales, self.measured_scale, self.scheduling_names, dt, horizon,
+                               self.hold, ann_name, ann_hparams or {})
+        self.blocks = nn.ModuleDict({b.name: builder.build(b) for b in self.order})
+        self.scales, self.starts, self.encoders = builder.scales, builder.starts, builder.encoders
         missing = [o for o in spec.outputs if o not in self.scales]
         if missing:
             raise ModelSpecError(f"model outputs {missing} are written by no block; signals: {sorted(self.scales)}")
-        if len(spec.outputs) != len(self.state_names):
-            raise ModelSpecError(f"model outputs {spec.outputs} must match the measured states {self.state_names}")
+        if tuple(spec.outputs) != self.output_names:
+            raise ModelSpecError(f"model outputs {list(spec.outputs)} must be the measured outputs "
+                                 f"{list(self.output_names)}, in that order")
         self.bypassed: set[str] = set()
         self.set_stage(None)
 
     # -- construction -------------------------------------------------------------------
     def _dependency_order(self, spec: ModelSpec) -> list[BlockSpec]:
-        available, order, pending = set(self.input_names), [], list(spec.blocks)
+        available = {*self.input_names, *self.scheduling_names}
+        order, pending = [], list(spec.blocks)
         while pending:
             ready = [b for b in pending if set(b.inputs) | set(b.residual_of) <= available]
             if not ready:
                 lines = [f"{b.name} needs {sorted(set(b.inputs) | set(b.residual_of) - available)}" for b in pending]
                 raise ModelSpecError(
                     f"model {spec.name!r}: blocks wait for signals nobody writes ({'; '.join(lines)}); "
-                    f"available signals: {sorted(available)}; measured states are initial states only"
+                    f"available signals: {sorted(available)}; measured outputs are initial states only"
                 )
             for b in ready:
                 clash = set(b.outputs) & available
@@ -94,129 +99,17 @@ class ComposedModel(nn.Module):
                 pending.remove(b)
         return order
 
-    def _physical_parameters(self, spec: ModelSpec, values: Mapping[str, float]) -> PhysicalParameters:
-        """One set of named parameters: shared ones (vehicle, overridden by the spec's
-        ``parameters``) and each block's own, stored as ``<block>/<name>``."""
-        values = {**values, **spec.parameters}
-        specs: dict[str, ParameterSpec] = {}
-        trainable: set[str] = set()
-        for b in spec.blocks:
-            if b.kind == "ann":
-                continue
-            local = {local_name(b.name, k): v for k, v in b.parameters.items()}
-            system = None if b.kind == "delay" else build_system(b.system, b.name)
-            names = (local_name(b.name, "delay_s"),) if system is None else system.parameter_names
-            unknown_local = set(local) - set(names)
-            if unknown_local:
-                raise ModelSpecError(f"block {b.name!r}: parameters {sorted(unknown_local)} are not its own; "
-                                     f"it has {', '.join(names)}")
-            missing = [p for p in names if p not in values and p not in local]
-            if missing:
-                raise ModelSpecError(f"block {b.name!r} ({b.system or b.kind}) needs parameters {missing}; give "
-                                     "them in the vehicle config or the block's parameters")
-            if system is None:
-                block_specs = [ParameterSpec(names[0], local[names[0]], "s")]
-            else:
-                block_specs = system.parameter_specs({**values, **local})
-            resolved = {t: local_name(b.name, t) if local_name(b.name, t) in names else t for t in b.trainable}
-            unknown = [t for t, full in resolved.items() if full not in names]
-            if unknown:
-                raise ModelSpecError(f"block {b.name!r}: {sorted(unknown)} are not parameters of "
-                                     f"{b.system or b.kind}; it has {', '.join(names)}")
-            for s in block_specs:
-                specs[s.name] = s
-            trainable |= set(resolved.values())
-            self._trainable_of[b.name] = tuple(resolved.values())
-        unread = set(spec.parameters) - set(specs)
-        if unread:
-            raise ModelSpecError(f"model {spec.name!r}: parameters {sorted(unread)} are read by no block; "
-                                 f"read: {', '.join(specs)}")
-        params = PhysicalParameters(specs.values())
-        params.set_trainable(trainable, True)
-        self.trainable_physics = tuple(sorted(trainable))
-        return params
-
-    def _register_offsets(self, offsets: Mapping[str, float]) -> None:
-        """Normalized sensor offsets b/σ of the measured inputs and states (zeros where none)."""
-        unknown = set(offsets) - set(self.input_names) - set(self.state_names)
+    def _register_offsets(self, offsets: Mapping[str, float], input_scale: Mapping[str, tuple[float, float]]) -> None:
+        """Normalized sensor offsets b/σ of the measured inputs and outputs (zeros where none)."""
+        unknown = set(offsets) - set(self.input_names) - set(self.output_names)
         if unknown:
             raise ModelSpecError(f"sensor_offsets {sorted(unknown)} are not measured signals; measured: "
-                                 f"{', '.join((*self.input_names, *self.state_names))}")
+                                 f"{', '.join((*self.input_names, *self.output_names))}")
         norm = lambda names, scale: torch.tensor([offsets.get(n, 0.0) / scale[n][1] for n in names],  # noqa: E731
                                              dtype=torch.float64)
-        self.register_buffer("input_offset", norm(self.input_names, self.scales), persistent=False)
-        self.register_buffer("state_offset", norm(self.state_names, self.measured_state_scale), persistent=False)
+        self.register_buffer("input_offset", norm(self.input_names, input_scale), persistent=False)
+        self.register_buffer("output_offset", norm(self.output_names, self.measured_scale), persistent=False)
         self.has_offsets = bool(offsets)
-
-    def _scale_of(self, names: Sequence[str], where: str) -> list[tuple[float, float]]:
-        missing = [n for n in names if n not in self.scales and n not in self.measured_state_scale]
-        if missing:
-            raise ModelSpecError(f"{where}: no scaling for {missing}")
-        return [self.scales.get(n) or self.measured_state_scale[n] for n in names]
-
-    def _build_block(self, b: BlockSpec, dt: float, horizon: int, hold: str, ann: str, hparams: dict) -> nn.Module:
-        inputs = self._scale_of(b.inputs, f"block {b.name!r} inputs")
-        if b.kind == "ann":
-            if b.residual_of:
-                outputs = self._scale_of(b.residual_of, f"block {b.name!r} residual_of")
-            elif b.scale_as:  # zero mean: a network output of 0 is 0 in SI units (e.g. no rear steering)
-                outputs = [(0.0, std) for _, std in self._scale_of(b.scale_as, f"block {b.name!r} scale_as")]
-            elif all(o in self.measured_state_scale for o in b.outputs):
-                outputs = [self.measured_state_scale[o] for o in b.outputs]
-            else:
-                raise ModelSpecError(f"ann block {b.name!r}: give scale_as or residual_of so its outputs "
-                                     f"{list(b.outputs)} have a physical scale")
-            if len(outputs) != len(b.outputs):
-                raise ModelSpecError(f"block {b.name!r}: {len(b.outputs)} outputs but {len(outputs)} scales")
-            self.scales.update(zip(b.outputs, outputs))
-            missing = [s for s in b.initial_state if s not in self.measured_state_scale]
-            if missing:
-                raise ModelSpecError(f"block {b.name!r}: initial state {missing} is not measured")
-            zero_init = bool(b.residual_of or b.scale_as)  # start as pure physics / no rear steering
-            d_in = len(b.inputs) + len(b.initial_state)
-            return build_ann(ann, d_in, len(b.outputs), zero_init=zero_init, **hparams)
-
-        if b.kind == "delay":  # a shift: outputs keep their inputs' scale
-            self.scales.update(zip(b.outputs, inputs))
-            return DeadTime(self.parameters_, local_name(b.name, "delay_s"), dt)
-
-        system = build_system(b.system, b.name)
-        if len(b.inputs) != len(system.input_names) or len(b.outputs) != len(system.output_names):
-            raise ModelSpecError(f"block {b.name!r}: {b.system} maps {list(system.input_names)} -> "
-                                 f"{list(system.output_names)}; got {list(b.inputs)} -> {list(b.outputs)}")
-        nominal = {k: torch.tensor(v, dtype=torch.float64) for k, v in self.parameters_.as_floats().items()}
-        d = system.matrices(nominal).d
-        if system.n_states and b.steady:  # states nobody measures: scaled like scale_as, else the inputs
-            states = self._scale_of(b.scale_as, f"block {b.name!r} scale_as") if b.scale_as else inputs
-            if not system.outputs_are_states or len(states) != system.n_states:
-                raise ModelSpecError(f"block {b.name!r}: a steady start needs a system whose outputs are its "
-                                     f"{system.n_states} states, scaled by scale_as (or by its inputs)")
-            outputs = states
-        elif system.n_states:
-            initial = b.initial_state or system.state_names
-            missing = [s for s in initial if s not in self.measured_state_scale]
-            if missing:
-                raise ModelSpecError(f"block {b.name!r}: initial state {missing} is not measured; "
-                                     f"measured states: {list(self.measured_state_scale)}")
-            states = [self.measured_state_scale[s] for s in initial]
-            outputs = states if system.outputs_are_states else self._scale_of(b.scale_as, f"block {b.name!r}")
-        elif b.scale_as:
-            states, outputs = [], self._scale_of(b.scale_as, f"block {b.name!r} scale_as")
-        else:  # a static gain: y = D u, so μy = D μu and σy = |D| σu
-            mean_in = torch.tensor([m for m, _ in inputs], dtype=torch.float64)
-            std_in = torch.tensor([s for _, s in inputs], dtype=torch.float64)
-            mean_out, std_out = d @ mean_in, d.abs() @ std_in
-            if not bool((std_out > 0).all()):
-                raise ModelSpecError(f"block {b.name!r}: its gain is zero at the nominal parameters; "
-                                     "give scale_as to fix the output scaling")
-            states, outputs = [], list(zip(mean_out.tolist(), std_out.tolist()))
-        self.scales.update(zip(b.outputs, outputs))
-        t = lambda pairs, i: torch.tensor([p[i] for p in pairs], dtype=torch.float64)  # noqa: E731
-        scaling = Scaling(t(states, 0), t(states, 1), t(inputs, 0), t(inputs, 1), t(outputs, 0), t(outputs, 1))
-        block = LTIBlock(system, self.parameters_, dt, horizon, hold=hold if system.n_states else "zoh",
-                         scaling=scaling)
-        block.check_stable()
-        return block
 
     # -- training stages ---------------------------------------------------------------
     def set_stage(self, train: Sequence[str] | None, bypass: Sequence[str] = ()) -> None:
@@ -232,36 +125,48 @@ class ComposedModel(nn.Module):
                 self.blocks[b.name].requires_grad_(b.name in active and b.name not in self.bypassed)
             elif b.name in active:
                 physics |= set(self._trainable_of[b.name])
+            if b.name in self.encoders:  # an encoder trains with its block
+                self.encoders[b.name].requires_grad_(b.name in active)
         self.parameters_.set_trainable(None, False)
         self.parameters_.set_trainable(physics, True)
 
     # -- simulation ---------------------------------------------------------------------
-    def forward(self, u: Tensor, x0: Tensor) -> Tensor:
-        """Predicted states (B, L-1, p), normalized, at samples 1..L-1 of the inputs.
+    def forward(self, u: Tensor, y_past: Tensor, s: Tensor | None = None) -> Tensor:
+        """Predicted outputs (B, L-P-1, p), normalized, at samples P+1..L-1.
 
-        u: (B, L, m) normalized measured inputs at samples 0..L-1; x0: (B, n) normalized
-        measured states at sample 0.
+        u: (B, L, m) normalized measured inputs at samples 0..L-1; y_past: (B, P+1, p)
+        normalized measured outputs at samples 0..P (P past samples and the window start;
+        (B, p) means P = 0); s: (B, L, q) scheduling signals in SI units.
         """
-        return self.outputs(self.signals(u, x0))
+        y_past = y_past[:, None] if y_past.dim() == 2 else y_past
+        return self.outputs(self.signals(u, y_past, s), y_past.shape[1] - 1)
 
-    def outputs(self, signals: Mapping[str, Signal]) -> Tensor:
-        """The model outputs (B, L-1, p) at samples 1..L-1 from ``signals(u, x0)``."""
+    def outputs(self, signals: Mapping[str, Signal], past: int = 0) -> Tensor:
+        """The model outputs (B, L-P-1, p) at samples P+1..L-1 from ``signals``."""
         outputs = []
         for name in self.spec.outputs:
             values, start = signals[name]
-            if start > 1:
-                raise ModelSpecError(f"output {name!r} starts at sample {start}; it must cover sample 1")
-            outputs.append(values[:, 1 - start :])
+            if start > past + 1:
+                raise ModelSpecError(f"output {name!r} starts at sample {start}; it must cover sample {past + 1}")
+            outputs.append(values[:, past + 1 - start :])
         y = torch.cat(outputs, dim=-1)
-        return y + self.state_offset.to(y.dtype) if self.has_offsets else y
+        return y + self.output_offset.to(y.dtype) if self.has_offsets else y
 
-    def signals(self, u: Tensor, x0: Tensor) -> dict[str, Signal]:
+    def signals(self, u: Tensor, y_past: Tensor, s: Tensor | None = None) -> dict[str, Signal]:
         """Every signal of the composition: name -> ((B, T, 1) normalized values, first sample)."""
+        y_past = y_past[:, None] if y_past.dim() == 2 else y_past
         if self.has_offsets:  # the true signals behind the biased sensors
             u = u - self.input_offset.to(u.dtype)
-            x0 = x0 - self.state_offset.to(x0.dtype)
+            y_past = y_past - self.output_offset.to(y_past.dtype)
         signals: dict[str, Signal] = {n: (u[..., i : i + 1], 0) for i, n in enumerate(self.input_names)}
-        initial = {n: x0[:, i : i + 1] for i, n in enumerate(self.state_names)}
+        physical: dict[str, Tensor] = {}  # scheduling signals in SI units, (B, L)
+        if self.scheduling_names:
+            if s is None or s.shape[-1] != len(self.scheduling_names):
+                raise ValueError(f"the model needs scheduling signals {list(self.scheduling_names)}")
+            for i, name in enumerate(self.scheduling_names):
+                mean, std = self.scales[name]
+                physical[name] = s[..., i].to(u.dtype)
+                signals[name] = (((s[..., i : i + 1] - mean) / std).to(u.dtype), 0)
         for b in self.order:
             names = (*b.inputs, *b.residual_of)
             start = max(signals[n][1] for n in names)
@@ -270,45 +175,69 @@ class ComposedModel(nn.Module):
                 raise ValueError(f"block {b.name!r}: inputs overlap on {end - start} samples; need at least 2")
             aligned = lambda ns: torch.cat([signals[n][0][:, start - signals[n][1] : end - signals[n][1]]  # noqa: E731
                                             for n in ns], dim=-1)
-            block = self.blocks[b.name]
             if b.kind == "ann":
-                if b.name in self.bypassed:
-                    y = aligned(b.residual_of)
-                else:
-                    x = aligned(b.inputs)  # (B, T, inputs)
-                    if b.initial_state:  # the measured state as an impulse at sample 0
-                        if start != 0:
-                            raise ModelSpecError(f"block {b.name!r} reads an initial state but starts at {start}")
-                        impulse = x.new_zeros(*x.shape[:2], len(b.initial_state))
-                        impulse[:, 0] = torch.cat([initial[s] for s in b.initial_state], dim=-1)
-                        x = torch.cat([x, impulse], dim=-1)
-                    y, _ = block(x)  # (B, T, outputs)
-                    y = y + aligned(b.residual_of) if b.residual_of else y
-                out_start = start
+                y, out_start = self._ann(b, aligned, y_past, start), start
             elif b.kind == "delay":
-                y, out_start = block(aligned(b.inputs)), start
-            elif b.steady:  # starts in equilibrium with its first input: outputs from sample `start` on
-                steps = end - start - 1
-                inputs = aligned(b.inputs)
-                x_init = block.steady_state(inputs[:, 0])
-                y = torch.cat([x_init[:, None], block(x_init, inputs[:, : steps + block.n_taps - 1])], dim=1)
-                out_start = start
-            elif block.model.n_states:
-                if start != 0:
-                    raise ModelSpecError(f"block {b.name!r} needs a measured initial state at sample {start}")
-                steps = end - start - 1
-                x_init = torch.cat([initial[s] for s in (b.initial_state or block.model.state_names)], dim=-1)
-                y = block(x_init, aligned(b.inputs)[:, : steps + block.n_taps - 1])
-                out_start = start + 1
+                y, out_start = self.blocks[b.name](aligned(b.inputs)), start
             else:
-                y, out_start = block(None, aligned(b.inputs)), start
+                rho = torch.stack([physical[s][:, start:end] for s in b.scheduling.values()], -1) \
+                    if b.scheduling else None  # (B, T, q) SI
+                y, out_start = self._physics(b, aligned(b.inputs), rho, y_past, start, end)
             for i, name in enumerate(b.outputs):
                 signals[name] = (y[..., i : i + 1], out_start)
         return signals
 
+    def _ann(self, b: BlockSpec, aligned, y_past: Tensor, start: int) -> Tensor:
+        if b.name in self.bypassed:
+            return aligned(b.residual_of)
+        x = aligned(b.inputs)  # (B, T, inputs)
+        if b.initial_state:  # the measured outputs over the past and the window start, zero after
+            if start != 0:
+                raise ModelSpecError(f"block {b.name!r} reads measured outputs but starts at sample {start}")
+            index = [self.output_names.index(n) for n in b.initial_state]
+            known = x.new_zeros(*x.shape[:2], len(index))
+            known[:, : y_past.shape[1]] = y_past[..., index].to(x.dtype)
+            x = torch.cat([x, known], dim=-1)
+        y, _ = self.blocks[b.name](x)  # (B, T, outputs)
+        return y + aligned(b.residual_of) if b.residual_of else y
+
+    def _physics(self, b: BlockSpec, u: Tensor, rho: Tensor | None, y_past: Tensor, start: int,
+                 end: int) -> tuple[Tensor, int]:
+        """Outputs of a physics block and their first sample; u (B, end-start, m) from ``start``."""
+        block = self.blocks[b.name]
+        if not block.model.n_states:
+            return block(None, u, scheduling=rho), start
+        how = self.starts[b.name]
+        if how.mode == STEADY:  # in equilibrium with its first input: outputs from `start` on
+            x0 = block.steady_state(u[:, 0])
+            steps = end - start - 1
+            return torch.cat([x0[:, None], block(x0, u[:, : steps + block.extra_inputs])], dim=1), start
+        past = y_past.shape[1] - 1
+        if start > past:
+            raise ModelSpecError(f"block {b.name!r} starts at sample {start}, after the window start {past}")
+        if how.mode == MEASURED:
+            index = [self.output_names.index(n) for n in how.measured]
+            x0 = y_past[:, past, index].to(u.dtype)
+        else:  # ESTIMATE: least squares over samples start..past of the outputs it observes
+            assert how.mode == ESTIMATE
+            index = [self.output_names.index(m) if m else 0 for m in how.observed]
+            observed = torch.tensor([m is not None for m in how.observed], device=u.device)
+            y = y_past[:, start:, index].to(u.dtype)  # (B, past-start+1, p_block)
+            lead = past - start + 1
+            x0 = block.estimate_state(u[:, :lead], y, observed,
+                                      scheduling=None if rho is None else rho[:, :lead])
+            if how.encoder:  # the network sees the same past; unmeasured outputs are zeros
+                past_seq = torch.cat([u[:, :lead], y * observed.to(y.dtype)], dim=-1)  # (B, lead, m + p)
+                x0 = x0 + self.encoders[b.name](past_seq)[0][:, -1]
+        steps = end - past - 1
+        take = steps + block.extra_inputs
+        u_k = u[:, past - start : past - start + take]
+        rho_k = None if rho is None else rho[:, past - start : past - start + take]
+        return block(x0, u_k, scheduling=rho_k), past + 1
+
     def to_physical(self, name: str, values: Tensor) -> Tensor:
         """A signal in SI units from its normalized values."""
-        mean, std = self.scales.get(name) or self.measured_state_scale[name]
+        mean, std = self.scales.get(name) or self.measured_scale[name]
         return values * std + mean
 
     def extra_repr(self) -> str:

@@ -13,10 +13,12 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from hypa.physics.systems import PHYSICS_SYSTEMS
+from hypa.physics.systems import PHYSICS_SYSTEMS, is_import_path
 
 BLOCK_KINDS = ("physics", "ann", "delay")
 STEADY = "steady"  # initial_state of a block that starts in equilibrium with its first input
+ESTIMATE = "estimate"  # initial_state estimated by least squares from the past samples
+ENCODER = "encoder"  # the least-squares estimate corrected by a network over the past samples
 HOLDS = ("zoh", "foh")
 
 
@@ -32,7 +34,8 @@ class BlockSpec:
         the ``ann`` config group) or ``delay`` (a dead time, ``hypa.physics.elements.DeadTime``:
         each input delayed by the block's parameter ``delay_s``).
     inputs / outputs: signal names read / written, in the block's own order.
-    system: physics only, the registered system name (``single_track``, ``front_steering``, ...).
+    system: physics only, a built-in system (``single_track``, ``front_steering``, ...) or the import
+        path of a user's ``LTIModel`` subclass (``mypackage.motors:DCMotor``).
     trainable: physics and delay, parameter names learned from data (grey-box); a block's own
         parameters by their short name (``tau_s``).
     parameters: physics and delay, values [SI] of the block's own parameters (a lag's
@@ -43,11 +46,21 @@ class BlockSpec:
     scale_as: signals whose scale σ the outputs share, giving a network's normalized output a
         physical meaning (a learned rear-wheel angle in units of the front angle's σ, with zero
         mean so that an output of 0 is 0 rad); physics blocks take (μ, σ).
-    initial_state: physics blocks with states, the measured signals whose first sample
-        starts the block (default: the system's state names), or ``steady``: in equilibrium
-        with the block's first input (for states nobody measures, e.g. a lag's); ann blocks, measured states
-        given to the network as an impulse at sample 0 (a pure network has no other way to
-        know where a window starts).
+    initial_state: physics blocks with states: the measured outputs whose value at the
+        window start are the block's initial state (default: the system's state names when
+        all of them are measured), ``steady``: in equilibrium with the block's first input
+        (a lag's state), or ``estimate`` (the default when a state is not measured): least
+        squares of the state over the window's past samples from the measured outputs the
+        block's outputs observe, or ``encoder``: that estimate plus a network (of the ``ann``
+        group) over the past inputs and measured outputs, which starts at zero (deepSI's
+        SUBNET encoder, anchored on the physics). ann blocks: measured outputs given to the network over the
+        past samples and the window start (zero afterwards; with no past, an impulse at the
+        start: a pure network has no other way to know where a window starts).
+    scheduling: physics only, parameters that vary per sample with a measured signal
+        (``{velocity: velocity}``: parameter -> scheduling channel, SI units).
+    observe: physics only, which measured output each block output is (``{yaw_rate_physics:
+        yaw_rate}``) for the initial-state estimate; outputs named like a measured output
+        observe it without this.
     """
 
     name: str
@@ -60,10 +73,21 @@ class BlockSpec:
     scale_as: tuple[str, ...] = ()
     initial_state: tuple[str, ...] = ()
     parameters: Mapping[str, float] = field(default_factory=dict)
+    scheduling: Mapping[str, str] = field(default_factory=dict)
+    observe: Mapping[str, str] = field(default_factory=dict)
 
     @property
     def steady(self) -> bool:
         return self.initial_state == (STEADY,)
+
+    @property
+    def estimated(self) -> bool:
+        """The initial state comes from the past samples (least squares, maybe with an encoder)."""
+        return self.initial_state in ((ESTIMATE,), (ENCODER,))
+
+    @property
+    def encoded(self) -> bool:
+        return self.initial_state == (ENCODER,)
 
 
 @dataclass(frozen=True)
@@ -106,7 +130,7 @@ class ModelSpec:
 
 
 _BLOCK_KEYS = {"kind", "inputs", "outputs", "system", "trainable", "residual_of", "scale_as", "initial_state",
-               "parameters"}
+               "parameters", "scheduling", "observe"}
 _MODEL_KEYS = {"name", "blocks", "outputs", "stages", "hold", "parameters", "sensor_offsets"}
 
 
@@ -137,6 +161,17 @@ def _values(value: Any, where: str) -> dict[str, float]:
     return out
 
 
+def _signal_map(value: Any, where: str) -> dict[str, str]:
+    """A mapping name -> signal name; a list means each name maps to itself."""
+    if value is None:
+        return {}
+    if isinstance(value, str) or (isinstance(value, Sequence) and not isinstance(value, Mapping)):
+        return {n: n for n in _names(value, where)}
+    if not isinstance(value, Mapping):
+        raise ModelSpecError(f"{where} must map names to signal names, got {value!r}")
+    return {str(k): str(v) for k, v in value.items()}
+
+
 def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
     """Parse and check the ``model`` config (a plain mapping) into a :class:`ModelSpec`."""
     name = str(config.get("name", "model"))
@@ -158,9 +193,12 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
         if kind not in BLOCK_KINDS:
             raise ModelSpecError(f"block {block_name!r}: kind must be one of {BLOCK_KINDS}, got {kind!r}")
         system = b.get("system")
-        if kind == "physics" and system not in PHYSICS_SYSTEMS:
+        # an import path (package.module:Class) is resolved and checked when the model is built
+        known = isinstance(system, str) and (system in PHYSICS_SYSTEMS or is_import_path(system))
+        if kind == "physics" and not known:
             raise ModelSpecError(
-                f"block {block_name!r}: unknown physics system {system!r}; known: {', '.join(PHYSICS_SYSTEMS)}"
+                f"block {block_name!r}: unknown physics system {system!r}; known: {', '.join(PHYSICS_SYSTEMS)}, "
+                "or an import path package.module:Class"
             )
         blocks.append(BlockSpec(
             name=str(block_name), kind=kind, inputs=_names(b.get("inputs"), f"{block_name}.inputs"),
@@ -170,7 +208,11 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
             scale_as=_names(b.get("scale_as"), f"{block_name}.scale_as"),
             initial_state=_names(b.get("initial_state"), f"{block_name}.initial_state"),
             parameters=_values(b.get("parameters"), f"{block_name}.parameters"),
+            scheduling=_signal_map(b.get("scheduling"), f"{block_name}.scheduling"),
+            observe=_signal_map(b.get("observe"), f"{block_name}.observe"),
         ))
+        if kind != "physics" and (blocks[-1].scheduling or blocks[-1].observe):
+            raise ModelSpecError(f"block {block_name!r}: only physics blocks take scheduling or observe")
         if kind == "ann" and (blocks[-1].parameters or blocks[-1].trainable):
             raise ModelSpecError(f"block {block_name!r}: an ann block has no physical parameters or trainable")
         if kind == "delay" and "delay_s" not in blocks[-1].parameters:

@@ -29,7 +29,8 @@ class FirstOrderLag(LTIModel):
 
     One state, the output itself, so the output shares the state's name and scaling. Started
     in equilibrium with its first input (``initial_state: steady`` in a model YAML) it needs
-    no measured state.
+    no measured state. The parameter is the block's own, ``<block>/tau_s``; its nominal 0.1 s
+    is a placeholder a model sets (``parameters: {tau_s: ...}``).
     """
 
     state_names = ("lagged",)
@@ -37,11 +38,7 @@ class FirstOrderLag(LTIModel):
     output_names = ("lagged",)
 
     def __init__(self, prefix: str = "") -> None:
-        self.parameter_names = (local_name(prefix, "tau_s"),)
-
-    def parameter_specs(self, values: Mapping[str, float]) -> list[ParameterSpec]:
-        (name,) = self.parameter_names
-        return [ParameterSpec(name, float(values[name]), "s")]
+        self.parameters = (ParameterSpec(local_name(prefix, "tau_s"), 0.1, "s"),)
 
     def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
         tau = p[self.parameter_names[0]]

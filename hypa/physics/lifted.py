@@ -17,6 +17,7 @@ batched products), so rebuilding the matrices every step with trainable physics 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -280,3 +281,33 @@ def simulate_recursive(a: Tensor, b_taps: tuple[Tensor, ...], h: Tensor, x0: Ten
             x = x + u[:, k + t] @ b_t.T
         out.append(x)
     return torch.stack(out, dim=1)
+
+
+def simulate_chunked(lifted: LiftedMatrices, x0: Tensor, u: Tensor) -> Tensor:
+    """States x̂_{k+1..k+S} (B, S, n) for any S = L - T + 1, from x0 (B, n) and u (B, L, m).
+
+    S = N is one ``simulate_lifted``. Otherwise the sequence is cut into horizon-long windows
+    (the last padded with zeros): all windows' input responses are one product, and the windows
+    are chained through their last states, x̂_{(c+1)N} = Â^N x̂_{cN} + (forced response)_c, which
+    is exact: free-running simulation of any length at the cost of ⌈S/N⌉ tiny (n, n) steps.
+    """
+    batch, n = x0.shape
+    horizon, n_taps = lifted.horizon, lifted.n_taps
+    steps = u.shape[1] - n_taps + 1
+    if steps == horizon:
+        return simulate_lifted(lifted, x0, u)
+    if steps < 1:
+        raise ValueError(f"need at least {n_taps} input samples, got {u.shape[1]}")
+    chunks = math.ceil(steps / horizon)
+    pad = chunks * horizon + n_taps - 1 - u.shape[1]
+    u_pad = torch.cat([u, u.new_zeros(batch, pad, u.shape[2])], dim=1)
+    windows = u_pad.unfold(1, lifted.input_length, horizon)  # (B, C, m, N+T-1)
+    windows = windows.transpose(2, 3).reshape(batch, chunks, -1)
+    forced = (windows @ lifted.b.T + lifted.h).view(batch, chunks, horizon, n)
+    a_n = lifted.a[-n:]  # Â^N
+    starts, x = [], x0
+    for c in range(chunks):
+        starts.append(x)
+        x = x @ a_n.T + forced[:, c, -1]
+    free = (torch.stack(starts, 1) @ lifted.a.T).view(batch, chunks, horizon, n)
+    return (forced + free).reshape(batch, chunks * horizon, n)[:, :steps]

@@ -7,18 +7,19 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor, nn
 
 from hypa.physics.discretization import HOLDS, DiscreteLTI, Hold, discretize
-from hypa.physics.lifted import LiftedMatrices, lifted_from_rows, simulate_from_rows, simulate_lifted
+from hypa.physics.lifted import LiftedMatrices, lifted_from_rows
 from hypa.physics.normalized import NormalizedLTI, NormalizingMaps, Scaling
 from hypa.physics.parameters import ParameterSpec, PhysicalParameters
+from hypa.physics.scheduled import SchedulingError
+from hypa.physics.simulation import BlockSimulation
 
 
 _SCALING = ("state_mean", "state_std", "input_mean", "input_std", "output_mean", "output_std")
@@ -30,29 +31,65 @@ class UnstablePhysicsError(ValueError):
 
 @dataclass(frozen=True)
 class StateSpace:
-    """Continuous dx/dt = A x + B u, y = C x + D u (physical units)."""
+    """Continuous dx/dt = A x + B u + e, y = C x + D u (physical units).
+
+    ``e`` is a constant drift (an offset force, gravity): zero when None.
+    """
 
     a: Tensor  # (n, n)
     b: Tensor  # (n, m)
     c: Tensor  # (p, n)
     d: Tensor  # (p, m)
+    e: Tensor | None = None  # (n,)
 
 
 class LTIModel(ABC):
-    """A physical system: names of its signals and parameters and its continuous matrices."""
+    """A physical system: the contract a built-in or a user's system follows.
 
-    state_names: tuple[str, ...]
-    input_names: tuple[str, ...]
-    output_names: tuple[str, ...]
-    parameter_names: tuple[str, ...]
+    Class (or instance) attributes name the signals and parameters; ``matrices`` maps scalar
+    parameter values to the continuous state space dx/dt = A x + B u + e, y = C x + D u (the
+    hold turns it into eq. 1)::
 
-    @abstractmethod
-    def parameter_specs(self, values: Mapping[str, float]) -> list[ParameterSpec]:
-        """Specs (units, constraints) of the parameters this model reads, valued from ``values``."""
+        class Oscillator(LTIModel):
+            state_names = ("position", "velocity")          # x (n,)
+            input_names = ("force",)                        # u (m,)
+            output_names = ("position",)                    # y (p,) the measured outputs
+            parameters = (ParameterSpec("mass", 2.0, "kg"), ParameterSpec("stiffness", 50.0, "N/m"))
+
+            def matrices(self, p):                          # p: name -> scalar tensor
+                ...
+                return StateSpace(a, b, c, d)               # (n, n), (n, m), (p, n), (p, m)
+
+    ``matrices`` is written for scalar values and must be differentiable in them (torch ops
+    only); a scheduled parameter is handled by the engine, not by the system.
+    ``hypa.physics.systems.check_system`` says what a class gets wrong.
+    """
+
+    state_names: tuple[str, ...] = ()
+    input_names: tuple[str, ...] = ()
+    output_names: tuple[str, ...] = ()
+    parameters: tuple[ParameterSpec, ...] = ()  # nominal values, units, positivity / bounds
 
     @abstractmethod
     def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
-        """Continuous A, B, C, D from physical parameter values (differentiable)."""
+        """Continuous A, B, C, D (and optionally e) from physical parameter values (differentiable)."""
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """Names of the parameters ``matrices`` reads (those of ``parameters``)."""
+        return tuple(spec.name for spec in self.parameters)
+
+    def parameter_specs(self, values: Mapping[str, float]) -> list[ParameterSpec]:
+        """The specs of ``parameters``, valued from ``values`` where given (nominal otherwise).
+
+        Unit, positivity and bounds stay the system's own: a configuration sets values only.
+        """
+        return [dataclasses.replace(spec, value=float(values.get(spec.name, spec.value)))
+                for spec in self.parameters]
+
+    def nominal_values(self) -> dict[str, float]:
+        """Nominal value of every parameter by name."""
+        return {spec.name: spec.value for spec in self.parameters}
 
     @property
     def n_states(self) -> int:
@@ -64,14 +101,17 @@ class LTIModel(ABC):
         return self.n_states > 0 and self.output_names == self.state_names
 
 
-class LTIBlock(nn.Module):
+class LTIBlock(BlockSimulation, nn.Module):
     """Normalized, lifted LTI simulator with physical parameters (frozen or trainable).
 
-    Inputs and outputs are normalized (eq. 2). A block's output at window step j is the one
-    produced by consuming input u_{k+j}: ŷ_j = Ĉ x̂_{k+j+1} + D̂ û_{k+j} + Ĝ, so for the
-    single-track model (C = I, D = 0) output j is the state x̂_{k+j+1}, and for a pure gain
-    (no states) it is D̂ û_{k+j}. Sequences of any length are simulated free-running by
-    chaining horizon-long lifted windows through their last state (exact, see ``forward``).
+    Inputs and outputs are normalized (eq. 2). ``forward(x̂_k, û)`` returns the outputs at
+    samples k+1..k+S, ŷ_j = Ĉ x̂_j + D̂ û_j + Ĝ (D with the input of the same sample: u holds
+    S + ``extra_inputs`` samples), so for the single track (C = I, D = 0) they are the states;
+    a pure gain (no states) gives D̂ û_j at every given sample. Sequences of any length are
+    simulated free-running by chaining horizon-long lifted windows (exact). ``scheduled`` names
+    parameters that vary per sample with a measured signal (``scheduled.py``); the running of
+    the block (``forward``, ``states``, ``output``, ``steady_state``, ``estimate_state``) is
+    in ``simulation.py``.
     """
 
     def __init__(
@@ -82,6 +122,7 @@ class LTIBlock(nn.Module):
         horizon: int = 100,
         hold: Hold = "zoh",
         scaling: Scaling | None = None,
+        scheduled: Sequence[str] = (),
     ) -> None:
         super().__init__()
         if hold not in HOLDS:
@@ -94,6 +135,14 @@ class LTIBlock(nn.Module):
         if missing:
             raise ValueError(f"{type(model).__name__} needs parameters {sorted(missing)}")
         self.model, self.parameters_, self.dt, self.horizon, self.hold = model, parameters, dt, horizon, hold
+        self.scheduled = tuple(scheduled)
+        unknown = [s for s in self.scheduled if s not in model.parameter_names]
+        if unknown or len(set(self.scheduled)) != len(self.scheduled):
+            raise SchedulingError(f"{type(model).__name__}: cannot schedule {list(scheduled)}; its parameters are "
+                                  f"{list(model.parameter_names)} (each at most once)")
+        self._fixed_names = tuple(k for k in model.parameter_names if k not in self.scheduled)
+        with torch.no_grad():  # feedthrough decides how many inputs a window takes (``extra_inputs``)
+            self.feedthrough = bool(model.n_states and torch.count_nonzero(self.state_space().d))
         n, m, p = model.n_states, len(model.input_names), len(model.output_names)
         scaling = scaling or Scaling.identity(n, m, p)
         if model.outputs_are_states:
@@ -127,7 +176,7 @@ class LTIBlock(nn.Module):
 
     def discrete(self, dtype: torch.dtype = torch.float64) -> DiscreteLTI:
         ss = self.state_space(dtype)
-        return discretize(ss.a, ss.b, self.dt, self.hold)
+        return discretize(ss.a, ss.b, self.dt, self.hold, ss.e)
 
     def normalized(self, dtype: torch.dtype = torch.float64) -> NormalizedLTI:
         """Â, B̂_t, Ĥ (eq. 6-8) and Ĉ, D̂, Ĝ, in ``dtype``."""
@@ -141,7 +190,7 @@ class LTIBlock(nn.Module):
         """
         ss = self.state_space(dtype)
         maps = self._normalizing_maps(dtype, ss.a.device)
-        rows, out = maps.state_rows(ss.a, ss.b), maps.output_rows(ss.c, ss.d)
+        rows, out = maps.state_rows(ss.a, ss.b, ss.e), maps.output_rows(ss.c, ss.d)
         n, m = ss.b.shape
         taps = tuple(rows[:, n + t * m : n + (t + 1) * m] for t in range(self.n_taps))
         norm = NormalizedLTI(a=rows[:, :n], b_taps=taps, h=rows[:, -1], c=out[:, :n], d=out[:, n:-1], g=out[:, -1])
@@ -156,8 +205,13 @@ class LTIBlock(nn.Module):
             self._maps = (key, NormalizingMaps.build(scaling, self.dt, self.n_taps, dtype))
         return self._maps[1]
 
-    def check_stable(self) -> None:
-        """Raise ``UnstablePhysicsError`` unless every eigenvalue of A has a negative real part."""
+    def check_stable(self, rtol: float = 1e-6) -> None:
+        """Raise ``UnstablePhysicsError`` if an eigenvalue of A has a real part clearly above 0.
+
+        Marginal modes pass: an integrator (a position driven by a velocity) has λ = 0, which
+        round-off makes ±ε‖A‖ (±√ε‖A‖ for a double integrator), so only
+        Re λ > rtol · ‖A‖_F counts as unstable.
+        """
         with torch.no_grad():
             a = self.state_space(torch.float64).a
             if a.numel() == 0:
@@ -165,12 +219,13 @@ class LTIBlock(nn.Module):
             if not bool(torch.isfinite(a).all()):
                 raise UnstablePhysicsError(f"{type(self.model).__name__}: A is not finite: {a.tolist()}")
             eig = torch.linalg.eigvals(a)
-        if float(eig.real.max()) >= 0:
+            tol = rtol * float(torch.linalg.matrix_norm(a))
+        if float(eig.real.max()) > tol:
             raise UnstablePhysicsError(
                 f"{type(self.model).__name__} is unstable with parameters "
                 f"{self.parameters_.as_floats()}: eigenvalues of A are "
                 f"{[complex(round(e.real, 4), round(e.imag, 4)) for e in eig.tolist()]} "
-                "(a real part >= 0). Check the nominal parameters (e.g. cf*lf vs cr*lr at this velocity)."
+                "(a real part > 0). Check the nominal parameters (e.g. cf*lf vs cr*lr at this velocity)."
             )
 
     # -- lifted matrices, rebuilt only when something they depend on changed -----------------
@@ -204,78 +259,8 @@ class LTIBlock(nn.Module):
             self._cache = (key, lifted, norm)
         return lifted, norm
 
-    # -- simulation ---------------------------------------------------------------------
-    def forward(self, x0: Tensor | None, u: Tensor) -> Tensor:
-        """Normalized outputs ŷ (B, S, p) from initial state x̂_k (B, n) and inputs û (B, S+T-1, m).
-
-        S = horizon is one lifted product; any other S is simulated free-running in horizon-long
-        chunks chained through their last state, all chunks' input responses in one product.
-        """
-        states, norm = self._simulate(x0, u)
-        if self.model.outputs_are_states:
-            return states
-        y = u[:, : states.shape[1]] @ norm.d.T + norm.g
-        return y + states @ norm.c.T if self.model.n_states else y
-
-    def steady_state(self, u0: Tensor) -> Tensor:
-        """Normalized equilibrium x̂ (B, n) for the constant normalized input û0 (B, m).
-
-        0 = A x + B u gives x = -A⁻¹ B u in physical units (the same for either hold, which is
-        exact for a constant input); a block started there needs no measured initial state.
-        """
-        ss = self.state_space(u0.dtype)
-        u_phys = u0 * self.input_std.to(u0.dtype) + self.input_mean.to(u0.dtype)
-        x = -torch.linalg.solve(ss.a, (u_phys @ ss.b.T).T).T  # (B, n)
-        return (x - self.state_mean.to(u0.dtype)) / self.state_std.to(u0.dtype)
-
-    def states(self, x0: Tensor | None, u: Tensor) -> Tensor:
-        """Normalized states x̂_{k+1..k+S} (B, S, n); see ``forward``."""
-        return self._simulate(x0, u)[0]
-
-    def _simulate(self, x0: Tensor | None, u: Tensor) -> tuple[Tensor, NormalizedLTI]:
-        """States and the normalized system; one window of trainable physics is one graph node."""
-        rebuild = self._rebuilds()
-        if rebuild and x0 is not None and x0.shape[-1] and u.shape[1] - self.n_taps + 1 == self.horizon:
-            rows, norm = self._normalized(u.dtype)
-            return simulate_from_rows(rows, self.n_taps, x0, u), norm
-        lifted, norm = self._lifted(u.dtype, rebuild)
-        return self._states(lifted, x0, u), norm
-
-    def _states(self, lifted: LiftedMatrices, x0: Tensor | None, u: Tensor) -> Tensor:
-        batch, n = u.shape[0], self.model.n_states
-        if x0 is None:
-            if n:
-                raise ValueError(f"{type(self.model).__name__} has {n} states: give an initial state")
-            x0 = u.new_zeros(batch, 0)
-        steps = u.shape[1] - self.n_taps + 1
-        if steps == self.horizon:
-            return simulate_lifted(lifted, x0, u)
-        if steps < 1:
-            raise ValueError(f"need at least {self.n_taps} input samples, got {u.shape[1]}")
-        chunks = math.ceil(steps / self.horizon)
-        pad = chunks * self.horizon + self.n_taps - 1 - u.shape[1]
-        u_pad = torch.cat([u, u.new_zeros(batch, pad, u.shape[2])], dim=1)
-        windows = u_pad.unfold(1, lifted.input_length, self.horizon)  # (B, C, m, N+T-1)
-        windows = windows.transpose(2, 3).reshape(batch, chunks, -1)
-        forced = (windows @ lifted.b.T + lifted.h).view(batch, chunks, self.horizon, n)
-        if n:
-            a_n = lifted.a[-n:]  # Â^N
-            starts, x = [], x0
-            for c in range(chunks):
-                starts.append(x)
-                x = x @ a_n.T + forced[:, c, -1]
-            free = (torch.stack(starts, 1) @ lifted.a.T).view(batch, chunks, self.horizon, n)
-            forced = forced + free
-        return forced.reshape(batch, chunks * self.horizon, n)[:, :steps]
-
-    def simulate_physical(self, x0: Tensor | None, u: Tensor) -> Tensor:
-        """``forward`` in physical units: normalize, simulate, de-normalize (x0 (B, n), u (B, L, m))."""
-        dtype = u.dtype
-        x0n = None if x0 is None else (x0 - self.state_mean.to(dtype)) / self.state_std.to(dtype)
-        un = (u - self.input_mean.to(dtype)) / self.input_std.to(dtype)
-        return self(x0n, un) * self.output_std.to(dtype) + self.output_mean.to(dtype)
-
     def extra_repr(self) -> str:
         m = self.model
         return (f"{type(m).__name__}: {list(m.input_names)} -> {list(m.output_names)}, "
-                f"dt={self.dt:g} s, horizon={self.horizon}, hold={self.hold}")
+                f"dt={self.dt:g} s, horizon={self.horizon}, hold={self.hold}"
+                + (f", scheduled={list(self.scheduled)}" if self.scheduled else ""))

@@ -1,13 +1,13 @@
 """The normalized state-space form of the paper (eq. 2-8).
 
 With x̂ = (x - μx)/σx and û = (u - μu)/σu (element-wise, eq. 2), the discrete system
-x_{k+1} = Φ x_k + Σ_t Γ_t u_{k+t} becomes (eq. 5)
+x_{k+1} = Φ x_k + Σ_t Γ_t u_{k+t} + γ (γ: a constant drift, 0 in the paper) becomes (eq. 5)
 
     x̂_{k+1} = Â x̂_k + Σ_t B̂_t û_{k+t} + Ĥ
 
     Â = diag(1/σx) Φ diag(σx)                                   (eq. 6)
     B̂_t = diag(1/σx) Γ_t diag(σu)                               (eq. 7)
-    Ĥ = (Φ μx + Σ_t Γ_t μu - μx) / σx                            (eq. 8)
+    Ĥ = (Φ μx + Σ_t Γ_t μu + γ - μx) / σx                        (eq. 8)
 
 and the output y = C x + D u, scaled by (μy, σy), becomes ŷ = Ĉ x̂ + D̂ û + Ĝ with
 Ĉ = diag(1/σy) C diag(σx), D̂ = diag(1/σy) D diag(σu), Ĝ = (C μx + D μu - μy)/σy.
@@ -17,11 +17,15 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor
 
-from hypa.physics.discretization import DiscreteLTI, expm
+from hypa.physics.discretization import DiscreteLTI, discretize, expm
+
+if TYPE_CHECKING:
+    from hypa.physics.lti import StateSpace
 
 
 @dataclass(frozen=True)
@@ -67,7 +71,10 @@ def normalize(system: DiscreteLTI, c: Tensor, d: Tensor, scaling: Scaling) -> No
     inv_sx = 1.0 / s.state_std
     a_hat = inv_sx[:, None] * system.phi * s.state_std[None, :]
     b_hat = tuple(inv_sx[:, None] * g * s.input_std[None, :] for g in system.taps)
-    h_hat = (system.phi @ s.state_mean + system.input_gain @ s.input_mean - s.state_mean) * inv_sx
+    h_hat = system.phi @ s.state_mean + system.input_gain @ s.input_mean - s.state_mean
+    if system.drift is not None:
+        h_hat = h_hat + system.drift
+    h_hat = h_hat * inv_sx
     inv_sy = 1.0 / s.output_std
     c_hat = inv_sy[:, None] * c * s.state_std[None, :]
     d_hat = inv_sy[:, None] * d * s.input_std[None, :]
@@ -77,28 +84,33 @@ def normalize(system: DiscreteLTI, c: Tensor, d: Tensor, scaling: Scaling) -> No
 
 @dataclass(frozen=True)
 class NormalizingMaps:
-    """Constant matrices that apply eq. 5-8 to [A, B] and [C, D] as products (built once per scaling).
+    """Constant matrices that apply eq. 5-8 to [A, B, e] and [C, D] as products (built once per scaling).
 
     With S_x = diag(σx), S_u = diag(σu) and the affine map W = [[S_x, 0, μx], [0, S_u, μu]]
     ((n+m, n+m+1), x = W [x̂; û; 1]), the normalized continuous system and the output are
 
-        dx̂/dt = S_x⁻¹ [A, B] W [x̂; û; 1],        ŷ = S_y⁻¹ ([C, D] W [x̂; û; 1] - μy)
+        dx̂/dt = S_x⁻¹ ([A, B] W [x̂; û; 1] + e),        ŷ = S_y⁻¹ ([C, D] W [x̂; û; 1] - μy)
 
-    The constant term is an input held at 1, exact under either hold, so one exponential
+    The constant term (A μx + B μu + e, the drift e included) is an input held at 1, exact under
+    either hold, so one exponential
 
-        M = [[dt S_x⁻¹ [A, B] W_hold], [the hold's input dynamics]],   e^M[:n] = [Â, B̂_0, ..., Ĥ]
+        M = [[dt S_x⁻¹ [A, B, e] W_hold], [the hold's input dynamics]],   e^M[:n] = [Â, B̂_0, ..., Ĥ]
 
     gives eq. 6-8 directly: e^{D⁻¹ M D} = D⁻¹ e^M D for the rescaling D, and Ĥ of eq. 8 is
-    S_x⁻¹ ∫_0^dt e^{Aτ} dτ (A μx + B μu) because Φ - I = ∫ e^{Aτ} dτ A and Σ_t Γ_t = ∫ e^{Aτ} dτ B.
-    ZOH: W_hold = W and the inputs (û, 1) are constant (zero rows). FOH (see ``discretize``):
-    W_hold has zero columns for û_{k+1}, and the input ramp is written in the basis of its end
-    points (û_k, û_{k+1}) by the similarity T = blockdiag(I, [[I, 0], [-I, I]], 1), which leaves
-    the top rows e^M[:n] T = [Φ̂, E_1 - E_2, E_2, Ĥ] = [Â, B̂_0, B̂_1, Ĥ] and turns the ramp's
-    dynamics [[0, I], [0, 0]] into [[-I, I], [-I, I]].
+    S_x⁻¹ ∫_0^dt e^{Aτ} dτ (A μx + B μu + e) because Φ - I = ∫ e^{Aτ} dτ A and Σ_t Γ_t = ∫ e^{Aτ} dτ B.
+    ZOH: W_hold = W (its last row, for e, picks the constant column) and the inputs (û, 1) are
+    constant (zero rows). FOH (see ``discretize``): W_hold has zero columns for û_{k+1}, and the
+    input ramp is written in the basis of its end points (û_k, û_{k+1}) by the similarity
+    T = blockdiag(I, [[I, 0], [-I, I]], 1), which leaves the top rows e^M[:n] T =
+    [Φ̂, E_1 - E_2, E_2, Ĥ] = [Â, B̂_0, B̂_1, Ĥ] and turns the ramp's dynamics [[0, I], [0, 0]]
+    into [[-I, I], [-I, I]].
+
+    ``state_rows`` and ``output_rows`` also take stacks of matrices (..., n, n) (one system per
+    sample of a scheduled block): then the exponentials are one batched ``expm``.
     """
 
     state_left: Tensor  # (k, n): [dt S_x⁻¹; 0], k = n + T m + 1
-    state_right: Tensor  # (n+m, k): W_hold
+    state_right: Tensor  # (n+m+1, k): [W_hold; the constant column's unit row (for e)]
     state_rest: Tensor  # (k, k): the hold's input dynamics in rows n..k
     output_left: Tensor  # (p, p): S_y⁻¹
     output_right: Tensor  # (n+m, n+m+1): W
@@ -113,20 +125,67 @@ class NormalizingMaps:
         w[:n, :n], w[n:, n : n + m] = torch.diag(s.state_std), torch.diag(s.input_std)
         w[:, -1] = torch.cat([s.state_mean, s.input_mean])
         w_hold = torch.cat([w[:, :-1], w.new_zeros(n + m, k - n - m - 1), w[:, -1:]], dim=1)
+        drift_row = w.new_zeros(1, k)
+        drift_row[0, -1] = 1.0
         rest = w.new_zeros(k, k)
         if n_taps == 2:
             eye = torch.eye(m, dtype=dtype, device=w.device)
             rest[n : n + 2 * m, n : n + 2 * m] = torch.cat([torch.cat([-eye, eye], 1)] * 2)
         left = torch.cat([torch.diag(dt / s.state_std), w.new_zeros(k - n, n)])
         rest_out = torch.cat([w.new_zeros(p, n + m), (-s.output_mean / s.output_std)[:, None]], 1)
-        return NormalizingMaps(left, w_hold, rest, torch.diag(1 / s.output_std), w, rest_out)
+        right = torch.cat([w_hold, drift_row])
+        return NormalizingMaps(left, right, rest, torch.diag(1 / s.output_std), w, rest_out)
 
-    def state_rows(self, a: Tensor, b: Tensor) -> Tensor:
-        """[Â, B̂_0, ..., B̂_{T-1}, Ĥ] (n, n + T m + 1) from continuous A, B: one exponential."""
+    def state_rows(self, a: Tensor, b: Tensor, e: Tensor | None = None) -> Tensor:
+        """[Â, B̂_0, ..., B̂_{T-1}, Ĥ] (..., n, n + T m + 1) from continuous A, B (and drift e): one exponential.
+
+        a (..., n, n), b (..., n, m), e (..., n) or None; a stack is one batched ``expm``.
+        """
         n = a.shape[-1]
-        generator = torch.addmm(self.state_rest, self.state_left, torch.cat([a, b], -1) @ self.state_right)
-        return expm(generator)[:n]
+        if e is None:
+            ab, right = torch.cat([a, b], -1), self.state_right[:-1]
+        else:
+            ab, right = torch.cat([a, b, e[..., None]], -1), self.state_right
+        if a.dim() == 2:
+            return expm(torch.addmm(self.state_rest, self.state_left, ab @ right))[:n]
+        generator = self.state_rest + self.state_left @ (ab @ right)  # (..., k, k)
+        return expm(generator)[..., :n, :]
 
     def output_rows(self, c: Tensor, d: Tensor) -> Tensor:
-        """[Ĉ, D̂, Ĝ] (p, n + m + 1) from C, D."""
-        return torch.addmm(self.output_rest, self.output_left, torch.cat([c, d], -1) @ self.output_right)
+        """[Ĉ, D̂, Ĝ] (..., p, n + m + 1) from C (..., p, n), D (..., p, m)."""
+        cd = torch.cat([c, d], -1) @ self.output_right
+        if c.dim() == 2:
+            return torch.addmm(self.output_rest, self.output_left, cd)
+        return self.output_rest + self.output_left @ cd
+
+
+def default_state_std(system: StateSpace, dt: float, input_std: Tensor, horizon: int,
+                      floor: float = 1e-3) -> Tensor:
+    """A data-free σx (n,) for states nobody measures: the spread the inputs give them in N steps.
+
+    With the nominal zero-order-hold system x_{j+1} = Φ x_j + Γ u_j driven from x_0 = 0 by white
+    inputs of standard deviation σu (physical units, e.g. the training data's), the state's
+    covariance after N = ``horizon`` steps is the finite-horizon controllability Gramian
+
+        W_N = Σ_{j=0}^{N-1} Φ^j Γ diag(σu²) Γᵀ (Φ^j)ᵀ,        σx = sqrt(diag W_N)
+
+    It exists for any system, unlike the stationary Lyapunov solution W = Φ W Φᵀ + Γ S Γᵀ,
+    which has none for an integrator (a position driven by a force: W_N grows like N³). White
+    inputs are the fastest excitation, so smooth inputs may move an integrating state further;
+    the scale only needs the right order of magnitude. A state the inputs never reach would
+    get 0: σx is floored at ``floor`` · max σx (1 where no state is reached at all).
+    """
+    with torch.no_grad():
+        a, b = system.a.detach().to(torch.float64), system.b.detach().to(torch.float64)
+        n = a.shape[-1]
+        if n == 0:
+            return a.new_zeros(0)
+        d = discretize(a, b, dt, "zoh")
+        gamma = d.taps[0] * input_std.detach().to(torch.float64).reshape(1, -1)  # (n, m): Γ S_u
+        response, variance = gamma, torch.zeros(n, dtype=torch.float64)
+        for _ in range(horizon):  # Σ_j of the row sums of squares of Φ^j Γ S_u
+            variance = variance + response.square().sum(-1)
+            response = d.phi @ response
+        std = variance.sqrt()
+        top = float(std.max()) if torch.isfinite(std).all() else 0.0
+        return std.clamp_min(floor * top) if top > 0 else torch.ones_like(std)

@@ -9,36 +9,76 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
+LOG, SIGNED, BOUNDED = 0, 1, 2  # how a parameter is stored: log, relative, scaled sigmoid
+
 
 @dataclass(frozen=True)
 class ParameterSpec:
-    """One named physical parameter.
+    """One named physical parameter: nominal ``value`` [``unit``] and how it may move.
 
-    ``positive`` parameters (mass, stiffness, inertia, ...) are stored as their logarithm, so
-    an optimizer can never push them through zero and a step is relative to the value's scale
-    (a cornering stiffness of 1.5e5 N/rad and a length of 1.4 m learn at the same pace).
-    Signed parameters (a rear/front steering ratio) are stored divided by the magnitude of
-    their nominal value, so an optimizer step is relative for them too.
+    A parameter is stored as an unconstrained raw number θ̃ that an optimizer moves freely:
+
+    - ``bounds=(lo, hi)``: θ = lo + (hi - lo) σ(θ̃), so a learned value never leaves the
+      interval however large the step (lo < value < hi; a physically known range).
+    - ``positive`` (mass, stiffness, inertia, ...): θ = exp(θ̃), never through zero, and a step
+      is relative to the value's scale (a cornering stiffness of 1.5e5 N/rad and a length of
+      1.4 m learn at the same pace).
+    - otherwise signed (a rear/front steering ratio, an offset force): θ = |θ₀| θ̃ with θ₀ the
+      nominal value (1 when it is 0), so a step is relative for them too.
+
+    ``bounds`` take precedence; a positive parameter's bounds must then lie in [0, ∞).
     """
 
     name: str
     value: float
     unit: str = ""
     positive: bool = True
+    bounds: tuple[float, float] | None = None
     trainable: bool = False
 
     def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"a parameter name must be a non-empty string, got {self.name!r}")
         if not math.isfinite(self.value):
             raise ValueError(f"parameter {self.name!r} must be finite, got {self.value}")
-        if self.positive and not self.value > 0:
+        if self.bounds is not None:
+            try:
+                lo, hi = (float(b) for b in self.bounds)
+            except (TypeError, ValueError):
+                raise ValueError(f"parameter {self.name!r}: bounds must be (lo, hi), got {self.bounds!r}") from None
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+                raise ValueError(f"parameter {self.name!r}: bounds must be finite with lo < hi, got {self.bounds!r}")
+            if self.positive and lo < 0:
+                raise ValueError(f"parameter {self.name!r} [{self.unit}] is positive but its bounds {self.bounds!r} "
+                                 "reach below 0: give positive=False or a lower bound >= 0")
+            if not lo < self.value < hi:
+                raise ValueError(f"parameter {self.name!r} [{self.unit}] = {self.value} must lie strictly inside "
+                                 f"its bounds ({lo}, {hi})")
+            object.__setattr__(self, "bounds", (lo, hi))
+        elif self.positive and not self.value > 0:
             raise ValueError(f"parameter {self.name!r} [{self.unit}] must be positive, got {self.value}")
+
+    @property
+    def storage(self) -> int:
+        """``BOUNDED``, ``LOG`` or ``SIGNED``: how the raw value maps to the physical one."""
+        return BOUNDED if self.bounds is not None else LOG if self.positive else SIGNED
+
+    def check(self, value: float) -> None:
+        """Raise ``ValueError`` unless ``value`` is admissible for this parameter."""
+        if not math.isfinite(value):
+            raise ValueError(f"parameter {self.name!r} must be finite, got {value}")
+        if self.bounds is not None and not self.bounds[0] < value < self.bounds[1]:
+            raise ValueError(f"parameter {self.name!r} = {value} must lie strictly inside its bounds {self.bounds}")
+        if self.bounds is None and self.positive and not value > 0:
+            raise ValueError(f"parameter {self.name!r} must be positive, got {value}")
 
 
 class PhysicalParameters(nn.Module):
     """A set of named physical parameters; ``params()`` returns their physical values.
 
-    Every parameter is an ``nn.Parameter`` whose ``requires_grad`` says whether it is trained,
-    so freezing and unfreezing is one call and optimizers see only the trainable ones.
+    Every parameter is an ``nn.Parameter`` (the raw value θ̃ of ``ParameterSpec``) whose
+    ``requires_grad`` says whether it is trained, so freezing and unfreezing is one call and
+    optimizers see only the trainable ones.
     """
 
     def __init__(self, specs: Iterable[ParameterSpec], dtype: torch.dtype = torch.float64) -> None:
@@ -46,16 +86,25 @@ class PhysicalParameters(nn.Module):
         self.specs: dict[str, ParameterSpec] = {}
         self.raw = nn.ParameterDict()
         self._scale: dict[str, float] = {}  # signed parameters: raw = value / |nominal value|
-        self._positive: dict[tuple, tuple[Tensor, Tensor] | None] = {}  # (positive mask, signed scale) by names, device
+        self._maps: dict[tuple, tuple[Tensor, ...] | None] = {}  # vectorized maps by (names, device, dtype)
         for spec in specs:
+            if not isinstance(spec, ParameterSpec):
+                raise TypeError(f"expected a ParameterSpec, got {type(spec).__name__}: {spec!r}")
             if spec.name in self.specs:
                 raise ValueError(f"parameter {spec.name!r} given twice")
             self.specs[spec.name] = spec
-            self._scale[spec.name] = 1.0 if spec.positive else (abs(spec.value) or 1.0)
-            raw = math.log(spec.value) if spec.positive else spec.value / self._scale[spec.name]
+            self._scale[spec.name] = (abs(spec.value) or 1.0) if spec.storage == SIGNED else 1.0
             self.raw[spec.name] = nn.Parameter(
-                torch.tensor(raw, dtype=dtype), requires_grad=spec.trainable
+                torch.tensor(self._raw(spec, spec.value), dtype=dtype), requires_grad=spec.trainable
             )
+
+    def _raw(self, spec: ParameterSpec, value: float) -> float:
+        """The raw value θ̃ that stores the physical ``value`` (the inverse of ``value``)."""
+        if spec.storage == BOUNDED:
+            lo, hi = spec.bounds
+            s = (value - lo) / (hi - lo)
+            return math.log(s) - math.log1p(-s)  # logit
+        return math.log(value) if spec.storage == LOG else value / self._scale[spec.name]
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -65,8 +114,11 @@ class PhysicalParameters(nn.Module):
         """Physical value of one parameter (differentiable w.r.t. its raw parameter)."""
         if name not in self.specs:
             raise KeyError(f"unknown parameter {name!r}; known: {', '.join(self.specs)}")
-        raw = self.raw[name]
-        return raw.exp() if self.specs[name].positive else raw * self._scale[name]
+        raw, spec = self.raw[name], self.specs[name]
+        if spec.storage == BOUNDED:
+            lo, hi = spec.bounds
+            return lo * torch.sigmoid(-raw) + hi * torch.sigmoid(raw)  # saturates at lo, hi exactly
+        return raw.exp() if spec.storage == LOG else raw * self._scale[name]
 
     def params(self) -> dict[str, Tensor]:
         """All physical values by name."""
@@ -91,14 +143,32 @@ class PhysicalParameters(nn.Module):
 
     def _physical(self, names: tuple[str, ...], dtype: torch.dtype | None) -> dict[str, Tensor]:
         raw = torch.stack([self.raw[n] for n in names])
-        key = (names, raw.device)
-        if key not in self._positive:  # the specs never change: build each mask once (None: all positive)
-            mask = [self.specs[n].positive for n in names]
-            scale = torch.tensor([self._scale[n] for n in names], dtype=raw.dtype, device=raw.device)
-            self._positive[key] = None if all(mask) else (torch.tensor(mask, device=raw.device), scale)
-        signed = self._positive[key]
-        physical = raw.exp() if signed is None else torch.where(signed[0], raw.exp(), raw * signed[1])
+        key = (names, raw.device, raw.dtype)
+        if key not in self._maps:  # the specs never change: build each set of maps once (None: all log)
+            self._maps[key] = self._build_maps(names, raw)
+        maps = self._maps[key]
+        if maps is None:
+            physical = raw.exp()
+        else:
+            log, bounded, scale, lo, hi = maps
+            # exp only where stored in log: a bounded raw value may be large, and exp(inf) in the
+            # unselected branch of where would turn its zero gradient into NaN
+            positive = torch.where(log, raw, torch.zeros_like(raw)).exp()
+            physical = torch.where(log, positive, raw * scale)
+            if bounded is not None:
+                physical = torch.where(bounded, lo * torch.sigmoid(-raw) + hi * torch.sigmoid(raw), physical)
         return dict(zip(names, (physical if dtype is None else physical.to(dtype)).unbind()))
+
+    def _build_maps(self, names: tuple[str, ...], raw: Tensor) -> tuple[Tensor, ...] | None:
+        """Masks and constants of the vectorized map raw -> physical for ``names``."""
+        kinds = [self.specs[n].storage for n in names]
+        if all(k == LOG for k in kinds):
+            return None
+        t = lambda v: torch.tensor(v, dtype=raw.dtype, device=raw.device)  # noqa: E731
+        bounds = [self.specs[n].bounds or (0.0, 1.0) for n in names]
+        bounded = torch.tensor([k == BOUNDED for k in kinds], device=raw.device) if BOUNDED in kinds else None
+        return (torch.tensor([k == LOG for k in kinds], device=raw.device), bounded,
+                t([self._scale[n] for n in names]), t([b[0] for b in bounds]), t([b[1] for b in bounds]))
 
     def as_floats(self) -> dict[str, float]:
         return {name: float(v.detach()) for name, v in self.params().items()}
@@ -116,14 +186,13 @@ class PhysicalParameters(nn.Module):
 
     @torch.no_grad()
     def set_values(self, values: Mapping[str, float]) -> None:
-        """Overwrite physical values in place (e.g. after a fit)."""
+        """Overwrite physical values in place (e.g. after a fit); each must satisfy its spec."""
         for name, value in values.items():
             spec = self.specs.get(name)
             if spec is None:
                 raise KeyError(f"unknown parameter {name!r}; known: {', '.join(self.specs)}")
-            if spec.positive and not value > 0:
-                raise ValueError(f"parameter {name!r} must be positive, got {value}")
-            self.raw[name].fill_(math.log(value) if spec.positive else value / self._scale[name])
+            spec.check(float(value))
+            self.raw[name].fill_(self._raw(spec, float(value)))
 
     def extra_repr(self) -> str:
         parts = []

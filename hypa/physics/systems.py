@@ -1,18 +1,27 @@
-"""Registered physical systems, by the name a model configuration uses.
+"""Physical systems by the name a model configuration uses: a built-in or an import path.
 
-Each entry builds the system for one block, given the block's name: systems with parameters
-of their own (a lag's time constant) prefix them with it (``local_name``); the vehicle
-systems read the shared vehicle parameters.
+``system: single_track`` names a built-in; ``system: mypackage.motors:DCMotor`` a user's
+``LTIModel`` subclass in any importable module (``examples/user_system/``). Each system is
+built for one block, given the block's name: systems with parameters of their own (a lag's time
+constant) prefix them with it (``local_name``); the vehicle systems read the shared vehicle
+parameters.
 """
 
 from __future__ import annotations
 
+import importlib
+import inspect
 from collections.abc import Callable
 
+from hypa.physics.contract import SystemContractError, check_system
 from hypa.physics.elements import FirstOrderLag
+from hypa.physics.friction import MassWithFriction
 from hypa.physics.lti import LTIModel
 from hypa.physics.mass_spring_damper import MassSpringDamper
 from hypa.physics.vehicle import SingleTrack, SteeringGain
+
+__all__ = ["PHYSICS_SYSTEMS", "SystemContractError", "build_system", "check_system", "is_import_path",
+           "resolve_system"]
 
 PHYSICS_SYSTEMS: dict[str, Callable[[str], LTIModel]] = {
     "single_track": lambda block: SingleTrack(rear_steering=True),  # u = [δf, δr]
@@ -20,12 +29,72 @@ PHYSICS_SYSTEMS: dict[str, Callable[[str], LTIModel]] = {
     "front_steering": lambda block: SteeringGain("front"),  # δsw -> δf = δsw / steering_ratio
     "rear_steering": lambda block: SteeringGain("rear"),  # δsw -> δr = rws_ratio δsw / steering_ratio
     "first_order_lag": FirstOrderLag,  # τ ẏ = u - y, parameter <block>/tau_s
-    "mass_spring_damper": lambda block: MassSpringDamper(),
+    "mass_spring_damper": lambda block: MassSpringDamper(),  # force -> position (Silverbox)
+    "mass_with_friction": lambda block: MassWithFriction(),  # force -> position (EMPS)
 }
 
 
+def is_import_path(name: str) -> bool:
+    """Whether ``name`` is an import path ``package.module:Class`` rather than a built-in name."""
+    return ":" in name
+
+
+def resolve_system(name: str, block: str = "") -> LTIModel:
+    """The system ``name`` (built-in or ``package.module:Class``) for the block ``block``.
+
+    A user's class is instantiated with no arguments, or with ``block=`` when its ``__init__``
+    takes it (to prefix block-local parameter names), and checked (``check_system``).
+    Raises ``SystemContractError`` with one line saying what is wrong.
+    """
+    if not isinstance(name, str) or not name:
+        raise SystemContractError(f"a system must be a built-in name or package.module:Class, got {name!r}")
+    if not is_import_path(name):
+        if name not in PHYSICS_SYSTEMS:
+            raise SystemContractError(f"unknown physics system {name!r}; known: {', '.join(PHYSICS_SYSTEMS)}, "
+                                      "or an import path package.module:Class")
+        return PHYSICS_SYSTEMS[name](block)
+    cls = _import_class(name)
+    try:
+        takes_block = "block" in inspect.signature(cls).parameters
+    except (TypeError, ValueError):  # no introspectable signature: call it plainly
+        takes_block = False
+    try:
+        system = cls(block=block) if takes_block else cls()
+    except Exception as error:  # a user's constructor: one line, whatever it raised
+        how = f"{cls.__name__}(block={block!r})" if takes_block else f"{cls.__name__}()"
+        raise SystemContractError(f"system {name}: {how} raised {type(error).__name__}: {error}") from error
+    check_system(system, name)
+    return system
+
+
 def build_system(name: str, block: str = "") -> LTIModel:
-    """The system ``name`` for the block ``block`` (which prefixes the system's own parameters)."""
-    if name not in PHYSICS_SYSTEMS:
-        raise KeyError(f"unknown physics system {name!r}; known: {', '.join(PHYSICS_SYSTEMS)}")
-    return PHYSICS_SYSTEMS[name](block)
+    """Alias of ``resolve_system`` (the name older callers use)."""
+    return resolve_system(name, block)
+
+
+def _import_class(path: str) -> type[LTIModel]:
+    module_name, _, attribute = path.partition(":")
+    if not module_name or not attribute:
+        raise SystemContractError(f"system {path!r}: an import path is package.module:Class")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as error:
+        raise SystemContractError(f"system {path}: cannot import module {module_name!r} ({error}); "
+                                  "is its folder on the Python path?") from error
+    except Exception as error:  # the module itself failed while running
+        raise SystemContractError(f"system {path}: importing {module_name!r} raised "
+                                  f"{type(error).__name__}: {error}") from error
+    obj: object = module
+    for part in attribute.split("."):
+        if not hasattr(obj, part):
+            defined = sorted(k for k, v in vars(module).items()
+                             if isinstance(v, type) and issubclass(v, LTIModel) and v is not LTIModel)
+            raise SystemContractError(f"system {path}: module {module_name!r} has no attribute {attribute!r}; "
+                                      f"LTIModel classes there: {', '.join(defined) or 'none'}")
+        obj = getattr(obj, part)
+    if not (isinstance(obj, type) and issubclass(obj, LTIModel)):
+        raise SystemContractError(f"system {path}: {attribute} is not a subclass of hypa.physics.LTIModel")
+    if inspect.isabstract(obj):
+        missing = ", ".join(sorted(obj.__abstractmethods__))
+        raise SystemContractError(f"system {path}: {attribute} does not define {missing}")
+    return obj

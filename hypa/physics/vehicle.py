@@ -1,4 +1,8 @@
-"""The paper's vehicle instance: linear single-track model and its steering blocks."""
+"""The paper's vehicle instance: linear single-track model and its steering blocks.
+
+Their parameters' nominal values are the default ``VehicleParameters``; a model takes the
+values of the ``vehicle`` config instead (``LTIModel.parameter_specs``).
+"""
 
 from __future__ import annotations
 
@@ -62,6 +66,12 @@ def parameter_spec(name: str, value: float, trainable: bool = False) -> Paramete
     return ParameterSpec(name, float(value), _UNITS[name], positive=name != "rws_ratio", trainable=trainable)
 
 
+def _specs(names: tuple[str, ...]) -> tuple[ParameterSpec, ...]:
+    """Specs of ``names`` at the default vehicle's values (the ``vehicle`` config overrides them)."""
+    nominal = VehicleParameters()
+    return tuple(parameter_spec(k, getattr(nominal, k)) for k in names)
+
+
 def vehicle_parameters(values: VehicleParameters, trainable: Iterable[str] = ()) -> PhysicalParameters:
     """All vehicle parameters as a ``PhysicalParameters`` module; ``trainable`` names are learned."""
     trainable = set(trainable)
@@ -85,14 +95,11 @@ class SingleTrack(LTIModel):
 
     state_names = ("yaw_rate", "side_slip")
     output_names = ("yaw_rate", "side_slip")
-    parameter_names = ("mass", "izz", "lf", "lr", "cf", "cr", "velocity")
+    parameters = _specs(("mass", "izz", "lf", "lr", "cf", "cr", "velocity"))
 
     def __init__(self, rear_steering: bool = True) -> None:
         self.rear_steering = rear_steering
         self.input_names = ("front_wheel_angle", "rear_wheel_angle") if rear_steering else ("front_wheel_angle",)
-
-    def parameter_specs(self, values: Mapping[str, float]) -> list[ParameterSpec]:
-        return [parameter_spec(k, values[k]) for k in self.parameter_names]
 
     def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
         """The printed A, B, vectorized over the two axles k (few ops: rebuilt every step).
@@ -128,10 +135,7 @@ class SteeringGain(LTIModel):
             raise ValueError(f"axle must be 'front' or 'rear', got {axle!r}")
         self.axle = axle
         self.output_names = (f"{axle}_wheel_angle",)
-        self.parameter_names = ("steering_ratio",) if axle == "front" else ("steering_ratio", "rws_ratio")
-
-    def parameter_specs(self, values: Mapping[str, float]) -> list[ParameterSpec]:
-        return [parameter_spec(k, values[k]) for k in self.parameter_names]
+        self.parameters = _specs(("steering_ratio",) if axle == "front" else ("steering_ratio", "rws_ratio"))
 
     def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
         ratio = p["steering_ratio"]

@@ -13,11 +13,9 @@ from torchmetrics import MeanAbsoluteError, MeanSquaredError, MetricCollection, 
 from hypa.data import Normalization
 from hypa.models import ComposedModel, parse_model_spec
 
-REAR_WHEEL_ANGLE = "rear_wheel_angle"
-
 
 class HybridModule(L.LightningModule):
-    """Trains a :class:`ComposedModel` with MSE on the normalized states (paper, Sec. 5).
+    """Trains a :class:`ComposedModel` with MSE on the normalized outputs (paper, Sec. 5).
 
     Everything needed to rebuild the model is a plain, serializable argument, so
     ``HybridModule.load_from_checkpoint(path)`` restores the model with its normalization.
@@ -26,13 +24,17 @@ class HybridModule(L.LightningModule):
         model_config: the ``model`` config group (blocks, outputs, stages) as a plain dict.
         physical_values: nominal physical parameters by name (SI units).
         normalization: training-set statistics (``Normalization.state_dict()``).
-        input_names / state_names: measured inputs and states in data order.
-        eval_names: SI evaluation channels present in validation batches (never trained on).
+        input_names / output_names: measured inputs and outputs (targets) in data order.
+        eval_names: SI evaluation channels present in validation batches (never trained on);
+            a model signal of the same name (an implicitly learned rear-wheel angle) is
+            compared with them.
         dt: sample time [s]; horizon: window length N; hold: ``zoh`` | ``foh``.
         ann_name / ann_hparams: the network of every ANN block.
         lr: NAdam learning rate of the networks; physics_lr: of the physical parameters
             (they live in log space, where a step is relative, so they take a larger one).
         weight_decay: NAdam weight decay of the networks.
+        scheduling_names: measured scheduling signals (SI, in the batches' ``s``).
+        past: P, samples before each window's start that may start the model.
     """
 
     def __init__(
@@ -41,7 +43,7 @@ class HybridModule(L.LightningModule):
         physical_values: Mapping[str, float],
         normalization: Mapping[str, Any],
         input_names: Sequence[str],
-        state_names: Sequence[str],
+        output_names: Sequence[str],
         eval_names: Sequence[str] = (),
         dt: float = 1 / 32,
         horizon: int = 100,
@@ -51,6 +53,8 @@ class HybridModule(L.LightningModule):
         lr: float = 5e-4,
         physics_lr: float = 1e-2,
         weight_decay: float = 0.0,
+        scheduling_names: Sequence[str] = (),
+        past: int = 0,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -58,50 +62,58 @@ class HybridModule(L.LightningModule):
         scale = lambda names: {n: (float(m), float(s)) for n, m, s in zip(  # noqa: E731
             names, norm.subset(names).mean.tolist(), norm.subset(names).std.tolist())}
         self.model = ComposedModel(
-            parse_model_spec(model_config), physical_values, input_names, state_names,
-            scale(input_names), scale(state_names), dt, horizon, hold, ann_name, ann_hparams,
+            parse_model_spec(model_config), physical_values, input_names, output_names,
+            scale(input_names), scale(output_names), dt, horizon, hold, ann_name, ann_hparams,
+            scheduling_names, scale(scheduling_names),
         )
-        self.state_names, self.eval_names = tuple(state_names), tuple(eval_names)
+        self.output_names, self.eval_names, self.past = tuple(output_names), tuple(eval_names), int(past)
         self.loss = nn.MSELoss()
-        per_state = lambda: MetricCollection({"mae": MeanAbsoluteError(), "mse": MeanSquaredError(),  # noqa: E731
-                                              "r2": R2Score()})
-        self.val_metrics = nn.ModuleDict({s: per_state() for s in self.state_names})
-        self.rear_metrics = MetricCollection({"corr": PearsonCorrCoef(), "rmse": MeanSquaredError(squared=False)})
+        per_output = lambda: MetricCollection({"mae": MeanAbsoluteError(), "mse": MeanSquaredError(),  # noqa: E731
+                                               "r2": R2Score()})
+        self.val_metrics = nn.ModuleDict({n: per_output() for n in self.output_names})
+        internal = {b_out for b in self.model.spec.blocks for b_out in b.outputs} - set(self.output_names)
+        self.compared = tuple(n for n in self.eval_names if n in internal)  # learned vs measured
+        self.signal_metrics = nn.ModuleDict({n: MetricCollection({"corr": PearsonCorrCoef(),
+                                                                  "rmse": MeanSquaredError(squared=False)})
+                                             for n in self.compared})
 
-    def forward(self, u: Tensor, x0: Tensor) -> Tensor:
-        """Normalized predicted states (B, L-1, p) from inputs (B, L, m) and initial states (B, p)."""
-        return self.model(u, x0)
+    def forward(self, u: Tensor, y_past: Tensor, s: Tensor | None = None) -> Tensor:
+        """Normalized predicted outputs (B, L-P-1, p) from inputs (B, L, m), measured outputs
+        up to the window start (B, P+1, p) and scheduling signals (B, L, q)."""
+        return self.model(u, y_past, s)
 
     def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
-        y = batch["y"]
-        loss = self.loss(self(batch["u"], y[:, 0]), y[:, 1:])
+        y, start = batch["y"], self.past + 1
+        loss = self.loss(self(batch["u"], y[:, :start], batch.get("s")), y[:, start:])
         self.log("train/loss", loss, on_step=True, on_epoch=True, prog_bar=True, batch_size=y.shape[0])
         return loss
 
     def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
-        u, y = batch["u"], batch["y"]
-        signals = self.model.signals(u, y[:, 0])
-        pred = self.model.outputs(signals)
-        self.log("val/loss", self.loss(pred, y[:, 1:]), prog_bar=True, batch_size=y.shape[0])
-        for i, name in enumerate(self.state_names):  # metrics in SI units
+        u, y, first = batch["u"], batch["y"], self.past + 1
+        signals = self.model.signals(u, y[:, :first], batch.get("s"))
+        pred = self.model.outputs(signals, self.past)
+        self.log("val/loss", self.loss(pred, y[:, first:]), prog_bar=True, batch_size=y.shape[0])
+        for i, name in enumerate(self.output_names):  # metrics in SI units
             p = self.model.to_physical(name, pred[..., i]).flatten()
-            t = self.model.to_physical(name, y[:, 1:, i]).flatten()
+            t = self.model.to_physical(name, y[:, first:, i]).flatten()
             self.val_metrics[name].update(p, t)
-        # (not in the sanity check: a zero-initialized rear angle has no variance to correlate)
-        if REAR_WHEEL_ANGLE in signals and REAR_WHEEL_ANGLE in self.eval_names and not self.trainer.sanity_checking:
-            values, start = signals[REAR_WHEEL_ANGLE]
-            learned = self.model.to_physical(REAR_WHEEL_ANGLE, values[..., 0])
-            measured = batch["eval"][:, start : start + learned.shape[1], self.eval_names.index(REAR_WHEEL_ANGLE)]
-            self.rear_metrics.update(learned.flatten().float(), measured.flatten().float())
+        # (not in the sanity check: a zero-initialized learned signal has no variance to correlate)
+        if self.trainer.sanity_checking:
+            return
+        for name in self.compared:
+            values, start = signals[name]
+            learned = self.model.to_physical(name, values[..., 0])
+            measured = batch["eval"][:, start : start + learned.shape[1], self.eval_names.index(name)]
+            self.signal_metrics[name].update(learned.flatten().float(), measured.flatten().float())
 
     def on_validation_epoch_end(self) -> None:
         for name, metrics in self.val_metrics.items():
             self.log_dict({f"val/{name}/{k}": v for k, v in metrics.compute().items()})
             metrics.reset()
-        if self.rear_metrics["rmse"].update_count:
-            self.log_dict({f"val/{REAR_WHEEL_ANGLE}/{k}": v for k, v in self.rear_metrics.compute().items()})
-            self.rear_metrics.reset()
-
+        for name, metrics in self.signal_metrics.items():
+            if metrics["rmse"].update_count:
+                self.log_dict({f"val/{name}/{k}": v for k, v in metrics.compute().items()})
+                metrics.reset()
     def on_train_epoch_end(self) -> None:
         params = self.model.parameters_
         for name in self.model.trainable_physics:

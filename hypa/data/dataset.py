@@ -1,0 +1,107 @@
+"""A data set from its declaration: files -> SI records -> pieces -> decimated -> selected.
+
+The order matters and is fixed:
+
+1. each file named by the splits is read once (:func:`hypa.data.io.load_record`), SI units,
+   with its evaluation channels; training pieces drop them, so an evaluation channel never
+   reaches a training record;
+2. each piece is cut from its file (bounds in file samples);
+3. each piece is decimated to ``rate_hz`` on its own (``None``: kept at the file's rate), so
+   the anti-aliasing filter never reaches across a split bound;
+4. ``select`` cuts each piece into the stretches where its conditions hold; stretches shorter
+   than one window (``past + window + 1`` samples) are dropped. Without ``select`` a record
+   shorter than one window is an error.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+from hypa.data.channels import ChannelSpec
+from hypa.data.errors import DataError
+from hypa.data.files import read_metadata
+from hypa.data.io import load_record
+from hypa.data.records import DataSet, Record
+from hypa.data.selection import Condition, select
+from hypa.data.splits import Piece, SplitSpec
+from hypa.data.windows import check_record_length
+
+log = logging.getLogger(__name__)
+
+
+def load_dataset(
+    data_dir: Path,
+    channels: Mapping[str, ChannelSpec],
+    splits: SplitSpec | None = None,
+    time_column: str | None = "time",
+    time_unit: str = "s",
+    sample_rate_hz: float = 1024.0,
+    rate_hz: float | None = None,
+    select_conditions: Sequence[Condition] = (),
+    window: int = 1,
+    past: int = 0,
+) -> DataSet:
+    """Read and prepare every record of a data set (see the module docstring).
+
+    ``splits`` ``None``: the ``train*``, ``val*`` and ``test*`` files of ``data_dir``.
+    """
+    data_dir = Path(data_dir)
+    splits = splits if splits is not None else SplitSpec.from_folder(data_dir)
+    files: dict[str, Record] = {}
+    for name in splits.files():
+        path = data_dir / name
+        if not path.is_file():
+            if data_dir.is_dir():
+                present = ", ".join(sorted(p.name for p in data_dir.iterdir())) or "nothing"
+                where = f"{data_dir} has: {present}"
+            else:
+                where = f"{data_dir} does not exist"
+            raise DataError(f"{path}: no such file (named in data.splits); {where}")
+        files[name] = load_record(path, list(channels.values()), time_column, time_unit,
+                                  sample_rate_hz, with_eval=True)
+    evaluation = [n for n, c in channels.items() if c.role == "evaluation"]
+    needed = past + window + 1
+
+    def prepare(what: str, pieces: Sequence[Piece], training: bool) -> list[Record]:
+        records = []
+        for piece in pieces:
+            record = _cut(files[piece.file], piece)
+            if training:
+                record = record.without(evaluation)
+            if rate_hz is not None and rate_hz != sample_rate_hz:
+                record = record.decimated(rate_hz)
+            records.append(record)
+        if not select_conditions:
+            for record in records:
+                check_record_length(record, window, sample_rate_hz, past)
+            return records
+        kept, longest = select(records, select_conditions, needed)
+        if not kept:
+            conditions = " and ".join(str(c) for c in select_conditions)
+            rate = records[0].sample_rate_hz
+            raise DataError(
+                f"select [{conditions}] leaves no window in {what}: its longest stretch holds "
+                f"{longest} samples ({longest / rate:.3g} s at {rate:g} Hz), one window needs "
+                f"past + window + 1 = {needed}; relax the conditions or shorten data.window"
+            )
+        log.info("%s: %d stretch(es) where %s holds (%d sample(s))", what, len(kept),
+                 " and ".join(map(str, select_conditions)), sum(len(r) for r in kept))
+        return kept
+
+    return DataSet(
+        directory=data_dir,
+        train=prepare("the training split", splits.train, training=True),
+        val=prepare("the validation split", splits.val, training=False),
+        test_sets={name: prepare(f"test set {name!r}", pieces, training=False)
+                   for name, pieces in splits.test.items()},
+        metadata=read_metadata(data_dir) if data_dir.is_dir() else {},
+    )
+
+
+def _cut(record: Record, piece: Piece) -> Record:
+    if piece.whole:
+        return record
+    start, stop = piece.bounds(len(record))
+    return record.piece(start, stop, f"{record.file}[{start}:{stop}]")

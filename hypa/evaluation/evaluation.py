@@ -1,0 +1,235 @@
+"""Evaluate a trained run: windowed and free-run metrics per output, transfer functions, figures.
+
+Metrics (MAE, MSE, floored MAPE, R², per output and overall) windowed (N steps from each
+window start, as in training) and free-running over whole records, each for the whole record
+and for the named segments of the data set's ``dataset.json`` (on the test bench: the
+stochastic part and the deterministic maneuvers training never saw); H1 transfer functions
+from every input to every output, measured vs model; each internal model signal that the files
+measure for evaluation (an implicitly learned rear-wheel angle) against the measurement.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from hypa.data import HypaDataModule
+from hypa.evaluation.metrics import state_metrics
+from hypa.evaluation.plots import bode
+from hypa.evaluation.runs import Prediction, TrainedRun, free_run, windowed
+from hypa.evaluation.transfer import TransferEstimate, h1_estimate
+from hypa.plots import time_series
+
+log = logging.getLogger(__name__)
+MANEUVERS = "maneuvers"
+
+
+def run_datamodule(run: TrainedRun) -> HypaDataModule:
+    """The run's data, scaled with the statistics stored in its checkpoint."""
+    from hypa.data import datamodule_from_config
+    from hypa.entry import data_dir_from_config
+
+    data_dir = run.data_dir if run.data_dir is not None and run.data_dir.is_dir() else data_dir_from_config(run.config)
+    dm = datamodule_from_config(run.config.data, data_dir, normalization=run.module.hparams.normalization)
+    dm.setup()
+    return dm
+
+
+def segments_of(dm: HypaDataModule, record: str, duration_s: float) -> list[tuple[str, float, float]]:
+    """Named time intervals of a record from the data set's ``dataset.json`` (else one: ``all``)."""
+    described = dm.metadata.get("files", {}).get(record, {}).get("segments") or []
+    return [(s["name"], float(s["start_s"]), float(s["end_s"])) for s in described] or [("all", 0.0, duration_s)]
+
+
+def _segment_masks(time: np.ndarray, segments: Sequence[tuple[str, float, float]]) -> dict[str, np.ndarray]:
+    masks = {name: (time >= start) & (time < end) for name, start, end in segments}
+    maneuvers = [m for name, m in masks.items() if name not in ("stochastic", "all")]
+    if maneuvers:
+        masks[MANEUVERS] = np.any(maneuvers, axis=0)
+    return masks
+
+
+def evaluate_split(run: TrainedRun, dm: HypaDataModule, split: str) -> tuple[dict[str, Any], list[Prediction]]:
+    """Windowed and free-run metrics of one split, overall and per segment."""
+    names = dm.output_names
+    result: dict[str, Any] = {"windowed": {}, "free_run": {}}
+    w = windowed(run.module, dm, split)
+    pred, target = w["pred"], w["target"]
+    result["windowed"]["all"] = state_metrics(pred.reshape(-1, len(names)), target.reshape(-1, len(names)), names)
+    records = dm.records(split)
+    window_time = {}  # (record, start) -> time span, for per-segment windowed metrics
+    for i, rec in enumerate(records):
+        masks = _segment_masks(rec.time, segments_of(dm, rec.file, rec.duration_s))
+        for name, mask in masks.items():
+            inside = [k for k in range(len(w["record"])) if int(w["record"][k]) == i
+                      and mask[int(w["start"][k]):int(w["start"][k]) + pred.shape[1] + 1].all()]
+            window_time.setdefault(name, []).extend(inside)
+    for name, idx in window_time.items():
+        if idx and name != "all":
+            result["windowed"][name] = state_metrics(pred[idx].reshape(-1, len(names)),
+                                                     target[idx].reshape(-1, len(names)), names)
+    predictions = [free_run(run.module.model, dm, rec) for rec in records]
+    stacked = lambda values: np.stack([np.concatenate(v) for v in values], axis=-1)  # noqa: E731
+    p_all = stacked([[p.predicted[n][p.first:] for p in predictions] for n in names])
+    t_all = stacked([[p.measured[n][p.first:] for p in predictions] for n in names])
+    result["free_run"]["all"] = state_metrics(p_all, t_all, names)
+    by_segment: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
+    for p, rec in zip(predictions, records):
+        for name, mask in _segment_masks(p.time, segments_of(dm, rec.file, rec.duration_s)).items():
+            mask = mask.copy()
+            mask[: p.first] = False  # the samples that started the model
+            if name != "all" and mask.any():
+                by_segment.setdefault(name, []).append(
+                    (np.stack([p.predicted[n][mask] for n in names], -1), np.stack([p.measured[n][mask] for n in names], -1)))
+    for name, parts in by_segment.items():
+        result["free_run"][name] = state_metrics(np.concatenate([a for a, _ in parts]),
+                                                 np.concatenate([b for _, b in parts]), names)
+    for name in compared_signals(predictions):
+        with_it = [p for p in predictions if name in p.signals and name in p.measured]
+        learned = np.concatenate([p.signal_on_grid(name) for p in with_it])
+        measured = np.concatenate([p.measured[name] for p in with_it])
+        ok = np.isfinite(learned)
+        result.setdefault("signals", {})[name] = {
+            "corr": float(np.corrcoef(learned[ok], measured[ok])[0, 1]),
+            "rmse": float(np.sqrt(np.mean((learned[ok] - measured[ok]) ** 2)))}
+    return result, predictions
+
+
+def compared_signals(predictions: Sequence[Prediction]) -> list[str]:
+    """Internal model signals the files also measure (for evaluation only): learned vs measured."""
+    return sorted({n for p in predictions for n in p.signals if n in p.measured})
+
+
+def transfer_estimates(prediction: Prediction, input_name: str, output_name: str,
+                       segment: tuple[str, float, float] | None, rate_hz: float) -> dict[str, TransferEstimate]:
+    """H1 estimates input -> output, measured and predicted, on one segment of one record."""
+    mask = np.ones_like(prediction.time, dtype=bool) if segment is None else \
+        (prediction.time >= segment[1]) & (prediction.time < segment[2])
+    mask[: prediction.first] = False
+    u = prediction.inputs[input_name][mask]
+    segment_s = min(16.0, u.size / rate_hz / 4)  # 16 s segments (1/16 Hz resolution) where the record allows
+    return {"measured": h1_estimate(u, prediction.measured[output_name][mask], rate_hz, segment_s),
+            "model": h1_estimate(u, prediction.predicted[output_name][mask], rate_hz, segment_s)}
+
+
+@dataclass
+class Evaluation:
+    """What ``evaluate_run`` found: the metrics, and the curves to overlay across models."""
+
+    metrics: dict[str, Any]
+    transfer: dict[str, TransferEstimate]  # "measured" and "model" of the first input -> output pair (val)
+    signals: dict[str, tuple[np.ndarray, np.ndarray | None, np.ndarray]] = field(default_factory=dict)
+    # learned signal -> (time, measured, model) [SI], first validation record
+    model_blocks: tuple = ()  # the model's BlockSpecs (which signals a network learns)
+
+
+def evaluate_run(run: TrainedRun, out_dir: Path, tensorboard: bool = True) -> Evaluation:
+    """Everything above for one run; the metrics, figures and report are written to ``out_dir``."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    dm = run_datamodule(run)
+    units = {n: c.display_unit for n, c in dm.channels.items()}
+    scale = {n: c.display_factor for n, c in dm.channels.items()}
+    metrics: dict[str, Any] = {"model": run.label, "checkpoint": str(run.checkpoint), "splits": {},
+                               "units": {n: c.unit for n, c in dm.channels.items()}}
+    figures, primary, learned = {}, {}, {}
+    for split in ("val", "test"):
+        if not dm.records(split):
+            continue
+        metrics["splits"][split], predictions = evaluate_split(run, dm, split)
+        if split != "val":
+            continue
+        first = predictions[0]
+        segments = segments_of(dm, dm.records(split)[0].file, float(first.time[-1]))
+        stochastic = next((s for s in segments if s[0] == "stochastic"), None)
+        rate = 1 / dm.dt  # shown: 0.1-5 Hz at the test bench's 32 Hz, the same share of the band elsewhere
+        for input_name in dm.input_names:
+            for output_name in dm.output_names:
+                try:
+                    estimates = transfer_estimates(first, input_name, output_name, stochastic, rate)
+                except ValueError as error:  # e.g. a record too short for the spectral averages
+                    log.warning("no transfer function %s -> %s: %s", input_name, output_name, error)
+                    continue
+                primary = primary or estimates
+                gain_unit = f"{dm.channels[output_name].unit} / {dm.channels[input_name].unit}"
+                figures[f"transfer_{input_name}_{output_name}"] = bode(
+                    {"measured": estimates["measured"], run.label: estimates["model"]}, reference="measured",
+                    f_range=(rate / 320, rate / 6.4), gain_unit=gain_unit, title=f"{input_name} -> {output_name}")
+        shown = slice(first.first, None)
+        figures["free_run"] = time_series(first.time[shown], {n: first.measured[n][shown] for n in dm.output_names},
+                                          {run.label: {n: first.predicted[n][shown] for n in dm.output_names}},
+                                          units=units, scale=scale,
+                                          title=f"{run.label}: free run over {first.record}", spans=segments)
+        for name in compared_signals([first]):
+            learned[name] = (first.time, first.measured.get(name), first.signal_on_grid(name))
+            figures[name] = time_series(first.time, {name: first.measured[name]},
+                                        {f"{run.label} (learned)": {name: first.signal_on_grid(name)}},
+                                        units=units, scale=scale, title=f"implicitly learned {name}")
+    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    _write_csv(metrics, out_dir / "metrics.csv")
+    for name, fig in figures.items():
+        fig.savefig(out_dir / f"{name}.png", dpi=110)
+        if not tensorboard:
+            plt.close(fig)
+    (out_dir / "summary.md").write_text(summary(metrics, [f"{n}.png" for n in figures], units, scale))
+    if tensorboard and (run.folder / "tensorboard").is_dir():
+        from torch.utils.tensorboard import SummaryWriter
+
+        with SummaryWriter(str(run.folder / "tensorboard")) as writer:
+            for name, fig in figures.items():
+                writer.add_figure(f"evaluation/{name}", fig, close=True)
+    return Evaluation(metrics, primary, learned, run.module.model.spec.blocks)
+
+
+def _rows(metrics: dict[str, Any]):
+    for split, modes in metrics["splits"].items():
+        for mode, segments in modes.items():
+            if mode == "signals":
+                for name, values in segments.items():
+                    for key, value in values.items():
+                        yield split, "free_run", "all", name, key, value
+                continue
+            for segment, channels in segments.items():
+                for channel, values in channels.items():
+                    for key, value in values.items():
+                        yield split, mode, segment, channel, key, value
+
+
+def _write_csv(metrics: dict[str, Any], path: Path) -> None:
+    with path.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["model", "split", "mode", "segment", "channel", "metric", "value (SI)"])
+        for row in _rows(metrics):
+            writer.writerow([metrics["model"], *row])
+
+
+def summary(metrics: dict[str, Any], figures: Sequence[str], units: dict[str, str] | None = None,
+            scale: dict[str, float] | None = None) -> str:
+    """A short markdown report of one run, in the channels' display units."""
+    units, scale = units or {}, scale or {}
+    lines = [f"# Evaluation of {metrics['model']}", "", f"checkpoint: `{metrics['checkpoint']}`", "",
+             "MAPE is floored: |error| / max(|y|, 10 % of the channel's RMS), so zero crossings do not explode it.",
+             "`overall` is the mean over the outputs of MAPE and R² (MAE and MSE mix units there: SI).", ""]
+    for split, modes in metrics["splits"].items():
+        lines += [f"## {split}", "", "| mode | segment | output | MAE | RMSE | MAPE [%] | R² |",
+                  "|---|---|---|---|---|---|---|"]
+        for mode in ("windowed", "free_run"):
+            for segment, channels in modes.get(mode, {}).items():
+                for channel, m in channels.items():
+                    k, unit = scale.get(channel, 1.0), units.get(channel, "SI")
+                    lines.append(f"| {mode} | {segment} | {channel} | {m['mae'] * k:.3g} {unit} | "
+                                 f"{np.sqrt(m['mse']) * k:.3g} {unit} | {m['mape']:.3g} | {m['r2']:.4f} |")
+        for name, r in modes.get("signals", {}).items():
+            k, unit = scale.get(name, 1.0), units.get(name, "SI")
+            lines += ["", f"Model vs measured {name} (free run; never trained on): correlation {r['corr']:.3f}, "
+                      f"RMSE {r['rmse'] * k:.3g} {unit}"]
+        lines.append("")
+    lines += [f"![{f}]({f})" for f in figures]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,249 @@
+"""Building a composition's blocks: their physical parameters, scaling and initial-state mode.
+
+Every signal of a composition has a physical scale (μ, σ) so that blocks can exchange it in
+the normalized scale of the paper (eq. 2): measured inputs, outputs and scheduling signals take
+the training set's statistics; a block's outputs take the scale of the measured output they
+observe, of the signals named in ``scale_as``, or (a static gain) the image of its inputs'.
+States nobody measures get a data-free scale from the nominal physics
+(``hypa.physics.default_state_std``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from hypa.ann import build_ann
+from hypa.models.spec import BlockSpec, ModelSpec, ModelSpecError
+from hypa.physics import LTIBlock, ParameterSpec, PhysicalParameters, Scaling, default_state_std
+from hypa.physics.elements import DeadTime, local_name
+from hypa.physics.systems import build_system
+
+Scale = tuple[float, float]  # (mean, std) in SI units
+
+MEASURED, STEADY, ESTIMATE = "measured", "steady", "estimate"
+
+
+@dataclass(frozen=True)
+class PhysicsStart:
+    """How a physics block with states starts a window.
+
+    mode: ``measured`` (the measured outputs ``measured`` at the window start are its state),
+        ``steady`` (equilibrium with its first input) or ``estimate`` (least squares over the
+        past samples of the measured outputs ``observed``, one per block output, None where
+        an output is not measured).
+    """
+
+    mode: str
+    measured: tuple[str, ...] = ()
+    observed: tuple[str | None, ...] = ()
+    encoder: bool = False  # estimate: a network over the past corrects the least-squares state
+
+
+def collect_parameters(spec: ModelSpec, values: Mapping[str, float]
+                       ) -> tuple[PhysicalParameters, dict[str, tuple[str, ...]]]:
+    """One set of named parameters for all blocks, and the trainable ones of each block.
+
+    Shared parameters (the ``vehicle`` group, overridden by the spec's ``parameters``, else the
+    system's nominal values) keep their names; each block's own are ``<block>/<name>``.
+    """
+    values = {**values, **spec.parameters}
+    specs: dict[str, ParameterSpec] = {}
+    trainable_of: dict[str, tuple[str, ...]] = {}
+    for b in spec.blocks:
+        if b.kind == "ann":
+            continue
+        local = {local_name(b.name, k): v for k, v in b.parameters.items()}
+        system = None if b.kind == "delay" else build_system(b.system, b.name)
+        names = (local_name(b.name, "delay_s"),) if system is None else tuple(system.parameter_names)
+        unknown_local = set(local) - set(names)
+        if unknown_local:
+            raise ModelSpecError(f"block {b.name!r}: parameters {sorted(unknown_local)} are not its own; "
+                                 f"it has {', '.join(names)}")
+        if system is None:
+            block_specs = [ParameterSpec(names[0], local[names[0]], "s")]
+        else:
+            nominal = {p.name: p.value for p in getattr(system, "parameters", ())}
+            given = {**nominal, **values, **local}
+            missing = [p for p in names if p not in given]
+            if missing:
+                raise ModelSpecError(f"block {b.name!r} ({b.system}) needs parameters {missing}; give them in "
+                                     "the model's or the block's parameters")
+            block_specs = system.parameter_specs(given)
+        resolved = {t: local_name(b.name, t) if local_name(b.name, t) in names else t for t in b.trainable}
+        unknown = [t for t, full in resolved.items() if full not in names]
+        if unknown:
+            raise ModelSpecError(f"block {b.name!r}: {sorted(unknown)} are not parameters of "
+                                 f"{b.system or b.kind}; it has {', '.join(names)}")
+        unscheduled = [p for p in b.scheduling if p not in names]
+        if unscheduled:
+            raise ModelSpecError(f"block {b.name!r}: scheduling {unscheduled} are not parameters of {b.system}; "
+                                 f"it has {', '.join(names)}")
+        for s in block_specs:
+            specs[s.name] = s
+        trainable_of[b.name] = tuple(resolved.values())
+    unread = set(spec.parameters) - set(specs)
+    if unread:
+        raise ModelSpecError(f"model {spec.name!r}: parameters {sorted(unread)} are read by no block; "
+                             f"read: {', '.join(specs)}")
+    params = PhysicalParameters(specs.values())
+    params.set_trainable({t for ts in trainable_of.values() for t in ts}, True)
+    return params, trainable_of
+
+
+class BlockBuilder:
+    """Builds blocks in dependency order, keeping the scale of every signal written so far.
+
+    Args:
+        scales: (μ, σ) of the signals available so far (measured inputs and scheduling
+            signals); block outputs are added as blocks are built.
+        measured: (μ, σ) of the measured outputs (targets; usable as initial states).
+        scheduling: names of the measured scheduling signals.
+    """
+
+    def __init__(self, params: PhysicalParameters, scales: Mapping[str, Scale], measured: Mapping[str, Scale],
+                 scheduling: Sequence[str], dt: float, horizon: int, hold: str, ann: str,
+                 ann_hparams: Mapping) -> None:
+        self.params, self.scales, self.measured = params, dict(scales), dict(measured)
+        self.scheduling = tuple(scheduling)
+        self.dt, self.horizon, self.hold, self.ann, self.ann_hparams = dt, horizon, hold, ann, dict(ann_hparams)
+        self.starts: dict[str, PhysicsStart] = {}
+        self.encoders = nn.ModuleDict()  # block name -> initial-state encoder network
+
+    def scale_of(self, names: Sequence[str], where: str) -> list[Scale]:
+        missing = [n for n in names if n not in self.scales and n not in self.measured]
+        if missing:
+            raise ModelSpecError(f"{where}: no scaling for {missing}")
+        return [self.scales.get(n) or self.measured[n] for n in names]
+
+    def build(self, b: BlockSpec) -> nn.Module:
+        if b.kind == "ann":
+            return self._ann(b)
+        if b.kind == "delay":  # a shift: outputs keep their inputs' scale
+            self.scales.update(zip(b.outputs, self.scale_of(b.inputs, f"block {b.name!r} inputs")))
+            return DeadTime(self.params, local_name(b.name, "delay_s"), self.dt)
+        return self._physics(b)
+
+    def _ann(self, b: BlockSpec) -> nn.Module:
+        if b.residual_of:
+            outputs = self.scale_of(b.residual_of, f"block {b.name!r} residual_of")
+        elif b.scale_as:  # zero mean: a network output of 0 is 0 in SI units (e.g. no rear steering)
+            outputs = [(0.0, std) for _, std in self.scale_of(b.scale_as, f"block {b.name!r} scale_as")]
+        elif all(o in self.measured for o in b.outputs):
+            outputs = [self.measured[o] for o in b.outputs]
+        else:
+            raise ModelSpecError(f"ann block {b.name!r}: give scale_as or residual_of so its outputs "
+                                 f"{list(b.outputs)} have a physical scale")
+        if len(outputs) != len(b.outputs):
+            raise ModelSpecError(f"block {b.name!r}: {len(b.outputs)} outputs but {len(outputs)} scales")
+        self.scale_of(b.inputs, f"block {b.name!r} inputs")
+        self.scales.update(zip(b.outputs, outputs))
+        missing = [s for s in b.initial_state if s not in self.measured]
+        if missing:
+            raise ModelSpecError(f"block {b.name!r}: initial state {missing} is not a measured output; "
+                                 f"measured: {list(self.measured)}")
+        zero_init = bool(b.residual_of or b.scale_as)  # start as pure physics / no rear steering
+        return build_ann(self.ann, len(b.inputs) + len(b.initial_state), len(b.outputs), zero_init=zero_init,
+                         **self.ann_hparams)
+
+    def _physics(self, b: BlockSpec) -> LTIBlock:
+        system = build_system(b.system, b.name)
+        if len(b.inputs) != len(system.input_names) or len(b.outputs) != len(system.output_names):
+            raise ModelSpecError(f"block {b.name!r}: {b.system} maps {list(system.input_names)} -> "
+                                 f"{list(system.output_names)}; got {list(b.inputs)} -> {list(b.outputs)}")
+        unknown = [s for s in b.scheduling.values() if s not in self.scheduling]
+        if unknown:
+            raise ModelSpecError(f"block {b.name!r}: scheduling signals {unknown} are not measured scheduling "
+                                 f"channels; the data declare: {list(self.scheduling) or 'none'}")
+        inputs = self.scale_of(b.inputs, f"block {b.name!r} inputs")
+        nominal = {k: torch.tensor(v, dtype=torch.float64) for k, v in self.params.as_floats().items()}
+        ss = system.matrices(nominal)
+        n = system.n_states
+        if n == 0:
+            states, outputs = [], self._gain_scale(b, inputs, ss.d)
+        else:
+            start = self._start(b, system)
+            self.starts[b.name] = start
+            if start.encoder:  # (inputs, observed outputs, mask) over the past -> state correction
+                self.encoders[b.name] = build_ann(self.ann, len(b.inputs) + len(b.outputs), n, zero_init=True,
+                                                  **self.ann_hparams)
+            outputs = self._output_scale(b, system, start, inputs)
+            if start.mode == MEASURED:
+                states = [self.measured[s] for s in start.measured]
+            elif system.outputs_are_states:
+                states = outputs
+            else:
+                std = default_state_std(ss, self.dt, torch.tensor([s for _, s in inputs], dtype=torch.float64),
+                                        self.horizon)
+                states = [(0.0, float(s)) for s in std]
+        self.scales.update(zip(b.outputs, outputs))
+        t = lambda pairs, i: torch.tensor([p[i] for p in pairs], dtype=torch.float64)  # noqa: E731
+        scaling = Scaling(t(states, 0), t(states, 1), t(inputs, 0), t(inputs, 1), t(outputs, 0), t(outputs, 1))
+        block = LTIBlock(system, self.params, self.dt, self.horizon, hold=self.hold if n else "zoh",
+                         scaling=scaling, scheduled=tuple(b.scheduling))
+        if not b.scheduling:  # a scheduled block's stability depends on the signal
+            block.check_stable()
+        return block
+
+    def _start(self, b: BlockSpec, system) -> PhysicsStart:
+        if b.steady:
+            if b.scheduling:
+                raise ModelSpecError(f"block {b.name!r}: a steady start needs constant matrices; use "
+                                     "initial_state: estimate for a scheduled block")
+            if not system.outputs_are_states:
+                raise ModelSpecError(f"block {b.name!r}: a steady start needs a system whose outputs are its "
+                                     f"{system.n_states} states")
+            return PhysicsStart(STEADY)
+        if b.initial_state and not b.estimated:
+            missing = [s for s in b.initial_state if s not in self.measured]
+            if missing or len(b.initial_state) != system.n_states:
+                raise ModelSpecError(f"block {b.name!r}: initial state {list(b.initial_state)} must name its "
+                                     f"{system.n_states} states among the measured outputs {list(self.measured)}")
+            return PhysicsStart(MEASURED, measured=tuple(b.initial_state))
+        if not b.estimated and all(s in self.measured for s in system.state_names):
+            return PhysicsStart(MEASURED, measured=tuple(system.state_names))
+        observed = tuple(b.observe.get(o, o if o in self.measured else None) for o in b.outputs)
+        unknown = [o for o in observed if o is not None and o not in self.measured]
+        if unknown:
+            raise ModelSpecError(f"block {b.name!r}: observe {unknown} are not measured outputs; "
+                                 f"measured: {list(self.measured)}")
+        if not any(observed):
+            raise ModelSpecError(
+                f"block {b.name!r}: its states {list(system.state_names)} are not measured and none of its "
+                f"outputs {list(b.outputs)} is a measured output, so its initial state cannot be estimated; "
+                "give observe: {output: measured output} or initial_state: steady")
+        return PhysicsStart(ESTIMATE, observed=observed, encoder=b.encoded)
+
+    def _output_scale(self, b: BlockSpec, system, start: PhysicsStart, inputs: list[Scale]) -> list[Scale]:
+        if b.scale_as:
+            scales = self.scale_of(b.scale_as, f"block {b.name!r} scale_as")
+        elif start.mode == MEASURED and system.outputs_are_states:
+            scales = [self.measured[s] for s in start.measured]
+        elif start.mode == STEADY:  # its outputs are its states: scaled like its inputs
+            scales = inputs
+        else:
+            observed = start.observed or (None,) * len(b.outputs)
+            sources = [o if o in self.measured else m for o, m in zip(b.outputs, observed)]
+            if None in sources:
+                unmeasured = [o for o, m in zip(b.outputs, sources) if m is None]
+                raise ModelSpecError(f"block {b.name!r}: outputs {unmeasured} are not measured; give scale_as "
+                                     "so they have a physical scale")
+            scales = [self.measured[m] for m in sources]
+        if len(scales) != len(b.outputs):
+            raise ModelSpecError(f"block {b.name!r}: {len(b.outputs)} outputs but {len(scales)} scales "
+                                 "(scale_as, or its inputs for a steady start)")
+        return scales
+
+    def _gain_scale(self, b: BlockSpec, inputs: list[Scale], d: torch.Tensor) -> list[Scale]:
+        if b.scale_as:
+            return self.scale_of(b.scale_as, f"block {b.name!r} scale_as")
+        mean_in = torch.tensor([m for m, _ in inputs], dtype=torch.float64)
+        std_in = torch.tensor([s for _, s in inputs], dtype=torch.float64)
+        mean_out, std_out = d @ mean_in, d.abs() @ std_in  # y = D u: μy = D μu, σy <= |D| σu
+        if not bool((std_out > 0).all()):
+            raise ModelSpecError(f"block {b.name!r}: its gain is zero at the nominal parameters; "
+                                 "give scale_as to fix the output scaling")
+        return list(zip(mean_out.tolist(), std_out.tolist()))

@@ -1,0 +1,92 @@
+"""Checking that a system follows the ``LTIModel`` contract, with one-line errors.
+
+A user's system is a class in any importable module (``system: package.module:Class`` in a
+model YAML); a mistake in it should surface as one sentence naming what is wrong, at build
+time, not as a shape error deep inside a matrix exponential.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+
+from hypa.physics.lti import LTIModel, StateSpace
+from hypa.physics.parameters import ParameterSpec
+
+
+class SystemContractError(ValueError):
+    """A system that cannot be used: unknown, not importable, or breaking the ``LTIModel`` contract."""
+
+
+_NAME_GROUPS = ("state_names", "input_names", "output_names")
+
+
+def check_system(system: object, where: str = "") -> None:
+    """Raise ``SystemContractError`` unless ``system`` follows the ``LTIModel`` contract.
+
+    Checks the signal and parameter declarations, then evaluates ``matrices`` at the nominal
+    parameter values and checks the shapes (A (n, n), B (n, m), C (p, n), D (p, m), e (n,))
+    and that every entry is finite. ``where`` names the system in the message (its import path).
+    """
+    label = where or type(system).__name__
+    if not isinstance(system, LTIModel):
+        kind = system.__name__ if isinstance(system, type) else type(system).__name__
+        raise SystemContractError(f"system {label}: {kind} is not an instance of a hypa.physics.LTIModel subclass")
+    for group in _NAME_GROUPS:
+        _check_names(getattr(system, group, None), group, label)
+    specs = getattr(system, "parameters", None)
+    if isinstance(specs, ParameterSpec) or not isinstance(specs, Sequence):
+        raise SystemContractError(f"system {label}: parameters must be a tuple of ParameterSpec, got {specs!r}")
+    bad = [s for s in specs if not isinstance(s, ParameterSpec)]
+    if bad:
+        raise SystemContractError(f"system {label}: parameters must be ParameterSpec(name, value, unit, ...), "
+                                  f"got {type(bad[0]).__name__} {bad[0]!r}")
+    names = [s.name for s in specs]
+    _check_unique(names, "parameter", label)
+    missing = [n for n in system.parameter_names if n not in names]
+    if missing:
+        raise SystemContractError(f"system {label}: parameter_names {missing} have no ParameterSpec in parameters")
+    _check_matrices(system, {s.name: torch.tensor(s.value, dtype=torch.float64) for s in specs}, label)
+
+
+def _check_names(names: object, group: str, label: str) -> None:
+    if names is None or (group != "state_names" and isinstance(names, Sequence) and len(names) == 0):
+        raise SystemContractError(f"system {label}: missing {group} (a tuple of signal names)")
+    if isinstance(names, str) or not isinstance(names, Sequence) or not all(isinstance(n, str) and n for n in names):
+        raise SystemContractError(f"system {label}: {group} must be a tuple of non-empty strings, got {names!r}")
+    _check_unique(list(names), group.removesuffix("_names"), label)
+
+
+def _check_unique(names: list[str], what: str, label: str) -> None:
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise SystemContractError(f"system {label}: duplicate {what} names {twice}")
+
+
+def _check_matrices(system: LTIModel, nominal: dict[str, torch.Tensor], label: str) -> None:
+    try:
+        ss = system.matrices(nominal)
+    except Exception as error:  # a user's code: report any failure as one line
+        raise SystemContractError(f"system {label}: matrices(nominal parameters) raised "
+                                  f"{type(error).__name__}: {error}") from error
+    if not isinstance(ss, StateSpace):
+        raise SystemContractError(f"system {label}: matrices must return a StateSpace(a, b, c, d, e=None), "
+                                  f"got {type(ss).__name__}")
+    n, m, p = len(system.state_names), len(system.input_names), len(system.output_names)
+    expected = {"A": ((n, n), "(states, states)"), "B": ((n, m), "(states, inputs)"),
+                "C": ((p, n), "(outputs, states)"), "D": ((p, m), "(outputs, inputs)"), "e": ((n,), "(states,)")}
+    for key, matrix in zip("ABCDe", (ss.a, ss.b, ss.c, ss.d, ss.e)):
+        if matrix is None and key == "e":
+            continue
+        shape, meaning = expected[key]
+        if not isinstance(matrix, torch.Tensor):
+            raise SystemContractError(f"system {label}: matrices returned {key} as {type(matrix).__name__}, "
+                                      f"expected a tensor of shape {shape} {meaning}")
+        if tuple(matrix.shape) != shape:
+            raise SystemContractError(f"system {label}: matrices returned {key} with shape {tuple(matrix.shape)}, "
+                                      f"expected {shape} {meaning}")
+        if not bool(torch.isfinite(matrix).all()):
+            raise SystemContractError(f"system {label}: matrices returned a non-finite {key} at the nominal "
+                                      f"parameters: {matrix.tolist()}")
+

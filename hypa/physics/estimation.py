@@ -1,0 +1,65 @@
+"""Estimating a block's state from a past window of measured outputs: least squares, differentiable.
+
+A window starts at sample P ("k" in the paper) after P past samples 0..P-1. Where the state is
+not measured, the past tells it: with the normalized system (eq. 5, per-sample matrices for a
+scheduled block) and an unknown x̂_0,
+
+    x̂_{j+1} = Â_j x̂_j + c_j,    c_j = Σ_t B̂_{t,j} û_{j+t} + Ĥ_j          (j = 0..P-1)
+    ŷ_j = Ĉ_j x̂_j + D̂_j û_j + Ĝ_j                                         (j = 0..P)
+
+every state is affine in x̂_0: x̂_j = Ψ_j x̂_0 + r_j with Ψ_0 = I, r_0 = 0, Ψ_{j+1} = Â_j Ψ_j,
+r_{j+1} = Â_j r_j + c_j (the prefix compositions of the steps, ``scheduled.affine_scan``: r_j
+is the response to the inputs from a zero state). The measured outputs (the rows of ``observed``)
+are then linear in x̂_0:
+
+    z_j = ŷ_j - D̂_j û_j - Ĝ_j - Ĉ_j r_j = Ĉ_j Ψ_j x̂_0 + noise,   stacked: z = O x̂_0 + noise
+
+with O = [Ĉ_0 Ψ_0; ...; Ĉ_P Ψ_P] the observability matrix of the window. The estimate
+
+    x̂_0* = argmin ‖O x̂_0 - z‖² + λ ‖x̂_0‖²,       x̂_P* = Ψ_P x̂_0* + r_P
+
+is the least-squares (Gauss-Markov) one for white output noise; λ (``ridge``, absolute, in the
+normalized scale where states have unit spread) is tiny, so it only decides directions the
+outputs do not see: those go to x̂ = 0, the state mean. It is solved by a QR factorization of
+[O; √λ I] (not the normal equations, whose condition number is squared: it matters in float32),
+all differentiable, so a loss on the prediction trains the physics through the estimate too.
+Only samples 0..P are read.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from hypa.physics.scheduled import affine_scan
+
+
+def estimate_last_state(phi: Tensor, forced: Tensor, c: Tensor, offset: Tensor, y: Tensor, observed: Tensor,
+                        ridge: float = 1e-8) -> Tensor:
+    """x̂_P* (B, n) from a past window (see the module docstring).
+
+    phi: (B' , P, n, n) Â_j (B' = 1 for constant matrices); forced: (B, P, n) c_j;
+    c: (B' | 1, P+1 | 1, p, n) Ĉ_j; offset: (B, P+1, p) D̂_j û_j + Ĝ_j; y: (B, P+1, p) normalized
+    outputs (unobserved channels are never read, NaN there is fine); observed: (p,) bool.
+    """
+    if ridge < 0:
+        raise ValueError(f"ridge must be >= 0, got {ridge}")
+    n, (batch, samples) = phi.shape[-1], y.shape[:2]
+    eye = torch.eye(n, dtype=y.dtype, device=y.device)
+    transition, response = eye.expand(1, 1, n, n), y.new_zeros(batch, 1, n)  # Ψ_0, r_0
+    if samples > 1:
+        powers, responses = affine_scan(phi, forced)  # Ψ_1..Ψ_P, r_1..r_P
+        transition = torch.cat([transition.expand(*powers.shape[:-3], 1, n, n), powers], -3)  # (B', P+1, n, n)
+        response = torch.cat([response, responses], -2)  # (B, P+1, n)
+    c_seen = c[..., observed, :]  # (B'|1, P+1|1, p_o, n)
+    gain = c_seen @ transition  # (B', P+1, p_o, n): O by sample
+    z = y[..., observed] - offset[..., observed] - (c_seen @ response[..., None]).squeeze(-1)  # (B, P+1, p_o)
+    rows = gain.reshape(gain.shape[0], -1, n)  # (B', M, n), M = (P+1) p_o
+    if ridge > 0:
+        rows = torch.cat([rows, math.sqrt(ridge) * eye.expand(rows.shape[0], n, n)], -2)
+    q, r = torch.linalg.qr(rows)  # (B', M (+n), n), (B', n, n)
+    measured = z.reshape(batch, -1, 1)  # (B, M, 1); the ridge rows' targets are 0
+    x0 = torch.linalg.solve_triangular(r, q[:, : measured.shape[1]].transpose(-1, -2) @ measured, upper=True)
+    return (transition[:, -1] @ x0).squeeze(-1) + response[:, -1]  # (B, n)

@@ -1,0 +1,52 @@
+"""A mass with viscous friction and an offset force, driven by a force: the EMPS axis.
+
+The EMPS (electro-mechanical positioning system, Janot et al. 2019) is a prismatic joint: a
+motor force u moves a load of mass M along a ball screw. Its reference model is
+
+    M q̈ = u - Fv q̇ - Fc sign(q̇) + F0
+
+with states x = [position q (m), velocity q̇ (m/s)], output y = [position q]. The Coulomb term
+Fc sign(q̇) is not linear and is left to a network; the rest is the state space
+
+    A = [[0, 1], [0, -Fv/M]],   B = [[0], [1/M]],   C = [[1, 0]],   D = [[0]],   e = [0, F0/M]
+
+A has an eigenvalue 0 (the position integrates the velocity): marginally stable, which
+``LTIBlock.check_stable`` accepts.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import torch
+from torch import Tensor
+
+from hypa.physics.lti import LTIModel, StateSpace
+from hypa.physics.parameters import ParameterSpec
+
+
+class MassWithFriction(LTIModel):
+    """Parameters: ``mass`` M [kg], ``viscous_friction`` Fv [N s/m] (positive), ``offset_force``
+    F0 [N] (signed: a constant force on the load, e.g. a cable's pull or gravity on a tilt).
+
+    Nominal values are Janot et al.'s identified EMPS model (M = 95.1 kg, Fv = 203.5 N s/m,
+    offset OF = -3.16 N, written there on the friction side: F0 = -OF).
+    """
+
+    state_names = ("position", "velocity")
+    input_names = ("force",)
+    output_names = ("position",)
+    parameters = (
+        ParameterSpec("mass", 95.1, "kg"),
+        ParameterSpec("viscous_friction", 203.5, "N s/m"),
+        ParameterSpec("offset_force", 3.16, "N", positive=False),
+    )
+
+    def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
+        m, fv, f0 = p["mass"], p["viscous_friction"], p["offset_force"]
+        zero, one = torch.zeros_like(m), torch.ones_like(m)
+        a = torch.stack([torch.stack([zero, one]), torch.stack([zero, -fv / m])])  # (2, 2)
+        b = torch.stack([zero, 1.0 / m]).reshape(2, 1)
+        c = torch.stack([one, zero]).reshape(1, 2)  # y = position
+        e = torch.stack([zero, f0 / m])  # (2,) the offset force accelerates the load
+        return StateSpace(a, b, c, m.new_zeros(1, 1), e)

@@ -1,0 +1,236 @@
+"""Running an ``LTIBlock``: its outputs, states, steady and estimated states (the block's simulation half).
+
+Output convention, with k the window start, S predicted samples and T input taps (1 ZOH, 2 FOH):
+``forward(x̂_k, û)`` with û (B, S + extra_inputs, m) holding samples k, k+1, ... returns
+ŷ (B, S, p) at samples k+1..k+S,
+
+    x̂_{j+1} = Â x̂_j + Σ_t B̂_t û_{j+t} + Ĥ                 (eq. 5)
+    ŷ_j = Ĉ x̂_j + D̂ û_j + Ĝ                                  (D pairs with its own sample's input)
+
+The states use û_k..û_{k+S+T-2}; the output at k+S also reads û_{k+S} when D ≠ 0, hence
+``extra_inputs`` = T - 1 without feedthrough (D = 0 at the parameters the block is built with)
+and max(T - 1, 1) with it. A block without states is a gain, ŷ_j = D̂ û_j + Ĝ at every given
+sample (S = L). Constant blocks simulate in the lifted form (eq. 9-11): cached while frozen, one
+fused graph node for a horizon-long window of trainable physics, horizon-long windows chained
+otherwise. Scheduled blocks rebuild their matrices per sample (``scheduled``).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import torch
+from torch import Tensor
+
+from hypa.physics.estimation import estimate_last_state
+from hypa.physics.lifted import simulate_chunked, simulate_from_rows
+from hypa.physics.normalized import NormalizedLTI
+from hypa.physics.scheduled import SchedulingError, forced_terms, per_sample_matrices, simulate_scheduled
+
+if TYPE_CHECKING:
+    from hypa.physics.lti import LTIModel, StateSpace
+
+Output = tuple[Tensor, Tensor, Tensor]  # Ĉ, D̂, Ĝ: (p, n), (p, m), (p,) or per sample (B, S, p, ...)
+
+
+def apply_output(c: Tensor, d: Tensor, g: Tensor, x: Tensor, u: Tensor | None) -> Tensor:
+    """ŷ = Ĉ x̂ + D̂ û + Ĝ (..., p) for x (..., n), u (..., m) (None: no feedthrough), constant or per-sample matrices."""
+    if c.dim() == 2:
+        y = x @ c.T + g
+        return y if u is None else y + u @ d.T
+    y = (c @ x[..., None]).squeeze(-1) + g
+    return y if u is None else y + (d @ u[..., None]).squeeze(-1)
+
+
+class BlockSimulation:
+    """The simulation methods of ``LTIBlock`` (a mixin: it reads the block's model, scaling and matrices)."""
+
+    model: LTIModel
+    scheduled: tuple[str, ...]
+    feedthrough: bool
+    n_taps: int
+    horizon: int
+
+    @property
+    def extra_inputs(self) -> int:
+        """Input samples beyond the S outputs that ``forward`` needs: T - 1, or max(T - 1, 1) with D ≠ 0."""
+        if not self.model.n_states:
+            return 0
+        return max(self.n_taps - 1, 1) if self.feedthrough else self.n_taps - 1
+
+    def forward(self, x0: Tensor | None, u: Tensor, scheduling: Tensor | None = None) -> Tensor:
+        """Normalized outputs ŷ (B, S, p) at samples k+1..k+S from x̂_k (B, n) and û (B, S + extra_inputs, m).
+
+        scheduling: (B, L, q) physical values of the scheduled parameters, aligned with u (a
+        scheduled block only). A block without states takes x0 None and returns (B, L, p).
+        """
+        if not self.model.n_states:
+            rho = None if scheduling is None else scheduling[:, : u.shape[1]]
+            return self.output(u.new_zeros(*u.shape[:-1], 0), u, rho)
+        steps = self._steps(u)
+        states, out = self._simulate(x0, u, scheduling, steps)
+        if out is None:  # y = x: the outputs share the states' names and scaling
+            return states
+        return apply_output(*out, states, u[:, 1 : steps + 1] if self.feedthrough else None)
+
+    def states(self, x0: Tensor | None, u: Tensor, scheduling: Tensor | None = None) -> Tensor:
+        """Normalized states x̂_{k+1..k+S} (B, S, n), the samples of ``forward``'s outputs."""
+        if not self.model.n_states:
+            return u.new_zeros(*u.shape[:-1], 0)
+        return self._simulate(x0, u, scheduling, self._steps(u))[0]
+
+    def output(self, states: Tensor, u: Tensor, scheduling: Tensor | None = None) -> Tensor:
+        """ŷ = Ĉ x̂ + D̂ û + Ĝ (..., p) from states (..., n) and the inputs of the same samples (..., m).
+
+        scheduling: (..., q) physical values at those samples (a scheduled block only).
+        """
+        if scheduling is not None and scheduling.shape[:-1] != u.shape[:-1]:
+            raise SchedulingError(f"{type(self.model).__name__}: scheduling {tuple(scheduling.shape)} must match "
+                                  f"the inputs {tuple(u.shape)} but for its last dim")
+        rho = self._check_scheduling(scheduling, u)
+        if rho is None:
+            norm = self._norm(u.dtype)
+            return apply_output(norm.c, norm.d, norm.g, states, u)
+        return apply_output(*self._output_rows(self._per_sample(rho)), states, u)
+
+    def steady_state(self, u0: Tensor, scheduling: Tensor | None = None) -> Tensor:
+        """Normalized equilibrium x̂ (B, n) for the constant normalized input û0 (B, m).
+
+        0 = A x + B u + e gives x = -A⁻¹ (B u + e) in physical units (the same for either hold,
+        which is exact for a constant input). A scheduled block takes ρ (B, q) to hold.
+        """
+        dtype = u0.dtype
+        rho = self._check_scheduling(scheduling, u0)
+        ss = self.state_space(dtype) if rho is None else self._per_sample(rho)
+        u_phys = u0 * self.input_std.to(dtype) + self.input_mean.to(dtype)  # (B, m)
+        force = (ss.b @ u_phys[..., None]).squeeze(-1)  # (B, n)
+        if ss.e is not None:
+            force = force + ss.e
+        try:
+            x = -torch.linalg.solve(ss.a, force[..., None]).squeeze(-1)  # (B, n)
+        except RuntimeError as error:  # torch's singular-matrix error: name the block instead
+            raise ValueError(f"{type(self.model).__name__} has no unique equilibrium (A is singular, e.g. an "
+                             "integrator): start it from a measured or estimated state") from error
+        return (x - self.state_mean.to(dtype)) / self.state_std.to(dtype)
+
+    def estimate_state(self, u: Tensor, y: Tensor, observed: Tensor, scheduling: Tensor | None = None,
+                       ridge: float = 1e-8) -> Tensor:
+        """Least-squares state x̂_P (B, n) at the last sample P of a past window (``estimation``).
+
+        u: (B, >= P+1, m) normalized inputs from sample 0; y: (B, P+1, p) normalized outputs at
+        samples 0..P (its length sets P; unobserved channels are never read); observed: (p,)
+        bool; scheduling: (B, >= P+1, q) (a scheduled block). Only samples 0..P are read.
+        Differentiable in u, y and the trainable parameters.
+        """
+        past, (batch, n, p) = y.shape[1] - 1, (y.shape[0], self.model.n_states, len(self.model.output_names))
+        observed = torch.as_tensor(observed, dtype=torch.bool, device=y.device)
+        if past < 0 or u.shape[1] <= past or y.shape[-1] != p or observed.shape != (p,):
+            raise ValueError(f"{type(self.model).__name__}.estimate_state needs y (B, P+1, {p}), u (B, >= P+1, m) "
+                             f"and observed ({p},); got y {tuple(y.shape)}, u {tuple(u.shape)}, observed "
+                             f"{tuple(observed.shape)}")
+        if not n:
+            return y.new_zeros(batch, 0)
+        u = u[:, : past + 1]
+        rho = self._check_scheduling(scheduling, u, past + 1)
+        if rho is None:
+            norm = self._norm(u.dtype)
+            phi = norm.a.expand(1, past, n, n)
+            forced = forced_terms(torch.cat([*norm.b_taps, norm.h[:, None]], -1), self.n_taps, u, past)
+            c, offset = norm.c[None, None], u @ norm.d.T + norm.g  # (1, 1, p, n), (B, P+1, p)
+        else:
+            ss = self._per_sample(rho[:, : past + 1])  # (B, P+1, ...)
+            rows = self._state_rows(ss, past)  # (B, P, n, n + T m + 1)
+            phi, forced = rows[..., :n], forced_terms(rows[..., n:], self.n_taps, u, past)
+            c, d, g = self._output_rows(ss)
+            offset = (d @ u[..., None]).squeeze(-1) + g
+        return estimate_last_state(phi, forced, c, offset, y, observed, ridge)
+
+    def simulate_physical(self, x0: Tensor | None, u: Tensor, scheduling: Tensor | None = None) -> Tensor:
+        """``forward`` in physical units: normalize, simulate, de-normalize (x0 (B, n), u (B, L, m))."""
+        dtype = u.dtype
+        x0n = None if x0 is None else (x0 - self.state_mean.to(dtype)) / self.state_std.to(dtype)
+        un = (u - self.input_mean.to(dtype)) / self.input_std.to(dtype)
+        return self(x0n, un, scheduling) * self.output_std.to(dtype) + self.output_mean.to(dtype)
+
+    def normalized_rows(self, scheduling: Tensor) -> Tensor:
+        """[Â_j, B̂_{0,j}, ..., B̂_{T-1,j}, Ĥ_j] (B, K, n, n + T m + 1) at every sample of scheduling (B, K, q).
+
+        What a scheduled block's step j uses (``scheduled.simulate_scheduled``); all samples are
+        discretized in one batched matrix exponential.
+        """
+        rho = self._check_scheduling(scheduling, scheduling[..., :0])  # refuses an unscheduled block
+        return self._state_rows(self._per_sample(rho), rho.shape[1])
+
+    # -- the two engines -------------------------------------------------------------------
+    def _simulate(self, x0: Tensor | None, u: Tensor, scheduling: Tensor | None, steps: int
+                  ) -> tuple[Tensor, Output | None]:
+        """States x̂_{k+1..k+S} and the output matrices of those samples (None when y = x)."""
+        n = self.model.n_states
+        if x0 is None or x0.shape[-1] != n or x0.shape[0] != u.shape[0]:
+            raise ValueError(f"{type(self.model).__name__} has {n} states: give an initial state (B, {n}), "
+                             f"got {None if x0 is None else tuple(x0.shape)} for u {tuple(u.shape)}")
+        rho = self._check_scheduling(scheduling, u, steps)
+        same = self.model.outputs_are_states
+        u_states = u[:, : steps + self.n_taps - 1]
+        if rho is None:
+            rebuild = self._rebuilds()
+            if rebuild and steps == self.horizon:  # a training window of trainable physics: one graph node
+                rows, norm = self._normalized(u.dtype)
+                states = simulate_from_rows(rows, self.n_taps, x0, u_states)
+            else:
+                lifted, norm = self._lifted(u.dtype, rebuild)
+                states = simulate_chunked(lifted, x0, u_states)
+            return states, None if same else (norm.c, norm.d, norm.g)
+        # step j reads ρ_j, the output at sample j too: ρ_0..ρ_S, the last held if not given (ZOH)
+        rho = rho[:, : steps + (not same)]
+        if rho.shape[1] == steps and not same:
+            rho = torch.cat([rho, rho[:, -1:]], 1)
+        ss = self._per_sample(rho)
+        states = simulate_scheduled(self._state_rows(ss, steps), self.n_taps, x0, u_states)
+        if same:
+            return states, None
+        c, d, g = self._output_rows(ss)
+        return states, (c[:, 1:], d[:, 1:], g[:, 1:])
+
+    def _steps(self, u: Tensor) -> int:
+        steps = u.shape[1] - self.extra_inputs
+        if u.dim() != 3 or steps < 1:
+            raise ValueError(f"{type(self.model).__name__} needs inputs (B, S + {self.extra_inputs}, m) with S >= 1, "
+                             f"got {tuple(u.shape)}")
+        return steps
+
+    def _norm(self, dtype: torch.dtype) -> NormalizedLTI:
+        """Â, B̂, Ĥ, Ĉ, D̂, Ĝ: rebuilt for trainable physics, else the cached ones."""
+        rebuild = self._rebuilds()
+        return self._normalized(dtype)[1] if rebuild else self._lifted(dtype, False)[1]
+
+    def _check_scheduling(self, scheduling: Tensor | None, like: Tensor, samples: int = 0) -> Tensor | None:
+        """``scheduling`` in ``like``'s dtype, checked against the block (None for an unscheduled block)."""
+        name = type(self.model).__name__
+        if not self.scheduled:
+            if scheduling is not None:
+                raise SchedulingError(f"{name} has no scheduled parameters but got scheduling signals")
+            return None
+        q = len(self.scheduled)
+        if scheduling is None:
+            raise SchedulingError(f"{name} schedules {list(self.scheduled)}: give scheduling (..., {q}) in SI units")
+        if scheduling.shape[:-1] != like.shape[:-1] and (scheduling.dim() != 3 or scheduling.shape[0] != like.shape[0]):
+            raise SchedulingError(f"{name}: scheduling {tuple(scheduling.shape)} does not fit inputs {tuple(like.shape)}")
+        if scheduling.shape[-1] != q or (samples and scheduling.shape[1] < samples):
+            raise SchedulingError(f"{name}: scheduling must be (B, >= {samples or 'L'}, {q}) for {list(self.scheduled)}, "
+                                  f"got {tuple(scheduling.shape)}")
+        return scheduling.to(like.dtype)
+
+    def _per_sample(self, rho: Tensor) -> StateSpace:
+        fixed = self.parameters_.values(self._fixed_names, rho.dtype) if self._fixed_names else {}
+        return per_sample_matrices(self.model, fixed, self.scheduled, rho)
+
+    def _state_rows(self, ss: StateSpace, steps: int) -> Tensor:
+        """[Â_j, B̂_{t,j}, Ĥ_j] (B, steps, n, n + T m + 1) of samples 0..steps-1: one batched exponential."""
+        maps = self._normalizing_maps(ss.a.dtype, ss.a.device)
+        return maps.state_rows(ss.a[:, :steps], ss.b[:, :steps], ss.e[:, :steps])
+
+    def _output_rows(self, ss: StateSpace) -> Output:
+        n = self.model.n_states
+        out = self._normalizing_maps(ss.c.dtype, ss.c.device).output_rows(ss.c, ss.d)
+        return out[..., :n], out[..., n:-1], out[..., -1]
