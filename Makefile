@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 
 .DEFAULT_GOAL := help
-.PHONY: help install train evaluate reproduce simulate testbench tensorboard test test-slow test-all bench clean
+.PHONY: help install train evaluate reproduce simulate testbench tensorboard test test-slow test-all bench benchmark clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-12s %s\n", $$1, $$2}'
@@ -50,6 +50,9 @@ test-all: $(STAMP) ## every test
 bench: $(STAMP) ## lifted physics vs recursion vs bare matmul (ratios); time to name the cause (diagnose)
 	$(BIN)/python -m hypa.bench $(ARGS)
 	$(BIN)/python -m hypa.bench_diagnosis
+
+benchmark: $(STAMP) ## real data (../shared/data): make benchmark ARGS="dataset=silverbox budget=full"
+	$(BIN)/python -m hypa.benchmark $(ARGS)
 
 clean: ## remove run outputs (not the environment, not the data cache)
 	rm -rf outputs multirun lightning_logs .pytest_cache

@@ -79,7 +79,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         normalization=dm.normalization.state_dict(),
         input_names=dm.input_names, output_names=dm.output_names, eval_names=dm.eval_names,
         scheduling_names=dm.scheduling_names, past=dm.past,
-        dt=dm.dt, horizon=int(cfg.data.window), hold=str(cfg.physics.hold),
+        dt=dm.dt, horizon=int(cfg.physics.get("horizon") or cfg.data.window), hold=str(cfg.physics.hold),
         ann_name=str(ann.pop("name")), ann_hparams=ann,
         lr=float(cfg.optimizer.lr), physics_lr=float(cfg.optimizer.physics_lr),
         weight_decay=float(cfg.optimizer.weight_decay),
