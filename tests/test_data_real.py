@@ -99,7 +99,7 @@ def test_racecar_without_standstill(monkeypatch):
     np.testing.assert_allclose(train["side_slip"], beta)
     np.testing.assert_array_equal(train["steering_angle"], raw["delta(rad)"][stretch])
     batch = next(iter(dm.train_dataloader()))
-    assert batch["s"].shape == (32, 101, 1) and bool((batch["s"] > 5.0).all())  # SI speed
+    assert batch["s"].shape == (32, dm.past + dm.window + 1, 1) and bool((batch["s"] > 5.0).all())  # SI speed
 
 
 def test_racecar_selection_cuts_inside_a_split(monkeypatch):

@@ -43,10 +43,12 @@ def run_datamodule(run: TrainedRun) -> HypaDataModule:
     return dm
 
 
-def segments_of(dm: HypaDataModule, record: str, duration_s: float) -> list[tuple[str, float, float]]:
-    """Named time intervals of a record from the data set's ``dataset.json`` (else one: ``all``)."""
+def segments_of(dm: HypaDataModule, record: str, duration_s: float,
+                start_s: float = 0.0) -> list[tuple[str, float, float]]:
+    """Named time intervals of a record from the data set's ``dataset.json`` (else one: ``all``,
+    from ``start_s``: a record cut out of a longer file starts at its time in that file)."""
     described = dm.metadata.get("files", {}).get(record, {}).get("segments") or []
-    return [(s["name"], float(s["start_s"]), float(s["end_s"])) for s in described] or [("all", 0.0, duration_s)]
+    return [(s["name"], float(s["start_s"]), float(s["end_s"])) for s in described] or [("all", start_s, duration_s)]
 
 
 def _segment_masks(time: np.ndarray, segments: Sequence[tuple[str, float, float]]) -> dict[str, np.ndarray]:
@@ -147,7 +149,7 @@ def evaluate_run(run: TrainedRun, out_dir: Path, tensorboard: bool = True) -> Ev
         if split != "val":
             continue
         first = predictions[0]
-        segments = segments_of(dm, dm.records(split)[0].file, float(first.time[-1]))
+        segments = segments_of(dm, dm.records(split)[0].file, float(first.time[-1]), float(first.time[first.first]))
         stochastic = next((s for s in segments if s[0] == "stochastic"), None)
         rate = 1 / dm.dt  # shown: 0.1-5 Hz at the test bench's 32 Hz, the same share of the band elsewhere
         for input_name in dm.input_names:

@@ -70,7 +70,7 @@ def bode(
         ax.grid(alpha=0.3, which="both")
     axes[-1].set_xlim(*f_range)
     # plain decimal ticks: the default 2×10⁻¹ minor labels overlap on a one-decade axis
-    ticks = [v for v in (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 50) if f_range[0] <= v <= f_range[1]]
+    ticks = [v for v in (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500) if f_range[0] <= v <= f_range[1]]
     axes[-1].set_xticks(ticks, [f"{v:g}" for v in ticks])
     axes[-1].xaxis.set_minor_formatter(NullFormatter())
     axes[-1].set_xlabel("frequency [Hz]")
