@@ -41,7 +41,10 @@ def data_dir_from_config(cfg: DictConfig) -> Path:
         return folder
     if source == "files":
         if OmegaConf.is_missing(cfg.data, "dir") or cfg.data.dir is None:
-            raise ValueError("dataset=files needs the folder of your files: data.dir=PATH")
+            from hydra.core.hydra_config import HydraConfig
+
+            choice = HydraConfig.get().runtime.choices.get("dataset", "files") if HydraConfig.initialized() else "files"
+            raise ValueError(f"dataset={choice} needs the folder of your files: data.dir=PATH")
         folder = Path(str(cfg.data.dir)).expanduser()
         if not folder.is_absolute():
             folder = _original_cwd() / folder

@@ -28,11 +28,13 @@ def main(cfg: DictConfig) -> None:
     path = Path(str(cfg.run))
     run = load_run(path if path.is_absolute() else Path(get_original_cwd()) / path)
     out = Path(str(cfg.out)) if cfg.out else run.folder / "evaluation"
-    metrics = evaluate_run(run, out, tensorboard=bool(cfg.tensorboard)).metrics
-    for split, modes in metrics["splits"].items():
+    evaluation = evaluate_run(run, out, tensorboard=bool(cfg.tensorboard))
+    units, scale = evaluation.display_units, evaluation.display_factors
+    for split, modes in evaluation.metrics["splits"].items():
         for mode in ("windowed", "free_run"):
-            r2 = ", ".join(f"{k} {v['r2']:.4f}" for k, v in modes[mode]["all"].items())
-            print(f"{run.label} {split} {mode}: R2 {r2}; MSE overall {modes[mode]['all']['overall']['mse']:.3g}")
+            parts = [f"{k} R² {v['r2']:.4f}, RMSE {v['mse'] ** 0.5 * scale.get(k, 1.0):.3g} {units.get(k, '')}"
+                     for k, v in modes[mode]["all"].items() if k != "overall"]
+            print(f"{run.label} {split} {mode}: {'; '.join(parts)}")
     print(f"report: {out / 'summary.md'}")
 
 

@@ -40,7 +40,7 @@ def _windows_stay_inside_their_records(dm: HypaDataModule, split: str) -> None:
 
 def test_silverbox_standard_split(monkeypatch):
     dm = _load("silverbox", monkeypatch)
-    assert dm.dt == pytest.approx(2**14 / 1e7) and dm.past == 50
+    assert dm.dt == pytest.approx(2**14 / 1e7) and dm.past == 49
     assert (dm.input_names, dm.output_names, dm.scheduling_names) == (("u",), ("y",), ())
     assert [(r.name, len(r)) for r in dm.records("train")] == [("SNLS80mV.csv[40650:95950]", 55300)]
     assert [(r.name, len(r)) for r in dm.records("val")] == [("SNLS80mV.csv[95950:105712]", 9762)]
@@ -57,7 +57,7 @@ def test_silverbox_standard_split(monkeypatch):
     np.testing.assert_array_equal(test["y"], raw["V2"][105712:127400])
     assert test.time[0] == pytest.approx(105712 / (1e7 / 2**14))
     assert dm.channels["y"].display_unit == "mV" and dm.channels["y"].display_factor == 1e3
-    assert len(dm.dataset("train")) == len(range(0, 55300 - 150, 5))
+    assert len(dm.dataset("train")) == len(range(0, 55300 - (dm.past + dm.window), 5))
     _windows_stay_inside_their_records(dm, "train")
 
 

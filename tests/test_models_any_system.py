@@ -128,3 +128,15 @@ def test_scheduling_and_estimation_errors_name_what_exists() -> None:
     with pytest.raises(ModelSpecError, match="cannot be estimated; give observe"):
         ComposedModel(parse_model_spec(unobserved), {}, ["u"], ["y"], {"u": (0.0, 1.0)}, {"y": (0.0, 1.0)}, DT)
     assert MassSpringDamper().output_names == ("position",)
+
+
+def test_training_refuses_a_past_too_short_to_estimate_the_state() -> None:
+    from hypa.data import Normalization
+    from hypa.training import HybridModule
+
+    config = {"name": "oscillator", "outputs": ["y"], "parameters": MSD, "blocks": {
+        "oscillator": {"kind": "physics", "system": "mass_spring_damper", "inputs": ["u"], "outputs": ["y"]}}}
+    norm = Normalization(["u", "y"], [0.0, 0.0], [1.0, 1.0]).state_dict()
+    with pytest.raises(ValueError, match="estimates its 2 states from 1 measured value.*at least 1"):
+        HybridModule(config, {}, norm, ["u"], ["y"], dt=DT, past=0)
+    HybridModule(config, {}, norm, ["u"], ["y"], dt=DT, past=1)  # two samples of the position: enough

@@ -59,16 +59,21 @@ def _segment_masks(time: np.ndarray, segments: Sequence[tuple[str, float, float]
     return masks
 
 
-def evaluate_split(run: TrainedRun, dm: HypaDataModule, split: str) -> tuple[dict[str, Any], list[Prediction]]:
-    """Windowed and free-run metrics of one split, overall and per segment."""
+def evaluate_split(run: TrainedRun, dm: HypaDataModule, split: str, subset: Sequence[int] | None = None,
+                   w: dict[str, np.ndarray] | None = None) -> tuple[dict[str, Any], list[Prediction]]:
+    """Windowed and free-run metrics of one split (or of the records ``subset`` of it, one test
+    set of several), overall and per segment; ``w``: the split's ``windowed`` result if known."""
     names = dm.output_names
     result: dict[str, Any] = {"windowed": {}, "free_run": {}}
-    w = windowed(run.module, dm, split)
+    w = windowed(run.module, dm, split) if w is None else w
+    chosen = range(len(dm.records(split))) if subset is None else subset
+    keep = np.isin(w["record"].astype(int), list(chosen))
+    w = {k: v[keep] for k, v in w.items()}
     pred, target = w["pred"], w["target"]
     result["windowed"]["all"] = state_metrics(pred.reshape(-1, len(names)), target.reshape(-1, len(names)), names)
-    records = dm.records(split)
+    records = [dm.records(split)[i] for i in chosen]
     window_time = {}  # (record, start) -> time span, for per-segment windowed metrics
-    for i, rec in enumerate(records):
+    for i, rec in zip(chosen, records):
         masks = _segment_masks(rec.time, segments_of(dm, rec.file, rec.duration_s))
         for name, mask in masks.items():
             inside = [k for k in range(len(w["record"])) if int(w["record"][k]) == i
@@ -131,6 +136,8 @@ class Evaluation:
     signals: dict[str, tuple[np.ndarray, np.ndarray | None, np.ndarray]] = field(default_factory=dict)
     # learned signal -> (time, measured, model) [SI], first validation record
     model_blocks: tuple = ()  # the model's BlockSpecs (which signals a network learns)
+    display_units: dict[str, str] = field(default_factory=dict)  # channel -> unit shown
+    display_factors: dict[str, float] = field(default_factory=dict)  # channel -> SI to shown
 
 
 def evaluate_run(run: TrainedRun, out_dir: Path, tensorboard: bool = True) -> Evaluation:
@@ -144,6 +151,14 @@ def evaluate_run(run: TrainedRun, out_dir: Path, tensorboard: bool = True) -> Ev
     figures, primary, learned = {}, {}, {}
     for split in ("val", "test"):
         if not dm.records(split):
+            continue
+        sets = dm.test_sets() if split == "test" else {}
+        if list(sets) not in ([], ["test"]):  # named test sets (they may overlap): each on its own
+            w, first_index = windowed(run.module, dm, split), 0
+            for name, records in sets.items():
+                subset = range(first_index, first_index + len(records))
+                metrics["splits"][f"test/{name}"], _ = evaluate_split(run, dm, split, subset, w)
+                first_index += len(records)
             continue
         metrics["splits"][split], predictions = evaluate_split(run, dm, split)
         if split != "val":
@@ -187,7 +202,7 @@ def evaluate_run(run: TrainedRun, out_dir: Path, tensorboard: bool = True) -> Ev
         with SummaryWriter(str(run.folder / "tensorboard")) as writer:
             for name, fig in figures.items():
                 writer.add_figure(f"evaluation/{name}", fig, close=True)
-    return Evaluation(metrics, primary, learned, run.module.model.spec.blocks)
+    return Evaluation(metrics, primary, learned, run.module.model.spec.blocks, units, scale)
 
 
 def _rows(metrics: dict[str, Any]):

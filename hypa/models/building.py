@@ -200,8 +200,9 @@ class BlockBuilder:
         if b.initial_state and not b.estimated:
             missing = [s for s in b.initial_state if s not in self.measured]
             if missing or len(b.initial_state) != system.n_states:
-                raise ModelSpecError(f"block {b.name!r}: initial state {list(b.initial_state)} must name its "
-                                     f"{system.n_states} states among the measured outputs {list(self.measured)}")
+                raise ModelSpecError(f"block {b.name!r}: initial state {list(b.initial_state)} must be steady, "
+                                     f"estimate, encoder, or name its {system.n_states} states among the measured "
+                                     f"outputs {list(self.measured)}")
             return PhysicsStart(MEASURED, measured=tuple(b.initial_state))
         if not b.estimated and all(s in self.measured for s in system.state_names):
             return PhysicsStart(MEASURED, measured=tuple(system.state_names))

@@ -67,6 +67,7 @@ class HybridModule(L.LightningModule):
             scheduling_names, scale(scheduling_names),
         )
         self.output_names, self.eval_names, self.past = tuple(output_names), tuple(eval_names), int(past)
+        self._check_past()
         self.loss = nn.MSELoss()
         per_output = lambda: MetricCollection({"mae": MeanAbsoluteError(), "mse": MeanSquaredError(),  # noqa: E731
                                                "r2": R2Score()})
@@ -76,6 +77,18 @@ class HybridModule(L.LightningModule):
         self.signal_metrics = nn.ModuleDict({n: MetricCollection({"corr": PearsonCorrCoef(),
                                                                   "rmse": MeanSquaredError(squared=False)})
                                              for n in self.compared})
+
+    def _check_past(self) -> None:
+        """A state estimated from the past needs at least as many measured values as states."""
+        for name, start in self.model.starts.items():
+            if start.mode != "estimate":
+                continue
+            states = self.model.blocks[name].model.n_states
+            seen = sum(m is not None for m in start.observed) * (self.past + 1)
+            if seen < states:
+                raise ValueError(f"block {name!r} estimates its {states} states from {seen} measured value(s) "
+                                 f"(data.past={self.past}): too few to determine them; set data.past to at least "
+                                 f"{-(-states // sum(m is not None for m in start.observed)) - 1} (more for noisy data)")
 
     def forward(self, u: Tensor, y_past: Tensor, s: Tensor | None = None) -> Tensor:
         """Normalized predicted outputs (B, L-P-1, p) from inputs (B, L, m), measured outputs
