@@ -22,6 +22,8 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
+from hypa.errors import UserError, user_errors
+
 log = logging.getLogger(__name__)
 
 
@@ -31,11 +33,12 @@ def train_model(label: str, overrides: list[str], folder: Path) -> None:
     log.info("training %s: %s", label, " ".join(command[1:]))
     result = subprocess.run(command)
     if result.returncode != 0:
-        raise RuntimeError(f"training {label} failed (exit status {result.returncode}); "
-                           f"run it alone: python {' '.join(command[1:])}")
+        raise UserError(f"training {label} failed (exit status {result.returncode}); "
+                        f"run it alone: python {' '.join(command[1:])}")
 
 
 @hydra.main(config_path="../conf", config_name="benchmark", version_base="1.3")
+@user_errors("hypa.benchmark")
 def main(cfg: DictConfig) -> None:
     from hypa.evaluate import run_datamodule
     from hypa.evaluation.benchmark import benchmark_table, score_run, write_benchmark_json
@@ -43,14 +46,14 @@ def main(cfg: DictConfig) -> None:
 
     dataset = HydraConfig.get().runtime.choices["dataset"]
     if dataset not in cfg.suites:
-        raise ValueError(f"no benchmark suite for dataset={dataset}; suites: {', '.join(cfg.suites)}")
+        raise UserError(f"no benchmark suite for dataset={dataset}; suites: {', '.join(cfg.suites)}")
     if cfg.budget not in cfg.budgets:
-        raise ValueError(f"unknown budget={cfg.budget}; use {' or '.join(cfg.budgets)}")
+        raise UserError(f"unknown budget={cfg.budget}; use {' or '.join(cfg.budgets)}")
     suite = cfg.suites[dataset]
     labels = list(cfg.models) if cfg.models else list(suite.models)
     unknown = [m for m in labels if m not in suite.models]
     if unknown:
-        raise ValueError(f"models {unknown} are not in the {dataset} suite: {', '.join(suite.models)}")
+        raise UserError(f"models {unknown} are not in the {dataset} suite: {', '.join(suite.models)}")
     out = Path(HydraConfig.get().runtime.output_dir)
     scores, times = [], {}
     for i, label in enumerate(labels, 1):

@@ -12,6 +12,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from hypa.data import HypaDataModule, datamodule_from_config
+from hypa.errors import UserError
 from hypa.physics import VehicleParameters
 
 log = logging.getLogger(__name__)
@@ -22,7 +23,7 @@ def vehicle_from_config(node: DictConfig) -> VehicleParameters:
     values = OmegaConf.to_container(node, resolve=True)
     unknown = set(values) - set(VehicleParameters.names())
     if unknown:
-        raise ValueError(
+        raise UserError(
             f"unknown vehicle parameters {sorted(unknown)}; known: {', '.join(VehicleParameters.names())}"
         )
     return VehicleParameters(**{k: float(v) for k, v in values.items()})
@@ -44,12 +45,12 @@ def data_dir_from_config(cfg: DictConfig) -> Path:
             from hydra.core.hydra_config import HydraConfig
 
             choice = HydraConfig.get().runtime.choices.get("dataset", "files") if HydraConfig.initialized() else "files"
-            raise ValueError(f"dataset={choice} needs the folder of your files: data.dir=PATH")
+            raise UserError(f"dataset={choice} needs the folder of your files: data.dir=PATH")
         folder = Path(str(cfg.data.dir)).expanduser()
         if not folder.is_absolute():
             folder = _original_cwd() / folder
         return folder
-    raise ValueError(
+    raise UserError(
         f"unknown data.source {source!r}; use testbench or files (dataset=testbench, "
         f"dataset=files data.dir=PATH, or a conf/dataset/*.yaml)"
     )

@@ -17,11 +17,13 @@ from omegaconf import DictConfig
 
 from hypa.evaluation.evaluation import Evaluation, evaluate_run, run_datamodule
 from hypa.evaluation.runs import load_run
+from hypa.errors import user_errors
 
 __all__ = ["Evaluation", "evaluate_run", "run_datamodule", "main"]
 
 
 @hydra.main(config_path="../conf", config_name="evaluate", version_base="1.3")
+@user_errors("hypa.evaluate")
 def main(cfg: DictConfig) -> None:
     from hydra.utils import get_original_cwd
 

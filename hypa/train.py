@@ -26,6 +26,8 @@ from lightning.pytorch.callbacks import EarlyStopping, ModelCheckpoint
 from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
+from hypa.errors import user_errors
+
 log = logging.getLogger(__name__)
 
 
@@ -131,6 +133,7 @@ def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:
 
 
 @hydra.main(config_path="../conf", config_name="train", version_base="1.3")
+@user_errors("hypa.train")
 def main(cfg: DictConfig) -> float:
     return train(cfg)["best_val_loss"]
 

@@ -71,3 +71,16 @@ def test_silverbox_state_estimated_from_the_past_starts_the_nominal_physics_righ
     assert prediction.first == 50  # samples 0..49 start the model, as the protocol allows
     assert abs(error[:10]).max() < 1.5e-2  # [V]: the model's own error level, no start-up transient
     assert 5e-3 < (error**2).mean() ** 0.5 < 9e-3  # [V]: the linear model's level
+
+
+@pytest.mark.parametrize("args, message", [
+    (["hypa.train", "dataset=racecar", "data.dir=/nowhere"], "/nowhere does not exist"),
+    (["hypa.train", "dataset=racecar", "data.channels.velocity.unit=furlong"], "unknown unit 'furlong' of channel 'velocity'"),
+    (["hypa.train", "dataset=silverbox", "model=silverbox_physical", "data.past=0"], "set data.past to at least 1"),
+    (["hypa.benchmark", "dataset=racecar", "models=[foo]"], "not in the racecar suite"),
+])
+def test_user_errors_are_one_line_without_traceback(args: list[str], message: str, tmp_path: Path) -> None:
+    result = hypa(*args, f"hydra.run.dir={tmp_path}", timeout=300)
+    assert result.returncode == 1
+    assert message in result.stderr and "Traceback" not in result.stderr
+    assert result.stderr.strip().splitlines()[-1].startswith(f"{args[0]}: error: ")

@@ -11,7 +11,7 @@ from torch import Tensor, nn
 from torchmetrics import MeanAbsoluteError, MeanSquaredError, MetricCollection, PearsonCorrCoef, R2Score
 
 from hypa.data import Normalization
-from hypa.models import ComposedModel, parse_model_spec
+from hypa.models import ComposedModel, ModelSpecError, parse_model_spec
 
 
 class HybridModule(L.LightningModule):
@@ -86,7 +86,7 @@ class HybridModule(L.LightningModule):
             states = self.model.blocks[name].model.n_states
             seen = sum(m is not None for m in start.observed) * (self.past + 1)
             if seen < states:
-                raise ValueError(f"block {name!r} estimates its {states} states from {seen} measured value(s) "
+                raise ModelSpecError(f"block {name!r} estimates its {states} states from {seen} measured value(s) "
                                  f"(data.past={self.past}): too few to determine them; set data.past to at least "
                                  f"{-(-states // sum(m is not None for m in start.observed)) - 1} (more for noisy data)")
 
