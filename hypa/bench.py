@@ -22,7 +22,8 @@ from collections.abc import Callable
 import torch
 from torch.utils.benchmark import Timer
 
-from hypa.physics import LTIBlock, Scaling, SingleTrack, VehicleParameters, simulate_recursive, vehicle_parameters
+from hypa.physics import LTIBlock, Scaling, simulate_recursive
+from hypa.vehicle import SingleTrack, VehicleParameters, vehicle_parameters
 from hypa.physics.scheduled import simulate_scheduled_recursive
 
 GOALS = {"frozen_vs_recursion": 30.0, "frozen_vs_matmul": 2.0, "trainable_vs_recursion": 5.0}

@@ -36,7 +36,7 @@ def run(seconds: float | None = None, cache_dir: Path | None = None, hold: str =
     """Generate (or find) the data, then time steps 1 and 2; returns the sizes and seconds."""
     from hypa.data import HypaDataModule
     from hypa.diagnosis import analyze_residuals, name_causes
-    from hypa.physics import VehicleParameters
+    from hypa.vehicle import VehicleParameters
     from hypa.testbench import ensure_dataset
 
     folder = ensure_dataset(testbench_config(seconds), cache_dir)

@@ -30,7 +30,8 @@ from omegaconf import DictConfig
 
 from hypa.data import DataError, Record
 from hypa.diagnosis.trained import ExtensionTrainingError, TrainedExtension
-from hypa.physics import LTIBlock, SingleTrack, UnstablePhysicsError, VehicleParameters, vehicle_parameters
+from hypa.physics import LTIBlock, UnstablePhysicsError
+from hypa.vehicle import SingleTrack, VehicleParameters, vehicle_parameters
 
 log = logging.getLogger(__name__)
 

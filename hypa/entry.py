@@ -13,7 +13,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from hypa.data import HypaDataModule, datamodule_from_config
 from hypa.errors import UserError
-from hypa.physics import VehicleParameters
+from hypa.vehicle import VehicleParameters
 
 log = logging.getLogger(__name__)
 

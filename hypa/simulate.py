@@ -24,7 +24,8 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from hypa.plots import DEG, DISPLAY_UNITS
-from hypa.physics import LTIBlock, SingleTrack, SteeringGain, VehicleParameters, vehicle_parameters
+from hypa.physics import LTIBlock
+from hypa.vehicle import SingleTrack, SteeringGain, VehicleParameters, vehicle_parameters
 
 log = logging.getLogger(__name__)
 

@@ -25,7 +25,7 @@ import pytest
 from hypa.data import HypaDataModule
 from hypa.diagnosis.model import ay_threshold, first_order_lag
 from hypa.diagnosis.naming import name_causes
-from hypa.physics import VehicleParameters
+from hypa.vehicle import VehicleParameters
 from hypa.testbench import TestbenchConfig, ensure_dataset
 
 NOMINAL = VehicleParameters()

@@ -11,7 +11,7 @@ import pytest
 from hypa.data import HypaDataModule
 from hypa.diagnosis.model import ModelSpec, ay_threshold, magic_formula, simulate_batch
 from hypa.diagnosis.residuals import analyze_residuals, correlation
-from hypa.physics import VehicleParameters
+from hypa.vehicle import VehicleParameters
 from hypa.simulate import simulate_vehicle
 from hypa.testbench import TestbenchConfig, ensure_dataset
 

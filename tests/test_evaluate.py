@@ -44,7 +44,7 @@ def _write_config(folder: Path, overrides: list[str]) -> None:
 def test_free_run_of_physical_model_equals_the_physics_recursion(trained, hypa_cache) -> None:
     from hypa.evaluation.runs import free_run, load_run
     from hypa.evaluate import run_datamodule
-    from hypa.physics import VehicleParameters
+    from hypa.vehicle import VehicleParameters
     from hypa.simulate import simulate_vehicle
 
     run = load_run(trained["physical"])

@@ -19,7 +19,7 @@ import torch
 from scipy import signal
 
 from hypa.evaluation.transfer import TransferEstimate, frequency_response, h1_estimate
-from hypa.physics.vehicle import SingleTrack, VehicleParameters
+from hypa.vehicle import SingleTrack, VehicleParameters
 
 FS, FINE, DURATION_S, BAND = 32.0, 1024, 600, (0.1, 4.0)
 

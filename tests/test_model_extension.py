@@ -18,7 +18,7 @@ from hypa.diagnosis.config import describe, extension_model, train_command, writ
 from hypa.diagnosis.extension import apply_cause
 from hypa.diagnosis.model import ModelSpec, simulate_batch
 from hypa.models import ComposedModel, ModelSpecError, parse_model_spec
-from hypa.physics import VehicleParameters
+from hypa.vehicle import VehicleParameters
 
 DT, VEHICLE = 1 / 32, VehicleParameters()
 STATE_SCALE = {"yaw_rate": (0.01, 0.1), "side_slip": (0.0, 0.01)}

@@ -8,7 +8,7 @@ import torch
 import yaml
 
 from hypa.models import ComposedModel, ModelSpecError, parse_model_spec
-from hypa.physics import VehicleParameters
+from hypa.vehicle import VehicleParameters
 from hypa.simulate import simulate_vehicle
 
 CONF = Path(__file__).resolve().parents[1] / "conf" / "model"
@@ -109,7 +109,7 @@ def test_measured_states_never_enter_as_sequences() -> None:
 
 
 @pytest.mark.parametrize("edit, message", [
-    (lambda c: c["blocks"]["single_track"].update(system="single_trak"), "known: single_track"),
+    (lambda c: c["blocks"]["single_track"].update(system="single_trak"), "known: .*single_track"),
     (lambda c: c["blocks"]["single_track"].update(inputs=["front_wheel_angle", "rear_wheel"]), "available signals"),
     (lambda c: c["blocks"]["rear_steering"].update(kind="network"), "kind must be one of"),
     (lambda c: c["blocks"]["single_track"].update(trainable=["stiffness"]), "it has mass"),

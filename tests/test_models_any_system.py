@@ -8,7 +8,7 @@ import torch
 
 from hypa.models import ComposedModel, ModelSpecError, parse_model_spec
 from hypa.physics.mass_spring_damper import MassSpringDamper
-from hypa.physics.vehicle import SingleTrack, VehicleParameters
+from hypa.vehicle import SingleTrack, VehicleParameters
 
 DT = 1 / 610.35
 MSD = {"mass": 5.1e-6, "stiffness": 0.98, "damping": 2.2e-4, "offset_force": -5.4e-3}

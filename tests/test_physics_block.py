@@ -13,15 +13,12 @@ from hypa.physics import (
     ParameterSpec,
     PhysicalParameters,
     Scaling,
-    SingleTrack,
-    SteeringGain,
     UnstablePhysicsError,
-    VehicleParameters,
     simulate_recursive,
     discretize,
     normalize,
-    vehicle_parameters,
 )
+from hypa.vehicle import SingleTrack, SteeringGain, VehicleParameters, vehicle_parameters
 from hypa.physics.normalized import NormalizingMaps
 
 DT = 1 / 32

@@ -11,12 +11,10 @@ from hypa.physics import (
     MassSpringDamper,
     PhysicalParameters,
     Scaling,
-    SingleTrack,
     StateSpace,
-    VehicleParameters,
     default_state_std,
-    vehicle_parameters,
 )
+from hypa.vehicle import SingleTrack, VehicleParameters, vehicle_parameters
 
 DT = 1 / 610.35  # Silverbox's sample rate: the nominal oscillator turns ~0.72 rad per sample
 VALUES = {"mass": 5.1e-6, "stiffness": 0.98, "damping": 2.2e-4, "offset_force": 0.02}

@@ -15,11 +15,10 @@ from hypa.physics import (
     PhysicalParameters,
     Scaling,
     SchedulingError,
-    SingleTrack,
     StateSpace,
     affine_scan,
-    vehicle_parameters,
 )
+from hypa.vehicle import SingleTrack, vehicle_parameters
 from hypa.physics.scheduled import simulate_scheduled, simulate_scheduled_recursive
 
 from test_physics_block import DT, VP, vehicle_scaling

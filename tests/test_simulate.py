@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hypa.data import HypaDataModule
-from hypa.physics import VehicleParameters
+from hypa.vehicle import VehicleParameters
 from hypa.simulate import fit_metrics, simulate_vehicle
 from hypa.testbench import TestbenchConfig, ensure_dataset
 

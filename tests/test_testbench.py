@@ -14,7 +14,7 @@ import pytest
 from omegaconf.errors import ConfigKeyError
 from scipy.signal import lsim, welch
 
-from hypa.physics.vehicle import VehicleParameters
+from hypa.vehicle import VehicleParameters
 from hypa.testbench import (
     TestbenchConfig,
     ensure_dataset,

@@ -31,7 +31,8 @@ import torch
 from scipy.optimize import brentq
 from scipy.signal import lfilter
 
-from hypa.physics import SingleTrack, VehicleParameters, discretize
+from hypa.physics import discretize
+from hypa.vehicle import SingleTrack, VehicleParameters
 
 GRAVITY = 9.81  # [m/s^2]
 SHAPE_C, CURVATURE_E = 1.35, -0.5  # magic-formula shape of the saturating axle

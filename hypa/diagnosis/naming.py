@@ -43,7 +43,7 @@ from scipy.stats import wilcoxon
 from hypa.data import Record
 from hypa.diagnosis.candidates import CATALOGUE
 from hypa.diagnosis.model import OFFSET_CHANNELS, STATES, ModelSpec, simulate_batch
-from hypa.physics import VehicleParameters
+from hypa.vehicle import VehicleParameters
 
 PENALTY_PER_PARAMETER = 0.02  # [share of the remaining held-out error]
 MIN_GAIN = 0.05  # [share of the remaining held-out error], after the penalty

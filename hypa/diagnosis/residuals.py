@@ -31,7 +31,7 @@ import numpy as np
 from hypa.data import Record
 from hypa.diagnosis.model import STATES, continuous_matrices
 from hypa.evaluation.transfer import TransferEstimate, frequency_response, h1_estimate
-from hypa.physics import VehicleParameters
+from hypa.vehicle import VehicleParameters
 from hypa.simulate import simulate_vehicle
 
 CONFIDENCE_Z = 2.58  # two-sided 99 % of a standard normal

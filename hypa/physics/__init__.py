@@ -19,14 +19,12 @@ from hypa.physics.normalized import NormalizedLTI, Scaling, default_state_std, n
 from hypa.physics.parameters import ParameterSpec, PhysicalParameters
 from hypa.physics.scheduled import SchedulingError, affine_scan
 from hypa.physics.systems import PHYSICS_SYSTEMS, build_system, resolve_system
-from hypa.physics.vehicle import SingleTrack, SteeringGain, VehicleParameters, vehicle_parameters
 
 __all__ = [
     "HOLDS", "DiscreteLTI", "discretize", "LiftedMatrices", "lifted_matrices", "matrix_powers",
     "simulate_lifted", "simulate_recursive", "LTIBlock", "LTIModel", "StateSpace",
     "UnstablePhysicsError", "MassSpringDamper", "NormalizedLTI", "Scaling", "normalize",
-    "ParameterSpec", "PhysicalParameters", "SingleTrack", "SteeringGain", "VehicleParameters",
-    "vehicle_parameters", "SystemContractError", "check_system", "FirstOrderLag", "MassWithFriction",
+    "ParameterSpec", "PhysicalParameters", "SystemContractError", "check_system", "FirstOrderLag", "MassWithFriction",
     "PHYSICS_SYSTEMS", "build_system", "resolve_system",
     "default_state_std", "SchedulingError", "affine_scan",
 ]

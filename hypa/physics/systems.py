@@ -11,27 +11,48 @@ from __future__ import annotations
 
 import importlib
 import inspect
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping
 
 from hypa.physics.contract import SystemContractError, check_system
 from hypa.physics.elements import FirstOrderLag
 from hypa.physics.friction import MassWithFriction
 from hypa.physics.lti import LTIModel
 from hypa.physics.mass_spring_damper import MassSpringDamper
-from hypa.physics.vehicle import SingleTrack, SteeringGain
 
 __all__ = ["PHYSICS_SYSTEMS", "SystemContractError", "build_system", "check_system", "is_import_path",
            "resolve_system"]
 
-PHYSICS_SYSTEMS: dict[str, Callable[[str], LTIModel]] = {
-    "single_track": lambda block: SingleTrack(rear_steering=True),  # u = [δf, δr]
-    "single_track_front": lambda block: SingleTrack(rear_steering=False),  # u = [δf]
-    "front_steering": lambda block: SteeringGain("front"),  # δsw -> δf = δsw / steering_ratio
-    "rear_steering": lambda block: SteeringGain("rear"),  # δsw -> δr = rws_ratio δsw / steering_ratio
+class SystemRegistry(Mapping):
+    """Built-in systems by name: the core's generic ones, and those of the domain packages
+    (``hypa.vehicle``), each of which registers its own in a ``SYSTEMS`` dict. The packages are
+    imported on first use, so the core never imports them at import time."""
+
+    def __init__(self, core: Mapping[str, Callable[[str], LTIModel]], packages: tuple[str, ...]) -> None:
+        self._systems, self._packages = dict(core), packages
+        self._loaded = False
+
+    def _all(self) -> dict[str, Callable[[str], LTIModel]]:
+        if not self._loaded:
+            for package in self._packages:
+                self._systems.update(importlib.import_module(package).SYSTEMS)
+            self._loaded = True
+        return self._systems
+
+    def __getitem__(self, name: str) -> Callable[[str], LTIModel]:
+        return self._all()[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._all())
+
+    def __len__(self) -> int:
+        return len(self._all())
+
+
+PHYSICS_SYSTEMS = SystemRegistry({
     "first_order_lag": FirstOrderLag,  # τ ẏ = u - y, parameter <block>/tau_s
     "mass_spring_damper": lambda block: MassSpringDamper(),  # force -> position (Silverbox)
     "mass_with_friction": lambda block: MassWithFriction(),  # force -> position (EMPS)
-}
+}, packages=("hypa.vehicle",))
 
 
 def is_import_path(name: str) -> bool:

@@ -14,7 +14,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from hypa.physics.vehicle import VehicleParameters
+from hypa.vehicle import VehicleParameters
 
 
 @dataclass

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
-from hypa.physics.vehicle import VehicleParameters
+from hypa.vehicle import VehicleParameters
 from hypa.testbench.config import (
     RearSteeringConfig,
     RelaxationConfig,
