@@ -181,7 +181,8 @@ def _figures(out, val, runs, analysis, metrics, transfer, rear_rows, dt, states)
 
     from hypa.diagnosis import plots
     from hypa.evaluation.plots import bode, rear_steer
-    from hypa.plots import DEG, time_series
+    from hypa.plots import time_series
+    from hypa.vehicle.display import DEG
 
     names: dict[str, list[str] | str] = {}
 

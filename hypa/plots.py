@@ -11,9 +11,6 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-# How hypa shows angles: SI radians are plotted and reported in degrees.
-DEG = float(np.degrees(1.0))
-DISPLAY_UNITS = {"yaw_rate": "deg/s", "side_slip": "deg", "rear_wheel_angle": "deg"}
 
 
 def time_series(

@@ -23,7 +23,7 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-from hypa.plots import DEG, DISPLAY_UNITS
+from hypa.vehicle.display import DEG, DISPLAY_UNITS
 from hypa.physics import LTIBlock
 from hypa.vehicle import SingleTrack, SteeringGain, VehicleParameters, vehicle_parameters
 

@@ -16,7 +16,6 @@ from data_helpers import (
 )
 
 from hypa.data import (
-    TESTBENCH_CHANNELS,
     ChannelSpec,
     DataError,
     find_split_files,
@@ -25,6 +24,7 @@ from hypa.data import (
     read_columns,
     unit_factor,
 )
+from hypa.testbench.sensors import TESTBENCH_CHANNELS
 
 BENCH = {c.name: c for c in TESTBENCH_CHANNELS}
 MODEL = ["steering_wheel_angle", "yaw_rate", "side_slip"]

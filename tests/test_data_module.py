@@ -10,7 +10,6 @@ import torch
 from data_helpers import make_data_dir, synthetic_channels, write_table
 
 from hypa.data import (
-    TESTBENCH_CHANNELS,
     ChannelSpec,
     DataError,
     HypaDataModule,
@@ -18,6 +17,7 @@ from hypa.data import (
     decimate,
     load_record,
 )
+from hypa.testbench.sensors import TESTBENCH_CHANNELS
 
 WINDOW, STRIDE, EVAL_STRIDE = 20, 3, 7
 CONF = Path(__file__).resolve().parents[1] / "conf" / "dataset"

@@ -19,8 +19,6 @@ from typing import Any
 _EXPORTS: dict[str, str] = {
     "ChannelSpec": "channels",
     "ROLES": "channels",
-    "SI_UNITS": "channels",
-    "TESTBENCH_CHANNELS": "channels",
     "DataConfig": "schema",
     "ChannelConfig": "schema",
     "DataError": "errors",

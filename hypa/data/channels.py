@@ -114,25 +114,3 @@ def check_channels(channels: Iterable[ChannelSpec]) -> dict[str, ChannelSpec]:
 def names_with_role(channels: Mapping[str, ChannelSpec], *roles: str) -> tuple[str, ...]:
     """Names of the channels with any of ``roles``, in declared order."""
     return tuple(name for name, c in channels.items() if c.role in roles)
-
-
-#: Standard names and SI units of the test bench's files (its measurement chain writes them).
-SI_UNITS: dict[str, str] = {
-    "time": "s",
-    "steering_wheel_angle": "rad",
-    "yaw_rate": "rad/s",
-    "side_slip": "rad",
-    "lateral_acceleration": "m/s^2",
-    "velocity": "m/s",
-    "rear_wheel_angle": "rad",
-}
-
-#: The default data set's declarations (mirrors conf/dataset/testbench.yaml): the paper trains
-#: without the measured rear wheel angle and uses it afterwards to judge the learned RWS block.
-TESTBENCH_CHANNELS: tuple[ChannelSpec, ...] = (
-    ChannelSpec("steering_wheel_angle", "input", "rad", display_unit="deg"),
-    ChannelSpec("yaw_rate", "output", "rad/s", display_unit="deg/s"),
-    ChannelSpec("side_slip", "output", "rad", display_unit="deg"),
-    ChannelSpec("rear_wheel_angle", "evaluation", "rad", display_unit="deg"),
-    ChannelSpec("lateral_acceleration", "evaluation", "m/s^2"),
-)

@@ -15,7 +15,7 @@ import lightning as L
 import torch
 from torch.utils.data import DataLoader
 
-from hypa.data.channels import TESTBENCH_CHANNELS, ChannelSpec, check_channels, names_with_role
+from hypa.data.channels import ChannelSpec, check_channels, names_with_role
 from hypa.data.dataset import load_dataset
 from hypa.data.decimation import decimation_factor
 from hypa.data.errors import DataError
@@ -34,8 +34,7 @@ class HypaDataModule(L.LightningDataModule):
         data_dir: folder of the files (``train*``, ``val*``, ``test*`` unless ``splits`` names
             them; .csv, .parquet, .mat) and an optional ``dataset.json``.
         channels: the declared channels (:class:`ChannelSpec`), in order; default: the test
-            bench's (steering_wheel_angle -> yaw_rate, side_slip; rear_wheel_angle and
-            lateral_acceleration for evaluation).
+            bench's (``hypa.testbench.sensors.TESTBENCH_CHANNELS``).
         time_column: the files' time column (its offset removed), or ``None``: sample ``i``
             lies at ``i / sample_rate_hz``.
         time_unit: unit of the time column.
@@ -76,7 +75,9 @@ class HypaDataModule(L.LightningDataModule):
         seed: int = 0,
     ) -> None:
         super().__init__()
-        declared = TESTBENCH_CHANNELS if channels is None else channels
+        if channels is None:  # the default data set's channels, declared where its files are written
+            from hypa.testbench.sensors import TESTBENCH_CHANNELS as channels
+        declared = channels
         if isinstance(declared, Mapping):
             declared = declared.values()
         self.channels: dict[str, ChannelSpec] = check_channels(declared)

@@ -1,6 +1,6 @@
 """Derived channels: a safe arithmetic expression over the columns and scalars of a file.
 
-``side_slip: {expression: "arctan2(`vy(m/s)`, `vx(m/s)`)", unit: rad}`` or
+``beta: {expression: "arctan2(`vy(m/s)`, `vx(m/s)`)", unit: rad}`` or
 ``force: {expression: "gtau * vir", unit: N}``. An expression is parsed with :mod:`ast` and
 may hold only numbers, names, ``+ - * / ** %``, unary signs and calls of the functions in
 :data:`FUNCTIONS`; nothing is ever passed to ``eval``. A name is a column (or, in a MATLAB

@@ -13,7 +13,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-from hypa.plots import DISPLAY_UNITS  # noqa: E402
+from hypa.vehicle.display import DISPLAY_UNITS  # noqa: E402
 
 UNITS = {name: DISPLAY_UNITS[name] for name in ("yaw_rate", "side_slip")}  # the states
 

@@ -7,7 +7,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from hypa.plots import DEG, DISPLAY_UNITS
+from hypa.vehicle.display import DEG, DISPLAY_UNITS
 
 UNITS = {name: (DISPLAY_UNITS[name], DEG) for name in ("yaw_rate", "side_slip")}  # the states
 WHAT = {

@@ -75,7 +75,7 @@ class Prediction:
 
     ``predicted`` holds the model outputs: samples before ``first`` are the measured ones that
     started the model (the past and the window start), the rest the prediction; ``signals``
-    the model's internal physical signals (e.g. an implicitly learned ``rear_wheel_angle``),
+    the model's internal physical signals (e.g. an input a network learns implicitly),
     each on its own sample range.
     """
 

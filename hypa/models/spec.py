@@ -1,8 +1,8 @@
 """A model as data: blocks wired by named signals (the ``model`` config group).
 
 A composition is a list of blocks; each reads named signals and writes named signals. The
-measured inputs (e.g. ``steering_wheel_angle``) are signals from the start; the model's
-``outputs`` are compared with the measured states. V1, V2, V3, the physical baseline and the
+measured inputs and scheduling signals are signals from the start; the model's ``outputs``
+are compared with the measured outputs. V1, V2, V3, the physical baseline and the
 pure networks are YAML files in ``conf/model/``, not Python classes.
 """
 
@@ -58,8 +58,8 @@ class BlockSpec:
         start: a pure network has no other way to know where a window starts).
     scheduling: physics only, parameters that vary per sample with a measured signal
         (``{velocity: velocity}``: parameter -> scheduling channel, SI units).
-    observe: physics only, which measured output each block output is (``{yaw_rate_physics:
-        yaw_rate}``) for the initial-state estimate; outputs named like a measured output
+    observe: physics only, which measured output each block output is (``{y_physics: y}``)
+        for the initial-state estimate; outputs named like a measured output
         observe it without this.
     """
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hypa.data.channels import SI_UNITS
+from hypa.data.channels import ChannelSpec
 from hypa.testbench.config import SensorConfig
 from hypa.testbench.excitation import NOISE_STREAM
 
@@ -18,6 +18,25 @@ CHANNELS = (
     "rear_wheel_angle",
 )
 # The files are written in the measured-data format hypa reads: its standard names and SI units.
+SI_UNITS: dict[str, str] = {
+    "time": "s",
+    "steering_wheel_angle": "rad",
+    "yaw_rate": "rad/s",
+    "side_slip": "rad",
+    "lateral_acceleration": "m/s^2",
+    "velocity": "m/s",
+    "rear_wheel_angle": "rad",
+}
+
+#: The default data set's declarations (mirrors conf/dataset/testbench.yaml): the paper trains
+#: without the measured rear wheel angle and uses it afterwards to judge the learned RWS block.
+TESTBENCH_CHANNELS: tuple[ChannelSpec, ...] = (
+    ChannelSpec("steering_wheel_angle", "input", "rad", display_unit="deg"),
+    ChannelSpec("yaw_rate", "output", "rad/s", display_unit="deg/s"),
+    ChannelSpec("side_slip", "output", "rad", display_unit="deg"),
+    ChannelSpec("rear_wheel_angle", "evaluation", "rad", display_unit="deg"),
+    ChannelSpec("lateral_acceleration", "evaluation", "m/s^2"),
+)
 UNITS = dict(SI_UNITS)
 
 
