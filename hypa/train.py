@@ -72,7 +72,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     dm.setup()
     # where the data were, resolved, so hypa.evaluate finds them from any working directory
     out.mkdir(parents=True, exist_ok=True)
-    (out / "run.json").write_text(json.dumps({"data_dir": str(data_dir.resolve())}, indent=2))
+    run_info = {"data_dir": str(data_dir.resolve())}
+    (out / "run.json").write_text(json.dumps(run_info, indent=2))
     model_config = OmegaConf.to_container(cfg.model, resolve=True)
     ann = OmegaConf.to_container(cfg.ann, resolve=True)
     module = HybridModule(
@@ -114,8 +115,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
               "checkpoint": checkpoint.best_model_path, "last_checkpoint": checkpoint.last_model_path,
               "tensorboard": str(out / "tensorboard"), "epochs": trainer.current_epoch,
               "training_time_s": training_time_s}
-    (out / "run.json").write_text(json.dumps({"data_dir": str(data_dir.resolve()), "training_time_s": training_time_s,
-                                              "best_val_loss": result["best_val_loss"]}, indent=2))
+    run_info.update(training_time_s=training_time_s, best_val_loss=result["best_val_loss"])
+    (out / "run.json").write_text(json.dumps(run_info, indent=2))
     logger.log_hyperparams(_flat(OmegaConf.to_container(cfg, resolve=True)), {"hp/best_val_loss": result["best_val_loss"]})
     print(f"best val/loss {result['best_val_loss']:.5g} after {result['epochs']} epochs\n"
           f"checkpoint:  {result['checkpoint']}\n"

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from hypa.data import HypaDataModule
+from hypa.evaluation.metrics import regression_metrics
 from hypa.evaluation.runs import TrainedRun, free_run
 
 
@@ -38,10 +39,8 @@ def score_run(run: TrainedRun, dm: HypaDataModule, label: str) -> list[Score]:
         for output in dm.output_names:
             predicted = np.concatenate([p.predicted[output][p.first :] for p in predictions])
             measured = np.concatenate([p.measured[output][p.first :] for p in predictions])
-            error = predicted - measured
-            sst = float(np.sum((measured - measured.mean()) ** 2))
-            scores.append(Score(label, test_set, output, float(np.sqrt(np.mean(error**2))),
-                                1.0 - float(np.sum(error**2)) / sst if sst > 0 else float("nan"), int(error.size)))
+            m = regression_metrics(predicted, measured)
+            scores.append(Score(label, test_set, output, m["mse"] ** 0.5, m["r2"], int(measured.size)))
     return scores
 
 

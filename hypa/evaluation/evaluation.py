@@ -66,12 +66,13 @@ def evaluate_split(run: TrainedRun, dm: HypaDataModule, split: str, subset: Sequ
     names = dm.output_names
     result: dict[str, Any] = {"windowed": {}, "free_run": {}}
     w = windowed(run.module, dm, split) if w is None else w
-    chosen = range(len(dm.records(split))) if subset is None else subset
+    split_records = dm.records(split)
+    chosen = range(len(split_records)) if subset is None else subset
     keep = np.isin(w["record"].astype(int), list(chosen))
     w = {k: v[keep] for k, v in w.items()}
     pred, target = w["pred"], w["target"]
     result["windowed"]["all"] = state_metrics(pred.reshape(-1, len(names)), target.reshape(-1, len(names)), names)
-    records = [dm.records(split)[i] for i in chosen]
+    records = [split_records[i] for i in chosen]
     window_time = {}  # (record, start) -> time span, for per-segment windowed metrics
     for i, rec in zip(chosen, records):
         masks = _segment_masks(rec.time, segments_of(dm, rec.file, rec.duration_s))

@@ -18,7 +18,7 @@ from torch import nn
 
 from hypa.ann import build_ann
 from hypa.models.spec import BlockSpec, ModelSpec, ModelSpecError
-from hypa.physics import LTIBlock, ParameterSpec, PhysicalParameters, Scaling, default_state_std
+from hypa.physics import LTIBlock, LTIModel, ParameterSpec, PhysicalParameters, Scaling, default_state_std
 from hypa.physics.elements import DeadTime, local_name
 from hypa.physics.systems import build_system
 
@@ -40,12 +40,14 @@ class PhysicsStart:
     mode: str
     measured: tuple[str, ...] = ()
     observed: tuple[str | None, ...] = ()
+    index: tuple[int, ...] = ()  # measured: the outputs' columns; estimate: one per block output (0 if unobserved)
     encoder: bool = False  # estimate: a network over the past corrects the least-squares state
 
 
 def collect_parameters(spec: ModelSpec, values: Mapping[str, float]
-                       ) -> tuple[PhysicalParameters, dict[str, tuple[str, ...]]]:
-    """One set of named parameters for all blocks, and the trainable ones of each block.
+                       ) -> tuple[PhysicalParameters, dict[str, tuple[str, ...]], dict[str, LTIModel]]:
+    """One set of named parameters for all blocks, the trainable ones of each block, and each
+    physics block's system (built once here, for the builder too).
 
     Shared parameters (the ``vehicle`` group, overridden by the spec's ``parameters``, else the
     system's nominal values) keep their names; each block's own are ``<block>/<name>``.
@@ -53,11 +55,14 @@ def collect_parameters(spec: ModelSpec, values: Mapping[str, float]
     values = {**values, **spec.parameters}
     specs: dict[str, ParameterSpec] = {}
     trainable_of: dict[str, tuple[str, ...]] = {}
+    systems: dict[str, LTIModel] = {}
     for b in spec.blocks:
         if b.kind == "ann":
             continue
         local = {local_name(b.name, k): v for k, v in b.parameters.items()}
         system = None if b.kind == "delay" else build_system(b.system, b.name)
+        if system is not None:
+            systems[b.name] = system
         names = (local_name(b.name, "delay_s"),) if system is None else tuple(system.parameter_names)
         unknown_local = set(local) - set(names)
         if unknown_local:
@@ -66,8 +71,7 @@ def collect_parameters(spec: ModelSpec, values: Mapping[str, float]
         if system is None:
             block_specs = [ParameterSpec(names[0], local[names[0]], "s")]
         else:
-            nominal = {p.name: p.value for p in getattr(system, "parameters", ())}
-            given = {**nominal, **values, **local}
+            given = {**system.nominal_values(), **values, **local}
             missing = [p for p in names if p not in given]
             if missing:
                 raise ModelSpecError(f"block {b.name!r} ({b.system}) needs parameters {missing}; give them in "
@@ -91,7 +95,7 @@ def collect_parameters(spec: ModelSpec, values: Mapping[str, float]
                              f"read: {', '.join(specs)}")
     params = PhysicalParameters(specs.values())
     params.set_trainable({t for ts in trainable_of.values() for t in ts}, True)
-    return params, trainable_of
+    return params, trainable_of, systems
 
 
 class BlockBuilder:
@@ -104,10 +108,10 @@ class BlockBuilder:
         scheduling: names of the measured scheduling signals.
     """
 
-    def __init__(self, params: PhysicalParameters, scales: Mapping[str, Scale], measured: Mapping[str, Scale],
-                 scheduling: Sequence[str], dt: float, horizon: int, hold: str, ann: str,
-                 ann_hparams: Mapping) -> None:
-        self.params, self.scales, self.measured = params, dict(scales), dict(measured)
+    def __init__(self, params: PhysicalParameters, systems: Mapping[str, LTIModel], scales: Mapping[str, Scale],
+                 measured: Mapping[str, Scale], scheduling: Sequence[str], dt: float, horizon: int, hold: str,
+                 ann: str, ann_hparams: Mapping) -> None:
+        self.params, self.systems, self.scales, self.measured = params, systems, dict(scales), dict(measured)
         self.scheduling = tuple(scheduling)
         self.dt, self.horizon, self.hold, self.ann, self.ann_hparams = dt, horizon, hold, ann, dict(ann_hparams)
         self.starts: dict[str, PhysicsStart] = {}
@@ -150,7 +154,7 @@ class BlockBuilder:
                          **self.ann_hparams)
 
     def _physics(self, b: BlockSpec) -> LTIBlock:
-        system = build_system(b.system, b.name)
+        system = self.systems[b.name]
         if len(b.inputs) != len(system.input_names) or len(b.outputs) != len(system.output_names):
             raise ModelSpecError(f"block {b.name!r}: {b.system} maps {list(system.input_names)} -> "
                                  f"{list(system.output_names)}; got {list(b.inputs)} -> {list(b.outputs)}")
@@ -203,9 +207,9 @@ class BlockBuilder:
                 raise ModelSpecError(f"block {b.name!r}: initial state {list(b.initial_state)} must be steady, "
                                      f"estimate, encoder, or name its {system.n_states} states among the measured "
                                      f"outputs {list(self.measured)}")
-            return PhysicsStart(MEASURED, measured=tuple(b.initial_state))
+            return PhysicsStart(MEASURED, measured=tuple(b.initial_state), index=self._columns(b.initial_state))
         if not b.estimated and all(s in self.measured for s in system.state_names):
-            return PhysicsStart(MEASURED, measured=tuple(system.state_names))
+            return PhysicsStart(MEASURED, measured=tuple(system.state_names), index=self._columns(system.state_names))
         observed = tuple(b.observe.get(o, o if o in self.measured else None) for o in b.outputs)
         unknown = [o for o in observed if o is not None and o not in self.measured]
         if unknown:
@@ -216,7 +220,13 @@ class BlockBuilder:
                 f"block {b.name!r}: its states {list(system.state_names)} are not measured and none of its "
                 f"outputs {list(b.outputs)} is a measured output, so its initial state cannot be estimated; "
                 "give observe: {output: measured output} or initial_state: steady")
-        return PhysicsStart(ESTIMATE, observed=observed, encoder=b.encoded)
+        return PhysicsStart(ESTIMATE, observed=observed, encoder=b.encoded,
+                            index=tuple(self._columns([m])[0] if m else 0 for m in observed))
+
+    def _columns(self, names: Sequence[str]) -> tuple[int, ...]:
+        """Columns of measured outputs in the data's order (that of ``measured``)."""
+        order = list(self.measured)
+        return tuple(order.index(n) for n in names)
 
     def _output_scale(self, b: BlockSpec, system, start: PhysicsStart, inputs: list[Scale]) -> list[Scale]:
         if b.scale_as:

@@ -60,15 +60,23 @@ class ComposedModel(nn.Module):
         self.scheduling_names = tuple(scheduling_names)
         self.measured_scale = dict(output_scale)
         self.order = self._dependency_order(spec)
-        self.parameters_, self._trainable_of = collect_parameters(spec, physical_values)
+        self.parameters_, self._trainable_of, systems = collect_parameters(spec, physical_values)
         self.trainable_physics = tuple(sorted({t for ts in self._trainable_of.values() for t in ts}))
         self.hold = spec.hold or hold
         self._register_offsets(spec.sensor_offsets, input_scale)
         scales = {**input_scale, **(scheduling_scale or {})}
-        builder = BlockBuilder(self.parameters_, scales, self.measured_scale, self.scheduling_names, dt, horizon,
+        builder = BlockBuilder(self.parameters_, systems, scales, self.measured_scale, self.scheduling_names, dt, horizon,
                                self.hold, ann_name, ann_hparams or {})
         self.blocks = nn.ModuleDict({b.name: builder.build(b) for b in self.order})
         self.scales, self.starts, self.encoders = builder.scales, builder.starts, builder.encoders
+        self._observed: dict[str, str] = {}  # block -> buffer: which of its outputs are measured (estimate)
+        for k, (name, how) in enumerate(self.starts.items()):
+            if how.mode == ESTIMATE:
+                self._observed[name] = f"_observed{k}"
+                self.register_buffer(self._observed[name], torch.tensor([m is not None for m in how.observed]),
+                                     persistent=False)
+        self._ann_measured = {b.name: [self.output_names.index(n) for n in b.initial_state]  # measured columns
+                              for b in self.order if b.kind == "ann" and b.initial_state}
         missing = [o for o in spec.outputs if o not in self.scales]
         if missing:
             raise ModelSpecError(f"model outputs {missing} are written by no block; signals: {sorted(self.scales)}")
@@ -194,7 +202,7 @@ class ComposedModel(nn.Module):
         if b.initial_state:  # the measured outputs over the past and the window start, zero after
             if start != 0:
                 raise ModelSpecError(f"block {b.name!r} reads measured outputs but starts at sample {start}")
-            index = [self.output_names.index(n) for n in b.initial_state]
+            index = self._ann_measured[b.name]
             known = x.new_zeros(*x.shape[:2], len(index))
             known[:, : y_past.shape[1]] = y_past[..., index].to(x.dtype)
             x = torch.cat([x, known], dim=-1)
@@ -216,13 +224,11 @@ class ComposedModel(nn.Module):
         if start > past:
             raise ModelSpecError(f"block {b.name!r} starts at sample {start}, after the window start {past}")
         if how.mode == MEASURED:
-            index = [self.output_names.index(n) for n in how.measured]
-            x0 = y_past[:, past, index].to(u.dtype)
+            x0 = y_past[:, past, list(how.index)].to(u.dtype)
         else:  # ESTIMATE: least squares over samples start..past of the outputs it observes
             assert how.mode == ESTIMATE
-            index = [self.output_names.index(m) if m else 0 for m in how.observed]
-            observed = torch.tensor([m is not None for m in how.observed], device=u.device)
-            y = y_past[:, start:, index].to(u.dtype)  # (B, past-start+1, p_block)
+            observed = getattr(self, self._observed[b.name])  # (p_block,) bool
+            y = y_past[:, start:, list(how.index)].to(u.dtype)  # (B, past-start+1, p_block)
             lead = past - start + 1
             x0 = block.estimate_state(u[:, :lead], y, observed,
                                       scheduling=None if rho is None else rho[:, :lead])

@@ -12,6 +12,7 @@ from torchmetrics import MeanAbsoluteError, MeanSquaredError, MetricCollection, 
 
 from hypa.data import Normalization
 from hypa.models import ComposedModel, ModelSpecError, parse_model_spec
+from hypa.models.building import ESTIMATE
 
 
 class HybridModule(L.LightningModule):
@@ -81,7 +82,7 @@ class HybridModule(L.LightningModule):
     def _check_past(self) -> None:
         """A state estimated from the past needs at least as many measured values as states."""
         for name, start in self.model.starts.items():
-            if start.mode != "estimate":
+            if start.mode != ESTIMATE:
                 continue
             states = self.model.blocks[name].model.n_states
             seen = sum(m is not None for m in start.observed) * (self.past + 1)
