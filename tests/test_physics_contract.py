@@ -272,6 +272,18 @@ class Tuple(TwoMass):
         return ss.a, ss.b, ss.c, ss.d
 
 
+class SensorAhead(Lag):
+    """Outputs named like the states, but a C that moves with a parameter: would be ignored."""
+
+    def __init__(self, block=""):
+        self.parameters = (ParameterSpec("tau", 0.2, "s"), ParameterSpec("gain", 1.0, "-"))
+
+    def matrices(self, p):
+        tau, gain = p["tau"], p["gain"]
+        return StateSpace((-1 / tau).reshape(1, 1), (1 / tau).reshape(1, 1), gain.reshape(1, 1),
+                          tau.new_zeros(1, 1))
+
+
 class BadInit(TwoMass):
     def __init__(self):
         raise RuntimeError("no license")
@@ -336,6 +348,7 @@ def test_user_system_gets_the_block_name(user_module: str) -> None:
     ("{m}:WrongE", r"e with shape \(4, 1\), expected \(4,\) \(states,\)"),
     ("{m}:NotFinite", "non-finite A"),
     ("{m}:Tuple", "must return a StateSpace"),
+    ("{m}:SensorAhead", r"outputs are named like its states \['y'\].*give the measured outputs their own names"),
     ("single_trak", "unknown physics system 'single_trak'; known: .*single_track.*, or an import path"),
     (":TwoMass", "an import path is package.module:Class"),
 ])

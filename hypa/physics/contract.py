@@ -47,7 +47,41 @@ def check_system(system: object, where: str = "") -> None:
     missing = [n for n in system.parameter_names if n not in names]
     if missing:
         raise SystemContractError(f"system {label}: parameter_names {missing} have no ParameterSpec in parameters")
-    _check_matrices(system, {s.name: torch.tensor(s.value, dtype=torch.float64) for s in specs}, label)
+    _check_matrices(system, _nominal(specs), label)
+    if system.outputs_are_states:
+        _check_outputs_are_states(system, specs, label)
+
+
+def _check_outputs_are_states(system: LTIModel, specs: Sequence[ParameterSpec], label: str) -> None:
+    """Outputs named like the states are taken as the states (y = x, C and D never applied): a C
+    that is not I, or one that moves with a parameter, would be silently ignored, so refuse it.
+    Checked at the nominal values and at every parameter moved by 5 % (or into its bounds)."""
+    for values in (_nominal(specs), _nudged(specs)):
+        try:
+            ss = system.matrices(values)
+        except Exception:  # the nudge left the system's domain: the nominal check above stands
+            continue
+        eye = torch.eye(len(system.state_names), dtype=ss.c.dtype)
+        if not (torch.allclose(ss.c, eye) and bool((ss.d == 0).all())):
+            raise SystemContractError(
+                f"system {label}: its outputs are named like its states {list(system.state_names)}, so they are "
+                "taken as the states (C = I, D = 0), but matrices returns another C or D (or one that depends on "
+                "a parameter); give the measured outputs their own names")
+
+
+def _nominal(specs: Sequence[ParameterSpec]) -> dict[str, torch.Tensor]:
+    return {s.name: torch.tensor(s.value, dtype=torch.float64) for s in specs}
+
+
+def _nudged(specs: Sequence[ParameterSpec]) -> dict[str, torch.Tensor]:
+    out = {}
+    for s in specs:
+        value = s.value * 1.05 if s.value else 0.05
+        if s.bounds is not None:
+            lo, hi = s.bounds
+            value = min(max(value, lo + 0.01 * (hi - lo)), hi - 0.01 * (hi - lo))
+        out[s.name] = torch.tensor(value, dtype=torch.float64)
+    return out
 
 
 def _check_names(names: object, group: str, label: str) -> None:
