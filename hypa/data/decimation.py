@@ -19,6 +19,10 @@ the filter has about 690 taps (0.34 s each side).
 Record ends: the signal is extended by point reflection about its first and last sample
 (``2 x[0] - x[k]``), which continues constants and ramps exactly and keeps the slope at
 the ends, so the filter neither pulls the ends towards zero (zero padding) nor kinks them.
+
+The same filter, designed for a ratio that need not be an integer, is :func:`lowpass`: it
+anti-aliases a channel that is resampled onto a slower, unrelated time base (an MDF channel
+recorded faster than the rate it is read at, :mod:`hypa.data.mdf`).
 """
 
 from __future__ import annotations
@@ -61,13 +65,40 @@ def lowpass_taps(q: int) -> np.ndarray:
     """
     if q < 2:
         raise ValueError(f"a low-pass is needed only for q >= 2, got {q}")
-    stop = 1.0 / q  # output Nyquist, as a fraction of the input Nyquist frequency
+    return _design(1.0 / q)
+
+
+@lru_cache(maxsize=16)
+def _design(stop: float) -> np.ndarray:
+    """The Kaiser FIR with its stop-band edge at ``stop`` (a fraction of the input Nyquist
+    frequency: the output Nyquist) and its pass-band edge at ``PASS_BAND_FRACTION * stop``."""
     passband = PASS_BAND_FRACTION * stop
     numtaps, beta = signal.kaiserord(_DESIGN_ATTENUATION_DB, stop - passband)
     numtaps |= 1  # odd length: a symmetric filter with an integer delay of (numtaps - 1) / 2
     taps = signal.firwin(numtaps, 0.5 * (passband + stop), window=("kaiser", beta))
     taps.setflags(write=False)  # shared by the cache
     return taps
+
+
+def lowpass(x: np.ndarray, ratio: float) -> np.ndarray:
+    """Zero-phase anti-aliasing low-pass of a 1-D signal about to be resampled at ``1 / ratio``
+    of its rate (``ratio > 1``, any real number); same length and time base as ``x``.
+
+    The pass band, transition and stop band are those of :func:`decimate` for ``q = ratio``
+    (stop band from the new Nyquist frequency on), and the ends are extended the same way,
+    so for an integer ratio ``lowpass(x, q)[::q]`` equals ``decimate(x, q)``.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 1:
+        raise ValueError(f"lowpass expects a 1-D signal, got shape {x.shape}")
+    if not ratio > 1.0:
+        raise ValueError(f"a low-pass is needed only for a ratio > 1, got {ratio}")
+    if x.size == 0:
+        return x.copy()
+    taps = _design(1.0 / float(ratio))
+    delay = (taps.size - 1) // 2
+    padded = np.pad(x, (delay, delay), mode="reflect", reflect_type="odd")
+    return signal.oaconvolve(padded, taps, mode="valid")
 
 
 def decimate(x: np.ndarray, q: int) -> np.ndarray:

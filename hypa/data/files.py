@@ -3,7 +3,9 @@
 Formats: CSV (read with pyarrow; a header line starting with ``#``, as some loggers write it,
 is read as the header), Parquet, and MATLAB v5/v7 ``.mat`` (every variable is a column; a
 1x1 variable such as a gain is a scalar usable in expressions). An unnamed CSV column with
-no values (from trailing commas, e.g. ``"V1","V2",``) is dropped.
+no values (from trailing commas, e.g. ``"V1","V2",``) is dropped. ASAM MDF files (``.mf4``,
+``.mdf``) hold channels on time bases of their own; they are read channel by channel by
+:mod:`hypa.data.mdf`, not as columns here.
 
 A data folder holds ``train*``, ``val*`` and optionally ``test*`` files (matched on the stem,
 sorted by name) and an optional ``dataset.json`` written by the test bench.
@@ -18,7 +20,9 @@ import numpy as np
 
 from hypa.data.errors import DataError
 
-SUPPORTED_SUFFIXES: tuple[str, ...] = (".csv", ".parquet", ".mat")
+TABLE_SUFFIXES: tuple[str, ...] = (".csv", ".parquet", ".mat")  # one time base, columns
+MDF_SUFFIXES: tuple[str, ...] = (".mf4", ".mdf")  # ASAM MDF 4 (and 3): a time base per group
+SUPPORTED_SUFFIXES: tuple[str, ...] = TABLE_SUFFIXES + MDF_SUFFIXES
 METADATA_FILE = "dataset.json"
 SPLIT_PREFIXES: tuple[str, ...] = ("train", "val", "test")
 
@@ -37,6 +41,11 @@ def read_columns(path: Path) -> dict[str, np.ndarray]:
         return _arrow_columns(path, pyarrow.parquet.read_table)
     if suffix == ".mat":
         return _mat_columns(path)
+    if suffix in MDF_SUFFIXES:
+        raise DataError(
+            f"{path}: an MDF file has no columns on one time base; read it with "
+            f"hypa.data.load_record (or hypa.data.mdf.read_signals for the raw channels)"
+        )
     raise DataError(
         f"{path}: unsupported file type {path.suffix!r}; use one of {', '.join(SUPPORTED_SUFFIXES)}"
     )

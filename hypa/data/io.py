@@ -5,6 +5,10 @@ dropped or repaired silently. The time base is a column (converted to seconds, i
 removed so that it starts at 0, e.g. for Unix time) or, without a time column, the sample
 index divided by the sample rate. A time column must increase strictly, with a regular step
 at ``sample_rate_hz`` (1 % on the median step, 10 % on every single step).
+
+ASAM MDF files (``.mf4``, ``.mdf``) have a time base per channel group; :mod:`hypa.data.mdf`
+reads them and resamples every channel onto a regular time base at ``sample_rate_hz``
+(``data.time`` does not apply to them).
 """
 
 from __future__ import annotations
@@ -18,7 +22,8 @@ import numpy as np
 from hypa.data.channels import ChannelSpec
 from hypa.data.errors import DataError
 from hypa.data.expressions import Expression
-from hypa.data.files import read_columns
+from hypa.data.files import MDF_SUFFIXES, read_columns
+from hypa.data.mdf import load_mdf_record
 from hypa.data.records import Record
 from hypa.data.units import unit_factor
 
@@ -31,15 +36,20 @@ def load_record(
     channels: Sequence[ChannelSpec],
     time_column: str | None = "time",
     time_unit: str = "s",
-    sample_rate_hz: float = 1024.0,
+    sample_rate_hz: float | None = 1024.0,
     with_eval: bool = True,
 ) -> Record:
     """Read one file into a :class:`Record` of ``channels`` in SI units.
 
     Evaluation channels are read only ``with_eval`` and only where the file has what they need
-    (they are optional); every other channel must be in the file.
+    (they are optional); every other channel must be in the file. An MDF file is resampled
+    onto ``sample_rate_hz`` (``None``: its fastest channel's rate); a table file needs it.
     """
     path = Path(path)
+    if path.suffix.lower() in MDF_SUFFIXES:
+        return load_mdf_record(path, channels, sample_rate_hz, with_eval)
+    if sample_rate_hz is None:
+        raise DataError(f"{path}: the sample rate of a {path.suffix} file must be given")
     raw = read_columns(path)
     values: dict[str, np.ndarray | float] = {}
     for channel in channels:

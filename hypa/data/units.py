@@ -8,6 +8,7 @@ A channel declares the unit of its file column (``unit``) and the unit it is sho
 
 Both units must have the same dimension, so ``display_unit: deg`` on a rate in ``rad/s`` is an
 error instead of a plot off by a factor. ``-`` (also ``1`` or an empty string) is dimensionless.
+``°``, ``°/s`` and ``1/min`` (rpm) are spelled as measurement tools write them into MDF files.
 """
 
 from __future__ import annotations
@@ -35,9 +36,9 @@ _TABLE: dict[tuple[str, str], dict[str, float]] = {
     ("dimensionless", "-"): {"-": 1.0, "1": 1.0, "": 1.0, "%": 0.01},
     ("time", "s"): {"s": 1.0, "ms": 1e-3, "us": 1e-6, "min": 60.0, "h": 3600.0},
     ("frequency", "Hz"): {"Hz": 1.0, "kHz": 1e3},
-    ("angle", "rad"): {"rad": 1.0, "mrad": 1e-3, "deg": math.pi / 180.0},
-    ("angular rate", "rad/s"): {"rad/s": 1.0, "deg/s": math.pi / 180.0,
-                                "rpm": 2.0 * math.pi / 60.0},
+    ("angle", "rad"): {"rad": 1.0, "mrad": 1e-3, "deg": math.pi / 180.0, "°": math.pi / 180.0},
+    ("angular rate", "rad/s"): {"rad/s": 1.0, "deg/s": math.pi / 180.0, "°/s": math.pi / 180.0,
+                                "rpm": 2.0 * math.pi / 60.0, "1/min": 2.0 * math.pi / 60.0},
     ("angular acceleration", "rad/s^2"): {"rad/s^2": 1.0, "rad/s2": 1.0,
                                           "deg/s^2": math.pi / 180.0},
     ("length", "m"): {"m": 1.0, "mm": 1e-3, "cm": 1e-2, "um": 1e-6, "km": 1e3},
