@@ -1,0 +1,236 @@
+"""Name what the physics gets wrong, on any system: candidates fitted and scored with the model itself.
+
+The nominal model is a :class:`~hypa.models.ModelSpec` (the physics a user trusts, frozen). Each
+candidate cause (:mod:`hypa.diagnosis.edits`) is an edit of it; the edited model is built as a
+:class:`~hypa.models.ComposedModel` (the class ``hypa.train`` trains), its knobs are fitted on
+the training windows (gradient descent on the physical parameters, or least squares for an
+offset), and it is scored free-running over the validation records. A greedy search names the
+candidate with the largest gain, writes its fitted values into the model and searches again
+from there, until no candidate improves the validation error by ``min_gain``. What remains is
+then tested for structure (:func:`residual_structure`): where significant error is left that
+no catalogue entry explains, the diagnosis says where it lives instead of naming a proxy.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from hypa.data import HypaDataModule, Record
+from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, frozen, generic_candidates
+from hypa.evaluation.runs import free_run
+from hypa.models import ComposedModel
+from hypa.models.spec import ModelSpec, ModelSpecError
+from hypa.physics import SchedulingError, UnstablePhysicsError
+
+
+ALTERNATIVE = 0.95  # a candidate explaining this share of the named one's gain is reported beside it
+
+
+@dataclass(frozen=True)
+class Problem:
+    """The data and the fixed settings every candidate model is built with."""
+
+    dm: HypaDataModule
+    physical_values: Mapping[str, float]
+    hold: str = "foh"
+    horizon: int = 100
+    steps: int = 60  # gradient steps per candidate fit
+    batch: int = 128  # training windows per step
+    lr: float = 0.05  # on the raw (relative) parameters: about 5 % of a value per step
+    seed: int = 0
+
+    def scale(self, names: Sequence[str]) -> dict[str, tuple[float, float]]:
+        norm = self.dm.normalization.subset(list(names))
+        return {n: (float(m), float(s)) for n, m, s in zip(names, norm.mean.tolist(), norm.std.tolist())}
+
+    def build(self, spec: ModelSpec) -> ComposedModel:
+        dm = self.dm
+        return ComposedModel(spec, self.physical_values, dm.input_names, dm.output_names, self.scale(dm.input_names),
+                             self.scale(dm.output_names), dm.dt, self.horizon, self.hold,
+                             scheduling_names=dm.scheduling_names, scheduling_scale=self.scale(dm.scheduling_names))
+
+
+@dataclass
+class Finding:
+    """A candidate after its fit: fitted values [SI], validation score and gain over the base model."""
+
+    cause: str
+    target: str
+    values: dict[str, float]
+    units: dict[str, str]
+    score: float
+    gain: float
+    seconds: float
+    error: str | None = None
+    candidate: Candidate | None = field(default=None, repr=False)
+    alternatives: list[str] = field(default_factory=list)  # candidates that explain (almost) as much
+
+    @property
+    def key(self) -> str:
+        return f"{self.cause}:{self.target}"
+
+    def describe(self) -> str:
+        """One line in units: ``input_delay on steering_angle: 236 ms``."""
+        if self.error:
+            return f"{self.cause} on {self.target}: not fitted ({self.error})"
+        parts = [format_value(v, self.units.get(k, "")) for k, v in self.values.items()]
+        return f"{self.cause} on {self.target}" + (f": {', '.join(parts)}" if parts else "")
+
+    def to_dict(self) -> dict:
+        return {"cause": self.cause, "target": self.target, "values": self.values, "units": self.units,
+                "score": self.score, "gain": self.gain, "seconds": self.seconds, "error": self.error,
+                "alternatives": self.alternatives, "text": self.describe()}
+
+
+def format_value(value: float, unit: str) -> str:
+    """Rounded to 3 significant digits with its unit (seconds below 1 s as ms)."""
+    if unit == "s" and abs(value) < 1.0:
+        return f"{value * 1e3:.3g} ms"
+    return f"{value:.3g} {unit}".rstrip()
+
+
+def _windows(dm: HypaDataModule) -> dict[str, torch.Tensor]:
+    """Every training window in one batch (u, y and s when the data has scheduling signals)."""
+    dataset = dm.dataset("train")
+    loader = torch.utils.data.DataLoader(dataset, batch_size=len(dataset), shuffle=False)
+    batch = next(iter(loader))
+    return {k: v for k, v in batch.items() if k in ("u", "y", "s")}
+
+
+def score(model: ComposedModel, dm: HypaDataModule, records: Sequence[Record]) -> float:
+    """Mean over outputs of the free-run error energy relative to the output's variance (1 - R²)."""
+    err, var = np.zeros(len(dm.output_names)), np.zeros(len(dm.output_names))
+    for record in records:
+        run = free_run(model, dm, record)
+        for i, name in enumerate(dm.output_names):
+            y, p = run.measured[name][run.first:], run.predicted[name][run.first:]
+            err[i] += float(np.sum((p - y) ** 2))
+            var[i] += float(np.sum((y - np.mean(y)) ** 2))
+    out = err / np.maximum(var, 1e-300)
+    return float(np.mean(out)) if np.all(np.isfinite(out)) else math.inf
+
+
+def fit_gradient(candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor]) -> dict[str, float]:
+    """Fit the candidate's physical knobs on the training windows (the training loss, Adam)."""
+    model = problem.build(candidate.spec)
+    params = [p for p in model.parameters() if p.requires_grad]
+    if not params:
+        raise ModelSpecError(f"{candidate.key}: nothing to fit")
+    optimizer = torch.optim.Adam(params, lr=problem.lr)
+    generator = torch.Generator().manual_seed(problem.seed)
+    first, count = problem.dm.past + 1, windows["u"].shape[0]
+    for _ in range(problem.steps):
+        index = torch.randperm(count, generator=generator)[: problem.batch]
+        u, y = windows["u"][index], windows["y"][index]
+        s = windows["s"][index] if "s" in windows else None
+        loss = torch.mean((model(u, y[:, :first], s) - y[:, first:]) ** 2)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    return {k: float(model.parameters_.value(k).detach()) for k in candidate.knobs}
+
+
+def fit_affine(candidate: Candidate, problem: Problem) -> dict[str, float]:
+    """Least squares of one offset b: the (linear) model's outputs are affine in it, so two free
+    runs over the training records (b = 0 and a probe) give the response to b exactly."""
+    channel, dm = candidate.target, problem.dm
+    probe = 0.1 * problem.scale([channel])[channel][1]
+    base = candidate.spec
+
+    def runs(offset: float) -> list:
+        spec = applied(candidate, {channel: offset}) if offset else base
+        model = problem.build(spec)
+        return [free_run(model, dm, r) for r in dm.records("train")]
+
+    zero, moved = runs(0.0), runs(probe)
+    num = den = 0.0
+    for a, b in zip(zero, moved):
+        for name in dm.output_names:
+            y = a.measured[name][a.first:]
+            weight = 1.0 / max(float(np.var(y)), 1e-300)
+            g = (b.predicted[name][a.first:] - a.predicted[name][a.first:]) / probe
+            r = y - a.predicted[name][a.first:]
+            num += weight * float(np.dot(g, r))
+            den += weight * float(np.dot(g, g))
+    return {channel: num / den if den > 0 else 0.0}
+
+
+def evaluate(candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor], base_score: float
+             ) -> Finding:
+    """Fit a candidate and score it free-running on the validation records."""
+    started = time.perf_counter()
+    units = dict(candidate.units) or {candidate.target: problem.dm.channels[candidate.target].unit
+                                      if candidate.fit == AFFINE else ""}
+    try:
+        if candidate.fit == GRADIENT:
+            values = fit_gradient(candidate, problem, windows)
+        elif candidate.fit == AFFINE:
+            values = fit_affine(candidate, problem)
+        else:
+            values = {}
+        spec = applied(candidate, values)
+        value = score(problem.build(spec), problem.dm, problem.dm.records("val"))
+    except (UnstablePhysicsError, SchedulingError, ModelSpecError, ValueError) as error:
+        return Finding(candidate.cause, candidate.target, {}, {}, math.inf, -math.inf,
+                       time.perf_counter() - started, str(error).split("\n")[0], candidate)
+    gain = 1.0 - value / base_score if base_score > 0 else 0.0
+    return Finding(candidate.cause, candidate.target, values, units, value, gain, time.perf_counter() - started,
+                   None, candidate)
+
+
+@dataclass
+class Search:
+    """The greedy search: the nominal score, every round's findings (best first), the named ones
+    and the model with them applied."""
+
+    nominal_score: float
+    rounds: list[list[Finding]]
+    named: list[Finding]
+    spec: ModelSpec
+    final_score: float
+    seconds: float
+
+
+def name_causes(nominal: ModelSpec, problem: Problem,
+                candidates: Callable[[ModelSpec], list[Candidate]] | None = None, max_causes: int = 3,
+                min_gain: float = 0.05, floor: float = 1e-4, progress: Callable[[str], None] = lambda _: None) -> Search:
+    """Greedy forward search over the catalogue from the frozen ``nominal`` model.
+
+    ``candidates(spec)`` lists the candidates of a base model (default: the generic catalogue for
+    the data's channels). Each round fits all of them, names the best if it lowers the validation
+    error (1 - R², mean over outputs) by at least ``min_gain`` (relative), applies it and goes on;
+    below ``floor`` (share of the output variance: sensor noise) there is nothing left to name.
+    """
+    started = time.perf_counter()
+    dm = problem.dm
+    uncertain = {b.name: b.trainable for b in nominal.blocks}
+    if candidates is None:
+        def candidates(spec: ModelSpec) -> list[Candidate]:
+            return generic_candidates(spec, dm.input_names, dm.output_names, dm.scheduling_names,
+                                      problem.physical_values, dm.dt, uncertain)
+    torch.manual_seed(problem.seed)
+    windows = _windows(dm)
+    base = frozen(nominal)
+    base_score = nominal_score = score(problem.build(base), dm, dm.records("val"))
+    progress(f"nominal model: validation error {100 * base_score:.3g} % of the output variance")
+    rounds, named = [], []
+    while len(named) < max_causes and base_score > floor:
+        done = {f.key for f in named}
+        findings = [evaluate(c, problem, windows, base_score) for c in candidates(base) if c.key not in done]
+        findings.sort(key=lambda f: f.score)
+        rounds.append(findings)
+        if not findings or findings[0].gain < min_gain:
+            break
+        best = findings[0]
+        best.alternatives = [f.describe() for f in findings[1:] if f.gain >= ALTERNATIVE * best.gain]
+        named.append(best)
+        base, base_score = applied(best.candidate, best.values), best.score
+        progress(f"named {best.describe()} (validation error {100 * best.gain:.0f} % lower)"
+                 + (f"; the data cannot tell it from {' or '.join(best.alternatives)}" if best.alternatives else ""))
+    return Search(nominal_score, rounds, named, base, base_score, time.perf_counter() - started)
