@@ -23,6 +23,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
+from hypa.errors import UserError, setting, user_errors
 from hypa.evaluate import Evaluation, evaluate_run
 from hypa.evaluation.plots import bode, rear_steer
 from hypa.evaluation.runs import load_run
@@ -39,7 +40,10 @@ def train_rows(rows: list[str], seeds: list[int], sweep_dir: Path, n_jobs: int, 
            f"seed={','.join(map(str, seeds))}", f"hydra.sweep.dir={sweep_dir}",
            f"hydra.launcher.n_jobs={n_jobs}", *overrides]
     log.info("training: %s", " ".join(cmd))
-    subprocess.run(cmd, cwd=ROOT, check=True)
+    result = subprocess.run(cmd, cwd=ROOT)
+    if result.returncode != 0:
+        raise UserError(f"training failed (exit status {result.returncode}, its error above); "
+                        f"the runs that finished are in {sweep_dir}")
 
 
 def aggregate(evaluations: dict[str, list[Evaluation]]) -> list[dict[str, Any]]:
@@ -121,6 +125,7 @@ def report(table: list[dict[str, Any]], cfg: DictConfig, wall_s: float, runs: in
 
 
 @hydra.main(config_path="../conf", config_name="reproduce", version_base="1.3")
+@user_errors("hypa.reproduce")
 def main(cfg: DictConfig) -> None:
     from hydra.utils import get_original_cwd
 
@@ -128,13 +133,20 @@ def main(cfg: DictConfig) -> None:
     out = Path(str(cfg.out))
     out = out if out.is_absolute() else Path(get_original_cwd()) / out
     sweep = out / "runs"
+    rows = [str(r) for r in cfg.rows] if OmegaConf.is_list(cfg.rows) else [str(cfg.rows)]  # rows=v2: one
+    unknown = [r for r in rows if not (ROOT / "conf" / "row" / f"{r}.yaml").is_file()]
+    if unknown:
+        known = sorted(p.stem for p in (ROOT / "conf" / "row").glob("*.yaml"))
+        raise UserError(f"rows {unknown} are not in conf/row/; known: {', '.join(known)}")
     if not cfg.skip_training:
-        train_rows(list(cfg.rows), list(cfg.seeds), sweep, int(cfg.n_jobs), list(cfg.train_overrides))
+        seeds = ([setting(cfg, f"seeds.{i}", int) for i in range(len(cfg.seeds))] if OmegaConf.is_list(cfg.seeds)
+                 else [setting(cfg, "seeds", int)])
+        train_rows(rows, seeds, sweep, setting(cfg, "n_jobs", int), list(cfg.train_overrides))
     folders = sorted(d for d in sweep.iterdir() if (d / ".hydra").is_dir()) if sweep.is_dir() else []
     if not folders:
         raise FileNotFoundError(f"no runs in {sweep}")
     # Table 1's order: the default rows, then any others asked for
-    rows = list(dict.fromkeys([*OmegaConf.load(ROOT / "conf" / "reproduce.yaml").rows, *cfg.rows]))
+    rows = list(dict.fromkeys([*OmegaConf.load(ROOT / "conf" / "reproduce.yaml").rows, *rows]))
     order = {str(OmegaConf.load(ROOT / "conf" / "row" / f"{r}.yaml").table1_row): i for i, r in enumerate(rows)}
     evaluations: dict[str, list[Evaluation]] = defaultdict(list)
     for i, folder in enumerate(folders, 1):

@@ -23,6 +23,7 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
+from hypa.errors import UserError, setting, settings, user_errors
 from hypa.vehicle.display import DEG, DISPLAY_UNITS
 from hypa.physics import LTIBlock
 from hypa.vehicle import SingleTrack, SteeringGain, VehicleParameters, vehicle_parameters
@@ -99,13 +100,24 @@ def report(results: dict, hold: str, rear: str) -> str:
 
 
 @hydra.main(config_path="../conf", config_name="simulate", version_base="1.3")
+@user_errors("hypa.simulate")
 def main(cfg: DictConfig) -> float:
-    from hypa.entry import datamodule, vehicle_from_config
+    from hypa.data import datamodule_from_config
+    from hypa.entry import data_dir_from_config, vehicle_from_config
+    from hypa.physics import HOLDS
     from hypa.plots import time_series
 
-    vehicle = vehicle_from_config(cfg.vehicle)
-    hold, rear = str(cfg.physics.hold), str(cfg.physics.rear_steering)
-    dm = datamodule(cfg)
+    hold = setting(cfg, "physics.hold", str, choices=HOLDS)
+    rear = setting(cfg, "physics.rear_steering", str, choices=REAR_STEERING)
+    with settings("vehicle"):
+        vehicle = vehicle_from_config(cfg.vehicle)
+    with settings("testbench"):  # the test bench's settings build its data (files: a folder only)
+        data_dir = data_dir_from_config(cfg)
+    dm = datamodule_from_config(cfg.data, data_dir)
+    if "steering_wheel_angle" not in dm.input_names or not set(STATES) <= set(dm.output_names):
+        raise UserError(f"hypa.simulate runs the vehicle's single track: the data need the input "
+                        f"steering_wheel_angle and the outputs {', '.join(STATES)}; these have the inputs "
+                        f"{list(dm.input_names)} and the outputs {list(dm.output_names)}")
     dm.setup()
     out = Path(HydraConfig.get().runtime.output_dir)
     results = {"windowed (100 steps)": _windowed(dm, vehicle, hold, rear)}

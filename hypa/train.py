@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -26,7 +27,7 @@ from lightning.pytorch.callbacks import EarlyStopping, ModelCheckpoint
 from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
-from hypa.errors import user_errors
+from hypa.errors import UserError, setting, settings, user_errors
 
 log = logging.getLogger(__name__)
 
@@ -51,11 +52,27 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     """Fit the configured model; returns the best validation loss and the output paths."""
     from hypa.data import datamodule_from_config
     from hypa.entry import data_dir_from_config, vehicle_from_config
+    from hypa.metadata import run_metadata
     from hypa.models import parse_model_spec
+    from hypa.physics import HOLDS
     from hypa.training import HybridModule, StagedTraining, ValidationFigures
 
-    L.seed_everything(int(cfg.seed), workers=True)
-    torch.set_num_threads(int(cfg.torch_threads))
+    # every plain value first, so a bad override fails before any data are read or generated
+    seed, threads = setting(cfg, "seed", int), setting(cfg, "torch_threads", int)
+    epochs = setting(cfg, "trainer.max_epochs", int)
+    hold = setting(cfg, "physics.hold", str, choices=HOLDS)
+    horizon = setting(cfg, "physics.horizon", int, optional=True) or setting(cfg, "data.window", int)
+    lr, physics_lr, weight_decay = (setting(cfg, f"optimizer.{k}", float) for k in ("lr", "physics_lr", "weight_decay"))
+    patience, min_delta = setting(cfg, "early_stopping.patience", int), setting(cfg, "early_stopping.min_delta", float)
+    model_config = OmegaConf.to_container(cfg.model, resolve=True)
+    ann = OmegaConf.to_container(cfg.ann, resolve=True)
+    ann_name = str(ann.pop("name"))
+    check_ann_settings(ann_name, ann)
+    with settings("vehicle"):
+        physical_values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.vehicle else {}
+
+    L.seed_everything(seed, workers=True)
+    torch.set_num_threads(threads)
     out, ckpt_path = Path(HydraConfig.get().runtime.output_dir), None
     if cfg.ckpt_path:
         from hydra.utils import get_original_cwd
@@ -64,47 +81,53 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         ckpt_path = ckpt_path if ckpt_path.is_absolute() else Path(get_original_cwd()) / ckpt_path
         if not ckpt_path.is_file():
             raise FileNotFoundError(f"ckpt_path={ckpt_path} does not exist")
+        from hypa.evaluation.runs import load_module
+
+        resumed = load_module(ckpt_path).hparams.model_config.get("name")  # no hypa checkpoint: one line
+        if resumed != model_config.get("name"):
+            raise UserError(f"ckpt_path={ckpt_path} holds model {resumed}, not model={model_config.get('name')}; "
+                            f"resume with model={resumed}")
         if ckpt_path.parent.name == "checkpoints":  # resume in the interrupted run's own folder
             out = ckpt_path.parent.parent
             log.info("resuming %s in %s", ckpt_path.name, out)
-    data_dir = data_dir_from_config(cfg)
+    with settings("testbench"):  # the test bench's settings build its data (files: a folder only)
+        data_dir = data_dir_from_config(cfg)
     dm = datamodule_from_config(cfg.data, data_dir)
     dm.setup()
-    # where the data were, resolved, so hypa.evaluate finds them from any working directory
     out.mkdir(parents=True, exist_ok=True)
-    run_info = {"data_dir": str(data_dir.resolve())}
+    # where the data were, resolved, so hypa.evaluate finds them from any working directory; what
+    # the run was made from (code, packages, data checksums), so hypa.evaluate notices other data
+    run_info = {"data_dir": str(data_dir.resolve()), **run_metadata(dm.files, data_dir)}
     (out / "run.json").write_text(json.dumps(run_info, indent=2))
-    model_config = OmegaConf.to_container(cfg.model, resolve=True)
-    ann = OmegaConf.to_container(cfg.ann, resolve=True)
+    OmegaConf.save(cfg, out / "config.yaml", resolve=True)  # .hydra/config.yaml keeps the interpolations
     module = HybridModule(
         model_config=model_config,
-        physical_values=vehicle_from_config(cfg.vehicle).as_dict() if cfg.vehicle else {},
+        physical_values=physical_values,
         normalization=dm.normalization.state_dict(),
         input_names=dm.input_names, output_names=dm.output_names, eval_names=dm.eval_names,
         scheduling_names=dm.scheduling_names, past=dm.past,
-        dt=dm.dt, horizon=int(cfg.physics.get("horizon") or cfg.data.window), hold=str(cfg.physics.hold),
-        ann_name=str(ann.pop("name")), ann_hparams=ann,
-        lr=float(cfg.optimizer.lr), physics_lr=float(cfg.optimizer.physics_lr),
-        weight_decay=float(cfg.optimizer.weight_decay),
+        dt=dm.dt, horizon=horizon, hold=hold,
+        ann_name=ann_name, ann_hparams=ann,
+        lr=lr, physics_lr=physics_lr, weight_decay=weight_decay,
     )
     stages = parse_model_spec(model_config).stages
-    epochs = int(cfg.trainer.max_epochs)
     checkpoint = ModelCheckpoint(dirpath=out / "checkpoints", filename="best-{epoch:02d}", monitor="val/loss",
                                  mode="min", save_top_k=1, save_last=True)
     callbacks: list[L.Callback] = [
-        EarlyStopping(monitor="val/loss", mode="min", patience=int(cfg.early_stopping.patience),
-                      min_delta=float(cfg.early_stopping.min_delta), check_on_train_epoch_end=False),
+        EarlyStopping(monitor="val/loss", mode="min", patience=patience, min_delta=min_delta,
+                      check_on_train_epoch_end=False),
     ]
     if stages:
         callbacks.append(StagedTraining(stages, max_epochs=epochs))
     if cfg.figures.enabled:
-        callbacks.append(ValidationFigures(float(cfg.figures.seconds), float(cfg.figures.start_s),
-                                           int(cfg.figures.every_n_epochs)))
+        callbacks.append(ValidationFigures(setting(cfg, "figures.seconds", float), setting(cfg, "figures.start_s", float),
+                                           setting(cfg, "figures.every_n_epochs", int)))
     callbacks.append(checkpoint)
     logger = TensorBoardLogger(save_dir=str(out), name="tensorboard", version="", default_hp_metric=False)
     trainer_args = OmegaConf.to_container(cfg.trainer, resolve=True)
     trainer_args["max_epochs"] = epochs * max(len(stages), 1)
-    trainer = L.Trainer(**trainer_args, callbacks=callbacks, logger=logger, default_root_dir=str(out))
+    with settings("trainer"):  # passed to Lightning as given: its ValueError / TypeError is the user's
+        trainer = L.Trainer(**trainer_args, callbacks=callbacks, logger=logger, default_root_dir=str(out))
     log.info("model %s:\n%s", model_config["name"], module.model)
     started = time.perf_counter()
     trainer.fit(module, datamodule=dm, ckpt_path=ckpt_path)
@@ -118,10 +141,28 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     run_info.update(training_time_s=training_time_s, best_val_loss=result["best_val_loss"])
     (out / "run.json").write_text(json.dumps(run_info, indent=2))
     logger.log_hyperparams(_flat(OmegaConf.to_container(cfg, resolve=True)), {"hp/best_val_loss": result["best_val_loss"]})
+    logger.finalize("success")  # written now: after fit, nothing else flushes it before the process ends
     print(f"best val/loss {result['best_val_loss']:.5g} after {result['epochs']} epochs\n"
           f"checkpoint:  {result['checkpoint']}\n"
           f"tensorboard: tensorboard --logdir {result['tensorboard']}")
     return result
+
+
+def check_ann_settings(name: str, hparams: dict[str, Any]) -> None:
+    """Check the network settings ``ann=name``: a number where the network's default is one,
+    then the network built alone from them (tiny sizes in and out), so that its own checks (a
+    size < 1, heads that do not divide the width, an unknown name or key) report the user's
+    values rather than failing deep inside the model built around them. Converts in place."""
+    from hypa.ann import ann_hyperparameters, build_ann
+
+    with settings(f"ann={name}"):
+        defaults = ann_hyperparameters(name)
+    node = OmegaConf.create({"ann": hparams})
+    for key, default in defaults.items():
+        if key in hparams and isinstance(default, (int, float)) and not isinstance(default, bool):
+            hparams[key] = setting(node, f"ann.{key}", type(default))
+    with settings(f"ann={name}"):
+        build_ann(name, 1, 1, **hparams)
 
 
 def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:
@@ -136,7 +177,10 @@ def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:
 @hydra.main(config_path="../conf", config_name="train", version_base="1.3")
 @user_errors("hypa.train")
 def main(cfg: DictConfig) -> float:
-    return train(cfg)["best_val_loss"]
+    """The best validation loss, for sweepers; inf for a run without a finite one (diverged, or no
+    validation): Optuna's sweeper aborts the whole study on a NaN, whereas inf ranks the trial last."""
+    loss = train(cfg)["best_val_loss"]
+    return loss if math.isfinite(loss) else math.inf
 
 
 if __name__ == "__main__":

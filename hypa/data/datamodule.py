@@ -148,6 +148,11 @@ class HypaDataModule(L.LightningDataModule):
         return self._dataset().metadata
 
     @property
+    def files(self) -> tuple[Path, ...]:
+        """Every file the data were read from (after ``setup()``): data files and ``dataset.json``."""
+        return self._dataset().files
+
+    @property
     def splits(self) -> tuple[str, ...]:
         return tuple(self._dataset().splits)
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from hypa.data.channels import ChannelSpec
 from hypa.data.errors import DataError
-from hypa.data.files import read_metadata
+from hypa.data.files import METADATA_FILE, read_metadata
 from hypa.data.io import load_record
 from hypa.data.records import DataSet, Record
 from hypa.data.selection import Condition, select
@@ -97,6 +97,8 @@ def load_dataset(
         test_sets={name: prepare(f"test set {name!r}", pieces, training=False)
                    for name, pieces in splits.test.items()},
         metadata=read_metadata(data_dir) if data_dir.is_dir() else {},
+        files=(*(data_dir / name for name in files),
+               *((data_dir / METADATA_FILE,) if (data_dir / METADATA_FILE).is_file() else ())),
     )
 
 

@@ -113,7 +113,8 @@ class DataSet:
     ``train`` and ``val`` are lists of records; ``test_sets`` maps a test-set name to its
     records (``{"test": [...]}`` for test files that are not named; empty without test data).
     ``metadata`` is the parsed ``dataset.json`` (empty when absent); hypa reads nothing from it,
-    it is passed on for reports and segment-wise evaluation.
+    it is passed on for reports and segment-wise evaluation. ``files``: every file the data set
+    was read from (the data files and the ``dataset.json``), for the checksums of a run.
     """
 
     directory: Path
@@ -121,6 +122,7 @@ class DataSet:
     val: list[Record]
     test_sets: dict[str, list[Record]] = field(default_factory=dict)
     metadata: dict = field(default_factory=dict)
+    files: tuple[Path, ...] = ()
 
     @property
     def test(self) -> list[Record]:

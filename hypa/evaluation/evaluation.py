@@ -40,7 +40,27 @@ def run_datamodule(run: TrainedRun) -> HypaDataModule:
     data_dir = run.data_dir if run.data_dir is not None and run.data_dir.is_dir() else data_dir_from_config(run.config)
     dm = datamodule_from_config(run.config.data, data_dir, normalization=run.module.hparams.normalization)
     dm.setup()
+    check_data_files(run, dm, data_dir)
     return dm
+
+
+def check_data_files(run: TrainedRun, dm: HypaDataModule, data_dir: Path) -> list[str]:
+    """Warn (one log line) when the files ``dm`` read differ from those the run was trained on.
+
+    Evaluating on other data is allowed (new measurements of the same system), so it is no
+    error, but it must not pass unnoticed: the run's ``run.json`` holds the checksums of its
+    files (:mod:`hypa.metadata`). Returns the differences; none for a run without checksums.
+    """
+    from hypa.metadata import data_differences
+
+    recorded = run.info.get("data_files")
+    if recorded is None:
+        return []
+    differences = data_differences(recorded, dm.files, data_dir)
+    if differences:
+        log.warning("the data differ from those %s was trained on (%s; in %s): its metrics are on other data",
+                    run.folder, "; ".join(differences), data_dir)
+    return differences
 
 
 def segments_of(dm: HypaDataModule, record: str, duration_s: float,

@@ -7,6 +7,8 @@ from the record's first measured state and never sees a measured state again).
 
 from __future__ import annotations
 
+import inspect
+import io
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,6 +18,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from hypa.data import HypaDataModule, Record
+from hypa.errors import UserError, one_line
 from hypa.models import ComposedModel
 from hypa.training import HybridModule
 
@@ -29,6 +32,7 @@ class TrainedRun:
     config: DictConfig
     module: HybridModule
     data_dir: Path | None = None  # the resolved data folder the run was trained on (run.json)
+    info: dict = field(default_factory=dict)  # the run's run.json (data checksums, versions; hypa.metadata)
 
     @property
     def label(self) -> str:
@@ -61,12 +65,50 @@ def load_run(path: Path | str) -> TrainedRun:
     config_file = folder / ".hydra" / "config.yaml"
     if not config_file.is_file():
         raise FileNotFoundError(f"{config_file} is missing: {folder} is not a hypa.train run folder")
-    module = HybridModule.load_from_checkpoint(checkpoint, map_location="cpu")
+    config = OmegaConf.load(config_file)
+    module = load_module(checkpoint)
+    trained, configured = module.hparams.model_config.get("name"), OmegaConf.select(config, "model.name")
+    if configured is not None and trained != configured:
+        raise UserError(f"{checkpoint} holds model {trained}, but its run folder {folder} trained model "
+                        f"{configured}; give the run folder (or a checkpoint) of the run to evaluate")
+    info_file = folder / "run.json"
+    info = json.loads(info_file.read_text()) if info_file.is_file() else {}
+    data_dir = Path(info["data_dir"]) if "data_dir" in info else None
+    return TrainedRun(folder=folder, checkpoint=checkpoint, config=config, module=module, data_dir=data_dir,
+                      info=info)
+
+
+def load_module(checkpoint: Path) -> HybridModule:
+    """The trained module of a ``hypa.train`` checkpoint, on the CPU, in eval mode.
+
+    A file that is no checkpoint (a text file, a truncated download), a checkpoint of another
+    program's model or one whose weights do not fit its model is the user's error, named by
+    the file (checked here, where the file is read, not by catching everything around it).
+    """
+    checkpoint = Path(checkpoint)
+    content = checkpoint.read_bytes()  # read once, unpickled twice: checked, then by Lightning
+    try:
+        state = torch.load(io.BytesIO(content), map_location="cpu", weights_only=False)
+    except Exception as error:  # unpickling, zip, EOF, import errors: whatever it is, it is no checkpoint
+        raise UserError(f"{checkpoint}: not a readable checkpoint ({type(error).__name__}: {one_line(error)}); "
+                        "give a .ckpt written by hypa.train") from error
+    hparams = state.get("hyper_parameters") if isinstance(state, dict) else None
+    if not isinstance(hparams, dict) or "model_config" not in hparams or "state_dict" not in state:
+        raise UserError(f"{checkpoint}: not a checkpoint of hypa.train (it holds no hypa model configuration)")
+    accepted = inspect.signature(HybridModule.__init__).parameters
+    unknown = sorted(set(hparams) - set(accepted))
+    missing = sorted(n for n, p in accepted.items() if n != "self" and p.default is p.empty and n not in hparams)
+    if unknown or missing:
+        raise UserError(f"{checkpoint}: written by another version of hypa (settings {unknown or missing} "
+                        f"{'unknown' if unknown else 'missing'} here); evaluate it with that version or retrain")
+    try:
+        module = HybridModule.load_from_checkpoint(io.BytesIO(content), map_location="cpu")
+    except RuntimeError as error:
+        if "state_dict" not in str(error):
+            raise
+        raise UserError(f"{checkpoint}: its weights do not fit its model ({one_line(error)[:300]})") from error
     module.eval()
-    info = folder / "run.json"
-    data_dir = Path(json.loads(info.read_text())["data_dir"]) if info.is_file() else None
-    return TrainedRun(folder=folder, checkpoint=checkpoint, config=OmegaConf.load(config_file), module=module,
-                      data_dir=data_dir)
+    return module
 
 
 @dataclass

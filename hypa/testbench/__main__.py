@@ -18,6 +18,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 from scipy.signal import welch
 
+from hypa.errors import UserError, settings, user_errors
 from hypa.testbench.config import TestbenchConfig
 from hypa.testbench.dataset import ensure_dataset, generate_dataset, load_description
 from hypa.testbench.plots import plot_axle_characteristics, plot_record, plot_spectrum
@@ -100,13 +101,18 @@ def write_plots(folder: Path, record: str, config: TestbenchConfig, plot_dir: Pa
 
 
 @hydra.main(config_path="../../conf", config_name="testbench", version_base="1.3")
+@user_errors("hypa.testbench")
 def main(cfg: DictConfig) -> None:
-    config = TestbenchConfig.from_dict(cfg.testbench)
-    if cfg.out is not None:
-        folder = generate_dataset(config, Path(cfg.out))
-    else:
-        cache_dir = Path(cfg.cache_dir) if cfg.cache_dir is not None else None
-        folder = ensure_dataset(config, cache_dir)
+    with settings("testbench"):  # the settings, and generating the records from them
+        config = TestbenchConfig.from_dict(cfg.testbench)
+        if cfg.out is not None:
+            folder = generate_dataset(config, Path(cfg.out))
+        else:
+            cache_dir = Path(cfg.cache_dir) if cfg.cache_dir is not None else None
+            folder = ensure_dataset(config, cache_dir)
+    if cfg.plot and f"{cfg.plot_record}.parquet" not in load_description(folder)["files"]:
+        raise UserError(f"plot_record={cfg.plot_record} is not a record of the test bench; "
+                        f"records: {', '.join(config.records)}")
     print(summarize(folder))
     if cfg.plot:
         plot_dir = Path(HydraConfig.get().runtime.output_dir)
