@@ -19,10 +19,12 @@ import numpy as np
 from hypa.data import HypaDataModule
 from hypa.diagnosis.config import train_arguments
 from hypa.diagnosis.model import STATES
+from hypa.errors import UserError
 
 
-class ExtensionTrainingError(RuntimeError):
-    """``hypa.train`` failed on the written extension."""
+class ExtensionTrainingError(UserError):
+    """``hypa.train`` failed on the written extension (its own output says why; the message gives
+    the command to rerun it alone), so ``hypa.diagnose`` reports it in one line."""
 
 
 @dataclass(frozen=True)

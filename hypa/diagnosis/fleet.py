@@ -1,0 +1,418 @@
+"""A fleet of logs: diagnose each log as one job of a Hydra multirun, then one summary table.
+
+    python -m hypa.diagnose -m dataset=files data.dir=logs/a,logs/b,logs/c
+    python -m hypa.diagnosis.fleet run 'logs/*/' [hypa.diagnose overrides]   # a glob instead of a list
+    python -m hypa.diagnosis.fleet summary outputs/diagnose/fleet_...         # (re)build the summary
+
+Every job writes its ``diagnosis.json`` (or, if it failed, ``error.json`` with its one-line error:
+:func:`record_failures`) into its job folder; after the last job, :class:`FleetSummary` (a Hydra
+callback registered in conf/diagnose.yaml, so it runs with any launcher) reads them all and writes
+``fleet.md`` and ``fleet.json`` into the sweep folder: per log the named causes, their estimates
+in the units an engineer reads and the validation MSE change; across logs how often each cause
+is named and the spread of each estimate, where a parameter that drifts from log to log (tire
+wear, load) shows up. Like ``make -k``, a failed log does not stop the others, and the exit
+status is 1 if any failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import glob
+import json
+import math
+import os
+import re
+import shlex
+import subprocess
+import sys
+import traceback
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+import yaml
+from hydra.experimental.callback import Callback
+from omegaconf import DictConfig
+
+from hypa.errors import UserError, user_error_types, user_errors
+from hypa.vehicle.display import DEG
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+DIAGNOSIS_FILE = "diagnosis.json"
+ERROR_FILE = "error.json"
+JOB_NAME = "diagnose"  # hydra.job.name of python -m hypa.diagnose
+# Display unit and factor from SI of a sensor offset, by channel (radians are read in degrees).
+OFFSET_UNITS = {"steering_wheel_angle": ("deg", DEG), "yaw_rate": ("deg/s", DEG), "side_slip": ("deg", DEG)}
+UNITS = {"ay_threshold": "m/s²", "mu": "-", "ratio": "-"}  # of the estimate keys that are no time (*_s: in ms)
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One number of a named cause's estimate, in the unit an engineer reads."""
+
+    value: float  # in ``unit``
+    unit: str
+
+
+@dataclass(frozen=True)
+class LogDiagnosis:
+    """One job of the sweep: its log, the named causes and estimates, or why it failed."""
+
+    folder: Path  # the job folder
+    overrides: tuple[str, ...]  # the job's command-line overrides
+    error: str | None = None  # one line; None: diagnosed
+    causes: tuple[str, ...] = ()  # named, most important first ([] = none)
+    estimates: dict[str, Estimate] = field(default_factory=dict)  # "cause: what" -> estimate
+    mse_change: dict[str, float | None] = field(default_factory=dict)  # all / high_ay / trained, (after-before)/before
+    label: str = ""  # what tells this log from the others (its data.dir)
+
+    @property
+    def failed(self) -> bool:
+        return self.error is not None
+
+
+@dataclass(frozen=True)
+class Spread:
+    """One estimate across the logs that name its cause."""
+
+    cause: str
+    unit: str
+    values: tuple[float | None, ...]  # per log, in the logs' order (None: not named there)
+
+    @property
+    def present(self) -> np.ndarray:
+        return np.array([v for v in self.values if v is not None], dtype=float)
+
+    def stats(self) -> dict[str, float | int | None]:
+        x = self.present
+        return {"logs": int(x.size), "mean": float(x.mean()), "std": float(x.std(ddof=1)) if x.size > 1 else None,
+                "min": float(x.min()), "max": float(x.max())}
+
+
+@dataclass(frozen=True)
+class Fleet:
+    """Every job of a sweep folder, in the jobs' order, and what the summary computes from them."""
+
+    sweep_dir: Path
+    logs: tuple[LogDiagnosis, ...]
+
+    @property
+    def diagnosed(self) -> list[LogDiagnosis]:
+        return [log for log in self.logs if not log.failed]
+
+    def cause_counts(self) -> dict[str, int]:
+        """In how many diagnosed logs each cause is named (``none``: nothing named), most frequent first."""
+        counts: dict[str, int] = {}
+        for log in self.diagnosed:
+            for cause in dict.fromkeys(log.causes or ("none",)):
+                counts[cause] = counts.get(cause, 0) + 1
+        return dict(sorted(counts.items(), key=lambda item: (-item[1], item[0])))
+
+    def spreads(self) -> dict[str, Spread]:
+        """Every estimate named in some log, in the order of the causes' counts."""
+        order = list(self.cause_counts())
+        keys = sorted({(k, e.unit) for log in self.logs for k, e in log.estimates.items()},
+                      key=lambda ku: (order.index(_cause(ku[0])), ku[0]))
+        return {k: Spread(_cause(k), unit, tuple(log.estimates[k].value if k in log.estimates else None
+                                                 for log in self.logs)) for k, unit in keys}
+
+    def to_dict(self) -> dict:
+        diagnosed = len(self.diagnosed)
+        return {
+            "sweep_dir": str(self.sweep_dir), "logs": len(self.logs), "diagnosed": diagnosed,
+            "failed": len(self.logs) - diagnosed,
+            "jobs": [{"folder": _relative(log.folder, self.sweep_dir), "log": log.label,
+                      "overrides": list(log.overrides), "status": "failed" if log.failed else "diagnosed",
+                      "error": log.error, "causes": list(log.causes),
+                      "estimates": {k: {"value": e.value, "unit": e.unit} for k, e in log.estimates.items()},
+                      "mse_change": log.mse_change} for log in self.logs],
+            "causes": {c: {"logs": n, "share": n / diagnosed} for c, n in self.cause_counts().items()},
+            "estimates": {k: {"cause": s.cause, "unit": s.unit, **s.stats(), "values": list(s.values)}
+                          for k, s in self.spreads().items()},
+        }
+
+
+def _cause(key: str) -> str:
+    return key.split(":", 1)[0]
+
+
+def _relative(path: Path, root: Path) -> str:
+    try:
+        return str(path.relative_to(root))
+    except ValueError:
+        return str(path)
+
+
+def estimates(cause: str, estimate: Mapping[str, Any]) -> dict[str, Estimate]:
+    """A named cause's estimate (SI, as in diagnosis.json) in the units an engineer reads, keyed
+    ``"cause: what"``: a vehicle parameter by its name, an offset by its channel (deg, deg/s),
+    times in ms. Text entries (``hold``, the rear channel) are no quantity and are left out."""
+    if cause == "parameter_mismatch":
+        from hypa.vehicle.physics import parameter_spec
+
+        name = str(estimate["parameter"])
+        return {f"{cause}: {name}": Estimate(float(estimate["value"]), parameter_spec(name, 1.0).unit)}
+    if cause == "sensor_offset":
+        channel = str(estimate["channel"])
+        unit, factor = OFFSET_UNITS.get(channel, ("SI", 1.0))
+        return {f"{cause}: {channel}": Estimate(float(estimate["offset"]) * factor, unit)}
+    out = {}
+    for name, value in estimate.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            continue
+        if name.endswith("_s"):
+            out[f"{cause}: {name[:-2]}"] = Estimate(1000.0 * float(value), "ms")
+        else:
+            out[f"{cause}: {name}"] = Estimate(float(value), UNITS.get(name, "-"))
+    return out
+
+
+def read_log(folder: Path) -> LogDiagnosis:
+    """One job folder: its diagnosis.json, else its error.json, else a job that did not finish."""
+    overrides = tuple(str(o) for o in (_yaml(folder / ".hydra" / "overrides.yaml") or []))
+    if (folder / DIAGNOSIS_FILE).is_file():
+        result = json.loads((folder / DIAGNOSIS_FILE).read_text())
+        named = result["candidates"][: len(result["causes"])]
+        values = {k: e for row in named for k, e in estimates(row["cause"], row.get("estimate") or {}).items()}
+        gain = result.get("gain", {})
+        trained = result.get("extended", {}).get("trained")
+        change = {"all": gain.get("all", {}).get("overall"), "high_ay": gain.get("high_ay", {}).get("overall"),
+                  "trained": trained["gain"]["all"].get("overall") if trained else None}
+        return LogDiagnosis(folder, overrides, causes=tuple(result["causes"]), estimates=values, mse_change=change)
+    if (folder / ERROR_FILE).is_file():
+        return LogDiagnosis(folder, overrides, error=str(json.loads((folder / ERROR_FILE).read_text())["error"]))
+    return LogDiagnosis(folder, overrides, error=f"no {DIAGNOSIS_FILE}: the job did not finish "
+                                                 f"(see {folder / (JOB_NAME + '.log')})")
+
+
+def _yaml(path: Path) -> Any:
+    return yaml.safe_load(path.read_text()) if path.is_file() else None
+
+
+def find_jobs(sweep_dir: Path) -> list[Path]:
+    """The ``hypa.diagnose`` job folders under ``sweep_dir`` (by their ``.hydra/hydra.yaml``; a
+    trained extension's ``hypa.train`` run inside a job is not one), in natural order (2 < 10)."""
+    folders = [p.parent.parent for p in Path(sweep_dir).rglob("hydra.yaml") if p.parent.name == ".hydra"
+               and ((_yaml(p) or {}).get("hydra", {}).get("job", {}).get("name") == JOB_NAME)]
+    return sorted(folders, key=lambda p: [int(t) if t.isdigit() else t
+                                          for t in re.split(r"(\d+)", _relative(p, Path(sweep_dir)))])
+
+
+def labels(overrides: Sequence[Sequence[str]]) -> list[str]:
+    """What tells each job from the others: its overrides that not all jobs share, unquoted
+    (``data.dir=`` shown as the bare folder); a lone job is named by all its overrides."""
+    common = set.intersection(*(set(o) for o in overrides)) if len(overrides) > 1 else set()
+    return [" ".join(_plain(o) for o in own if o not in common) or "(no overrides)" for own in overrides]
+
+
+def _plain(override: str) -> str:
+    """``data.dir='/logs/run 3'`` -> ``/logs/run 3``; ``key='a b'`` -> ``key=a b``; others as typed."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    try:
+        parsed = OverridesParser.create().parse_override(override)
+    except Exception:  # Hydra wrote it, so this is a hand-edited file: shown as typed
+        return override
+    value = parsed.value()
+    if parsed.is_delete() or not isinstance(value, str):
+        return override.removeprefix("data.dir=")
+    return value if parsed.key_or_group == "data.dir" else f"{parsed.key_or_group}={value}"
+
+
+def collect(sweep_dir: Path) -> Fleet:
+    """Every job of a sweep folder, diagnosed or failed."""
+    sweep_dir = Path(sweep_dir)
+    folders = find_jobs(sweep_dir)
+    if not folders:
+        raise UserError(f"{sweep_dir} holds no hypa.diagnose jobs (no .hydra/hydra.yaml of one); give the sweep "
+                        "folder of a `python -m hypa.diagnose -m ...` run")
+    logs = [read_log(f) for f in folders]
+    names = labels([log.overrides for log in logs])
+    return Fleet(sweep_dir, tuple(replace(log, label=name) for log, name in zip(logs, names)))
+
+
+def number(value: float | None) -> str:
+    """4 significant digits without an exponent for what an engineer reads (179500, 61.23, 0.0512)."""
+    if value is None or not math.isfinite(value):
+        return "" if value is None else str(value)
+    if value == 0 or abs(value) < 1e-3:
+        return f"{value:.4g}"
+    decimals = 3 - math.floor(math.log10(abs(value)))
+    return f"{round(value, decimals):.{max(decimals, 0)}f}"
+
+
+def percent(change: float | None) -> str:
+    return "" if change is None else f"{100 * change:+.1f} %"
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|").replace("\n", " ")
+
+
+def markdown(fleet: Fleet) -> str:
+    """fleet.md: the per-log table (one column per estimate, so a drift reads down a column) and
+    the across-logs tables (how often each cause is named, the spread of each estimate)."""
+    spreads, counts, diagnosed = fleet.spreads(), fleet.cause_counts(), len(fleet.diagnosed)
+    trained = any(log.mse_change.get("trained") is not None for log in fleet.logs)
+    lines = [f"# Fleet diagnosis: {len(fleet.logs)} logs", "",
+             f"Sweep folder `{fleet.sweep_dir}`: {diagnosed} diagnosed, {len(fleet.logs) - diagnosed} failed. "
+             "Each log's report is `<job>/diagnosis.md`. MSE change: validation MSE of the nominal physics with "
+             "the log's named causes applied, (after - before) / before, over all samples and at high |a_y|.",
+             "", "## Per log", ""]
+    head = ["job", "log", "named causes", "MSE change", "at high \\|a_y\\|", *(["trained"] if trained else []),
+            *(f"{k} [{s.unit}]" for k, s in spreads.items())]
+    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for log in fleet.logs:
+        cells = [_relative(log.folder, fleet.sweep_dir), _cell(log.label)]
+        if log.failed:
+            cells += [f"**failed**: {_cell(log.error or '')}", "", "", *([""] if trained else []), *[""] * len(spreads)]
+        else:
+            cells += [", ".join(log.causes) or "none", percent(log.mse_change.get("all")),
+                      percent(log.mse_change.get("high_ay")), *([percent(log.mse_change.get("trained"))] if trained else []),
+                      *(number(log.estimates[k].value) if k in log.estimates else "" for k in spreads)]
+        lines.append("| " + " | ".join(cells) + " |")
+    lines += ["", "## Across logs", ""]
+    if not diagnosed:
+        return "\n".join(lines + ["No log was diagnosed.", ""])
+    lines += ["| cause | named in | share |", "|---|---|---|"]
+    lines += [f"| {c} | {n} / {diagnosed} | {100 * n / diagnosed:.0f} % |" for c, n in counts.items()]
+    if spreads:
+        lines += ["", "Spread of each estimate over the logs that name its cause (std: sample standard deviation; "
+                  "a large relative spread is a parameter that changes from log to log):", "",
+                  "| estimate | unit | logs | mean | std | min | max | std / \\|mean\\| |", "|---|---|---|---|---|---|---|---|"]
+        for key, spread in spreads.items():
+            s = spread.stats()
+            relative = "" if s["std"] is None or s["mean"] == 0 else f"{100 * s['std'] / abs(s['mean']):.1f} %"
+            lines.append(f"| {key} | {spread.unit} | {s['logs']} | {number(s['mean'])} | {number(s['std'])} | "
+                         f"{number(s['min'])} | {number(s['max'])} | {relative} |")
+    changes = [log.mse_change["all"] for log in fleet.diagnosed if log.mse_change.get("all") is not None]
+    if changes:
+        lines += ["", f"Validation MSE change with the named causes applied: mean {percent(float(np.mean(changes)))}, "
+                      f"from {percent(min(changes))} to {percent(max(changes))}."]
+    return "\n".join(lines) + "\n"
+
+
+def write_summary(sweep_dir: Path) -> Fleet:
+    """Collect the sweep folder's jobs and write ``fleet.md`` and ``fleet.json`` into it."""
+    fleet = collect(sweep_dir)
+    (fleet.sweep_dir / "fleet.json").write_text(json.dumps(fleet.to_dict(), indent=2))
+    (fleet.sweep_dir / "fleet.md").write_text(markdown(fleet))
+    return fleet
+
+
+def report(fleet: Fleet) -> str:
+    """The console's summary: the across-logs part of fleet.md and where the files are."""
+    text = markdown(fleet)
+    across = text[text.index("## Across logs"):]
+    failed = len(fleet.logs) - len(fleet.diagnosed)
+    failures = "" if not failed else f" ({failed} failed: see the per-log table)"
+    return (f"{across}\nfleet of {len(fleet.logs)} logs{failures}: "
+            f"{fleet.sweep_dir / 'fleet.md'}, {fleet.sweep_dir / 'fleet.json'}")
+
+
+class FleetSummary(Callback):
+    """Hydra callback (``hydra.callbacks`` in conf/diagnose.yaml): after the last job of a
+    multirun, on the machine that launched it, write the fleet summary into the sweep folder.
+    Like ``make -k``, the sweep goes on past a failed log but its exit status is 1 if any failed."""
+
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        fleet = write_summary(Path(str(config.hydra.sweep.dir)))
+        print(report(fleet), flush=True)
+        if len(fleet.diagnosed) < len(fleet.logs):
+            sys.exit(1)
+
+
+def record_failures(command: str) -> Callable[[F], F]:
+    """In a multirun, a job that fails writes its one-line error to ``error.json`` in its folder
+    and returns, so one bad log does not end the sweep (Hydra's sweepers stop at a failed job and
+    skip the callbacks) and the summary shows it as failed. A user error prints
+    ``<command>: error: <message>``, a bug its traceback. In a single run the error passes on
+    (to :func:`hypa.errors.user_errors` above)."""
+    def decorate(main: F) -> F:
+        @functools.wraps(main)
+        def wrapped(*args: Any, **kwargs: Any) -> Any:
+            from hydra.core.hydra_config import HydraConfig
+            from hydra.types import RunMode
+
+            try:
+                return main(*args, **kwargs)
+            except Exception as error:
+                if HydraConfig.get().mode != RunMode.MULTIRUN:
+                    raise
+                user = isinstance(error, user_error_types())
+                message = str(error) if user else f"{type(error).__name__}: {error}"
+                one_line = " ".join(message.split())
+                folder = Path(HydraConfig.get().runtime.output_dir)
+                (folder / ERROR_FILE).write_text(json.dumps({"error": one_line, "user_error": user}, indent=2))
+                if user and os.environ.get("HYDRA_FULL_ERROR") != "1":
+                    print(f"{command}: error: {one_line}", file=sys.stderr, flush=True)
+                else:
+                    traceback.print_exc()
+                return None
+
+        return wrapped  # type: ignore[return-value]
+
+    return decorate
+
+
+def expand_logs(patterns: Sequence[str]) -> list[Path]:
+    """The log folders that the glob ``patterns`` match (``**`` recurses), sorted, each once."""
+    folders: dict[Path, None] = {}
+    for pattern in patterns:
+        for match in sorted(glob.glob(os.path.expanduser(pattern), recursive=True)):
+            if Path(match).is_dir():
+                folders[Path(match)] = None
+    if not folders:
+        raise UserError(f"no log folder matches {' '.join(patterns)}; give folders or a glob such as 'logs/*/'")
+    return list(folders)
+
+
+def hydra_quoted(text: str) -> str:
+    """``text`` as a quoted Hydra override value (spaces, commas and quotes in a path survive the sweep)."""
+    quoted = re.sub(r"(\\*)'", lambda m: 2 * m.group(1) + "\\'", text)
+    quoted = re.sub(r"(\\+)$", lambda m: 2 * m.group(1), quoted).replace("${", "\\${")
+    return f"'{quoted}'"
+
+
+def diagnose_command(folders: Sequence[Path], overrides: Sequence[str]) -> list[str]:
+    """``python -m hypa.diagnose -m`` over ``folders`` (``dataset=files`` unless a dataset is chosen)."""
+    dataset = [] if any(o.lstrip("+~").startswith("dataset=") for o in overrides) else ["dataset=files"]
+    return [sys.executable, "-m", "hypa.diagnose", "-m", *dataset,
+            "data.dir=" + ",".join(hydra_quoted(str(f)) for f in folders), *overrides]
+
+
+def _shell_word(word: str) -> str:
+    """``word`` as a shell reads it back, in double quotes where it holds Hydra's single quotes."""
+    if "'" in word and not re.search(r'["$`\\!]', word):
+        return f'"{word}"'
+    return shlex.quote(word)
+
+
+@user_errors("hypa.diagnosis.fleet")
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m hypa.diagnosis.fleet", description=__doc__.split("\n\n")[0])
+    commands = parser.add_subparsers(dest="command", required=True)
+    run = commands.add_parser("run", help="diagnose every log folder that the globs match, then summarize")
+    run.add_argument("logs", nargs="+", metavar="LOG_OR_GLOB|KEY=VALUE",
+                     help="log folders or globs (quoted: 'logs/*/'); arguments with = go to hypa.diagnose")
+    summary = commands.add_parser("summary", help="(re)build fleet.md and fleet.json of an existing sweep folder")
+    summary.add_argument("sweep_dir", type=Path)
+    args = parser.parse_args(argv)
+    if args.command == "summary":
+        print(report(write_summary(args.sweep_dir)), flush=True)
+        return 0
+    overrides = [a for a in args.logs if "=" in a]
+    patterns = [a for a in args.logs if "=" not in a]
+    if not patterns:
+        raise UserError("no log folder given; e.g. python -m hypa.diagnosis.fleet run 'logs/*/'")
+    command = diagnose_command(expand_logs(patterns), overrides)
+    print("python " + " ".join(_shell_word(word) for word in command[1:]), flush=True)
+    return subprocess.run(command).returncode
+
+
+if __name__ == "__main__":
+    sys.exit(main())
