@@ -3,6 +3,7 @@
     python -m hypa.diagnose                                          # default test-bench data
     python -m hypa.diagnose testbench.rear_steering.enabled=false    # hide / reveal effects
     python -m hypa.diagnose dataset=files data.dir=PATH vehicle.cf=140000
+    python -m hypa.diagnose -m dataset=files data.dir=LOG1,LOG2,LOG3   # a fleet: fleet.md in the sweep folder
 
 Writes into the Hydra run folder ``diagnosis.md`` (the report), ``diagnosis.json`` (the
 numbers), the figures and ``conf/model/diagnosed.yaml``. Steps: (1) residuals of the nominal
@@ -18,7 +19,6 @@ import dataclasses
 import json
 import logging
 import math
-import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -28,8 +28,10 @@ import numpy as np
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-from hypa.data import DataError, Record
-from hypa.diagnosis.trained import ExtensionTrainingError, TrainedExtension
+from hypa.data import Record
+from hypa.diagnosis.fleet import record_failures
+from hypa.diagnosis.trained import TrainedExtension
+from hypa.errors import UserError, user_error_types, user_errors
 from hypa.physics import LTIBlock, UnstablePhysicsError
 from hypa.vehicle import SingleTrack, VehicleParameters, vehicle_parameters
 
@@ -222,10 +224,14 @@ def _figures(out, val, runs, analysis, metrics, transfer, rear_rows, dt, states)
 
 
 @hydra.main(config_path="../conf", config_name="diagnose", version_base="1.3")
+@user_errors("hypa.diagnose")
+@record_failures("hypa.diagnose")  # -m over many logs: a bad log is reported in the fleet summary, the others run
 def main(cfg: DictConfig) -> None:
     from hypa.entry import datamodule, vehicle_from_config
 
     out = Path(HydraConfig.get().runtime.output_dir)
+    if cfg.get("model") is not None:
+        return diagnose_model(cfg, out)
     hold, rear = str(cfg.physics.hold), str(cfg.physics.rear_steering)
     try:
         vehicle = vehicle_from_config(cfg.vehicle)
@@ -233,9 +239,11 @@ def main(cfg: DictConfig) -> None:
         print("reading the data", flush=True)
         dm = datamodule(cfg)
         dm.setup()
-    except (DataError, UnstablePhysicsError, ValueError, FileNotFoundError) as error:
-        print(f"hypa.diagnose: error: {error}", file=sys.stderr, flush=True)
-        sys.exit(1)
+    except ValueError as error:
+        if isinstance(error, user_error_types()):
+            raise
+        # a configured value that a library rejects with a plain ValueError (vehicle.cf=-1, a test-bench key)
+        raise UserError(str(error)) from error
 
     def progress(text: str) -> None:
         print(text, flush=True)
@@ -248,14 +256,10 @@ def main(cfg: DictConfig) -> None:
         def trainer(config_dir: Path) -> TrainedExtension:
             return train_extension(config_dir, out / "extended_run", dm, overrides,
                                    [str(o) for o in cfg.extension.train_overrides])
-    try:
-        result = diagnose(dm.records("train"), dm.records("val"), vehicle, dm.dt, out, hold=hold, rear_steering=rear,
-                          high_ay=float(cfg.high_ay), plot=bool(cfg.plot),
-                          unmodeled_input=str(cfg.extension.unmodeled_input), train_overrides=overrides,
-                          train_extension=trainer, progress=progress)
-    except ExtensionTrainingError as error:
-        print(f"hypa.diagnose: error: {error}", file=sys.stderr, flush=True)
-        sys.exit(1)
+    result = diagnose(dm.records("train"), dm.records("val"), vehicle, dm.dt, out, hold=hold, rear_steering=rear,
+                      high_ay=float(cfg.high_ay), plot=bool(cfg.plot),
+                      unmodeled_input=str(cfg.extension.unmodeled_input), train_overrides=overrides,
+                      train_extension=trainer, progress=progress)
     change = result["gain"]["all"].get("overall")
     change_text = "" if change is None else f", validation MSE {100 * change:+.1f} % with them applied"
     print(f"named causes: {', '.join(result['causes']) or 'none'} (estimate {result['estimate']}){change_text}; "
@@ -267,6 +271,32 @@ def main(cfg: DictConfig) -> None:
     else:
         print(f"extended model: {result['extended']['config']}; train it with\n  {result['extended']['train_command']}",
               flush=True)
+
+
+def diagnose_model(cfg: DictConfig, out: Path) -> None:
+    """``model=M``: the diagnosis of any system from its nominal hypa model (:mod:`hypa.diagnosis.system`)."""
+    from omegaconf import OmegaConf
+
+    from hypa.diagnosis.engine import Problem
+    from hypa.diagnosis.system import diagnose_system
+    from hypa.entry import datamodule, vehicle_from_config
+    from hypa.models.spec import parse_model_spec
+
+    spec = parse_model_spec(OmegaConf.to_container(cfg.model, resolve=True))
+    values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.get("vehicle") else {}
+    print("reading the data", flush=True)
+    dm = datamodule(cfg)
+    dm.setup()
+    problem = Problem(dm, values, hold=str(cfg.physics.hold), horizon=int(cfg.data.window))
+    user_dirs = [Path(s.path.removeprefix("file://")) for s in HydraConfig.get().runtime.config_sources
+                 if s.provider == "command-line" and s.schema == "file"]
+    result = diagnose_system(spec, problem, out, data_overrides(HydraConfig.get().overrides.task),
+                             plot=bool(cfg.plot), progress=lambda text: print(text, flush=True),
+                             config_dir=user_dirs[0] if user_dirs else None)
+    change = result["gain"]["all"]["overall"]
+    print(f"named causes: {', '.join(result['causes']) or 'none'}; validation error {100 * change:+.0f} % with them "
+          f"applied; unexplained: {', '.join(s['output'] for s in result['unexplained']) or 'nothing'}; "
+          f"report: {out / 'diagnosis.md'}", flush=True)
 
 
 def data_overrides(overrides: Sequence[str]) -> list[str]:

@@ -70,6 +70,7 @@ class Finding:
     error: str | None = None
     candidate: Candidate | None = field(default=None, repr=False)
     alternatives: list[str] = field(default_factory=list)  # candidates that explain (almost) as much
+    note: str = ""  # what a value-less cause means on these data (scheduling: the ranges)
 
     @property
     def key(self) -> str:
@@ -79,7 +80,8 @@ class Finding:
         """One line in units: ``input_delay on steering_angle: 236 ms``."""
         if self.error:
             return f"{self.cause} on {self.target}: not fitted ({self.error})"
-        parts = [format_value(v, self.units.get(k, "")) for k, v in self.values.items()]
+        parts = [format_value(v, self.units.get(k, "")) for k, v in self.values.items()] + (
+            [self.note] if self.note else [])
         return f"{self.cause} on {self.target}" + (f": {', '.join(parts)}" if parts else "")
 
     def to_dict(self) -> dict:
@@ -180,8 +182,19 @@ def evaluate(candidate: Candidate, problem: Problem, windows: Mapping[str, torch
         return Finding(candidate.cause, candidate.target, {}, {}, math.inf, -math.inf,
                        time.perf_counter() - started, str(error).split("\n")[0], candidate)
     gain = 1.0 - value / base_score if base_score > 0 else 0.0
+    note = _scheduling_note(candidate, problem) if candidate.cause == "scheduling" else ""
     return Finding(candidate.cause, candidate.target, values, units, value, gain, time.perf_counter() - started,
-                   None, candidate)
+                   None, candidate, note=note)
+
+
+def _scheduling_note(candidate: Candidate, problem: Problem) -> str:
+    """``fixed at 20 m/s in the model, measured 5.1–32 m/s``."""
+    dm, name = problem.dm, candidate.target
+    values = np.concatenate([r[name] for r in dm.records("train")])
+    fixed = {**problem.physical_values, **candidate.spec.parameters}.get(name)
+    unit = dm.channels[name].unit
+    held = f"fixed at {fixed:.3g} {unit} in the model, " if fixed is not None else ""
+    return f"{held}measured {values.min():.3g}–{values.max():.3g} {unit}"
 
 
 @dataclass

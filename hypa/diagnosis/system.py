@@ -1,0 +1,269 @@
+"""``hypa.diagnose model=M``: the diagnosis of any system, from its nominal hypa model.
+
+Steps: (1) the nominal model free-running on the validation records; (2) the named causes
+(:func:`hypa.diagnosis.engine.name_causes`); (3) what remains and where it lives
+(:mod:`hypa.diagnosis.structure`); (4) the extended model written as a hypa model config,
+``conf/model/diagnosed.yaml`` (the named causes, fitted), plus ``diagnosed_hybrid.yaml`` (the
+same with a correction network, HyPA-Net style) when structure remains unexplained, with the
+commands that train them; the gain on the validation records. Writes ``diagnosis.json``,
+``diagnosis.md`` and figures into ``out``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shlex
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from hypa.diagnosis.edits import frozen
+from hypa.diagnosis.engine import Finding, Problem, Search, format_value, name_causes
+from hypa.diagnosis.structure import OutputStructure, analyze_output
+from hypa.evaluation.runs import Prediction, free_run
+from hypa.models.spec import ModelSpec
+
+
+def spec_config(spec: ModelSpec, name: str | None = None) -> dict[str, Any]:
+    """A :class:`ModelSpec` as the mapping of a ``conf/model/*.yaml`` file (only keys that are set)."""
+    blocks = {}
+    for b in spec.blocks:
+        entry: dict[str, Any] = {"kind": b.kind, "inputs": list(b.inputs), "outputs": list(b.outputs)}
+        for key in ("system", "trainable", "residual_of", "scale_as", "initial_state", "parameters", "scheduling",
+                    "observe"):
+            value = getattr(b, key)
+            if value:
+                entry[key] = dict(value) if isinstance(value, Mapping) else (
+                    list(value) if isinstance(value, tuple) else value)
+        blocks[b.name] = entry
+    out: dict[str, Any] = {"name": name or spec.name, "blocks": blocks, "outputs": list(spec.outputs)}
+    if spec.hold:
+        out["hold"] = spec.hold
+    if spec.parameters:
+        out["parameters"] = {k: float(v) for k, v in spec.parameters.items()}
+    if spec.sensor_offsets:
+        out["sensor_offsets"] = {k: float(v) for k, v in spec.sensor_offsets.items()}
+    out["stages"] = [{"name": s.name, "train": list(s.train), "bypass": list(s.bypass)} for s in spec.stages]
+    return out
+
+
+def with_correction(spec: ModelSpec, inputs: Sequence[str]) -> ModelSpec:
+    """The model with a correction network on its outputs (HyPA-Net): the physics writes
+    ``<output>_physics``, the network reads the inputs and those and adds its correction."""
+    from hypa.models.spec import BlockSpec
+
+    renamed = {o: f"{o}_physics" for o in spec.outputs}
+    blocks = []
+    for b in spec.blocks:
+        outputs = tuple(renamed.get(s, s) for s in b.outputs)
+        observe = {**b.observe, **{renamed[s]: s for s in b.outputs if s in renamed}} if b.kind == "physics" else {}
+        blocks.append(dataclasses.replace(b, outputs=outputs, observe=observe) if outputs != b.outputs else b)
+    correction = BlockSpec(name="correction", kind="ann", inputs=(*inputs, *renamed.values()),
+                           outputs=tuple(spec.outputs), residual_of=tuple(renamed.values()))
+    from hypa.models.spec import StageSpec
+
+    stages = (StageSpec("physics", train=tuple(b.name for b in blocks if b.trainable), bypass=("correction",)),
+              StageSpec("correction", train=("correction",))) if any(b.trainable for b in blocks) else ()
+    return dataclasses.replace(spec, name=f"{spec.name}_hybrid", blocks=(*blocks, correction), stages=stages)
+
+
+def refittable(spec: ModelSpec, nominal: ModelSpec, named: Sequence[Finding]) -> ModelSpec:
+    """The extended model with what training may refine set free: the nominal's uncertain
+    parameters and the knobs of the named causes' inserted blocks, starting from the fitted values."""
+    free = {b.name: list(b.trainable) for b in nominal.blocks}
+    for f in named:
+        for knob in (f.candidate.knobs if f.candidate and f.candidate.fit == "gradient" else ()):
+            if "/" in knob:
+                block, local = knob.split("/", 1)
+                free.setdefault(block, [])
+                if local not in free[block]:
+                    free[block].append(local)
+    return dataclasses.replace(spec, blocks=tuple(dataclasses.replace(b, trainable=tuple(free.get(b.name, ())))
+                                                  for b in spec.blocks))
+
+
+def _runs(problem: Problem, spec: ModelSpec) -> list[Prediction]:
+    model = problem.build(spec)
+    return [free_run(model, problem.dm, r) for r in problem.dm.records("val")]
+
+
+def _metrics(runs: Sequence[Prediction], outputs: Sequence[str]) -> dict[str, dict[str, float]]:
+    out = {}
+    for name in outputs:
+        y = np.concatenate([r.measured[name][r.first:] for r in runs])
+        p = np.concatenate([r.predicted[name][r.first:] for r in runs])
+        mse = float(np.mean((p - y) ** 2))
+        out[name] = {"rmse": mse**0.5, "mse": mse, "r2": 1.0 - mse / float(np.var(y))}
+    return out
+
+
+def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overrides: Sequence[str] = (),
+                    plot: bool = True, max_causes: int = 3, min_gain: float = 0.05,
+                    progress: Callable[[str], None] = print, config_dir: Path | None = None) -> dict:
+    """Steps 1-4 for the nominal model on the problem's data; returns diagnosis.json's content.
+
+    ``train_overrides`` select the same data for ``hypa.train``; ``config_dir``: the user's own
+    config folder (``--config-dir``) that the train command needs too (their dataset YAML)."""
+    out.mkdir(parents=True, exist_ok=True)
+    dm, started = problem.dm, time.perf_counter()
+    progress(f"step 1/4: the nominal model {nominal.name!r} free-running on {len(dm.records('val'))} "
+             "validation record(s)")
+    progress(f"step 2/4: naming the causes (each candidate fitted on {len(dm.records('train'))} training "
+             "record(s); seconds to a minute)")
+    search = name_causes(nominal, problem, max_causes=max_causes, min_gain=min_gain,
+                         progress=lambda text: progress("          " + text))
+    progress(f"          named: {', '.join(f.cause for f in search.named) or 'none'} ({search.seconds:.0f} s)")
+    progress("step 3/4: what remains (amplitude, band, correlation with the inputs)")
+    before, after = _runs(problem, frozen(nominal)), _runs(problem, search.spec)
+    channels = (*dm.input_names, *dm.scheduling_names)
+    structure = [analyze_output(o, dm.channels[o].unit, [r.measured[o][r.first:] for r in after],
+                                [r.predicted[o][r.first:] for r in after],
+                                {c: [r.inputs[c][r.first:] if c in r.inputs else _record(dm, r, c) for r in after]
+                                 for c in channels}, dm.dt) for o in dm.output_names]
+    unexplained = [s for s in structure if s.unexplained]
+    progress("step 4/4: the extended model as a hypa model, and its gain")
+    conf = out / "conf" / "model"
+    conf.mkdir(parents=True, exist_ok=True)
+    extended = dataclasses.replace(refittable(search.spec, nominal, search.named), name="diagnosed")
+    written = {"diagnosed": _write(conf / "diagnosed.yaml", extended, search.named)}
+    if unexplained:
+        hybrid = with_correction(extended, dm.input_names)
+        written["diagnosed_hybrid"] = _write(conf / "diagnosed_hybrid.yaml",
+                                             dataclasses.replace(hybrid, name="diagnosed_hybrid"), search.named)
+    commands = {name: train_command(out / "conf", name, train_overrides, name != "diagnosed", config_dir)
+                for name in written}
+    metrics = {"nominal": _metrics(before, dm.output_names), "extended": _metrics(after, dm.output_names)}
+    change = {o: metrics["extended"][o]["mse"] / metrics["nominal"][o]["mse"] - 1.0
+              if metrics["nominal"][o]["mse"] > 0 else 0.0 for o in dm.output_names}
+    change["overall"] = search.final_score / search.nominal_score - 1.0 if search.nominal_score > 0 else 0.0
+    result = {
+        "system": {"model": nominal.name, "inputs": list(dm.input_names), "outputs": list(dm.output_names),
+                   "scheduling": list(dm.scheduling_names)},
+        "causes": [f.cause for f in search.named],
+        "named": [f.to_dict() for f in search.named],
+        "candidates": [_candidate(f, search.nominal_score) for f in search.named]
+        + [_candidate(f, search.nominal_score) for f in (search.rounds[0] if search.rounds else [])
+           if f.key not in {n.key for n in search.named}],
+        "rounds": [[f.to_dict() for f in r] for r in search.rounds],
+        "score": {"nominal": search.nominal_score, "extended": search.final_score},
+        "metrics": metrics,
+        "gain": {"all": change},
+        "unexplained": [s.to_dict() for s in unexplained],
+        "structure": {s.output: s.to_dict() for s in structure},
+        "extended": {"config": {k: str(v) for k, v in written.items()}, "train_command": commands},
+        "data": {"dt": dm.dt, "train_records": len(dm.records("train")), "val_records": len(dm.records("val"))},
+        "seconds": time.perf_counter() - started,
+    }
+    figures = _figures(out, before, after, dm) if plot else {}
+    result["figures"] = figures
+    (out / "diagnosis.json").write_text(json.dumps(result, indent=2, default=float))
+    (out / "diagnosis.md").write_text(markdown(result, search, structure, dm))
+    return result
+
+
+def _record(dm, run: Prediction, channel: str) -> np.ndarray:
+    record = next(r for r in dm.records("val") if r.name == run.record)
+    return record[channel][run.first:]
+
+
+def _candidate(f: Finding, nominal_score: float) -> dict:
+    """A row of ``candidates`` (the schema the fleet summary reads): cause, score = share of the
+    nominal error it explains, estimate (fitted values [SI]), evidence (one line in units)."""
+    return {"cause": f.cause, "target": f.target, "score": f.gain, "estimate": f.values, "evidence": f.describe(),
+            "alternatives": f.alternatives}
+
+
+def _write(path: Path, spec: ModelSpec, named: Sequence[Finding]) -> Path:
+    header = ["# @package model", "# Written by hypa.diagnose: the nominal model extended by the named causes:"]
+    header += [f"#   {f.describe()}" for f in named] or ["#   (none named)"]
+    path.write_text("\n".join(header) + "\n" + yaml.safe_dump(spec_config(spec), sort_keys=False))
+    return path
+
+
+def train_command(written: Path, model: str, overrides: Sequence[str], with_ann: bool,
+                  config_dir: Path | None = None) -> str:
+    """The shell command that trains a written model on the same data: the written folder joins
+    Hydra's search path, so a user's own ``--config-dir`` (their dataset) still applies."""
+    parts = ["python -m hypa.train", *([f"--config-dir {shlex.quote(str(config_dir))}"] if config_dir else []),
+             shlex.quote(f"hydra.searchpath=[file://{written}]"), f"model={model}",
+             *(shlex.quote(o) for o in overrides)]
+    if with_ann:
+        parts.append("ann=lstm")
+    return " ".join(parts)
+
+
+def _figures(out: Path, before: Sequence[Prediction], after: Sequence[Prediction], dm) -> dict:
+    import matplotlib.pyplot as plt
+
+    from hypa.plots import time_series
+
+    names = []
+    for b, a in zip(before, after):
+        units = {n: dm.channels[n].display_unit for n in dm.output_names}
+        scale = {n: dm.channels[n].display_factor for n in dm.output_names}
+        fig = time_series(b.time, {n: b.measured[n] for n in dm.output_names},
+                          {"nominal": b.predicted, "extended (named causes)": a.predicted}, units=units, scale=scale,
+                          title=f"measured vs free run over {b.record}")
+        name = f"time_series_{Path(b.record).stem}.png"
+        fig.savefig(out / name, dpi=100)
+        plt.close(fig)
+        names.append(name)
+    return {"time_series": names}
+
+
+def markdown(result: dict, search: Search, structure: Sequence[OutputStructure], dm) -> str:
+    """diagnosis.md: the engineer's report."""
+    lines = [f"# Diagnosis of `{result['system']['model']}`", ""]
+    lines += [f"Inputs {', '.join(result['system']['inputs'])}; outputs {', '.join(result['system']['outputs'])}"
+              + (f"; scheduling {', '.join(result['system']['scheduling'])}" if result["system"]["scheduling"] else "")
+              + f". {result['data']['train_records']} training and {result['data']['val_records']} validation "
+              f"record(s) at {1 / dm.dt:.4g} Hz. Free-run error on the validation records, as a share of each "
+              "output's variance (1 − R²), averaged over the outputs:", ""]
+    lines.append(f"- nominal model: **{100 * search.nominal_score:.3g} %**")
+    lines.append(f"- with the named causes: **{100 * search.final_score:.3g} %**")
+    lines += ["", "## Named causes", ""]
+    if not search.named:
+        lines.append("None: no catalogue cause lowers the validation error by 5 % or more.")
+    previous = search.nominal_score
+    for k, f in enumerate(search.named, 1):
+        share = (previous - f.score) / search.nominal_score if search.nominal_score > 0 else 0.0
+        lines.append(f"{k}. **{f.cause}** on `{f.target}`: "
+                     + (", ".join([format_value(v, f.units.get(n, "")) for n, v in f.values.items()]
+                                  + ([f.note] if f.note else [])) or "no value")
+                     + f". Validation error {100 * f.gain:.0f} % lower than before it; "
+                     f"{100 * share:.0f} % of the nominal error.")
+        if f.alternatives:
+            lines.append(f"   The data cannot tell it from: {'; '.join(f.alternatives)}.")
+        previous = f.score
+    lines += ["", "## Per output (validation, free run)", "", "| output | nominal RMS | extended RMS | nominal R² | "
+              "extended R² |", "|---|---|---|---|---|"]
+    for o in dm.output_names:
+        ch = dm.channels[o]
+        n, e = result["metrics"]["nominal"][o], result["metrics"]["extended"][o]
+        lines.append(f"| {o} | {n['rmse'] * ch.display_factor:.3g} {ch.display_unit} | "
+                     f"{e['rmse'] * ch.display_factor:.3g} {ch.display_unit} | {n['r2']:.4f} | {e['r2']:.4f} |")
+    lines += ["", "## What remains", ""]
+    for s in structure:
+        if s.unexplained:
+            text = "**unexplained structure**: " + "; ".join(s.where)
+        elif s.where:
+            text = "too little to matter (under 1 % of the variance), though it " + "; ".join(s.where)
+        else:
+            text = "no structure: what is left looks like noise"
+        lines.append(f"- `{s.output}`: {100 * s.share:.3g} % of its variance left; {text}.")
+    lines += ["", "## The extended model", ""]
+    for name, path in result["extended"]["config"].items():
+        lines.append(f"- `{path}`: train it with `{result['extended']['train_command'][name]}`")
+    lines += ["", "## Every candidate of the first round", "", "| cause | on | fitted | gain |", "|---|---|---|---|"]
+    for f in search.rounds[0] if search.rounds else []:
+        fitted = ", ".join([format_value(v, f.units.get(n, "")) for n, v in f.values.items()]
+                           + ([f.note] if f.note else [])) or (f.error or "–")
+        lines.append(f"| {f.cause} | {f.target} | {fitted} | {100 * f.gain:+.1f} % |")
+    for name in result.get("figures", {}).get("time_series", []):
+        lines += ["", f"![{name}]({name})"]
+    return "\n".join(lines) + "\n"
