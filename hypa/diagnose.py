@@ -277,12 +277,14 @@ def diagnose_model(cfg: DictConfig, out: Path) -> None:
     """``model=M``: the diagnosis of any system from its nominal hypa model (:mod:`hypa.diagnosis.system`)."""
     from omegaconf import OmegaConf
 
+    from hypa.diagnosis.catalogue import load_catalogue
     from hypa.diagnosis.engine import Problem
     from hypa.diagnosis.system import diagnose_system
     from hypa.entry import datamodule, vehicle_from_config
     from hypa.models.spec import parse_model_spec
 
     spec = parse_model_spec(OmegaConf.to_container(cfg.model, resolve=True))
+    catalogue = load_catalogue([_from_cwd(p) for p in cfg.diagnosis.catalogue])
     values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.get("vehicle") else {}
     print("reading the data", flush=True)
     dm = datamodule(cfg)
@@ -292,11 +294,20 @@ def diagnose_model(cfg: DictConfig, out: Path) -> None:
                  if s.provider == "command-line" and s.schema == "file"]
     result = diagnose_system(spec, problem, out, data_overrides(HydraConfig.get().overrides.task),
                              plot=bool(cfg.plot), progress=lambda text: print(text, flush=True),
-                             config_dir=user_dirs[0] if user_dirs else None)
+                             config_dir=user_dirs[0] if user_dirs else None, catalogue=catalogue,
+                             max_causes=int(cfg.diagnosis.max_causes), min_gain=float(cfg.diagnosis.min_gain))
     change = result["gain"]["all"]["overall"]
     print(f"named causes: {', '.join(result['causes']) or 'none'}; validation error {100 * change:+.0f} % with them "
           f"applied; unexplained: {', '.join(s['output'] for s in result['unexplained']) or 'nothing'}; "
           f"report: {out / 'diagnosis.md'}", flush=True)
+
+
+def _from_cwd(path: str) -> Path:
+    """A path given on the command line, relative to where the command was run."""
+    from hydra.utils import get_original_cwd
+
+    path = Path(str(path)).expanduser()
+    return path if path.is_absolute() else Path(get_original_cwd()) / path
 
 
 def data_overrides(overrides: Sequence[str]) -> list[str]:

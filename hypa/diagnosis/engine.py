@@ -22,7 +22,8 @@ import numpy as np
 import torch
 
 from hypa.data import HypaDataModule, Record
-from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, frozen, generic_candidates
+from hypa.diagnosis.catalogue import Entry, catalogue_candidates, load_catalogue
+from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, frozen
 from hypa.evaluation.runs import free_run
 from hypa.models import ComposedModel
 from hypa.models.spec import ModelSpec, ModelSpecError
@@ -80,8 +81,9 @@ class Finding:
         """One line in units: ``input_delay on steering_angle: 236 ms``."""
         if self.error:
             return f"{self.cause} on {self.target}: not fitted ({self.error})"
-        parts = [format_value(v, self.units.get(k, "")) for k, v in self.values.items()] + (
-            [self.note] if self.note else [])
+        parts = [f"{k.split('/')[-1]} {format_value(v, self.units.get(k, ''))}" for k, v in self.values.items()
+                 if k != self.target] + [format_value(v, self.units.get(k, "")) for k, v in self.values.items()
+                                         if k == self.target] + ([self.note] if self.note else [])
         return f"{self.cause} on {self.target}" + (f": {', '.join(parts)}" if parts else "")
 
     def to_dict(self) -> dict:
@@ -94,7 +96,7 @@ def format_value(value: float, unit: str) -> str:
     """Rounded to 3 significant digits with its unit (seconds below 1 s as ms)."""
     if unit == "s" and abs(value) < 1.0:
         return f"{value * 1e3:.3g} ms"
-    return f"{value:.3g} {unit}".rstrip()
+    return f"{value:.3g} {'' if unit == '-' else unit}".rstrip()
 
 
 def _windows(dm: HypaDataModule) -> dict[str, torch.Tensor]:
@@ -210,23 +212,24 @@ class Search:
     seconds: float
 
 
-def name_causes(nominal: ModelSpec, problem: Problem,
-                candidates: Callable[[ModelSpec], list[Candidate]] | None = None, max_causes: int = 3,
-                min_gain: float = 0.05, floor: float = 1e-4, progress: Callable[[str], None] = lambda _: None) -> Search:
+def name_causes(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | None = None,
+                candidates: Callable[[ModelSpec], list[Candidate]] | None = None, max_causes: int = 5,
+                min_gain: float = 0.15, floor: float = 1e-4, progress: Callable[[str], None] = lambda _: None) -> Search:
     """Greedy forward search over the catalogue from the frozen ``nominal`` model.
 
-    ``candidates(spec)`` lists the candidates of a base model (default: the generic catalogue for
-    the data's channels). Each round fits all of them, names the best if it lowers the validation
+    ``catalogue``: the entries (default: the built-in catalogues, :func:`load_catalogue`);
+    ``candidates(spec)``, if given, lists the candidates of a base model instead. Each round fits all of them, names the best if it lowers the validation
     error (1 - R², mean over outputs) by at least ``min_gain`` (relative), applies it and goes on;
     below ``floor`` (share of the output variance: sensor noise) there is nothing left to name.
     """
     started = time.perf_counter()
     dm = problem.dm
     uncertain = {b.name: b.trainable for b in nominal.blocks}
+    entries = load_catalogue() if catalogue is None else list(catalogue)
     if candidates is None:
         def candidates(spec: ModelSpec) -> list[Candidate]:
-            return generic_candidates(spec, dm.input_names, dm.output_names, dm.scheduling_names,
-                                      problem.physical_values, dm.dt, uncertain)
+            return catalogue_candidates(entries, spec, dm.input_names, dm.output_names, dm.scheduling_names,
+                                        problem.physical_values, dm.dt, uncertain)
     torch.manual_seed(problem.seed)
     windows = _windows(dm)
     base = frozen(nominal)

@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy import signal
 
-SIGNIFICANT = 0.01  # error share of the output variance above which a remainder is worth explaining
+SIGNIFICANT = 0.002  # error share of the output variance above which a remainder is worth explaining
 AMPLITUDE_RATIO = 2.0  # top/bottom quartile error RMS beyond which the error depends on amplitude
 
 

@@ -22,8 +22,9 @@ from typing import Any
 import numpy as np
 import yaml
 
+from hypa.diagnosis.catalogue import Entry
 from hypa.diagnosis.edits import frozen
-from hypa.diagnosis.engine import Finding, Problem, Search, format_value, name_causes
+from hypa.diagnosis.engine import Finding, Problem, Search, name_causes
 from hypa.diagnosis.structure import OutputStructure, analyze_output
 from hypa.evaluation.runs import Prediction, free_run
 from hypa.models.spec import ModelSpec
@@ -103,8 +104,9 @@ def _metrics(runs: Sequence[Prediction], outputs: Sequence[str]) -> dict[str, di
 
 
 def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overrides: Sequence[str] = (),
-                    plot: bool = True, max_causes: int = 3, min_gain: float = 0.05,
-                    progress: Callable[[str], None] = print, config_dir: Path | None = None) -> dict:
+                    plot: bool = True, max_causes: int = 5, min_gain: float = 0.15,
+                    progress: Callable[[str], None] = print, config_dir: Path | None = None,
+                    catalogue: Sequence[Entry] | None = None) -> dict:
     """Steps 1-4 for the nominal model on the problem's data; returns diagnosis.json's content.
 
     ``train_overrides`` select the same data for ``hypa.train``; ``config_dir``: the user's own
@@ -115,7 +117,7 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
              "validation record(s)")
     progress(f"step 2/4: naming the causes (each candidate fitted on {len(dm.records('train'))} training "
              "record(s); seconds to a minute)")
-    search = name_causes(nominal, problem, max_causes=max_causes, min_gain=min_gain,
+    search = name_causes(nominal, problem, catalogue=catalogue, max_causes=max_causes, min_gain=min_gain,
                          progress=lambda text: progress("          " + text))
     progress(f"          named: {', '.join(f.cause for f in search.named) or 'none'} ({search.seconds:.0f} s)")
     progress("step 3/4: what remains (amplitude, band, correlation with the inputs)")
@@ -228,13 +230,12 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
     lines.append(f"- with the named causes: **{100 * search.final_score:.3g} %**")
     lines += ["", "## Named causes", ""]
     if not search.named:
-        lines.append("None: no catalogue cause lowers the validation error by 5 % or more.")
+        lines.append("None: no catalogue cause lowers the validation error by 15 % or more.")
     previous = search.nominal_score
     for k, f in enumerate(search.named, 1):
         share = (previous - f.score) / search.nominal_score if search.nominal_score > 0 else 0.0
         lines.append(f"{k}. **{f.cause}** on `{f.target}`: "
-                     + (", ".join([format_value(v, f.units.get(n, "")) for n, v in f.values.items()]
-                                  + ([f.note] if f.note else [])) or "no value")
+                     + (f.describe().split(": ", 1)[1] if ": " in f.describe() else "no value")
                      + f". Validation error {100 * f.gain:.0f} % lower than before it; "
                      f"{100 * share:.0f} % of the nominal error.")
         if f.alternatives:
@@ -252,7 +253,7 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
         if s.unexplained:
             text = "**unexplained structure**: " + "; ".join(s.where)
         elif s.where:
-            text = "too little to matter (under 1 % of the variance), though it " + "; ".join(s.where)
+            text = "too little to matter (under 0.2 % of the variance), though it " + "; ".join(s.where)
         else:
             text = "no structure: what is left looks like noise"
         lines.append(f"- `{s.output}`: {100 * s.share:.3g} % of its variance left; {text}.")
@@ -261,8 +262,7 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
         lines.append(f"- `{path}`: train it with `{result['extended']['train_command'][name]}`")
     lines += ["", "## Every candidate of the first round", "", "| cause | on | fitted | gain |", "|---|---|---|---|"]
     for f in search.rounds[0] if search.rounds else []:
-        fitted = ", ".join([format_value(v, f.units.get(n, "")) for n, v in f.values.items()]
-                           + ([f.note] if f.note else [])) or (f.error or "–")
+        fitted = (f.describe().split(": ", 1)[1] if ": " in f.describe() else "") or (f.error or "–")
         lines.append(f"| {f.cause} | {f.target} | {fitted} | {100 * f.gain:+.1f} % |")
     for name in result.get("figures", {}).get("time_series", []):
         lines += ["", f"![{name}]({name})"]

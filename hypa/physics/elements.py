@@ -47,6 +47,29 @@ class FirstOrderLag(LTIModel):
         return StateSpace(rate, -rate, one, tau.new_zeros(1, 1))
 
 
+class GainLag(LTIModel):
+    """τ ẏ = k u - y: a gain ``gain`` [-] (signed) reached through a first-order lag ``tau_s`` [s].
+
+    An unmodeled input proportional to a modeled one, with its actuator's bandwidth (a rear
+    steering that follows the front angle). Parameters are the block's own; started
+    ``steady`` it needs no measured state.
+    """
+
+    state_names = ("lagged",)
+    input_names = ("input",)
+    output_names = ("lagged",)
+
+    def __init__(self, prefix: str = "") -> None:
+        self.parameters = (ParameterSpec(local_name(prefix, "gain"), 1.0, "-", positive=False),
+                           ParameterSpec(local_name(prefix, "tau_s"), 0.1, "s"))
+
+    def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
+        gain, tau = (p[n] for n in self.parameter_names)
+        rate = (-1.0 / tau).reshape(1, 1)
+        one = torch.ones(1, 1, dtype=tau.dtype, device=tau.device)
+        return StateSpace(rate, (gain / tau).reshape(1, 1), one, tau.new_zeros(1, 1))
+
+
 class DeadTime(nn.Module):
     """y(t) = u(t - delay_s) on the sample grid: dead time between a command and its effect.
 

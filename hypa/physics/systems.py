@@ -14,7 +14,7 @@ import inspect
 from collections.abc import Callable, Iterator, Mapping
 
 from hypa.physics.contract import SystemContractError, check_system
-from hypa.physics.elements import FirstOrderLag
+from hypa.physics.elements import FirstOrderLag, GainLag
 from hypa.physics.friction import MassWithFriction
 from hypa.physics.lti import LTIModel
 from hypa.physics.mass_spring_damper import MassSpringDamper
@@ -38,6 +38,11 @@ class SystemRegistry(Mapping):
             self._loaded = True
         return self._systems
 
+    @property
+    def packages(self) -> tuple[str, ...]:
+        """The domain packages whose ``SYSTEMS`` (and ``CATALOGUE`` of causes) join the built-ins."""
+        return self._packages
+
     def __getitem__(self, name: str) -> Callable[[str], LTIModel]:
         return self._all()[name]
 
@@ -50,6 +55,7 @@ class SystemRegistry(Mapping):
 
 PHYSICS_SYSTEMS = SystemRegistry({
     "first_order_lag": FirstOrderLag,  # τ ẏ = u - y, parameter <block>/tau_s
+    "gain_lag": GainLag,  # τ ẏ = k u - y, parameters <block>/gain, <block>/tau_s
     "mass_spring_damper": lambda block: MassSpringDamper(),  # force -> position (Silverbox)
     "mass_with_friction": lambda block: MassWithFriction(),  # force -> position (EMPS)
 }, packages=("hypa.vehicle",))

@@ -6,15 +6,21 @@ YAMLs (``system: single_track``), the core knows them only through that registry
 """
 
 from collections.abc import Callable
+from pathlib import Path
 
 from hypa.physics.lti import LTIModel
-from hypa.vehicle.physics import SingleTrack, SteeringGain, VehicleParameters, parameter_spec, vehicle_parameters
+from hypa.vehicle.physics import SingleTrack, SingleTrackRelaxation, SteeringGain, VehicleParameters, parameter_spec, vehicle_parameters
 
 SYSTEMS: dict[str, Callable[[str], LTIModel]] = {
     "single_track": lambda block: SingleTrack(rear_steering=True),  # u = [δf, δr]
     "single_track_front": lambda block: SingleTrack(rear_steering=False),  # u = [δf]
     "front_steering": lambda block: SteeringGain("front"),  # δsw -> δf = δsw / steering_ratio
     "rear_steering": lambda block: SteeringGain("rear"),  # δsw -> δr = rws_ratio δsw / steering_ratio
+    # with tire relaxation (axle forces lag the slip over relaxation_length [m]): 4 states
+    "single_track_relaxation": lambda block: SingleTrackRelaxation(rear_steering=True),
+    "single_track_front_relaxation": lambda block: SingleTrackRelaxation(rear_steering=False),
 }
 
-__all__ = ["SYSTEMS", "SingleTrack", "SteeringGain", "VehicleParameters", "parameter_spec", "vehicle_parameters"]
+CATALOGUE = Path(__file__).with_name("catalogue.yaml")  # the vehicle's causes for hypa.diagnose model=M
+
+__all__ = ["CATALOGUE", "SYSTEMS", "SingleTrack", "SingleTrackRelaxation", "SteeringGain", "VehicleParameters", "parameter_spec", "vehicle_parameters"]

@@ -120,6 +120,41 @@ class SingleTrack(LTIModel):
         return StateSpace(a, b if self.rear_steering else b[:, :1], eye, a.new_zeros(2, 1 + self.rear_steering))
 
 
+class SingleTrackRelaxation(SingleTrack):
+    """The linear single track whose axle forces lag the slip: tire relaxation.
+
+    A tire builds its lateral force over a rolling distance, the relaxation length σ [m]
+    (0.3-1 m for car tires), so each axle's effective slip s_k follows its kinematic slip with
+    the speed-dependent time constant σ / v:
+
+        σ / v · ṡ_k + s_k = δ_k - β - l_k ψ̇ / v,    F_k = c_k s_k
+
+    States x = [yaw_rate, side_slip, front_slip, rear_slip] (rad/s, rad, rad, rad); outputs
+    yaw rate and side slip. As σ → 0 it is the single track (``SingleTrack``), exactly.
+    """
+
+    state_names = ("yaw_rate", "side_slip", "front_slip", "rear_slip")
+    output_names = ("yaw_rate", "side_slip")
+    parameters = SingleTrack.parameters + (ParameterSpec("relaxation_length", 0.3, "m"),)
+
+    def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
+        m, izz, lf, lr, cf, cr, v, sigma = (p[k] for k in ("mass", "izz", "lf", "lr", "cf", "cr", "velocity",
+                                                             "relaxation_length"))
+        z = torch.zeros_like(m)
+        one = torch.ones_like(m)
+        rate = v / sigma  # 1 / relaxation time
+        a = torch.stack([
+            torch.stack([z, z, cf * lf / izz, -cr * lr / izz]),
+            torch.stack([-one, z, cf / (v * m), cr / (v * m)]),
+            torch.stack([-rate * lf / v, -rate, -rate, z]),
+            torch.stack([rate * lr / v, -rate, z, -rate]),
+        ])
+        b = torch.stack([torch.stack([z, z]), torch.stack([z, z]), torch.stack([rate, z]), torch.stack([z, rate])])
+        c = torch.stack([torch.stack([one, z, z, z]), torch.stack([z, one, z, z])])
+        inputs = 2 if self.rear_steering else 1
+        return StateSpace(a, b[:, :inputs], c, m.new_zeros(2, inputs))
+
+
 class SteeringGain(LTIModel):
     """A static steering transmission: no states, y = D u.
 

@@ -1,0 +1,238 @@
+"""The catalogue of candidate causes as data: YAML entries that edit a hypa model.
+
+An entry (``hypa/diagnosis/catalogue.yaml`` for every system, ``hypa/vehicle/catalogue.yaml`` for
+the vehicle's, a user's own file with ``diagnosis.catalogue=[PATH]``)::
+
+    - id: input_delay                  # the cause's id in reports and diagnosis.json
+      name: dead time on a measured input
+      for_each: input                  # input | output | parameter | scheduling | block
+      where: {system: [single_track_front]}   # block only: blocks of these systems
+      fit: gradient                    # gradient (its trainable knobs) | offset | none
+      offset: "{input}"                # fit: offset, the measured signal whose bias is fitted
+      patch:                           # the edit, in the model config's own terms
+        rewire: {"{input}": "{input}__delayed"}   # every existing block reads the new signal
+        blocks:                        # new blocks, or keys merged into an existing one
+          diagnosed_delay_{input}: {kind: delay, inputs: ["{input}"], outputs: ["{input}__delayed"],
+                                    parameters: {delay_s: 2 * dt}, trainable: [delay_s]}
+        parameters: {}                 # shared parameter values
+
+Placeholders: ``{input}``, ``{output}``, ``{block}``, ``{parameter}`` (the block's own name of
+it), ``{channel}`` (scheduling), ``{block_input}`` (the block's first input). A parameter value
+may be an expression of ``dt`` [s], the sample time. Which parameters ``for_each: parameter``
+visits: those the nominal model declares uncertain (its blocks' ``trainable``), or all.
+"""
+
+from __future__ import annotations
+
+import copy
+import importlib
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from hypa.diagnosis.edits import AFFINE, GRADIENT, NONE, Candidate, frozen
+from hypa.errors import UserError
+from hypa.models.spec import ModelSpec, ModelSpecError, parse_model_spec
+from hypa.physics.systems import PHYSICS_SYSTEMS, build_system
+
+GENERIC = Path(__file__).with_name("catalogue.yaml")
+FOR_EACH = ("input", "output", "parameter", "scheduling", "block")
+FITS = {"gradient": GRADIENT, "offset": AFFINE, "none": NONE}
+_KEYS = {"id", "name", "for_each", "where", "fit", "offset", "patch"}
+_PATCH_KEYS = {"rewire", "blocks", "parameters"}
+
+
+class CatalogueError(UserError):
+    """A catalogue entry that cannot be used; the message names the file and the entry."""
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One catalogue entry (see the module docstring)."""
+
+    id: str
+    name: str
+    for_each: str
+    fit: str
+    patch: Mapping[str, Any] = field(default_factory=dict)
+    where: Mapping[str, Any] = field(default_factory=dict)
+    offset: str = ""
+    source: str = ""
+
+
+def builtin_catalogues() -> list[Path]:
+    """The generic catalogue and each domain package's (a ``CATALOGUE`` path beside its ``SYSTEMS``)."""
+    paths = [GENERIC]
+    for package in PHYSICS_SYSTEMS.packages:
+        path = getattr(importlib.import_module(package), "CATALOGUE", None)
+        if path is not None:
+            paths.append(Path(path))
+    return paths
+
+
+def load_catalogue(paths: Sequence[Path | str] = ()) -> list[Entry]:
+    """The built-in entries and those of ``paths`` (a user's YAML files), checked."""
+    entries: list[Entry] = []
+    for path in [*builtin_catalogues(), *(Path(p).expanduser() for p in paths)]:
+        if not path.is_file():
+            raise CatalogueError(f"catalogue {path} does not exist")
+        try:
+            raw = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as error:
+            raise CatalogueError(f"catalogue {path} is not valid YAML: {str(error).splitlines()[0]}") from None
+        if not isinstance(raw, list):
+            raise CatalogueError(f"catalogue {path} must be a list of entries (- id: ...)")
+        entries += [_entry(item, path) for item in raw]
+    return entries
+
+
+def _entry(item: Any, path: Path) -> Entry:
+    where = f"catalogue {path}, entry {item.get('id', '?') if isinstance(item, dict) else item!r}"
+    if not isinstance(item, dict):
+        raise CatalogueError(f"{where}: an entry is a mapping with id, for_each, fit and patch or offset")
+    unknown = set(item) - _KEYS
+    if unknown:
+        raise CatalogueError(f"{where}: unknown keys {sorted(unknown)}; known: {sorted(_KEYS)}")
+    if not item.get("id"):
+        raise CatalogueError(f"{where}: missing id")
+    if item.get("for_each") not in FOR_EACH:
+        raise CatalogueError(f"{where}: for_each must be one of {', '.join(FOR_EACH)}, got {item.get('for_each')!r}")
+    if item.get("fit", "gradient") not in FITS:
+        raise CatalogueError(f"{where}: fit must be one of {', '.join(FITS)}, got {item.get('fit')!r}")
+    patch = item.get("patch") or {}
+    if not isinstance(patch, dict) or set(patch) - _PATCH_KEYS:
+        raise CatalogueError(f"{where}: patch takes {', '.join(sorted(_PATCH_KEYS))}")
+    fit = FITS[item.get("fit", "gradient")]
+    if fit == AFFINE and not item.get("offset"):
+        raise CatalogueError(f"{where}: fit: offset needs offset: <the signal>, e.g. offset: \"{{input}}\"")
+    if fit != AFFINE and not patch:
+        raise CatalogueError(f"{where}: needs a patch (the edit of the model)")
+    if item["for_each"] == "block" and not (item.get("where") or {}).get("system"):
+        raise CatalogueError(f"{where}: for_each: block needs where: {{system: [...]}}")
+    return Entry(id=str(item["id"]), name=str(item.get("name", item["id"])), for_each=item["for_each"], fit=fit,
+                 patch=patch, where=item.get("where") or {}, offset=str(item.get("offset", "")), source=str(path))
+
+
+def _format(value: Any, context: Mapping[str, str]) -> Any:
+    """Fill the placeholders in every string of a nested value (keys too)."""
+    if isinstance(value, str):
+        return value.format(**context)
+    if isinstance(value, list):
+        return [_format(v, context) for v in value]
+    if isinstance(value, dict):
+        return {_format(k, context): _format(v, context) for k, v in value.items()}
+    return value
+
+
+def _number(value: Any, dt: float, where: str) -> float:
+    if isinstance(value, (int, float)):
+        return float(value)
+    from hypa.data.expressions import Expression
+
+    try:
+        return float(Expression(str(value), where).evaluate({"dt": dt}, where))
+    except Exception as error:  # a catalogue's expression: report it on one line
+        raise CatalogueError(f"{where}: parameter value {value!r} is neither a number nor an expression of dt "
+                             f"({error})") from None
+
+
+def apply_patch(spec: ModelSpec, patch: Mapping[str, Any], dt: float, where: str = "") -> ModelSpec:
+    """The model with a (formatted) patch applied: signals rewired, blocks added or merged, shared
+    parameters set. New blocks come first (the composition is ordered by dependency anyway)."""
+    from hypa.diagnosis.system import spec_config
+
+    config = spec_config(spec)
+    rewire = patch.get("rewire") or {}
+    for block in config["blocks"].values():
+        block["inputs"] = [rewire.get(s, s) for s in block["inputs"]]
+    new = {}
+    for name, fields in (patch.get("blocks") or {}).items():
+        fields = copy.deepcopy(fields)
+        if "parameters" in fields:
+            fields["parameters"] = {k: _number(v, dt, where) for k, v in fields["parameters"].items()}
+        if name in config["blocks"]:
+            target = config["blocks"][name]
+            for key, value in fields.items():
+                target[key] = {**target.get(key, {}), **value} if isinstance(value, dict) else value
+        else:
+            new[name] = fields
+    config["blocks"] = {**new, **config["blocks"]}
+    if patch.get("parameters"):
+        config["parameters"] = {**config.get("parameters", {}),
+                                **{k: _number(v, dt, where) for k, v in patch["parameters"].items()}}
+    try:
+        return parse_model_spec(config)
+    except ModelSpecError as error:
+        raise CatalogueError(f"{where}: the edited model is not valid: {error}") from None
+
+
+def _contexts(entry: Entry, spec: ModelSpec, inputs: Sequence[str], outputs: Sequence[str],
+              scheduling: Sequence[str], values: Mapping[str, float], uncertain: Mapping[str, Sequence[str]]
+              ) -> Iterator[tuple[str, dict[str, str]]]:
+    """(target, placeholders) for each place the entry applies to."""
+    if entry.for_each == "input":
+        consumed = {s for b in spec.blocks for s in b.inputs}
+        yield from ((n, {"input": n}) for n in inputs if n in consumed)
+    elif entry.for_each == "output":
+        yield from ((n, {"output": n}) for n in outputs)
+    elif entry.for_each == "block":
+        systems = set(entry.where.get("system", ()))
+        yield from ((b.name, {"block": b.name, "block_input": b.inputs[0] if b.inputs else ""})
+                    for b in spec.blocks if b.kind == "physics" and b.system in systems)
+    else:
+        declared = any(uncertain.values())
+        for b in spec.blocks:
+            if b.kind != "physics":
+                continue
+            for p in build_system(b.system, b.name).parameter_specs({**values, **spec.parameters}):
+                local = p.name.split("/", 1)[-1]
+                if local in b.scheduling:
+                    continue
+                if entry.for_each == "scheduling" and local in scheduling:
+                    yield local, {"block": b.name, "parameter": local, "channel": local, "qualified": p.name}
+                elif (entry.for_each == "parameter" and local not in scheduling
+                      and (not declared or local in uncertain.get(b.name, ()))):
+                    yield p.name, {"block": b.name, "parameter": local, "qualified": p.name}
+
+
+def _knobs(edited: ModelSpec, values: Mapping[str, float]) -> dict[str, str]:
+    """Qualified trainable parameter -> unit, over the edited model's blocks."""
+    knobs = {}
+    for b in edited.blocks:
+        if not b.trainable:
+            continue
+        if b.kind == "delay":
+            knobs.update({f"{b.name}/delay_s": "s"} if "delay_s" in b.trainable else {})
+            continue
+        specs = {s.name: s for s in build_system(b.system, b.name).parameter_specs({**values, **edited.parameters})}
+        for t in b.trainable:
+            name = f"{b.name}/{t}" if f"{b.name}/{t}" in specs else t
+            knobs[name] = specs[name].unit
+    return knobs
+
+
+def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names: Sequence[str],
+                         output_names: Sequence[str], scheduling_names: Sequence[str],
+                         physical_values: Mapping[str, float], dt: float,
+                         uncertain: Mapping[str, Sequence[str]] | None = None) -> list[Candidate]:
+    """Every entry expanded over the model and the data's channels, as edits of the frozen model."""
+    uncertain = {b.name: b.trainable for b in spec.blocks} if uncertain is None else uncertain
+    base = frozen(spec)
+    out = []
+    for entry in entries:
+        for target, context in _contexts(entry, base, input_names, output_names, scheduling_names,
+                                         physical_values, uncertain):
+            where = f"catalogue {entry.source}, entry {entry.id} on {target}"
+            if entry.fit == AFFINE:
+                out.append(Candidate(entry.id, _format(entry.offset, context), base, AFFINE,
+                                     (_format(entry.offset, context),)))
+                continue
+            edited = apply_patch(base, _format(dict(entry.patch), context), dt, where)
+            knobs = _knobs(edited, physical_values) if entry.fit == GRADIENT else {}
+            if entry.fit == GRADIENT and not knobs:
+                raise CatalogueError(f"{where}: fit: gradient but the patch makes nothing trainable")
+            out.append(Candidate(entry.id, target, edited, entry.fit, tuple(knobs), knobs))
+    return out

@@ -1,0 +1,102 @@
+"""The vehicle through the one diagnosis engine: ``python -m hypa.diagnose model=vehicle_nominal``.
+
+The test bench hides effects (one at a time, or two at once) in data of a nonlinear truth with
+its own ECU and tire models; the nominal model is the linear front-steered single track. The
+generic catalogue plus the vehicle's entries (``hypa/vehicle/catalogue.yaml``) must name them,
+with estimates, and name no proxy (a dead time for a tire relaxation).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from hypa.physics import LTIBlock, PhysicalParameters
+from hypa.vehicle import SingleTrack, SingleTrackRelaxation
+
+ROOT = Path(__file__).resolve().parents[1]
+SHORT = [f"testbench.records.{name}.stochastic_duration_s={d}" for name, d in
+         (("train_1", 40), ("train_2", 40), ("val", 30))] + ["testbench.records.val.maneuvers=[]"]
+LINEAR = ["testbench.tires.enabled=false", "testbench.relaxation.enabled=false",
+          "testbench.rear_steering.enabled=false", "testbench.sensors.bias_scale=0"]
+
+
+def diagnose(tmp_path: Path, *overrides: str) -> dict:
+    env = {**os.environ, "HYPA_CACHE_DIR": str(tmp_path / "cache")}
+    result = subprocess.run([sys.executable, "-m", "hypa.diagnose", "model=vehicle_nominal", "plot=false",
+                             f"hydra.run.dir={tmp_path / 'run'}", *SHORT, *overrides],
+                            cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    return json.loads((tmp_path / "run" / "diagnosis.json").read_text())
+
+
+def named(result: dict) -> dict[str, dict]:
+    return {f"{n['cause']}:{n['target']}": n for n in result["named"]}
+
+
+def test_relaxation_tends_to_the_single_track_as_the_length_vanishes() -> None:
+    """σ → 0: the relaxed slip follows the kinematic one at once, the single track exactly."""
+    values = {**SingleTrack().nominal_values(), "relaxation_length": 1e-3}
+    u = torch.sin(torch.linspace(0, 20, 400, dtype=torch.float64))[None, :, None] * 0.02
+    plain = LTIBlock(SingleTrack(rear_steering=False), PhysicalParameters(
+        SingleTrack(rear_steering=False).parameter_specs(values)), dt=1 / 32, horizon=400, hold="foh")
+    relaxed = LTIBlock(SingleTrackRelaxation(rear_steering=False), PhysicalParameters(
+        SingleTrackRelaxation(rear_steering=False).parameter_specs(values)), dt=1 / 32, horizon=400, hold="foh")
+    with torch.no_grad():  # the states (physical units: identity scaling) over the same FOH input
+        y_plain = plain.states(torch.zeros(1, 2, dtype=torch.float64), u)
+        y_relaxed = relaxed.states(torch.zeros(1, 4, dtype=torch.float64), u)[..., :2]
+    assert torch.allclose(y_relaxed, y_plain, atol=2e-3 * float(y_plain.abs().max()))
+
+
+def test_rear_steering_is_named_with_its_ratio_and_lag(tmp_path: Path) -> None:
+    """The ECU's ratio at 33.3 m/s is 0.12 (plus a yaw-rate term), its actuator lag 70 ms."""
+    result = diagnose(tmp_path, *LINEAR, "testbench.rear_steering.enabled=true")
+    first = result["named"][0]
+    assert (first["cause"], first["target"]) == ("unmodeled_input", "single_track"), result["named"]
+    assert first["values"]["diagnosed_rear_steering/gain"] == pytest.approx(0.12, rel=0.25)
+    assert first["values"]["diagnosed_rear_steering/tau_s"] == pytest.approx(0.07, rel=0.5)
+    assert result["score"]["extended"] < 0.1 * result["score"]["nominal"]
+
+
+def test_tire_relaxation_is_named_and_no_dead_time_stands_in(tmp_path: Path) -> None:
+    result = diagnose(tmp_path, *LINEAR, "testbench.relaxation.enabled=true")
+    causes = [n["cause"] for n in result["named"]]
+    assert causes[:1] == ["tire_relaxation"], result["named"]
+    assert "input_delay" not in causes and "input_lag" not in causes
+    length = result["named"][0]["values"]["relaxation_length"]
+    assert 0.4 < length < 1.0  # the truth's 0.7 m front, 0.6 m rear, as one length
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(4))
+def test_delay_and_yaw_rate_bias_at_once_are_both_named(tmp_path: Path, seed: int) -> None:
+    """The issue's second two-cause case: a 60-120 ms delay with a 0.01-0.02 rad/s gyro bias."""
+    rng = np.random.default_rng(seed)
+    delay, bias = rng.uniform(0.06, 0.12), rng.uniform(0.01, 0.02) * rng.choice([-1, 1])
+    result = diagnose(tmp_path, *LINEAR, "testbench.sensors.bias_scale=1",
+                      f"testbench.steering.delay_s={delay:.4f}", f"testbench.sensors.yaw_rate.bias={bias:.5f}",
+                      "testbench.sensors.side_slip.bias=0", "testbench.sensors.lateral_acceleration.bias=0")
+    found = named(result)
+    assert "input_delay:steering_wheel_angle" in found, result["named"]
+    assert found["input_delay:steering_wheel_angle"]["values"][
+        "diagnosed_delay_steering_wheel_angle/delay_s"] == pytest.approx(delay, rel=0.15)
+    assert "output_offset:yaw_rate" in found, result["named"]
+    assert found["output_offset:yaw_rate"]["values"]["yaw_rate"] == pytest.approx(bias, rel=0.2)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(4))
+def test_rear_steering_at_random_strength_is_named(tmp_path: Path, seed: int) -> None:
+    strength = np.random.default_rng(10 + seed).uniform(0.6, 1.6)
+    result = diagnose(tmp_path, *LINEAR, "testbench.rear_steering.enabled=true",
+                      f"testbench.rear_steering.strength={strength:.3f}")
+    first = result["named"][0]
+    assert first["cause"] == "unmodeled_input", result["named"]
+    assert first["values"]["diagnosed_rear_steering/gain"] == pytest.approx(0.12 * strength, rel=0.3)
