@@ -74,6 +74,27 @@ def test_tire_relaxation_is_named_and_no_dead_time_stands_in(tmp_path: Path) -> 
     assert 0.4 < length < 1.0  # the truth's 0.7 m front, 0.6 m rear, as one length
 
 
+def test_saturating_tires_are_named_with_their_friction(tmp_path: Path) -> None:
+    result = diagnose(tmp_path, *LINEAR, "testbench.tires.enabled=true", "testbench.tires.mu=0.85",
+                      "diagnosis.max_causes=1")  # one round: every later candidate carries the nonlinear fit
+    first = result["named"][0]
+    assert first["cause"] == "tire_saturation", result["named"]
+    assert first["values"]["mu"] == pytest.approx(0.85, rel=0.1)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(4))
+def test_rear_steering_and_saturating_tires_at_once_are_both_named(tmp_path: Path, seed: int) -> None:
+    """The issue's first two-cause case: rear steering at a ratio of 0.15-0.3 with tires at μ 0.8-0.9."""
+    rng = np.random.default_rng(20 + seed)
+    strength, mu = rng.uniform(0.15, 0.3) / 0.12, rng.uniform(0.8, 0.9)
+    result = diagnose(tmp_path, *LINEAR, "testbench.rear_steering.enabled=true", "testbench.tires.enabled=true",
+                      f"testbench.rear_steering.strength={strength:.3f}", f"testbench.tires.mu={mu:.3f}")
+    found = {n["cause"]: n for n in result["named"]}
+    assert {"unmodeled_input", "tire_saturation"} <= set(found), result["named"]
+    assert found["tire_saturation"]["values"]["mu"] == pytest.approx(mu, rel=0.15)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", range(4))
 def test_delay_and_yaw_rate_bias_at_once_are_both_named(tmp_path: Path, seed: int) -> None:

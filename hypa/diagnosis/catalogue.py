@@ -6,7 +6,8 @@ the vehicle's, a user's own file with ``diagnosis.catalogue=[PATH]``)::
     - id: input_delay                  # the cause's id in reports and diagnosis.json
       name: dead time on a measured input
       for_each: input                  # input | output | parameter | scheduling | block
-      where: {system: [single_track_front]}   # block only: blocks of these systems
+      where: {system: [single_track_front]}   # block only: blocks of these systems, or a
+                                       # mapping {system: its replacement, ...} read as {system}
       fit: gradient                    # gradient (its trainable knobs) | offset | none
       offset: "{input}"                # fit: offset, the measured signal whose bias is fitted
       patch:                           # the edit, in the model config's own terms
@@ -17,7 +18,8 @@ the vehicle's, a user's own file with ``diagnosis.catalogue=[PATH]``)::
         parameters: {}                 # shared parameter values
 
 Placeholders: ``{input}``, ``{output}``, ``{block}``, ``{parameter}`` (the block's own name of
-it), ``{channel}`` (scheduling), ``{block_input}`` (the block's first input). A parameter value
+it), ``{channel}`` (scheduling), ``{block_input}`` (the block's first input), ``{system}`` (the
+replacement of the matched block's system, when ``where.system`` is a mapping). A parameter value
 may be an expression of ``dt`` [s], the sample time. Which parameters ``for_each: parameter``
 visits: those the nominal model declares uncertain (its blocks' ``trainable``), or all.
 """
@@ -179,8 +181,10 @@ def _contexts(entry: Entry, spec: ModelSpec, inputs: Sequence[str], outputs: Seq
     elif entry.for_each == "output":
         yield from ((n, {"output": n}) for n in outputs)
     elif entry.for_each == "block":
-        systems = set(entry.where.get("system", ()))
-        yield from ((b.name, {"block": b.name, "block_input": b.inputs[0] if b.inputs else ""})
+        systems = entry.where.get("system", ())
+        replace = systems if isinstance(systems, Mapping) else {}
+        yield from ((b.name, {"block": b.name, "block_input": b.inputs[0] if b.inputs else "",
+                              "system": replace.get(b.system, b.system)})
                     for b in spec.blocks if b.kind == "physics" and b.system in systems)
     else:
         declared = any(uncertain.values())

@@ -9,7 +9,7 @@ engine (``hypa.physics``). The catalogue of such edits is data (:mod:`hypa.diagn
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 from hypa.models.spec import ModelSpec
@@ -44,6 +44,27 @@ class Candidate:
 def frozen(spec: ModelSpec) -> ModelSpec:
     """The model with every parameter frozen (the nominal physics the diagnosis starts from)."""
     return dataclasses.replace(spec, blocks=tuple(dataclasses.replace(b, trainable=()) for b in spec.blocks))
+
+
+def set_free(spec: ModelSpec, names: Sequence[str]) -> ModelSpec:
+    """The model with the parameters ``names`` (qualified: ``<block>/<name>`` for a block's own)
+    trainable as well, in the blocks that own or read them."""
+    from hypa.physics.systems import build_system
+
+    free: dict[str, list[str]] = {b.name: list(b.trainable) for b in spec.blocks}
+    for name in names:
+        if "/" in name:
+            block, local = name.split("/", 1)
+            owners = [block] if block in free else []
+        else:
+            local = name
+            owners = [b.name for b in spec.blocks if b.kind == "physics"
+                      and name in build_system(b.system, b.name).parameter_names]
+        for owner in owners:
+            if local not in free[owner]:
+                free[owner].append(local)
+    return dataclasses.replace(spec, blocks=tuple(dataclasses.replace(b, trainable=tuple(free[b.name]))
+                                                  for b in spec.blocks))
 
 
 def applied(candidate: Candidate, values: Mapping[str, float]) -> ModelSpec:

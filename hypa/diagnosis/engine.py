@@ -23,7 +23,7 @@ import torch
 
 from hypa.data import HypaDataModule, Record
 from hypa.diagnosis.catalogue import Entry, catalogue_candidates, load_catalogue
-from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, frozen
+from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, frozen, set_free
 from hypa.evaluation.runs import free_run
 from hypa.models import ComposedModel
 from hypa.models.spec import ModelSpec, ModelSpecError
@@ -72,6 +72,7 @@ class Finding:
     candidate: Candidate | None = field(default=None, repr=False)
     alternatives: list[str] = field(default_factory=list)  # candidates that explain (almost) as much
     note: str = ""  # what a value-less cause means on these data (scheduling: the ranges)
+    refined: dict[str, float] = field(default_factory=dict)  # earlier causes' knobs, re-fitted with it
 
     @property
     def key(self) -> str:
@@ -89,7 +90,7 @@ class Finding:
     def to_dict(self) -> dict:
         return {"cause": self.cause, "target": self.target, "values": self.values, "units": self.units,
                 "score": self.score, "gain": self.gain, "seconds": self.seconds, "error": self.error,
-                "alternatives": self.alternatives, "text": self.describe()}
+                "alternatives": self.alternatives, "refined": self.refined, "text": self.describe()}
 
 
 def format_value(value: float, unit: str) -> str:
@@ -120,9 +121,13 @@ def score(model: ComposedModel, dm: HypaDataModule, records: Sequence[Record]) -
     return float(np.mean(out)) if np.all(np.isfinite(out)) else math.inf
 
 
-def fit_gradient(candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor]) -> dict[str, float]:
-    """Fit the candidate's physical knobs on the training windows (the training loss, Adam)."""
-    model = problem.build(candidate.spec)
+def fit_gradient(candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor],
+                 refine: Sequence[str] = ()) -> dict[str, float]:
+    """Fit the candidate's physical knobs on the training windows (the training loss, Adam),
+    together with ``refine``, the knobs of the causes named before it (the causes are fitted
+    jointly: a rear-steering ratio fitted on linear tires moves once saturation joins it)."""
+    model = problem.build(set_free(candidate.spec, refine) if refine else candidate.spec)
+    refine = [k for k in refine if k in model.parameters_.names]
     params = [p for p in model.parameters() if p.requires_grad]
     if not params:
         raise ModelSpecError(f"{candidate.key}: nothing to fit")
@@ -137,7 +142,7 @@ def fit_gradient(candidate: Candidate, problem: Problem, windows: Mapping[str, t
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
-    return {k: float(model.parameters_.value(k).detach()) for k in candidate.knobs}
+    return {k: float(model.parameters_.value(k).detach()) for k in (*candidate.knobs, *refine)}
 
 
 def fit_affine(candidate: Candidate, problem: Problem) -> dict[str, float]:
@@ -165,15 +170,16 @@ def fit_affine(candidate: Candidate, problem: Problem) -> dict[str, float]:
     return {channel: num / den if den > 0 else 0.0}
 
 
-def evaluate(candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor], base_score: float
-             ) -> Finding:
-    """Fit a candidate and score it free-running on the validation records."""
+def evaluate(candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor], base_score: float,
+             refine: Sequence[str] = ()) -> Finding:
+    """Fit a candidate (with ``refine``, see :func:`fit_gradient`) and score it free-running on
+    the validation records. ``values`` holds the candidate's own knobs, ``refined`` the others."""
     started = time.perf_counter()
     units = dict(candidate.units) or {candidate.target: problem.dm.channels[candidate.target].unit
                                       if candidate.fit == AFFINE else ""}
     try:
         if candidate.fit == GRADIENT:
-            values = fit_gradient(candidate, problem, windows)
+            values = fit_gradient(candidate, problem, windows, refine)
         elif candidate.fit == AFFINE:
             values = fit_affine(candidate, problem)
         else:
@@ -185,8 +191,10 @@ def evaluate(candidate: Candidate, problem: Problem, windows: Mapping[str, torch
                        time.perf_counter() - started, str(error).split("\n")[0], candidate)
     gain = 1.0 - value / base_score if base_score > 0 else 0.0
     note = _scheduling_note(candidate, problem) if candidate.cause == "scheduling" else ""
-    return Finding(candidate.cause, candidate.target, values, units, value, gain, time.perf_counter() - started,
-                   None, candidate, note=note)
+    own = {k: v for k, v in values.items() if k in candidate.knobs or candidate.fit == AFFINE}
+    refined = {k: v for k, v in values.items() if k not in own}
+    return Finding(candidate.cause, candidate.target, own, units, value, gain, time.perf_counter() - started,
+                   None, candidate, note=note, refined=refined)
 
 
 def _scheduling_note(candidate: Candidate, problem: Problem) -> str:
@@ -235,10 +243,10 @@ def name_causes(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry]
     base = frozen(nominal)
     base_score = nominal_score = score(problem.build(base), dm, dm.records("val"))
     progress(f"nominal model: validation error {100 * base_score:.3g} % of the output variance")
-    rounds, named = [], []
+    rounds, named, refine = [], [], []
     while len(named) < max_causes and base_score > floor:
         done = {f.key for f in named}
-        findings = [evaluate(c, problem, windows, base_score) for c in candidates(base) if c.key not in done]
+        findings = [evaluate(c, problem, windows, base_score, refine) for c in candidates(base) if c.key not in done]
         findings.sort(key=lambda f: f.score)
         rounds.append(findings)
         if not findings or findings[0].gain < min_gain:
@@ -246,7 +254,8 @@ def name_causes(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry]
         best = findings[0]
         best.alternatives = [f.describe() for f in findings[1:] if f.gain >= ALTERNATIVE * best.gain]
         named.append(best)
-        base, base_score = applied(best.candidate, best.values), best.score
+        base, base_score = applied(best.candidate, {**best.refined, **best.values}), best.score
+        refine += [k for k in best.candidate.knobs if best.candidate.fit == GRADIENT and k not in refine]
         progress(f"named {best.describe()} (validation error {100 * best.gain:.0f} % lower)"
                  + (f"; the data cannot tell it from {' or '.join(best.alternatives)}" if best.alternatives else ""))
     return Search(nominal_score, rounds, named, base, base_score, time.perf_counter() - started)

@@ -48,8 +48,31 @@ def check_system(system: object, where: str = "") -> None:
     if missing:
         raise SystemContractError(f"system {label}: parameter_names {missing} have no ParameterSpec in parameters")
     _check_matrices(system, _nominal(specs), label)
+    if system.is_nonlinear:
+        _check_nonlinearity(system, _nominal(specs), label)
     if system.outputs_are_states:
         _check_outputs_are_states(system, specs, label)
+
+
+def _check_nonlinearity(system: LTIModel, nominal: dict[str, torch.Tensor], label: str) -> None:
+    """F (n, r) and φ(x, u) (r,) at the nominal values, at rest and at a unit state and input."""
+    n, m = len(system.state_names), len(system.input_names)
+    try:
+        f = system.feedback(nominal)
+        w = system.nonlinearity(torch.ones(n, dtype=torch.float64) * 1e-2, torch.ones(m, dtype=torch.float64) * 1e-2,
+                                nominal)
+    except Exception as error:  # a user's code: report any failure as one line
+        raise SystemContractError(f"system {label}: feedback / nonlinearity raised {type(error).__name__}: "
+                                  f"{error}") from error
+    if not isinstance(f, torch.Tensor) or f.dim() != 2 or f.shape[0] != n:
+        raise SystemContractError(f"system {label}: feedback must return F of shape ({n}, r), got "
+                                  f"{tuple(f.shape) if isinstance(f, torch.Tensor) else type(f).__name__}")
+    if not isinstance(w, torch.Tensor) or tuple(w.shape) != (f.shape[1],):
+        raise SystemContractError(f"system {label}: nonlinearity(x ({n},), u ({m},)) must return w of shape "
+                                  f"({f.shape[1]},) to match F, got "
+                                  f"{tuple(w.shape) if isinstance(w, torch.Tensor) else type(w).__name__}")
+    if not (bool(torch.isfinite(f).all()) and bool(torch.isfinite(w).all())):
+        raise SystemContractError(f"system {label}: feedback or nonlinearity is not finite at the nominal values")
 
 
 def _check_outputs_are_states(system: LTIModel, specs: Sequence[ParameterSpec], label: str) -> None:

@@ -63,6 +63,14 @@ class LTIModel(ABC):
     ``matrices`` is written for scalar values and must be differentiable in them (torch ops
     only); a scheduled parameter is handled by the engine, not by the system.
     ``hypa.physics.systems.check_system`` says what a class gets wrong.
+
+    **Nonlinear physics** (Lur'e form): a system that also defines ``feedback`` and
+    ``nonlinearity`` is dx/dt = A x + B u + e + F w with w = φ(x, u), a static nonlinearity
+    fed back into the linear part (a saturating tire force, a stiffening spring, Coulomb
+    friction), where ``matrices`` is the linear part (the system for small signals). It is
+    simulated step by step (the linear part exact under the hold, w linear over each sample by a
+    predictor-corrector: second order in dt) rather than lifted, and its initial-state estimate
+    and equilibrium are the linear part's.
     """
 
     state_names: tuple[str, ...] = ()
@@ -73,6 +81,19 @@ class LTIModel(ABC):
     @abstractmethod
     def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
         """Continuous A, B, C, D (and optionally e) from physical parameter values (differentiable)."""
+
+    def feedback(self, p: Mapping[str, Tensor]) -> Tensor | None:
+        """F (n, r): how the nonlinearity's outputs w enter dx/dt; None for a linear system."""
+        return None
+
+    def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
+        """w = φ(x, u) (..., r) from states (..., n) and inputs (..., m) in physical units."""
+        raise NotImplementedError(f"{type(self).__name__} defines feedback but no nonlinearity")
+
+    @property
+    def is_nonlinear(self) -> bool:
+        """Whether the system has a nonlinear feedback (``feedback`` overridden)."""
+        return type(self).feedback is not LTIModel.feedback
 
     @property
     def parameter_names(self) -> tuple[str, ...]:

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 import torch
 from torch import Tensor
 
+from hypa.physics.discretization import discretize
 from hypa.physics.estimation import estimate_last_state
 from hypa.physics.lifted import simulate_chunked, simulate_from_rows
 from hypa.physics.normalized import NormalizedLTI
@@ -172,6 +173,11 @@ class BlockSimulation:
         rho = self._check_scheduling(scheduling, u, steps)
         same = self.model.outputs_are_states
         u_states = u[:, : steps + self.n_taps - 1]
+        if self.model.is_nonlinear:
+            if rho is not None:
+                raise SchedulingError(f"{type(self.model).__name__}: a nonlinear system cannot be scheduled yet")
+            norm = self._norm(u.dtype)
+            return self._simulate_nonlinear(x0, u_states, steps), None if same else (norm.c, norm.d, norm.g)
         if rho is None:
             rebuild = self._rebuilds()
             if rebuild and steps == self.horizon:  # a training window of trainable physics: one graph node
@@ -191,6 +197,35 @@ class BlockSimulation:
             return states, None
         c, d, g = self._output_rows(ss)
         return states, (c[:, 1:], d[:, 1:], g[:, 1:])
+
+    def _simulate_nonlinear(self, x0: Tensor, u: Tensor, steps: int) -> Tensor:
+        """States x̂_{k+1..k+S} of a Lur'e system, step by step in physical units.
+
+        The linear part is exact under the block's hold; the nonlinearity's output w is taken
+        linear over each sample (its own first-order hold, Γ^w_0 w_k + Γ^w_1 w_{k+1}) with
+        w_{k+1} = φ(x̃_{k+1}, u_{k+1}) at a predicted state x̃_{k+1} (w held): Heun's
+        predictor-corrector, second order in dt.
+        """
+        dtype = u.dtype
+        p = self.parameters_.values(self.model.parameter_names, dtype)
+        ss, f = self.model.matrices(p), self.model.feedback(p)
+        disc = discretize(ss.a, ss.b, self.dt, self.hold, ss.e)
+        w_now, w_next = discretize(ss.a, f, self.dt, "foh").taps
+        w_held = w_now + w_next
+        mean_x, std_x = self.state_mean.to(dtype), self.state_std.to(dtype)
+        u_phys = u * self.input_std.to(dtype) + self.input_mean.to(dtype)  # (B, S + T - 1, m)
+        forced = sum(u_phys[:, t : t + steps] @ g.T for t, g in enumerate(disc.taps))  # (B, S, n)
+        if disc.drift is not None:
+            forced = forced + disc.drift
+        x, states = x0 * std_x + mean_x, []
+        for k in range(steps):
+            w = self.model.nonlinearity(x, u_phys[:, k], p)
+            linear = x @ disc.phi.T + forced[:, k]
+            predicted = linear + w @ w_held.T
+            w_after = self.model.nonlinearity(predicted, u_phys[:, min(k + 1, u_phys.shape[1] - 1)], p)
+            x = linear + w @ w_now.T + w_after @ w_next.T
+            states.append(x)
+        return (torch.stack(states, 1) - mean_x) / std_x
 
     def _steps(self, u: Tensor) -> int:
         steps = u.shape[1] - self.extra_inputs

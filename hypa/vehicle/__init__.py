@@ -1,7 +1,8 @@
 """The vehicle: the paper's instance of hypa's generic core.
 
-Its physics (the linear single track with front and rear steering, the steering gains and the
-vehicle's named parameters) lives here; ``SYSTEMS`` registers them as built-in systems of model
+Its physics (the single track with front and rear steering, linear or with tire relaxation
+and saturating axles, the steering gains and the vehicle's named parameters) lives here, with
+its catalogue of causes for the diagnosis (``CATALOGUE``); ``SYSTEMS`` registers them as built-in systems of model
 YAMLs (``system: single_track``), the core knows them only through that registry.
 """
 
@@ -9,7 +10,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 from hypa.physics.lti import LTIModel
-from hypa.vehicle.physics import SingleTrack, SingleTrackRelaxation, SteeringGain, VehicleParameters, parameter_spec, vehicle_parameters
+from hypa.vehicle.physics import (SingleTrack, SingleTrackRelaxation, SingleTrackRelaxationSaturation,
+                                  SingleTrackSaturation, SteeringGain, VehicleParameters, parameter_spec,
+                                  vehicle_parameters)
 
 SYSTEMS: dict[str, Callable[[str], LTIModel]] = {
     "single_track": lambda block: SingleTrack(rear_steering=True),  # u = [δf, δr]
@@ -19,8 +22,14 @@ SYSTEMS: dict[str, Callable[[str], LTIModel]] = {
     # with tire relaxation (axle forces lag the slip over relaxation_length [m]): 4 states
     "single_track_relaxation": lambda block: SingleTrackRelaxation(rear_steering=True),
     "single_track_front_relaxation": lambda block: SingleTrackRelaxation(rear_steering=False),
+    # with saturating axles (magic formula, peak friction mu): nonlinear, simulated step by step
+    "single_track_saturation": lambda block: SingleTrackSaturation(rear_steering=True),
+    "single_track_front_saturation": lambda block: SingleTrackSaturation(rear_steering=False),
+    "single_track_relaxation_saturation": lambda block: SingleTrackRelaxationSaturation(rear_steering=True),
+    "single_track_front_relaxation_saturation": lambda block: SingleTrackRelaxationSaturation(rear_steering=False),
 }
 
 CATALOGUE = Path(__file__).with_name("catalogue.yaml")  # the vehicle's causes for hypa.diagnose model=M
 
-__all__ = ["CATALOGUE", "SYSTEMS", "SingleTrack", "SingleTrackRelaxation", "SteeringGain", "VehicleParameters", "parameter_spec", "vehicle_parameters"]
+__all__ = ["CATALOGUE", "SYSTEMS", "SingleTrack", "SingleTrackRelaxation", "SingleTrackRelaxationSaturation",
+           "SingleTrackSaturation", "SteeringGain", "VehicleParameters", "parameter_spec", "vehicle_parameters"]

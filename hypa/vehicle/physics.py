@@ -155,6 +155,63 @@ class SingleTrackRelaxation(SingleTrack):
         return StateSpace(a, b[:, :inputs], c, m.new_zeros(2, inputs))
 
 
+GRAVITY = 9.81  # [m/s^2]
+SHAPE_C, CURVATURE_E = 1.35, -0.5  # the magic formula's shape and curvature of a passenger-car axle
+
+
+class SingleTrackSaturation(SingleTrack):
+    """The single track with saturating axles: nonlinear physics in Lur'e form.
+
+    Each axle's lateral force follows Pacejka's magic formula of its slip α_k = δ_k - β - l_k ψ̇ / v,
+
+        F_k(α) = D_k sin(C atan(B_k α - E (B_k α - atan(B_k α)))),   D_k = μ F_z,k,   B_k = c_k / (C D_k)
+
+    with the static axle loads F_z,f = m g lr / (lf + lr), F_z,r = m g lf / (lf + lr), so its
+    slope at zero slip is the cornering stiffness c_k and it saturates at μ F_z,k. The linear
+    single track is ``matrices``; the force deficit w_k = F_k(α_k) - c_k α_k enters through
+    F = diag(1/Izz, 1/(m v)) [[lf, -lr], [1, 1]]. As μ → ∞ it is the single track.
+    """
+
+    parameters = SingleTrack.parameters + (ParameterSpec("mu", 1.0, "-"),)
+
+    def feedback(self, p: Mapping[str, Tensor]) -> Tensor:
+        m, izz, lf, lr, v = (p[k] for k in ("mass", "izz", "lf", "lr", "velocity"))
+        arm = torch.stack([lf, -lr])
+        return torch.stack([arm / izz, torch.ones_like(arm) / (v * m)])
+
+    def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
+        lf, lr, v = p["lf"], p["lr"], p["velocity"]
+        r, beta = x[..., 0], x[..., 1]
+        front = u[..., 0]
+        rear = u[..., 1] if self.rear_steering else torch.zeros_like(front)
+        return force_deficit(torch.stack([front - beta - lf * r / v, rear - beta + lr * r / v], -1), p)
+
+
+def force_deficit(slip: Tensor, p: Mapping[str, Tensor]) -> Tensor:
+    """F_k(α_k) - c_k α_k (..., 2) of the magic-formula axles at slips α (..., 2) [rad]."""
+    m, lf, lr, cf, cr, mu = (p[k] for k in ("mass", "lf", "lr", "cf", "cr", "mu"))
+    stiffness = torch.stack([cf, cr])
+    peak = mu * m * GRAVITY * torch.stack([lr, lf]) / (lf + lr)  # D_k
+    bx = stiffness / (SHAPE_C * peak) * slip
+    force = peak * torch.sin(SHAPE_C * torch.atan(bx - CURVATURE_E * (bx - torch.atan(bx))))
+    return force - stiffness * slip
+
+
+class SingleTrackRelaxationSaturation(SingleTrackRelaxation):
+    """Tire relaxation and saturating axles together: the relaxed slip states s_k drive the
+    magic-formula forces F_k(s_k) (``SingleTrackSaturation``'s), the deficit entering yaw and
+    side slip through F = [[lf/Izz, -lr/Izz], [1/(m v), 1/(m v)], [0, 0], [0, 0]]."""
+
+    parameters = SingleTrackRelaxation.parameters + (ParameterSpec("mu", 1.0, "-"),)
+
+    def feedback(self, p: Mapping[str, Tensor]) -> Tensor:
+        upper = SingleTrackSaturation.feedback(self, p)
+        return torch.cat([upper, upper.new_zeros(2, 2)])
+
+    def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
+        return force_deficit(x[..., 2:4], p)
+
+
 class SteeringGain(LTIModel):
     """A static steering transmission: no states, y = D u.
 

@@ -1,0 +1,118 @@
+"""Nonlinear physics in Lur'e form (``LTIModel.feedback`` / ``nonlinearity``): the saturating
+single track against scipy's ODE solver, its linear limit, gradients, and the contract."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from scipy.integrate import solve_ivp
+
+from hypa.physics import LTIBlock, LTIModel, ParameterSpec, PhysicalParameters, StateSpace
+from hypa.physics.contract import SystemContractError, check_system
+from hypa.vehicle import SingleTrack, SingleTrackRelaxationSaturation, SingleTrackSaturation
+
+VALUES = SingleTrack().nominal_values()
+
+
+def block(model: LTIModel, dt: float, hold: str = "foh", **values: float) -> LTIBlock:
+    return LTIBlock(model, PhysicalParameters(model.parameter_specs({**VALUES, **values})), dt=dt, horizon=100,
+                    hold=hold)
+
+
+def steering(t: np.ndarray) -> np.ndarray:
+    """A front-wheel angle [rad] that drives the axles well into saturation at μ = 0.6."""
+    return 0.03 * np.sin(2 * np.pi * 0.7 * t) + 0.02 * np.sin(2 * np.pi * 1.9 * t + 1.0)
+
+
+def reference(mu: float, t: np.ndarray) -> np.ndarray:
+    """The continuous nonlinear single track integrated by scipy (RK45, tight tolerances)."""
+    model = SingleTrackSaturation(rear_steering=False)
+    p = {k: torch.tensor(v, dtype=torch.float64) for k, v in {**VALUES, "mu": mu}.items()}
+    ss, f = model.matrices(p), model.feedback(p)
+    a, b, f = ss.a.numpy(), ss.b.numpy(), f.numpy()
+
+    def rhs(time: float, x: np.ndarray) -> np.ndarray:
+        u = np.array([steering(np.array(time))])
+        w = model.nonlinearity(torch.tensor(x), torch.tensor(u), p).numpy()
+        return a @ x + b @ u + f @ w
+
+    return solve_ivp(rhs, (t[0], t[-1]), np.zeros(2), t_eval=t, rtol=1e-10, atol=1e-12).y.T
+
+
+def simulated(mu: float, dt: float, seconds: float) -> tuple[np.ndarray, np.ndarray]:
+    t = np.arange(0.0, seconds + dt / 2, dt)
+    u = torch.tensor(steering(t), dtype=torch.float64)[None, :, None]
+    sim = block(SingleTrackSaturation(rear_steering=False), dt, mu=mu)
+    with torch.no_grad():
+        x = sim.states(torch.zeros(1, 2, dtype=torch.float64), u)[0].numpy()
+    return t, np.concatenate([np.zeros((1, 2)), x])
+
+
+def test_with_unbounded_friction_it_is_the_linear_single_track_exactly() -> None:
+    t = np.arange(0, 5, 1 / 32)
+    u = torch.tensor(steering(t), dtype=torch.float64)[None, :, None]
+    for hold in ("zoh", "foh"):
+        linear = block(SingleTrack(rear_steering=False), 1 / 32, hold)
+        saturating = block(SingleTrackSaturation(rear_steering=False), 1 / 32, hold, mu=1e9)
+        x0 = torch.tensor([[0.05, -0.01]], dtype=torch.float64)
+        with torch.no_grad():
+            assert torch.allclose(saturating.states(x0, u), linear.states(x0, u), atol=1e-12, rtol=0)
+
+
+def test_against_scipy_and_second_order_in_the_sample_time() -> None:
+    """Heun's predictor-corrector on the nonlinearity: the error against the ODE solution is O(dt²)."""
+    errors = []
+    for dt in (1 / 32, 1 / 256, 1 / 512, 1 / 1024):
+        t, x = simulated(0.6, dt, 6.0)
+        ref = reference(0.6, t)
+        errors.append(float(np.abs(x - ref).max() / np.abs(ref).max()))
+    assert errors[0] < 0.025  # a model's rate, deep in saturation
+    assert errors[-1] < 3e-5
+    assert 3.2 < errors[1] / errors[2] < 4.8 and 3.2 < errors[2] / errors[3] < 4.8, errors
+    t, x = simulated(0.6, 1 / 1024, 6.0)
+    linear = block(SingleTrack(rear_steering=False), 1 / 1024)
+    with torch.no_grad():
+        lin = linear.states(torch.zeros(1, 2, dtype=torch.float64),
+                            torch.tensor(steering(t), dtype=torch.float64)[None, :, None])[0].numpy()
+    assert np.abs(lin - x[1:]).max() > 0.1 * np.abs(x).max()  # it does saturate here
+
+
+def test_gradients_reach_the_friction_coefficient() -> None:
+    model = SingleTrackSaturation(rear_steering=False)
+    specs = [ParameterSpec(s.name, s.value, s.unit, s.positive, s.bounds, trainable=s.name == "mu")
+             for s in model.parameter_specs({**VALUES, "mu": 0.8})]
+    sim = LTIBlock(model, PhysicalParameters(specs), dt=1 / 32, horizon=100, hold="foh")
+    u = torch.tensor(steering(np.arange(0, 4, 1 / 32)), dtype=torch.float64)[None, :, None]
+    sim.states(torch.zeros(1, 2, dtype=torch.float64), u).square().sum().backward()
+    grads = [p.grad for p in sim.parameters() if p.requires_grad]
+    assert len(grads) == 1 and torch.isfinite(grads[0]).all() and float(grads[0].abs()) > 0
+
+
+def test_relaxation_and_saturation_together_follow_the_contract() -> None:
+    for rear in (False, True):
+        check_system(SingleTrackRelaxationSaturation(rear_steering=rear))
+        check_system(SingleTrackSaturation(rear_steering=rear))
+
+
+class WrongFeedback(SingleTrackSaturation):
+    def feedback(self, p):
+        return super().feedback(p).T[:1]
+
+
+def test_a_feedback_of_the_wrong_shape_is_a_contract_error() -> None:
+    with pytest.raises(SystemContractError, match=r"feedback must return F of shape \(2, r\)"):
+        check_system(WrongFeedback(rear_steering=False))
+
+
+def test_a_linear_system_has_no_nonlinearity() -> None:
+    class Lag(LTIModel):
+        state_names, input_names, output_names = ("y",), ("u",), ("y",)
+        parameters = (ParameterSpec("tau", 0.1, "s"),)
+
+        def matrices(self, p):
+            tau = p["tau"]
+            return StateSpace((-1 / tau).reshape(1, 1), (1 / tau).reshape(1, 1), torch.ones(1, 1, dtype=tau.dtype),
+                              tau.new_zeros(1, 1))
+
+    assert not Lag().is_nonlinear and SingleTrackSaturation().is_nonlinear
