@@ -116,3 +116,24 @@ def test_a_linear_system_has_no_nonlinearity() -> None:
                               tau.new_zeros(1, 1))
 
     assert not Lag().is_nonlinear and SingleTrackSaturation().is_nonlinear
+
+
+def test_duffing_without_hardening_is_the_mass_spring_damper_and_with_it_stiffer() -> None:
+    from hypa.physics import MassSpringDamper
+    from hypa.physics.mass_spring_damper import DuffingOscillator
+
+    values = {"mass": 1.0, "stiffness": 400.0, "damping": 4.0, "offset_force": 0.0}
+    t = np.arange(0, 3, 1 / 200)
+    u = torch.tensor(300 * np.sin(2 * np.pi * 2 * t), dtype=torch.float64)[None, :, None]
+
+    def run(model: LTIModel, **extra: float) -> torch.Tensor:
+        sim = LTIBlock(model, PhysicalParameters(model.parameter_specs({**values, **extra})), dt=1 / 200,
+                       horizon=100, hold="foh")
+        with torch.no_grad():
+            return sim.states(torch.zeros(1, 2, dtype=torch.float64), u)[..., 0]
+
+    linear = run(MassSpringDamper())
+    assert torch.allclose(run(DuffingOscillator(), hardening=0.0), linear, atol=1e-12, rtol=0)
+    hard = run(DuffingOscillator(), hardening=5.0)  # amplitude ~0.75 m: the spring is ~3x stiffer there
+    assert float(hard.abs().max()) < 0.8 * float(linear.abs().max())
+    check_system(DuffingOscillator())

@@ -8,6 +8,7 @@ the vehicle's, a user's own file with ``diagnosis.catalogue=[PATH]``)::
       for_each: input                  # input | output | parameter | scheduling | block
       where: {system: [single_track_front]}   # block only: blocks of these systems, or a
                                        # mapping {system: its replacement, ...} read as {system}
+      when: {rws_ratio: nonzero}       # only where these nominal parameters are (non)zero
       fit: gradient                    # gradient (its trainable knobs) | offset | none
       offset: "{input}"                # fit: offset, the measured signal whose bias is fitted
       patch:                           # the edit, in the model config's own terms
@@ -43,7 +44,8 @@ from hypa.physics.systems import PHYSICS_SYSTEMS, build_system
 GENERIC = Path(__file__).with_name("catalogue.yaml")
 FOR_EACH = ("input", "output", "parameter", "scheduling", "block")
 FITS = {"gradient": GRADIENT, "offset": AFFINE, "none": NONE}
-_KEYS = {"id", "name", "for_each", "where", "fit", "offset", "patch"}
+_KEYS = {"id", "name", "for_each", "where", "when", "fit", "offset", "patch"}
+_WHEN = ("zero", "nonzero")
 _PATCH_KEYS = {"rewire", "blocks", "parameters"}
 
 
@@ -61,8 +63,13 @@ class Entry:
     fit: str
     patch: Mapping[str, Any] = field(default_factory=dict)
     where: Mapping[str, Any] = field(default_factory=dict)
+    when: Mapping[str, str] = field(default_factory=dict)  # parameter -> zero | nonzero
     offset: str = ""
     source: str = ""
+
+    def applies(self, values: Mapping[str, float]) -> bool:
+        """Whether the nominal parameter values allow the entry (``when``; a missing one: no)."""
+        return all(name in values and (values[name] != 0) == (want == "nonzero") for name, want in self.when.items())
 
 
 def builtin_catalogues() -> list[Path]:
@@ -112,10 +119,14 @@ def _entry(item: Any, path: Path) -> Entry:
         raise CatalogueError(f"{where}: fit: offset needs offset: <the signal>, e.g. offset: \"{{input}}\"")
     if fit != AFFINE and not patch:
         raise CatalogueError(f"{where}: needs a patch (the edit of the model)")
+    when = item.get("when") or {}
+    if not isinstance(when, dict) or any(v not in _WHEN for v in when.values()):
+        raise CatalogueError(f"{where}: when maps parameters to zero or nonzero, got {when!r}")
     if item["for_each"] == "block" and not (item.get("where") or {}).get("system"):
         raise CatalogueError(f"{where}: for_each: block needs where: {{system: [...]}}")
     return Entry(id=str(item["id"]), name=str(item.get("name", item["id"])), for_each=item["for_each"], fit=fit,
-                 patch=patch, where=item.get("where") or {}, offset=str(item.get("offset", "")), source=str(path))
+                 patch=patch, where=item.get("where") or {}, when=when, offset=str(item.get("offset", "")),
+                 source=str(path))
 
 
 def _format(value: Any, context: Mapping[str, str]) -> Any:
@@ -226,7 +237,10 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
     uncertain = {b.name: b.trainable for b in spec.blocks} if uncertain is None else uncertain
     base = frozen(spec)
     out = []
+    known = {**physical_values, **spec.parameters}
     for entry in entries:
+        if not entry.applies(known):
+            continue
         for target, context in _contexts(entry, base, input_names, output_names, scheduling_names,
                                          physical_values, uncertain):
             where = f"catalogue {entry.source}, entry {entry.id} on {target}"

@@ -47,3 +47,19 @@ class MassSpringDamper(LTIModel):
         b = torch.stack([zero, 1.0 / m]).reshape(2, 1)
         c = torch.stack([one, zero]).reshape(1, 2)  # y = position
         return StateSpace(a, b, c, m.new_zeros(1, 1), torch.stack([zero, f0 / m]))
+
+
+class DuffingOscillator(MassSpringDamper):
+    """The mass-spring-damper with a stiffening spring (Duffing): the spring force is
+    k q (1 + h q²), so ``hardening`` h [1/m²] (signed: < 0 softens) adds the cubic force
+    -k h q³ to the linear part, fed back in Lur'e form (F = [0, 1/m]). Silverbox's nonlinearity."""
+
+    parameters = MassSpringDamper.parameters + (ParameterSpec("hardening", 1.0, "1/m^2", positive=False),)
+
+    def feedback(self, p: Mapping[str, Tensor]) -> Tensor:
+        m = p["mass"]
+        return torch.stack([torch.zeros_like(m), 1.0 / m]).reshape(2, 1)
+
+    def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
+        q = x[..., :1]
+        return -p["stiffness"] * p["hardening"] * q**3

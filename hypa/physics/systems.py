@@ -17,7 +17,7 @@ from hypa.physics.contract import SystemContractError, check_system
 from hypa.physics.elements import FirstOrderLag, GainLag
 from hypa.physics.friction import MassWithFriction
 from hypa.physics.lti import LTIModel
-from hypa.physics.mass_spring_damper import MassSpringDamper
+from hypa.physics.mass_spring_damper import DuffingOscillator, MassSpringDamper
 
 __all__ = ["PHYSICS_SYSTEMS", "SystemContractError", "build_system", "check_system", "is_import_path",
            "resolve_system"]
@@ -57,6 +57,7 @@ PHYSICS_SYSTEMS = SystemRegistry({
     "first_order_lag": FirstOrderLag,  # τ ẏ = u - y, parameter <block>/tau_s
     "gain_lag": GainLag,  # τ ẏ = k u - y, parameters <block>/gain, <block>/tau_s
     "mass_spring_damper": lambda block: MassSpringDamper(),  # force -> position (Silverbox)
+    "duffing_oscillator": lambda block: DuffingOscillator(),  # the same with a cubic spring (nonlinear)
     "mass_with_friction": lambda block: MassWithFriction(),  # force -> position (EMPS)
 }, packages=("hypa.vehicle",))
 
