@@ -33,6 +33,9 @@ def data_dir_from_config(cfg: DictConfig) -> Path:
     """The folder of measured-data files: the test bench's cache, or ``data.dir`` (a relative
     folder is taken from where the command was run, also when Hydra changed the directory)."""
     source = cfg.data.source
+    if source == "testbench" and cfg.data.get("dir") is not None:
+        raise UserError(f"data.dir={cfg.data.dir} is read only for measured files: add dataset=files (the default "
+                        "data set is the simulated test bench)")
     if source == "testbench":
         from hypa.testbench import TestbenchConfig, ensure_dataset
 

@@ -87,3 +87,16 @@ def test_hydra_full_error_keeps_the_traceback(places: dict[str, Path], tmp_path:
     assert result.returncode == 1
     assert "Traceback" in result.stderr and "UserError" in result.stderr
     assert "not a readable checkpoint" in result.stderr
+
+
+def test_a_data_folder_without_dataset_files_is_not_silently_ignored(tmp_path) -> None:
+    """``data.dir=PATH`` alone would have trained on the test bench: one line says what to add."""
+    import subprocess
+    import sys
+
+    from pathlib import Path
+
+    result = subprocess.run([sys.executable, "-m", "hypa.train", f"data.dir={tmp_path}", f"hydra.run.dir={tmp_path}"],
+                            cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 1
+    assert "add dataset=files" in result.stderr.strip().splitlines()[-1] and "Traceback" not in result.stderr
