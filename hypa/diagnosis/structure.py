@@ -114,8 +114,8 @@ def analyze_output(name: str, unit: str, measured: Sequence[np.ndarray], predict
         where.append(f"largest at small amplitude ({name} RMS < {edges[1]:.3g} {unit}): error RMS "
                      f"{1 / ratio:.1f}× the large-amplitude one")
     if judged and max(judged) > 2 * share:
-        where.append(f"in {worst[0]:.3g}–{worst[1]:.3g} Hz the model misses {100 * max(judged):.0f} % "
-                     f"of the output's power there (overall {100 * share:.1f} %)")
+        where.append(f"in {worst[0]:.3g}–{worst[1]:.3g} Hz the model misses {100 * max(judged):.2g} % "
+                     f"of the output's power there (overall {100 * share:.2g} %)")
     for channel, c in correlated.items():
         if abs(c["rho"]) > max(0.2, 3 * c["bound"]):
             where.append(f"correlated with {channel}: ρ = {c['rho']:.2f} at {1e3 * c['lag_s']:.0f} ms")

@@ -253,7 +253,7 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
         if s.unexplained:
             text = "**unexplained structure**: " + "; ".join(s.where)
         elif s.where:
-            text = "too little to matter (under 0.2 % of the variance), though it " + "; ".join(s.where)
+            text = "too little to matter (under 0.2 % of the variance); seen: " + "; ".join(s.where)
         else:
             text = "no structure: what is left looks like noise"
         lines.append(f"- `{s.output}`: {100 * s.share:.3g} % of its variance left; {text}.")
