@@ -29,12 +29,12 @@ def reference(mu: float, t: np.ndarray) -> np.ndarray:
     """The continuous nonlinear single track integrated by scipy (RK45, tight tolerances)."""
     model = SingleTrackSaturation(rear_steering=False)
     p = {k: torch.tensor(v, dtype=torch.float64) for k, v in {**VALUES, "mu": mu}.items()}
-    ss, f = model.matrices(p), model.feedback(p)
+    ss, f, q = model.matrices(p), model.feedback(p), model.prepare(p)
     a, b, f = ss.a.numpy(), ss.b.numpy(), f.numpy()
 
     def rhs(time: float, x: np.ndarray) -> np.ndarray:
         u = np.array([steering(np.array(time))])
-        w = model.nonlinearity(torch.tensor(x), torch.tensor(u), p).numpy()
+        w = model.nonlinearity(torch.tensor(x), torch.tensor(u), q).numpy()
         return a @ x + b @ u + f @ w
 
     return solve_ivp(rhs, (t[0], t[-1]), np.zeros(2), t_eval=t, rtol=1e-10, atol=1e-12).y.T

@@ -41,7 +41,7 @@ class Problem:
     physical_values: Mapping[str, float]
     hold: str = "foh"
     horizon: int = 100
-    steps: int = 60  # gradient steps per candidate fit
+    steps: int = 60  # gradient steps per candidate fit (half for nonlinear physics, simulated step by step)
     batch: int = 128  # training windows per step
     lr: float = 0.05  # on the raw (relative) parameters: about 5 % of a value per step
     seed: int = 0
@@ -134,7 +134,8 @@ def fit_gradient(candidate: Candidate, problem: Problem, windows: Mapping[str, t
     optimizer = torch.optim.Adam(params, lr=problem.lr)
     generator = torch.Generator().manual_seed(problem.seed)
     first, count = problem.dm.past + 1, windows["u"].shape[0]
-    for _ in range(problem.steps):
+    nonlinear = any(getattr(getattr(b, "model", None), "is_nonlinear", False) for b in model.blocks.values())
+    for _ in range(problem.steps // 2 if nonlinear else problem.steps):
         index = torch.randperm(count, generator=generator)[: problem.batch]
         u, y = windows["u"][index], windows["y"][index]
         s = windows["s"][index] if "s" in windows else None

@@ -60,9 +60,9 @@ def _check_nonlinearity(system: LTIModel, nominal: dict[str, torch.Tensor], labe
     try:
         f = system.feedback(nominal)
         w = system.nonlinearity(torch.ones(n, dtype=torch.float64) * 1e-2, torch.ones(m, dtype=torch.float64) * 1e-2,
-                                nominal)
+                                system.prepare(nominal))
     except Exception as error:  # a user's code: report any failure as one line
-        raise SystemContractError(f"system {label}: feedback / nonlinearity raised {type(error).__name__}: "
+        raise SystemContractError(f"system {label}: feedback / prepare / nonlinearity raised {type(error).__name__}: "
                                   f"{error}") from error
     if not isinstance(f, torch.Tensor) or f.dim() != 2 or f.shape[0] != n:
         raise SystemContractError(f"system {label}: feedback must return F of shape ({n}, r), got "

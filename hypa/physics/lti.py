@@ -86,8 +86,14 @@ class LTIModel(ABC):
         """F (n, r): how the nonlinearity's outputs w enter dx/dt; None for a linear system."""
         return None
 
+    def prepare(self, p: Mapping[str, Tensor]) -> Mapping[str, Tensor]:
+        """What ``nonlinearity`` reads: ``p``, plus anything that depends on the parameters only
+        (computed once per simulation instead of at every sample); default: ``p`` itself."""
+        return p
+
     def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
-        """w = φ(x, u) (..., r) from states (..., n) and inputs (..., m) in physical units."""
+        """w = φ(x, u) (..., r) from states (..., n) and inputs (..., m) in physical units;
+        ``p``: what ``prepare`` returned."""
         raise NotImplementedError(f"{type(self).__name__} defines feedback but no nonlinearity")
 
     @property

@@ -217,13 +217,14 @@ class BlockSimulation:
         forced = sum(u_phys[:, t : t + steps] @ g.T for t, g in enumerate(disc.taps))  # (B, S, n)
         if disc.drift is not None:
             forced = forced + disc.drift
+        q, phi_t, now_t, next_t, held_t = self.model.prepare(p), disc.phi.T, w_now.T, w_next.T, w_held.T
         x, states = x0 * std_x + mean_x, []
         for k in range(steps):
-            w = self.model.nonlinearity(x, u_phys[:, k], p)
-            linear = x @ disc.phi.T + forced[:, k]
-            predicted = linear + w @ w_held.T
-            w_after = self.model.nonlinearity(predicted, u_phys[:, min(k + 1, u_phys.shape[1] - 1)], p)
-            x = linear + w @ w_now.T + w_after @ w_next.T
+            w = self.model.nonlinearity(x, u_phys[:, k], q)
+            linear = torch.addmm(forced[:, k], x, phi_t)
+            predicted = torch.addmm(linear, w, held_t)
+            w_after = self.model.nonlinearity(predicted, u_phys[:, min(k + 1, u_phys.shape[1] - 1)], q)
+            x = torch.addmm(torch.addmm(linear, w, now_t), w_after, next_t)
             states.append(x)
         return (torch.stack(states, 1) - mean_x) / std_x
 

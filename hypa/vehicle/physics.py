@@ -179,22 +179,32 @@ class SingleTrackSaturation(SingleTrack):
         arm = torch.stack([lf, -lr])
         return torch.stack([arm / izz, torch.ones_like(arm) / (v * m)])
 
+    def prepare(self, p: Mapping[str, Tensor]) -> Mapping[str, Tensor]:
+        return {**p, **axle_constants(p)}
+
     def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
-        lf, lr, v = p["lf"], p["lr"], p["velocity"]
-        r, beta = x[..., 0], x[..., 1]
-        front = u[..., 0]
-        rear = u[..., 1] if self.rear_steering else torch.zeros_like(front)
-        return force_deficit(torch.stack([front - beta - lf * r / v, rear - beta + lr * r / v], -1), p)
+        # slip α = [δf, δr] - x @ kinematics: kinematics (2, 2) maps (ψ̇, β) to the axles' slip
+        slip = -(x[..., :2] @ p["kinematics"])
+        slip = slip + (u[..., :2] if self.rear_steering else torch.nn.functional.pad(u[..., :1], (0, 1)))
+        return force_deficit(slip, p)
+
+
+def axle_constants(p: Mapping[str, Tensor]) -> dict[str, Tensor]:
+    """What the axle forces need from the parameters only: stiffnesses c_k, peaks D_k = μ F_z,k,
+    the magic formula's B_k, and the map from (ψ̇, β) to the slips."""
+    m, lf, lr, cf, cr, mu, v = (p[k] for k in ("mass", "lf", "lr", "cf", "cr", "mu", "velocity"))
+    stiffness = torch.stack([cf, cr])
+    peak = mu * m * GRAVITY * torch.stack([lr, lf]) / (lf + lr)  # D_k
+    kinematics = torch.stack([torch.stack([lf / v, -lr / v]), torch.ones(2, dtype=m.dtype, device=m.device)])
+    return {"stiffness": stiffness, "peak": peak, "shape_b": stiffness / (SHAPE_C * peak), "kinematics": kinematics}
 
 
 def force_deficit(slip: Tensor, p: Mapping[str, Tensor]) -> Tensor:
-    """F_k(α_k) - c_k α_k (..., 2) of the magic-formula axles at slips α (..., 2) [rad]."""
-    m, lf, lr, cf, cr, mu = (p[k] for k in ("mass", "lf", "lr", "cf", "cr", "mu"))
-    stiffness = torch.stack([cf, cr])
-    peak = mu * m * GRAVITY * torch.stack([lr, lf]) / (lf + lr)  # D_k
-    bx = stiffness / (SHAPE_C * peak) * slip
-    force = peak * torch.sin(SHAPE_C * torch.atan(bx - CURVATURE_E * (bx - torch.atan(bx))))
-    return force - stiffness * slip
+    """F_k(α_k) - c_k α_k (..., 2) of the magic-formula axles at slips α (..., 2) [rad];
+    ``p`` holds ``axle_constants``."""
+    bx = p["shape_b"] * slip
+    force = p["peak"] * torch.sin(SHAPE_C * torch.atan(bx - CURVATURE_E * (bx - torch.atan(bx))))
+    return force - p["stiffness"] * slip
 
 
 class SingleTrackRelaxationSaturation(SingleTrackRelaxation):
@@ -207,6 +217,9 @@ class SingleTrackRelaxationSaturation(SingleTrackRelaxation):
     def feedback(self, p: Mapping[str, Tensor]) -> Tensor:
         upper = SingleTrackSaturation.feedback(self, p)
         return torch.cat([upper, upper.new_zeros(2, 2)])
+
+    def prepare(self, p: Mapping[str, Tensor]) -> Mapping[str, Tensor]:
+        return {**p, **axle_constants(p)}
 
     def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
         return force_deficit(x[..., 2:4], p)
