@@ -11,3 +11,4 @@ def test_benchmark_runs_on_short_records(tmp_path: Path, capsys) -> None:
     assert "2 training records" in out and "1 validation records" in out
     assert "step 1 analyze_residuals" in out and "step 2 name_causes" in out and "named:" in out
     assert "judged only on the default data" in out
+    assert "the one engine (hypa.diagnose model=vehicle_nominal), naming:" in out
