@@ -211,7 +211,8 @@ def _scheduling_note(candidate: Candidate, problem: Problem) -> str:
 @dataclass
 class Search:
     """The greedy search: the nominal score, every round's findings (best first), the named ones
-    and the model with them applied."""
+    (their ``values`` final: re-fitted jointly with the causes named after them) and the model
+    with them applied."""
 
     nominal_score: float
     rounds: list[list[Finding]]
@@ -259,4 +260,7 @@ def name_causes(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry]
         refine += [k for k in best.candidate.knobs if best.candidate.fit == GRADIENT and k not in refine]
         progress(f"named {best.describe()} (validation error {100 * best.gain:.0f} % lower)"
                  + (f"; the data cannot tell it from {' or '.join(best.alternatives)}" if best.alternatives else ""))
+    for k, f in enumerate(named):  # the final values: re-fitted jointly with every later cause
+        for later in named[k + 1 :]:
+            f.values.update({name: v for name, v in later.refined.items() if name in f.values})
     return Search(nominal_score, rounds, named, base, base_score, time.perf_counter() - started)
