@@ -137,3 +137,35 @@ def test_duffing_without_hardening_is_the_mass_spring_damper_and_with_it_stiffer
     hard = run(DuffingOscillator(), hardening=5.0)  # amplitude ~0.75 m: the spring is ~3x stiffer there
     assert float(hard.abs().max()) < 0.8 * float(linear.abs().max())
     check_system(DuffingOscillator())
+
+
+def test_coulomb_friction_against_scipy_and_zero_friction_is_the_linear_axis() -> None:
+    """The EMPS axis with Coulomb friction (smoothed sign) at 1 kHz, against solve_ivp."""
+    from hypa.physics import MassWithFriction
+    from hypa.physics.friction import MassWithCoulombFriction
+
+    dt, model = 1e-3, MassWithCoulombFriction()
+    t = np.arange(0, 2, dt)
+    force = 60 * np.sin(2 * np.pi * 1.0 * t) + 25 * np.sin(2 * np.pi * 3.1 * t)  # [N], reverses often
+    u = torch.tensor(force, dtype=torch.float64)[None, :, None]
+
+    def run(system: LTIModel, **extra: float) -> np.ndarray:
+        sim = LTIBlock(system, PhysicalParameters(system.parameter_specs(extra)), dt=dt, horizon=100, hold="foh")
+        with torch.no_grad():
+            return np.concatenate([np.zeros((1, 2)), sim.states(torch.zeros(1, 2, dtype=torch.float64), u)[0].numpy()])
+
+    linear = run(MassWithFriction())
+    assert np.allclose(run(model, coulomb_friction=1e-12), linear, atol=1e-12, rtol=0)  # positive: not 0 itself
+    x = run(model, coulomb_friction=20.0)
+    p = {k: torch.tensor(v, dtype=torch.float64) for k, v in {**model.nominal_values(), "coulomb_friction": 20.0}.items()}
+    ss, f = model.matrices(p), model.feedback(p)
+    a, b, e, f = ss.a.numpy(), ss.b.numpy(), ss.e.numpy(), f.numpy()
+
+    def rhs(time: float, state: np.ndarray) -> np.ndarray:
+        w = model.nonlinearity(torch.tensor(state), torch.zeros(1, dtype=torch.float64), p).numpy()
+        return a @ state + b @ [np.interp(time, t, force)] + e + f @ w
+
+    ref = solve_ivp(rhs, (0, t[-1]), np.zeros(2), t_eval=t, rtol=1e-9, atol=1e-12, max_step=dt).y.T
+    assert np.abs(x - ref).max(axis=0)[1] < 1e-3 * np.abs(ref[:, 1]).max()  # velocity
+    assert np.abs(x - ref).max(axis=0)[0] < 1e-3 * np.abs(ref[:, 0]).max()  # position
+    assert np.abs(linear - x).max(axis=0)[0] > 0.05 * np.abs(x[:, 0]).max()  # the friction matters here

@@ -50,3 +50,21 @@ class MassWithFriction(LTIModel):
         c = torch.stack([one, zero]).reshape(1, 2)  # y = position
         e = torch.stack([zero, f0 / m])  # (2,) the offset force accelerates the load
         return StateSpace(a, b, c, m.new_zeros(1, 1), e)
+
+
+class MassWithCoulombFriction(MassWithFriction):
+    """The EMPS reference model with its Coulomb friction: M q̈ = u - Fv q̇ - Fc sign(q̇) + F0,
+    ``coulomb_friction`` Fc [N] (positive; Janot et al. identified ≈ 20 N), sign(q̇) smoothed to
+    tanh(q̇ / v_s) with v_s = ``SMOOTHING_MPS`` (differentiable; far below the axis' speeds). The
+    Coulomb force is fed back in Lur'e form (F = [0, 1/M]): nonlinear, simulated step by step."""
+
+    SMOOTHING_MPS = 0.005  # [m/s]
+
+    parameters = MassWithFriction.parameters + (ParameterSpec("coulomb_friction", 20.0, "N"),)
+
+    def feedback(self, p: Mapping[str, Tensor]) -> Tensor:
+        m = p["mass"]
+        return torch.stack([torch.zeros_like(m), 1.0 / m]).reshape(2, 1)
+
+    def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
+        return -p["coulomb_friction"] * torch.tanh(x[..., 1:2] / self.SMOOTHING_MPS)
