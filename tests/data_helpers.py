@@ -92,3 +92,20 @@ def fake_mat73(path: Path) -> Path:
     header = text.ljust(116, b" ") + b"\x00" * 8 + b"\x00\x02" + b"IM"
     path.write_bytes(header + b"\x00" * 512)
     return path
+
+
+USER_EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "user_system"
+
+
+def make_dc_motor_data(folder: Path, seconds: float) -> dict[str, str]:
+    """The DC-motor example's data (``examples/user_system/make_data.py``) in ``folder``; returns
+    the environment that finds the example's system class (its folder on PYTHONPATH)."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "PYTHONPATH": str(USER_EXAMPLE)}
+    made = subprocess.run([sys.executable, str(USER_EXAMPLE / "make_data.py"), str(folder), "--seconds", str(seconds)],
+                          capture_output=True, text=True, timeout=120, env=env)
+    assert made.returncode == 0, made.stderr[-2000:]
+    return env

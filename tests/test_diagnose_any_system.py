@@ -18,6 +18,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from data_helpers import make_dc_motor_data
+
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "user_system"
 
@@ -25,10 +27,7 @@ EXAMPLE = ROOT / "examples" / "user_system"
 @pytest.fixture(scope="module")
 def diagnosed(tmp_path_factory) -> Path:
     data, out = tmp_path_factory.mktemp("dc_motor_data"), tmp_path_factory.mktemp("dc_motor_diagnosis")
-    env = {**os.environ, "PYTHONPATH": str(EXAMPLE)}
-    made = subprocess.run([sys.executable, str(EXAMPLE / "make_data.py"), str(data), "--seconds", "20"],
-                          capture_output=True, text=True, timeout=120, env=env)
-    assert made.returncode == 0, made.stderr[-2000:]
+    env = make_dc_motor_data(data, 20)
     command = [sys.executable, "-m", "hypa.diagnose", "--config-dir", str(EXAMPLE / "conf"), "dataset=dc_motor",
                "model=dc_motor", f"data.dir={data}", "physics.hold=zoh", f"hydra.run.dir={out}"]
     result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, env=env)

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from data_helpers import make_dc_motor_data
+
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "user_system"
 
@@ -17,10 +19,7 @@ EXAMPLE = ROOT / "examples" / "user_system"
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory) -> Path:
     data, run = tmp_path_factory.mktemp("dc_motor_data"), tmp_path_factory.mktemp("dc_motor_run")
-    env = {**os.environ, "PYTHONPATH": str(EXAMPLE)}
-    made = subprocess.run([sys.executable, str(EXAMPLE / "make_data.py"), str(data), "--seconds", "30"],
-                          capture_output=True, text=True, timeout=120, env=env)
-    assert made.returncode == 0, made.stderr[-2000:]
+    env = make_dc_motor_data(data, 30)
     command = [sys.executable, "-m", "hypa.train", "--config-dir", str(EXAMPLE / "conf"), "dataset=dc_motor",
                "model=dc_motor", f"data.dir={data}", "trainer.max_epochs=4", "trainer.enable_progress_bar=false",
                "optimizer.physics_lr=0.05", f"hydra.run.dir={run}"]

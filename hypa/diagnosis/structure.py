@@ -81,7 +81,8 @@ def analyze_output(name: str, unit: str, measured: Sequence[np.ndarray], predict
     edges_hz = [0.0, *(nyquist * f for f in (0.01, 0.05, 0.2)), nyquist]
     bands = list(zip(edges_hz[:-1], edges_hz[1:]))
     band_share, band_power = [], []
-    per_record = [(m - p, m) for m, p in zip(measured, predicted) if len(m) >= 16]
+    errors = [m - p for m, p in zip(measured, predicted)]
+    per_record = [(e, m) for e, m in zip(errors, measured) if len(m) >= 16]
     for lo, hi in bands:
         e_pow = y_pow = 0.0
         for e_r, y_r in per_record:
@@ -98,7 +99,6 @@ def analyze_output(name: str, unit: str, measured: Sequence[np.ndarray], predict
     worst = bands[int(np.argmax(judged))]
     correlated = {}
     for channel, arrays in channels.items():
-        errors = [m - p for m, p in zip(measured, predicted)]
         peaks = [correlation_peak(e, c, min(max_lag, len(e) // 4)) for e, c in zip(errors, arrays) if len(e) > 8]
         if not peaks:
             continue
