@@ -26,7 +26,10 @@ def vehicle_from_config(node: DictConfig) -> VehicleParameters:
         raise UserError(
             f"unknown vehicle parameters {sorted(unknown)}; known: {', '.join(VehicleParameters.names())}"
         )
-    return VehicleParameters(**{k: float(v) for k, v in values.items()})
+    try:
+        return VehicleParameters(**{k: float(v) for k, v in values.items()})
+    except ValueError as error:  # a value out of its range: vehicle.cf=-1
+        raise UserError(str(error)) from None
 
 
 def data_dir_from_config(cfg: DictConfig) -> Path:

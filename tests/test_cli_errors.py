@@ -58,6 +58,9 @@ CASES = [
      "physics.rear_steering=both is not one of fixed, none"),
     ("testbench-seed-text", "hypa.testbench", ["testbench.records.val.seed=abc"],
      "testbench.records.val.seed: Value 'abc'"),
+    ("diagnose-vehicle-negative", "hypa.diagnose", [*FILES, "vehicle.cf=-1"], "'cf' must be positive, got -1.0"),
+    ("diagnose-missing-catalogue", "hypa.diagnose", [*FILES, "diagnosis.catalogue=[{root}/missing.yaml]"],
+     "missing.yaml"),
     ("reproduce-no-runs", "hypa.reproduce", ["skip_training=true", "out={root}/results"], "no runs in"),
 ]
 

@@ -200,3 +200,4 @@ def test_values_are_written_with_units() -> None:
     assert format_value(0.0612, "s") == "61.2 ms"
     assert format_value(1.234e5, "N/rad") == "1.23e+05 N/rad"
     assert format_value(3.0, "") == "3"
+    assert format_value(0.00498, "rad") == "0.285 deg" and format_value(0.0017, "rad/s") == "0.0974 deg/s"

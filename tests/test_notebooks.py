@@ -39,10 +39,12 @@ def test_reproduce_notebook_runs_on_a_tiny_reproduction(tmp_path: Path, hypa_cac
     assert any("image/png" in o.get("data", {}) for o in outputs)
 
 
-def test_diagnose_notebook_names_the_hidden_delay_and_offset(tmp_path: Path, monkeypatch) -> None:
-    """02_diagnose on 40 s records: a 60 ms steering delay and a side-slip sensor offset are named."""
+def test_diagnose_notebook_names_the_rear_steering_and_the_relaxation(tmp_path: Path, monkeypatch) -> None:
+    """02_diagnose on the default test bench shortened to 40 s records, two rounds: the rear-wheel
+    steering (unmodeled_input) and the tire relaxation are named, the gain and what remains shown."""
     monkeypatch.setenv("HYPA_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.setenv("HYPA_DIAGNOSE_SECONDS", "40")
+    monkeypatch.setenv("HYPA_DIAGNOSE_MAX_CAUSES", "2")
     notebook = nbformat.read(ROOT / "notebooks" / "02_diagnose.ipynb", as_version=4)
     NotebookClient(notebook, timeout=300, kernel_name="python3",
                    resources={"metadata": {"path": str(ROOT / "notebooks")}}).execute()
@@ -50,6 +52,8 @@ def test_diagnose_notebook_names_the_hidden_delay_and_offset(tmp_path: Path, mon
     assert not [o for o in outputs if o.get("output_type") == "error"]
     text = "".join(o.get("text", "") for o in outputs if o.get("output_type") == "stream")
     named = next(line for line in text.splitlines() if line.startswith("named causes:"))
-    assert "input_delay" in named and "sensor_offset" in named, named
-    assert sum("image/png" in o.get("data", {}) for o in outputs) >= 5
-    assert any("MSE change" in o.get("data", {}).get("text/markdown", "") for o in outputs)
+    assert "unmodeled_input" in named and "tire_relaxation" in named, named
+    assert "rear_wheel_angle: correlation" in text and "of its variance left" in text
+    assert sum("image/png" in o.get("data", {}) for o in outputs) >= 2
+    markdown = "".join(o.get("data", {}).get("text/markdown", "") for o in outputs)
+    assert "MSE change" in markdown and "| 2 | **tire_relaxation**" in markdown

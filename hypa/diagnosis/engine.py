@@ -24,12 +24,12 @@ import torch
 from hypa.data import HypaDataModule, Record
 from hypa.diagnosis.catalogue import Entry, catalogue_candidates, load_catalogue
 from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, frozen, set_free
-from hypa.evaluation.runs import free_run
 from hypa.models import ComposedModel
 from hypa.models.spec import ModelSpec, ModelSpecError
 from hypa.physics import SchedulingError, UnstablePhysicsError
 
 
+REFINE_LR = 0.2  # the learning rate of the earlier causes' knobs, relative to the candidate's own
 ALTERNATIVE = 0.95  # a candidate explaining this share of the named one's gain is reported beside it
 
 
@@ -41,10 +41,18 @@ class Problem:
     physical_values: Mapping[str, float]
     hold: str = "foh"
     horizon: int = 100
-    steps: int = 60  # gradient steps per candidate fit (half for nonlinear physics, simulated step by step)
+    steps: int = 60  # gradient steps per candidate fit (a third for nonlinear physics, simulated step by step)
     batch: int = 128  # training windows per step
     lr: float = 0.05  # on the raw (relative) parameters: about 5 % of a value per step
     seed: int = 0
+    stretch_s: float = 20.0  # [s] the free runs that score a candidate restart from the data this often
+
+    def stretches(self, split: str) -> Stretches:
+        """The ``split``'s records cut into stretches of ``stretch_s`` (made once, then cached)."""
+        cache = self.__dict__.setdefault("_stretches", {})
+        if split not in cache:
+            cache[split] = Stretches.cut(self.dm, self.dm.records(split), max(1, round(self.stretch_s / self.dm.dt)))
+        return cache[split]
 
     def scale(self, names: Sequence[str]) -> dict[str, tuple[float, float]]:
         norm = self.dm.normalization.subset(list(names))
@@ -73,6 +81,7 @@ class Finding:
     alternatives: list[str] = field(default_factory=list)  # candidates that explain (almost) as much
     note: str = ""  # what a value-less cause means on these data (scheduling: the ranges)
     refined: dict[str, float] = field(default_factory=dict)  # earlier causes' knobs, re-fitted with it
+    steps: tuple[int, int] | None = None  # gradient fits: (steps done, of); fewer: stopped early, behind others
 
     @property
     def key(self) -> str:
@@ -90,14 +99,19 @@ class Finding:
     def to_dict(self) -> dict:
         return {"cause": self.cause, "target": self.target, "values": self.values, "units": self.units,
                 "score": self.score, "gain": self.gain, "seconds": self.seconds, "error": self.error,
-                "alternatives": self.alternatives, "refined": self.refined, "text": self.describe()}
+                "alternatives": self.alternatives, "refined": self.refined,
+                "steps": list(self.steps) if self.steps else None, "text": self.describe()}
+
+
+READABLE = {"rad": ("deg", 180.0 / math.pi), "rad/s": ("deg/s", 180.0 / math.pi)}  # SI unit -> (shown, factor)
 
 
 def format_value(value: float, unit: str) -> str:
-    """Rounded to 3 significant digits with its unit (seconds below 1 s as ms)."""
+    """Rounded to 3 significant digits with its unit (seconds below 1 s as ms, angles in degrees)."""
     if unit == "s" and abs(value) < 1.0:
         return f"{value * 1e3:.3g} ms"
-    return f"{value:.3g} {'' if unit == '-' else unit}".rstrip()
+    unit, factor = READABLE.get(unit, (unit, 1.0))
+    return f"{value * factor:.3g} {'' if unit == '-' else unit}".rstrip()
 
 
 def _windows(dm: HypaDataModule) -> dict[str, torch.Tensor]:
@@ -108,76 +122,146 @@ def _windows(dm: HypaDataModule) -> dict[str, torch.Tensor]:
     return {k: v for k, v in batch.items() if k in ("u", "y", "s")}
 
 
-def score(model: ComposedModel, dm: HypaDataModule, records: Sequence[Record]) -> float:
-    """Mean over outputs of the free-run error energy relative to the output's variance (1 - R²)."""
-    err, var = np.zeros(len(dm.output_names)), np.zeros(len(dm.output_names))
-    for record in records:
-        run = free_run(model, dm, record)
-        for i, name in enumerate(dm.output_names):
-            y, p = run.measured[name][run.first:], run.predicted[name][run.first:]
-            err[i] += float(np.sum((p - y) ** 2))
-            var[i] += float(np.sum((y - np.mean(y)) ** 2))
-    out = err / np.maximum(var, 1e-300)
-    return float(np.mean(out)) if np.all(np.isfinite(out)) else math.inf
+@dataclass(frozen=True)
+class Stretches:
+    """Records cut into long windows (stretches) that tile them, batched by length: what the
+    search simulates to score a candidate (validation) and to fit an offset (training).
+
+    Each stretch starts like a training window, from its first ``first`` samples (the measured
+    state, or the estimate of an unmeasured one from the past), and predicts the next
+    ``samples``; consecutive stretches predict consecutive samples, the last one of a record
+    ends at its end. A batch is ``{"u", "y", "s"}``: normalized inputs and outputs, SI scheduling.
+    """
+
+    batches: tuple[dict[str, torch.Tensor], ...]
+    first: int
+
+    @classmethod
+    def cut(cls, dm: HypaDataModule, records: Sequence[Record], samples: int) -> Stretches:
+        first, groups = dm.past + 1, {}
+        norm = dm.normalization
+        for record in records:
+            length = min(len(record), first + samples)
+            if length <= first:
+                continue
+            starts = list(range(0, len(record) - length + 1, samples))
+            if starts[-1] != len(record) - length:
+                starts.append(len(record) - length)
+            arrays = {"u": norm.normalize(record.stack(dm.input_names), dm.input_names),
+                      "y": norm.normalize(record.stack(dm.output_names), dm.output_names),
+                      "s": record.stack(dm.scheduling_names)}
+            for start in starts:
+                groups.setdefault(length, []).append({k: a[start : start + length] for k, a in arrays.items()})
+        batches = tuple({k: torch.as_tensor(np.stack([w[k] for w in group]), dtype=torch.float32) for k in group[0]}
+                        for group in groups.values())
+        return cls(batches, first)
+
+    @torch.no_grad()
+    def predict(self, model: ComposedModel) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """(predicted, measured) normalized outputs (B, L - first, p) per batch, float64."""
+        out = []
+        for b in self.batches:
+            s = b["s"] if b["s"].shape[-1] else None
+            pred = model(b["u"], b["y"][:, : self.first], s)
+            out.append((pred.double(), b["y"][:, self.first :].double()))
+        return out
+
+    def weights(self) -> torch.Tensor:
+        """1 / the variance of each (normalized) output over the predicted samples."""
+        y = torch.cat([b["y"][:, self.first :].reshape(-1, b["y"].shape[-1]) for b in self.batches]).double()
+        return 1.0 / torch.clamp(y.var(0, unbiased=False), min=1e-300)
+
+    def score(self, model: ComposedModel) -> float:
+        """Mean over outputs of the error energy relative to the output's variance (1 - R²)."""
+        pairs = self.predict(model)
+        count = sum(p.shape[0] * p.shape[1] for p, _ in pairs)
+        mse = sum(((p - y) ** 2).sum((0, 1)) for p, y in pairs) / count
+        out = (mse * self.weights()).numpy()
+        return float(np.mean(out)) if np.all(np.isfinite(out)) else math.inf
+
+
+class GradientFit:
+    """A candidate's physical knobs being fitted on the training windows (the training loss,
+    Adam), together with ``refine``, the knobs of the causes named before it (the causes are
+    fitted jointly: a rear-steering ratio fitted on linear tires moves once saturation joins
+    it). Resumable: the search advances only the promising fits to the full ``problem.steps``
+    (a third for nonlinear physics, simulated step by step)."""
+
+    def __init__(self, candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor],
+                 refine: Sequence[str] = ()) -> None:
+        self.candidate, self.problem, self.windows = candidate, problem, windows
+        self.model = problem.build(set_free(candidate.spec, refine) if refine else candidate.spec)
+        self.refine = [k for k in refine if k in self.model.parameters_.names]
+        params = [p for p in self.model.parameters() if p.requires_grad]
+        if not params:
+            raise ModelSpecError(f"{candidate.key}: nothing to fit")
+        # the earlier causes' knobs start at their optimum: slower steps, so that Adam's first
+        # steps (about lr each, whatever the gradient) do not throw them off it
+        settled = {id(self.model.parameters_.raw[k]) for k in self.refine}
+        groups = [{"params": [p for p in params if id(p) not in settled], "lr": problem.lr},
+                  {"params": [p for p in params if id(p) in settled], "lr": REFINE_LR * problem.lr}]
+        self.optimizer = torch.optim.Adam([g for g in groups if g["params"]])
+        self.base_lr = [g["lr"] for g in self.optimizer.param_groups]
+        self.generator = torch.Generator().manual_seed(problem.seed)
+        nonlinear = any(getattr(getattr(b, "model", None), "is_nonlinear", False) for b in self.model.blocks.values())
+        self.total, self.done = problem.steps // 2 if nonlinear else problem.steps, 0
+        # nonlinear physics (simulated step by step, 3x slower per step) gets a third of the
+        # steps: they start twice as long and shrink to a tenth (cosine), so the fit still settles
+        self.boost = 2.0 if nonlinear else 1.0
+        self.batch = problem.batch
+
+    def advance(self, share: float) -> None:
+        """Go on until ``share`` of the total steps are done."""
+        first, count, w = self.problem.dm.past + 1, self.windows["u"].shape[0], self.windows
+        while self.done < math.ceil(share * self.total):
+            index = torch.randperm(count, generator=self.generator)[: self.batch]
+            u, y = w["u"][index], w["y"][index]
+            loss = torch.mean((self.model(u, y[:, :first], w["s"][index] if "s" in w else None) - y[:, first:]) ** 2)
+            self.optimizer.zero_grad()
+            loss.backward()
+            if self.boost != 1.0:
+                factor = self.boost * (0.1 + 0.45 * (1.0 + math.cos(math.pi * self.done / self.total)))
+                for group, lr in zip(self.optimizer.param_groups, self.base_lr):
+                    group["lr"] = lr * factor
+            self.optimizer.step()
+            self.done += 1
+
+    def values(self) -> dict[str, float]:
+        return {k: float(self.model.parameters_.value(k).detach()) for k in (*self.candidate.knobs, *self.refine)}
 
 
 def fit_gradient(candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor],
                  refine: Sequence[str] = ()) -> dict[str, float]:
-    """Fit the candidate's physical knobs on the training windows (the training loss, Adam),
-    together with ``refine``, the knobs of the causes named before it (the causes are fitted
-    jointly: a rear-steering ratio fitted on linear tires moves once saturation joins it)."""
-    model = problem.build(set_free(candidate.spec, refine) if refine else candidate.spec)
-    refine = [k for k in refine if k in model.parameters_.names]
-    params = [p for p in model.parameters() if p.requires_grad]
-    if not params:
-        raise ModelSpecError(f"{candidate.key}: nothing to fit")
-    optimizer = torch.optim.Adam(params, lr=problem.lr)
-    generator = torch.Generator().manual_seed(problem.seed)
-    first, count = problem.dm.past + 1, windows["u"].shape[0]
-    nonlinear = any(getattr(getattr(b, "model", None), "is_nonlinear", False) for b in model.blocks.values())
-    for _ in range(problem.steps // 2 if nonlinear else problem.steps):
-        index = torch.randperm(count, generator=generator)[: problem.batch]
-        u, y = windows["u"][index], windows["y"][index]
-        s = windows["s"][index] if "s" in windows else None
-        loss = torch.mean((model(u, y[:, :first], s) - y[:, first:]) ** 2)
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
-    return {k: float(model.parameters_.value(k).detach()) for k in (*candidate.knobs, *refine)}
+    """The candidate's knobs (and ``refine``) fitted to the full number of steps (:class:`GradientFit`)."""
+    fit = GradientFit(candidate, problem, windows, refine)
+    fit.advance(1.0)
+    return fit.values()
 
 
 def fit_affine(candidate: Candidate, problem: Problem) -> dict[str, float]:
-    """Least squares of one offset b: the (linear) model's outputs are affine in it, so two free
-    runs over the training records (b = 0 and a probe) give the response to b exactly."""
-    channel, dm = candidate.target, problem.dm
+    """Least squares of one offset b: the (linear) model's outputs are affine in it, so two
+    simulations of the training stretches (b = 0 and a probe) give the response to b exactly."""
+    channel = candidate.target
     probe = 0.1 * problem.scale([channel])[channel][1]
-    base = candidate.spec
-
-    def runs(offset: float) -> list:
-        spec = applied(candidate, {channel: offset}) if offset else base
-        model = problem.build(spec)
-        return [free_run(model, dm, r) for r in dm.records("train")]
-
-    zero, moved = runs(0.0), runs(probe)
-    num = den = 0.0
-    for a, b in zip(zero, moved):
-        for name in dm.output_names:
-            y = a.measured[name][a.first:]
-            weight = 1.0 / max(float(np.var(y)), 1e-300)
-            g = (b.predicted[name][a.first:] - a.predicted[name][a.first:]) / probe
-            r = y - a.predicted[name][a.first:]
-            num += weight * float(np.dot(g, r))
-            den += weight * float(np.dot(g, g))
+    train = problem.stretches("train")
+    zero = train.predict(problem.build(candidate.spec))
+    moved = train.predict(problem.build(applied(candidate, {channel: probe})))
+    weights, num, den = train.weights(), 0.0, 0.0
+    for (p0, y), (p1, _) in zip(zero, moved):
+        g, r = (p1 - p0) / probe, y - p0
+        num += float(((g * r).sum((0, 1)) * weights).sum())
+        den += float(((g * g).sum((0, 1)) * weights).sum())
     return {channel: num / den if den > 0 else 0.0}
+
+
+_FIT_ERRORS = (UnstablePhysicsError, SchedulingError, ModelSpecError, ValueError)
 
 
 def evaluate(candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor], base_score: float,
              refine: Sequence[str] = ()) -> Finding:
-    """Fit a candidate (with ``refine``, see :func:`fit_gradient`) and score it free-running on
-    the validation records. ``values`` holds the candidate's own knobs, ``refined`` the others."""
+    """Fit a candidate (with ``refine``, see :class:`GradientFit`) and score it on the validation
+    stretches. ``values`` holds the candidate's own knobs, ``refined`` the others."""
     started = time.perf_counter()
-    units = dict(candidate.units) or {candidate.target: problem.dm.channels[candidate.target].unit
-                                      if candidate.fit == AFFINE else ""}
     try:
         if candidate.fit == GRADIENT:
             values = fit_gradient(candidate, problem, windows, refine)
@@ -185,17 +269,72 @@ def evaluate(candidate: Candidate, problem: Problem, windows: Mapping[str, torch
             values = fit_affine(candidate, problem)
         else:
             values = {}
-        spec = applied(candidate, values)
-        value = score(problem.build(spec), problem.dm, problem.dm.records("val"))
-    except (UnstablePhysicsError, SchedulingError, ModelSpecError, ValueError) as error:
-        return Finding(candidate.cause, candidate.target, {}, {}, math.inf, -math.inf,
-                       time.perf_counter() - started, str(error).split("\n")[0], candidate)
+        value = problem.stretches("val").score(problem.build(applied(candidate, values)))
+    except _FIT_ERRORS as error:
+        return _failed(candidate, error, time.perf_counter() - started)
+    return _finding(candidate, problem, values, value, base_score, time.perf_counter() - started)
+
+
+def _failed(candidate: Candidate, error: Exception, seconds: float) -> Finding:
+    return Finding(candidate.cause, candidate.target, {}, {}, math.inf, -math.inf, seconds,
+                   str(error).split("\n")[0], candidate)
+
+
+def _finding(candidate: Candidate, problem: Problem, values: Mapping[str, float], value: float, base_score: float,
+             seconds: float) -> Finding:
+    units = dict(candidate.units) or {candidate.target: problem.dm.channels[candidate.target].unit
+                                      if candidate.fit == AFFINE else ""}
     gain = 1.0 - value / base_score if base_score > 0 else 0.0
     note = _scheduling_note(candidate, problem) if candidate.cause == "scheduling" else ""
     own = {k: v for k, v in values.items() if k in candidate.knobs or candidate.fit == AFFINE}
     refined = {k: v for k, v in values.items() if k not in own}
-    return Finding(candidate.cause, candidate.target, own, units, value, gain, time.perf_counter() - started,
-                   None, candidate, note=note, refined=refined)
+    return Finding(candidate.cause, candidate.target, own, units, value, gain, seconds, None, candidate, note=note,
+                   refined=refined)
+
+
+RUNGS = (0.25, 0.5, 1.0)  # shares of the fit steps after which the gradient fits are ranked
+
+
+def evaluate_round(candidates: Sequence[Candidate], problem: Problem, windows: Mapping[str, torch.Tensor],
+                   base_score: float, refine: Sequence[str] = ()) -> list[Finding]:
+    """Every candidate of a round fitted and scored (best first), by successive halving: all
+    gradient fits run a quarter of their steps and are scored on the validation stretches, the
+    better half (at least 3) goes on to half the steps, the better half of those (at least 2)
+    to the end unless still worse than the base model. A fit stopped early says so (``Finding.steps``); its gain is a lower bound."""
+    findings, fits = [], []
+    for c in candidates:
+        if c.fit != GRADIENT:
+            findings.append(evaluate(c, problem, windows, base_score, refine))
+            continue
+        started = time.perf_counter()
+        try:
+            fits.append([GradientFit(c, problem, windows, refine), math.inf, None, time.perf_counter() - started])
+        except _FIT_ERRORS as error:
+            findings.append(_failed(c, error, time.perf_counter() - started))
+    val = problem.stretches("val")
+    alive = list(fits)
+    for k, share in enumerate(RUNGS):
+        for entry in alive:
+            started = time.perf_counter()
+            try:
+                entry[0].advance(share)
+                entry[1] = val.score(entry[0].model)
+            except _FIT_ERRORS as error:
+                entry[1], entry[2] = math.inf, error
+            entry[3] += time.perf_counter() - started
+        alive = [e for e in alive if e[2] is None]
+        if k + 1 < len(RUNGS):
+            alive = sorted(alive, key=lambda e: e[1])[: max(3 - k, math.ceil(len(alive) / 2))]
+            if k > 0:  # after half its steps a fit still worse than the base model will not win
+                alive = [e for e in alive if e[1] < base_score]
+    for fit, value, error, seconds in fits:
+        if error is not None:
+            findings.append(_failed(fit.candidate, error, seconds))
+            continue
+        finding = _finding(fit.candidate, problem, fit.values(), value, base_score, seconds)
+        finding.steps = (fit.done, fit.total)
+        findings.append(finding)
+    return sorted(findings, key=lambda f: f.score)
 
 
 def _scheduling_note(candidate: Candidate, problem: Problem) -> str:
@@ -232,6 +371,17 @@ def name_causes(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry]
     error (1 - R², mean over outputs) by at least ``min_gain`` (relative), applies it and goes on;
     below ``floor`` (share of the output variance: sensor noise) there is nothing left to name.
     """
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # tiny tensors: a second thread only waits (and on a busy machine, 20x slower)
+    try:
+        return _search(nominal, problem, catalogue, candidates, max_causes, min_gain, floor, progress)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | None,
+            candidates: Callable[[ModelSpec], list[Candidate]] | None, max_causes: int, min_gain: float,
+            floor: float, progress: Callable[[str], None]) -> Search:
     started = time.perf_counter()
     dm = problem.dm
     uncertain = {b.name: b.trainable for b in nominal.blocks}
@@ -243,13 +393,13 @@ def name_causes(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry]
     torch.manual_seed(problem.seed)
     windows = _windows(dm)
     base = frozen(nominal)
-    base_score = nominal_score = score(problem.build(base), dm, dm.records("val"))
+    base_score = nominal_score = problem.stretches("val").score(problem.build(base))
     progress(f"nominal model: validation error {100 * base_score:.3g} % of the output variance")
     rounds, named, refine = [], [], []
     while len(named) < max_causes and base_score > floor:
         done = {f.key for f in named}
-        findings = [evaluate(c, problem, windows, base_score, refine) for c in candidates(base) if c.key not in done]
-        findings.sort(key=lambda f: f.score)
+        findings = evaluate_round([c for c in candidates(base) if c.key not in done], problem, windows, base_score,
+                                  refine)
         rounds.append(findings)
         if not findings or findings[0].gain < min_gain:
             break

@@ -8,10 +8,11 @@ Every job writes its ``diagnosis.json`` (or, if it failed, ``error.json`` with i
 :func:`record_failures`) into its job folder; after the last job, :class:`FleetSummary` (a Hydra
 callback registered in conf/diagnose.yaml, so it runs with any launcher) reads them all and writes
 ``fleet.md`` and ``fleet.json`` into the sweep folder: per log the named causes, their estimates
-in the units an engineer reads and the validation MSE change; across logs how often each cause
+in the units an engineer reads and the validation error change; across logs how often each cause
 is named and the spread of each estimate, where a parameter that drifts from log to log (tire
-wear, load) shows up. Like ``make -k``, a failed log does not stop the others, and the exit
-status is 1 if any failed.
+wear, load) shows up. Works for any system: the estimates and their units come from the named
+causes' rows of ``diagnosis.json``. Like ``make -k``, a failed log does not stop the others, and
+the exit status is 1 if any failed.
 """
 
 from __future__ import annotations
@@ -37,17 +38,15 @@ import yaml
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
-from hypa.errors import UserError, user_error_types, user_errors
-from hypa.vehicle.display import DEG
+from hypa.errors import UserError, one_line, user_error_types, user_errors
 
 F = TypeVar("F", bound=Callable[..., Any])
 
 DIAGNOSIS_FILE = "diagnosis.json"
 ERROR_FILE = "error.json"
 JOB_NAME = "diagnose"  # hydra.job.name of python -m hypa.diagnose
-# Display unit and factor from SI of a sensor offset, by channel (radians are read in degrees).
-OFFSET_UNITS = {"steering_wheel_angle": ("deg", DEG), "yaw_rate": ("deg/s", DEG), "side_slip": ("deg", DEG)}
-UNITS = {"ay_threshold": "m/s²", "mu": "-", "ratio": "-"}  # of the estimate keys that are no time (*_s: in ms)
+# SI unit of a fitted value -> (unit an engineer reads, factor from SI); other units are shown as they are
+DISPLAY = {"s": ("ms", 1e3), "rad": ("deg", 180.0 / math.pi), "rad/s": ("deg/s", 180.0 / math.pi)}
 
 
 @dataclass(frozen=True)
@@ -67,7 +66,7 @@ class LogDiagnosis:
     error: str | None = None  # one line; None: diagnosed
     causes: tuple[str, ...] = ()  # named, most important first ([] = none)
     estimates: dict[str, Estimate] = field(default_factory=dict)  # "cause: what" -> estimate
-    mse_change: dict[str, float | None] = field(default_factory=dict)  # all / high_ay / trained, (after-before)/before
+    mse_change: dict[str, float | None] = field(default_factory=dict)  # all / trained: (after-before)/before
     label: str = ""  # what tells this log from the others (its data.dir)
 
     @property
@@ -147,42 +146,46 @@ def _relative(path: Path, root: Path) -> str:
         return str(path)
 
 
-def estimates(cause: str, estimate: Mapping[str, Any]) -> dict[str, Estimate]:
-    """A named cause's estimate (SI, as in diagnosis.json) in the units an engineer reads, keyed
-    ``"cause: what"``: a vehicle parameter by its name, an offset by its channel (deg, deg/s),
-    times in ms. Text entries (``hold``, the rear channel) are no quantity and are left out."""
-    if cause == "parameter_mismatch":
-        from hypa.vehicle.physics import parameter_spec
-
-        name = str(estimate["parameter"])
-        return {f"{cause}: {name}": Estimate(float(estimate["value"]), parameter_spec(name, 1.0).unit)}
-    if cause == "sensor_offset":
-        channel = str(estimate["channel"])
-        unit, factor = OFFSET_UNITS.get(channel, ("SI", 1.0))
-        return {f"{cause}: {channel}": Estimate(float(estimate["offset"]) * factor, unit)}
+def estimates(named: Mapping[str, Any]) -> dict[str, Estimate]:
+    """A named cause's fitted values (a ``named`` row of diagnosis.json, SI) for the summary,
+    keyed ``"cause: what"``: a value that is its target by the target (``parameter_mismatch: cr``,
+    ``output_offset: yaw_rate``), the knobs of an inserted block by their own name
+    (``unmodeled_input: gain``, ``unmodeled_input: tau`` from ``.../tau_s``); in the units an
+    engineer reads (:data:`DISPLAY`: times in ms, angles in deg)."""
+    cause, target, units = named["cause"], named.get("target", ""), named.get("units") or {}
     out = {}
-    for name, value in estimate.items():
+    for knob, value in (named.get("values") or {}).items():
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             continue
-        if name.endswith("_s"):
-            out[f"{cause}: {name[:-2]}"] = Estimate(1000.0 * float(value), "ms")
-        else:
-            out[f"{cause}: {name}"] = Estimate(float(value), UNITS.get(name, "-"))
+        unit, name = units.get(knob) or "-", knob.rsplit("/", 1)[-1]
+        name = target if knob == target else name.removesuffix("_s") if unit == "s" else name
+        shown, factor = DISPLAY.get(unit, (unit, 1.0))
+        out[f"{cause}: {name}"] = Estimate(float(value) * factor, shown)
     return out
 
 
 def read_log(folder: Path) -> LogDiagnosis:
-    """One job folder: its diagnosis.json, else its error.json, else a job that did not finish."""
+    """One job folder: its diagnosis.json, else its error.json, else a job that did not finish.
+    A report without ``named`` rows (written before the one-engine diagnosis) gives its causes
+    but no estimates."""
     overrides = tuple(str(o) for o in (_yaml(folder / ".hydra" / "overrides.yaml") or []))
     if (folder / DIAGNOSIS_FILE).is_file():
-        result = json.loads((folder / DIAGNOSIS_FILE).read_text())
-        named = result["candidates"][: len(result["causes"])]
-        values = {k: e for row in named for k, e in estimates(row["cause"], row.get("estimate") or {}).items()}
-        gain = result.get("gain", {})
-        trained = result.get("extended", {}).get("trained")
-        change = {"all": gain.get("all", {}).get("overall"), "high_ay": gain.get("high_ay", {}).get("overall"),
-                  "trained": trained["gain"]["all"].get("overall") if trained else None}
-        return LogDiagnosis(folder, overrides, causes=tuple(result["causes"]), estimates=values, mse_change=change)
+        try:
+            result = json.loads((folder / DIAGNOSIS_FILE).read_text())
+            values: dict[str, Estimate] = {}
+            for row in result.get("named") or []:
+                found = estimates(row)
+                if values.keys() & found.keys():  # the same cause on two targets: told apart by the target
+                    found = {f"{row['cause']} on {row['target']}: {k.split(': ', 1)[1]}": e for k, e in found.items()}
+                values.update(found)
+            trained = (result.get("extended") or {}).get("trained")
+            change = {"all": ((result.get("gain") or {}).get("all") or {}).get("overall"),
+                      "trained": trained["gain"]["all"].get("overall") if trained else None}
+            causes = tuple(str(c) for c in result["causes"])
+        except (ValueError, KeyError, TypeError, AttributeError) as error:
+            return LogDiagnosis(folder, overrides, error=f"{folder / DIAGNOSIS_FILE} cannot be read "
+                                                         f"({type(error).__name__}: {error})")
+        return LogDiagnosis(folder, overrides, causes=causes, estimates=values, mse_change=change)
     if (folder / ERROR_FILE).is_file():
         return LogDiagnosis(folder, overrides, error=str(json.loads((folder / ERROR_FILE).read_text())["error"]))
     return LogDiagnosis(folder, overrides, error=f"no {DIAGNOSIS_FILE}: the job did not finish "
@@ -212,10 +215,11 @@ def labels(overrides: Sequence[Sequence[str]]) -> list[str]:
 def _plain(override: str) -> str:
     """``data.dir='/logs/run 3'`` -> ``/logs/run 3``; ``key='a b'`` -> ``key=a b``; others as typed."""
     from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
 
     try:
         parsed = OverridesParser.create().parse_override(override)
-    except Exception:  # Hydra wrote it, so this is a hand-edited file: shown as typed
+    except HydraException:  # Hydra wrote it, so this is a hand-edited file: shown as typed
         return override
     value = parsed.value()
     if parsed.is_delete() or not isinstance(value, str):
@@ -260,19 +264,21 @@ def markdown(fleet: Fleet) -> str:
     trained = any(log.mse_change.get("trained") is not None for log in fleet.logs)
     lines = [f"# Fleet diagnosis: {len(fleet.logs)} logs", "",
              f"Sweep folder `{fleet.sweep_dir}`: {diagnosed} diagnosed, {len(fleet.logs) - diagnosed} failed. "
-             "Each log's report is `<job>/diagnosis.md`. MSE change: validation MSE of the nominal physics with "
-             "the log's named causes applied, (after - before) / before, over all samples and at high |a_y|.",
+             "Each log's report is `<job>/diagnosis.md`. MSE change: validation error of the nominal model with "
+             "the log's named causes applied (each output's MSE relative to its variance, averaged over the "
+             "outputs), (after - before) / before" + ("; trained: the same for the trained extension." if trained
+                                                      else "."),
              "", "## Per log", ""]
-    head = ["job", "log", "named causes", "MSE change", "at high \\|a_y\\|", *(["trained"] if trained else []),
+    head = ["job", "log", "named causes", "MSE change", *(["trained"] if trained else []),
             *(f"{k} [{s.unit}]" for k, s in spreads.items())]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for log in fleet.logs:
         cells = [_relative(log.folder, fleet.sweep_dir), _cell(log.label)]
         if log.failed:
-            cells += [f"**failed**: {_cell(log.error or '')}", "", "", *([""] if trained else []), *[""] * len(spreads)]
+            cells += [f"**failed**: {_cell(log.error or '')}", "", *([""] if trained else []), *[""] * len(spreads)]
         else:
             cells += [", ".join(log.causes) or "none", percent(log.mse_change.get("all")),
-                      percent(log.mse_change.get("high_ay")), *([percent(log.mse_change.get("trained"))] if trained else []),
+                      *([percent(log.mse_change.get("trained"))] if trained else []),
                       *(number(log.estimates[k].value) if k in log.estimates else "" for k in spreads)]
         lines.append("| " + " | ".join(cells) + " |")
     lines += ["", "## Across logs", ""]
@@ -281,8 +287,8 @@ def markdown(fleet: Fleet) -> str:
     lines += ["| cause | named in | share |", "|---|---|---|"]
     lines += [f"| {c} | {n} / {diagnosed} | {100 * n / diagnosed:.0f} % |" for c, n in counts.items()]
     if spreads:
-        lines += ["", "Spread of each estimate over the logs that name its cause (std: sample standard deviation; "
-                  "a large relative spread is a parameter that changes from log to log):", "",
+        lines += ["", ("Spread of each estimate over the logs that name its cause (std: sample standard deviation; "
+                       "a large relative spread is a parameter that changes from log to log):"), "",
                   "| estimate | unit | logs | mean | std | min | max | std / \\|mean\\| |", "|---|---|---|---|---|---|---|---|"]
         for key, spread in spreads.items():
             s = spread.stats()
@@ -291,8 +297,8 @@ def markdown(fleet: Fleet) -> str:
                          f"{number(s['min'])} | {number(s['max'])} | {relative} |")
     changes = [log.mse_change["all"] for log in fleet.diagnosed if log.mse_change.get("all") is not None]
     if changes:
-        lines += ["", f"Validation MSE change with the named causes applied: mean {percent(float(np.mean(changes)))}, "
-                      f"from {percent(min(changes))} to {percent(max(changes))}."]
+        lines += ["", (f"Validation MSE change with the named causes applied: mean {percent(float(np.mean(changes)))}, "
+                       f"from {percent(min(changes))} to {percent(max(changes))}.")]
     return "\n".join(lines) + "\n"
 
 
@@ -317,10 +323,17 @@ def report(fleet: Fleet) -> str:
 class FleetSummary(Callback):
     """Hydra callback (``hydra.callbacks`` in conf/diagnose.yaml): after the last job of a
     multirun, on the machine that launched it, write the fleet summary into the sweep folder.
-    Like ``make -k``, the sweep goes on past a failed log but its exit status is 1 if any failed."""
+    Like ``make -k``, the sweep goes on past a failed log but its exit status is 1 if any failed,
+    or if the summary cannot be written (Hydra would only warn of an error raised here)."""
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
-        fleet = write_summary(Path(str(config.hydra.sweep.dir)))
+        try:
+            fleet = write_summary(Path(str(config.hydra.sweep.dir)))
+        except Exception as error:  # noqa: BLE001 (Hydra would turn it into a warning and exit 0)
+            if not isinstance(error, user_error_types()) or os.environ.get("HYDRA_FULL_ERROR") == "1":
+                traceback.print_exc()
+            print(f"hypa.{JOB_NAME}: error: fleet summary: {one_line(error)}", file=sys.stderr, flush=True)
+            sys.exit(1)
         print(report(fleet), flush=True)
         if len(fleet.diagnosed) < len(fleet.logs):
             sys.exit(1)
@@ -411,7 +424,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise UserError("no log folder given; e.g. python -m hypa.diagnosis.fleet run 'logs/*/'")
     command = diagnose_command(expand_logs(patterns), overrides)
     print("python " + " ".join(_shell_word(word) for word in command[1:]), flush=True)
-    return subprocess.run(command).returncode
+    return subprocess.run(command, check=False).returncode
 
 
 if __name__ == "__main__":

@@ -29,6 +29,8 @@ from hypa.diagnosis.structure import OutputStructure, analyze_output
 from hypa.evaluation.runs import Prediction, free_run
 from hypa.models.spec import ModelSpec
 
+DIAGNOSED = "diagnosed_"  # the prefix of what the catalogue's edits add (blocks, signals)
+
 
 def spec_config(spec: ModelSpec, name: str | None = None) -> dict[str, Any]:
     """A :class:`ModelSpec` as the mapping of a ``conf/model/*.yaml`` file (only keys that are set)."""
@@ -93,6 +95,17 @@ def _runs(problem: Problem, spec: ModelSpec) -> list[Prediction]:
     return [free_run(model, problem.dm, r) for r in problem.dm.records("val")]
 
 
+def _change(before: Mapping[str, dict], after: Mapping[str, dict], outputs: Sequence[str]) -> dict[str, float]:
+    """Relative change of each output's validation MSE."""
+    return {o: after[o]["mse"] / before[o]["mse"] - 1.0 if before[o]["mse"] > 0 else 0.0 for o in outputs}
+
+
+def _overall(before: Mapping[str, dict], after: Mapping[str, dict], outputs: Sequence[str]) -> float:
+    """Relative change of the mean over outputs of 1 - R² (the search's score)."""
+    b = float(np.mean([1.0 - before[o]["r2"] for o in outputs]))
+    return float(np.mean([1.0 - after[o]["r2"] for o in outputs])) / b - 1.0 if b > 0 else 0.0
+
+
 def _metrics(runs: Sequence[Prediction], outputs: Sequence[str]) -> dict[str, dict[str, float]]:
     out = {}
     for name in outputs:
@@ -106,11 +119,15 @@ def _metrics(runs: Sequence[Prediction], outputs: Sequence[str]) -> dict[str, di
 def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overrides: Sequence[str] = (),
                     plot: bool = True, max_causes: int = 5, min_gain: float = 0.15,
                     progress: Callable[[str], None] = print, config_dir: Path | None = None,
-                    catalogue: Sequence[Entry] | None = None) -> dict:
+                    catalogue: Sequence[Entry] | None = None,
+                    train_extension: Callable[[Sequence[str]], Sequence[Prediction]] | None = None) -> dict:
     """Steps 1-4 for the nominal model on the problem's data; returns diagnosis.json's content.
 
     ``train_overrides`` select the same data for ``hypa.train``; ``config_dir``: the user's own
-    config folder (``--config-dir``) that the train command needs too (their dataset YAML)."""
+    config folder (``--config-dir``) that the train command needs too (their dataset YAML).
+    ``train_extension(arguments)``: trains the written model with those ``hypa.train`` arguments
+    and returns its free runs over the validation records (:mod:`hypa.diagnosis.trained`); its
+    gain joins the report."""
     out.mkdir(parents=True, exist_ok=True)
     dm, started = problem.dm, time.perf_counter()
     progress(f"step 1/4: the nominal model {nominal.name!r} free-running on {len(dm.records('val'))} "
@@ -140,10 +157,21 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     commands = {name: train_command(out / "conf", name, train_overrides, name != "diagnosed", config_dir)
                 for name in written}
     metrics = {"nominal": _metrics(before, dm.output_names), "extended": _metrics(after, dm.output_names)}
-    change = {o: metrics["extended"][o]["mse"] / metrics["nominal"][o]["mse"] - 1.0
-              if metrics["nominal"][o]["mse"] > 0 else 0.0 for o in dm.output_names}
+    change = _change(metrics["nominal"], metrics["extended"], dm.output_names)
     change["overall"] = search.final_score / search.nominal_score - 1.0 if search.nominal_score > 0 else 0.0
+    trained = None
+    if train_extension is not None:
+        name = "diagnosed_hybrid" if "diagnosed_hybrid" in written else "diagnosed"
+        progress(f"          training {name} with hypa.train (progress below)")
+        runs = list(train_extension(train_arguments(out / "conf", name, train_overrides, name != "diagnosed",
+                                                    config_dir)))
+        metrics["trained"] = _metrics(runs, dm.output_names)
+        trained = {"model": name, "run": str(out / "extended_run"), "metrics": metrics["trained"],
+                   "gain": {"all": {**_change(metrics["nominal"], metrics["trained"], dm.output_names),
+                                    "overall": _overall(metrics["nominal"], metrics["trained"], dm.output_names)}}}
     result = {
+        "cause": search.named[0].cause if search.named else "none",  # the first named (the schema of old reports)
+        "estimate": dict(search.named[0].values) if search.named else {},
         "system": {"model": nominal.name, "inputs": list(dm.input_names), "outputs": list(dm.output_names),
                    "scheduling": list(dm.scheduling_names)},
         "causes": [f.cause for f in search.named],
@@ -157,11 +185,13 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
         "gain": {"all": change},
         "unexplained": [s.to_dict() for s in unexplained],
         "structure": {s.output: s.to_dict() for s in structure},
-        "extended": {"config": {k: str(v) for k, v in written.items()}, "train_command": commands},
+        "extended": {"config": {k: str(v) for k, v in written.items()}, "train_command": commands,
+                     "signals": signal_agreement(after), **({"trained": trained} if trained else {})},
         "data": {"dt": dm.dt, "train_records": len(dm.records("train")), "val_records": len(dm.records("val"))},
         "seconds": time.perf_counter() - started,
     }
-    figures = _figures(out, before, after, dm) if plot else {}
+    figures = _figures(out, before, after, dm, runs if trained else (), list(result["extended"]["signals"])) \
+        if plot else {}
     result["figures"] = figures
     (out / "diagnosis.json").write_text(json.dumps(result, indent=2, default=float))
     (out / "diagnosis.md").write_text(markdown(result, search, structure, dm))
@@ -187,35 +217,75 @@ def _write(path: Path, spec: ModelSpec, named: Sequence[Finding]) -> Path:
     return path
 
 
+def train_arguments(written: Path, model: str, overrides: Sequence[str], with_ann: bool,
+                    config_dir: Path | None = None) -> list[str]:
+    """``python -m hypa.train`` arguments that train a written model on the same data: the
+    written folder joins Hydra's search path, so a user's own ``--config-dir`` (their dataset)
+    still applies."""
+    return [*(["--config-dir", str(config_dir)] if config_dir else []), f"hydra.searchpath=[file://{written}]",
+            f"model={model}", *overrides, *(["ann=lstm"] if with_ann else [])]
+
+
 def train_command(written: Path, model: str, overrides: Sequence[str], with_ann: bool,
                   config_dir: Path | None = None) -> str:
-    """The shell command that trains a written model on the same data: the written folder joins
-    Hydra's search path, so a user's own ``--config-dir`` (their dataset) still applies."""
-    parts = ["python -m hypa.train", *([f"--config-dir {shlex.quote(str(config_dir))}"] if config_dir else []),
-             shlex.quote(f"hydra.searchpath=[file://{written}]"), f"model={model}",
-             *(shlex.quote(o) for o in overrides)]
-    if with_ann:
-        parts.append("ann=lstm")
-    return " ".join(parts)
+    """The shell command of :func:`train_arguments`."""
+    return " ".join(["python -m hypa.train",
+                     *(shlex.quote(w) for w in train_arguments(written, model, overrides, with_ann, config_dir))])
 
 
-def _figures(out: Path, before: Sequence[Prediction], after: Sequence[Prediction], dm) -> dict:
+def signal_agreement(runs: Sequence[Prediction]) -> dict[str, dict[str, float]]:
+    """Where the data measure what a diagnosed block recovers (its internal signal
+    ``diagnosed_<channel>`` and a measured ``<channel>``, e.g. the rear-wheel angle on the test
+    bench, evaluation only): correlation, RMS error and the measured RMS [SI] over the records."""
+    out = {}
+    names = {n for r in runs for n in r.signals if n.startswith(DIAGNOSED)}
+    for name in sorted(names):
+        channel = name[len(DIAGNOSED):]
+        pairs = [(r.measured[channel], r.signal_on_grid(name)) for r in runs if channel in r.measured
+                 and name in r.signals]
+        if not pairs:
+            continue
+        measured, recovered = (np.concatenate(x) for x in zip(*pairs))
+        ok = np.isfinite(recovered) & np.isfinite(measured)
+        if ok.sum() < 3 or np.std(measured[ok]) == 0 or np.std(recovered[ok]) == 0:
+            continue
+        m, r = measured[ok], recovered[ok]
+        out[channel] = {"correlation": float(np.corrcoef(m, r)[0, 1]), "rmse": float(np.sqrt(np.mean((r - m) ** 2))),
+                        "measured_rms": float(np.sqrt(np.mean(m**2)))}
+    return out
+
+
+def _figures(out: Path, before: Sequence[Prediction], after: Sequence[Prediction], dm,
+             trained: Sequence[Prediction] = (), signals: Sequence[str] = ()) -> dict:
+    """Per validation record: measured vs the free runs (nominal, extended, trained); per
+    recovered signal that the data measure: the two over the first record."""
     import matplotlib.pyplot as plt
 
     from hypa.plots import time_series
 
-    names = []
-    for b, a in zip(before, after):
-        units = {n: dm.channels[n].display_unit for n in dm.output_names}
-        scale = {n: dm.channels[n].display_factor for n in dm.output_names}
-        fig = time_series(b.time, {n: b.measured[n] for n in dm.output_names},
-                          {"nominal": b.predicted, "extended (named causes)": a.predicted}, units=units, scale=scale,
-                          title=f"measured vs free run over {b.record}")
-        name = f"time_series_{Path(b.record).stem}.png"
+    def save(fig, name: str) -> str:
         fig.savefig(out / name, dpi=100)
         plt.close(fig)
-        names.append(name)
-    return {"time_series": names}
+        return name
+
+    units = {n: dm.channels[n].display_unit for n in (*dm.output_names, *signals)}
+    scale = {n: dm.channels[n].display_factor for n in (*dm.output_names, *signals)}
+    names: dict[str, list[str]] = {"time_series": [], "signals": []}
+    for k, (b, a) in enumerate(zip(before, after)):
+        runs = {"nominal": b.predicted, "extended (named causes)": a.predicted}
+        if k < len(trained):
+            runs["trained extension"] = trained[k].predicted
+        fig = time_series(b.time, {n: b.measured[n] for n in dm.output_names}, runs, units=units, scale=scale,
+                          title=f"measured vs free run over {b.record}")
+        names["time_series"].append(save(fig, f"time_series_{Path(b.record).stem}.png"))
+    for channel in signals:
+        run = after[0]
+        fig = time_series(run.time, {channel: run.measured[channel]},
+                          {f"recovered ({DIAGNOSED}{channel})": {channel: run.signal_on_grid(DIAGNOSED + channel)}},
+                          units=units, scale=scale, title=f"{channel}: measured (never trained on) vs recovered "
+                          f"over {run.record}")
+        names["signals"].append(save(fig, f"signal_{channel}.png"))
+    return names
 
 
 def markdown(result: dict, search: Search, structure: Sequence[OutputStructure], dm) -> str:
@@ -241,13 +311,27 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
         if f.alternatives:
             lines.append(f"   The data cannot tell it from: {'; '.join(f.alternatives)}.")
         previous = f.score
-    lines += ["", "## Per output (validation, free run)", "", "| output | nominal RMS | extended RMS | nominal R² | "
-              "extended R² |", "|---|---|---|---|---|"]
+    models = [m for m in ("nominal", "extended", "trained") if m in result["metrics"]]
+    lines += ["", "## Per output (validation, free run)", "",
+              "| output | " + " | ".join(f"{m} RMS" for m in models) + " | " + " | ".join(f"{m} R²" for m in models)
+              + " |", "|---|" + "---|" * (2 * len(models))]
     for o in dm.output_names:
         ch = dm.channels[o]
-        n, e = result["metrics"]["nominal"][o], result["metrics"]["extended"][o]
-        lines.append(f"| {o} | {n['rmse'] * ch.display_factor:.3g} {ch.display_unit} | "
-                     f"{e['rmse'] * ch.display_factor:.3g} {ch.display_unit} | {n['r2']:.4f} | {e['r2']:.4f} |")
+        rows = [result["metrics"][m][o] for m in models]
+        lines.append(f"| {o} | " + " | ".join(f"{r['rmse'] * ch.display_factor:.3g} {ch.display_unit}" for r in rows)
+                     + " | " + " | ".join(f"{r['r2']:.4f}" for r in rows) + " |")
+    trained = result["extended"].get("trained")
+    if trained:
+        lines += ["", f"The trained extension is `{trained['model']}` trained by hypa.train (run `{trained['run']}`): "
+                  f"validation error {100 * trained['gain']['all']['overall']:+.0f} % against the nominal model."]
+    if result["extended"]["signals"]:
+        lines += ["", "## Recovered signals against their measurement", "",
+                  "What a diagnosed block recovers, compared with a channel the data measure but that was "
+                  "never trained on:", "", "| signal | correlation | RMS error | measured RMS |", "|---|---|---|---|"]
+        for channel, a in result["extended"]["signals"].items():
+            ch = dm.channels[channel]
+            lines.append(f"| {channel} | {a['correlation']:.3f} | {a['rmse'] * ch.display_factor:.3g} "
+                         f"{ch.display_unit} | {a['measured_rms'] * ch.display_factor:.3g} {ch.display_unit} |")
     lines += ["", "## What remains", ""]
     for s in structure:
         if s.unexplained:
@@ -263,7 +347,9 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
     lines += ["", "## Every candidate of the first round", "", "| cause | on | fitted | gain |", "|---|---|---|---|"]
     for f in search.rounds[0] if search.rounds else []:
         fitted = (f.describe().split(": ", 1)[1] if ": " in f.describe() else "") or (f.error or "–")
+        if f.steps and f.steps[0] < f.steps[1]:
+            fitted += f" (stopped after {f.steps[0]} of {f.steps[1]} steps, behind others: gain at least this)"
         lines.append(f"| {f.cause} | {f.target} | {fitted} | {100 * f.gain:+.1f} % |")
-    for name in result.get("figures", {}).get("time_series", []):
+    for name in [*result.get("figures", {}).get("time_series", []), *result.get("figures", {}).get("signals", [])]:
         lines += ["", f"![{name}]({name})"]
     return "\n".join(lines) + "\n"

@@ -2,8 +2,8 @@
 
 ``python -m hypa.diagnose extension.train=true`` runs the printed train command (its progress
 on the console, its run folder inside the diagnosis folder), loads the best checkpoint and
-free-runs it over the validation records, so the report can put the trained HyPA-Net beside
-the nominal and the parametric extension.
+free-runs it over the validation records, so the report can put the trained model (the named
+causes, plus a correction network where structure stays unexplained) beside the nominal one.
 """
 
 from __future__ import annotations
@@ -11,15 +11,11 @@ from __future__ import annotations
 import subprocess
 import sys
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from hypa.data import HypaDataModule
-from hypa.diagnosis.config import train_arguments
-from hypa.diagnosis.model import STATES
 from hypa.errors import UserError
+from hypa.evaluation.runs import Prediction
 
 
 class ExtensionTrainingError(UserError):
@@ -27,33 +23,17 @@ class ExtensionTrainingError(UserError):
     the command to rerun it alone), so ``hypa.diagnose`` reports it in one line."""
 
 
-@dataclass(frozen=True)
-class TrainedExtension:
-    """The trained extension's free runs over the validation records (in the records' order)."""
-
-    folder: Path  # its hypa.train run folder
-    states: list[np.ndarray]  # per record (L, 2) [rad/s, rad], sample 0 = the measured state
-    rear_wheel_angle: list[np.ndarray | None]  # per record (L,) [rad] where the model has one
-
-
-def train_extension(config_dir: Path, run_dir: Path, dm: HypaDataModule, data_overrides: Sequence[str] = (),
-                    extra_overrides: Sequence[str] = ()) -> TrainedExtension:
-    """Train ``<config_dir>/model/diagnosed.yaml`` into ``run_dir`` and free-run it on ``dm``'s
-    validation records. ``extra_overrides``: more ``hypa.train`` overrides (e.g. a shorter
-    training: ``trainer.max_epochs=5``)."""
+def train_extension(arguments: Sequence[str], run_dir: Path, dm: HypaDataModule,
+                    extra_overrides: Sequence[str] = ()) -> list[Prediction]:
+    """Run ``python -m hypa.train ARGUMENTS`` into ``run_dir`` and free-run its best checkpoint
+    over ``dm``'s validation records. ``extra_overrides``: more ``hypa.train`` overrides (e.g. a
+    shorter training: ``trainer.max_epochs=5``)."""
     from hypa.evaluation.runs import free_run, load_run
 
-    argv = [sys.executable, "-m", "hypa.train", *train_arguments(config_dir, data_overrides),
-            f"hydra.run.dir={run_dir}", *extra_overrides]
+    argv = [sys.executable, "-m", "hypa.train", *arguments, f"hydra.run.dir={run_dir}", *extra_overrides]
     completed = subprocess.run(argv, check=False)  # its output goes to the console: progress
     if completed.returncode != 0:
         raise ExtensionTrainingError(f"hypa.train failed (exit status {completed.returncode}) on the extended "
                                      f"model: {' '.join(argv[1:])}")
-    run = load_run(run_dir)
-    states, rear = [], []
-    for record in dm.records("val"):
-        prediction = free_run(run.module.model, dm, record)
-        states.append(np.stack([prediction.predicted[s] for s in STATES], axis=-1))
-        rear.append(prediction.signal_on_grid("rear_wheel_angle") if "rear_wheel_angle" in prediction.signals
-                    else None)
-    return TrainedExtension(Path(run_dir), states, rear)
+    model = load_run(run_dir).module.model
+    return [free_run(model, dm, record) for record in dm.records("val")]

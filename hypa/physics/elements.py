@@ -3,8 +3,8 @@
 Both carry their own parameter (a time constant, a delay), so several of them can sit in one
 model: their parameter names are prefixed with the block's name (``front_lag/tau_s``), while
 the vehicle's parameters (``cf``, ``steering_ratio``, ...) stay shared by every block.
-They are what the diagnosis adds when it names an ``unmodeled_lag`` or an ``input_delay``
-(``hypa.diagnosis.config``), and any model YAML can use them.
+They are what the diagnosis adds when it names an ``input_lag`` or an ``input_delay``
+(``hypa/diagnosis/catalogue.yaml``), and any model YAML can use them.
 """
 
 from __future__ import annotations

@@ -250,9 +250,9 @@ class LTIBlock(BlockSimulation, nn.Module):
         if float(eig.real.max()) > tol:
             raise UnstablePhysicsError(
                 f"{type(self.model).__name__} is unstable with parameters "
-                f"{self.parameters_.as_floats()}: eigenvalues of A are "
-                f"{[complex(round(e.real, 4), round(e.imag, 4)) for e in eig.tolist()]} "
-                "(a real part > 0). Check the nominal parameters (e.g. cf*lf vs cr*lr at this velocity)."
+                + ", ".join(f"{k}={v:.5g}" for k, v in self.parameters_.as_floats().items())
+                + f": eigenvalues of A {', '.join(f'{e:.4g}' for e in eig.tolist())} 1/s (a real part > 0). "
+                "Check the nominal parameters (e.g. cf*lf vs cr*lr at this velocity)."
             )
 
     # -- lifted matrices, rebuilt only when something they depend on changed -----------------
