@@ -32,7 +32,8 @@ MODEL = {
 
 
 def truth(seconds: float, seed: int, delay_s: float = 0.0, stiffness: float = 400.0, offset: float = 0.0,
-          actuator_gain: float = 1.0, actuator_tau_s: float = 0.0) -> dict[str, np.ndarray]:
+          actuator_gain: float = 1.0, actuator_tau_s: float = 0.0, force_limit: float = 0.0
+          ) -> dict[str, np.ndarray]:
     """Position of the true system (scipy's lsim, linear between samples) for a smoothed random force."""
     rng = np.random.default_rng(seed)
     n = int(seconds * RATE)
@@ -44,6 +45,8 @@ def truth(seconds: float, seed: int, delay_s: float = 0.0, stiffness: float = 40
         _, applied_force, _ = signal.lsim(signal.lti([-1 / actuator_tau_s], [1 / actuator_tau_s], [1], [0]),
                                           applied_force, t, X0=[applied_force[0]], interp=True)
     applied_force = actuator_gain * applied_force
+    if force_limit > 0:  # an actuator that cannot exceed its range: clipped hard (hypa's limit is smooth)
+        applied_force = np.clip(applied_force, -force_limit, force_limit)
     system = signal.lti([[0, 1], [-stiffness / NOMINAL["mass"], -NOMINAL["damping"] / NOMINAL["mass"]]],
                         [[0], [1 / NOMINAL["mass"]]], [[1, 0]], [[0]])
     _, position, _ = signal.lsim(system, applied_force, t, interp=True)
@@ -140,9 +143,10 @@ def test_an_entry_that_breaks_the_model_names_itself(tmp_path: Path) -> None:
 def test_candidates_are_edits_of_the_model_and_apply_their_values() -> None:
     spec = parse_model_spec(MODEL)
     found = {c.key: c for c in catalogue_candidates(load_catalogue(), spec, ("force",), ("position",), (), NOMINAL,
-                                                    0.01)}
+                                                    0.01, channels={"force": (200.0, "N"), "position": (0.5, "m")})}
     assert set(found) == {"input_delay:force", "input_lag:force", "input_offset:force", "output_offset:position",
-                          "parameter_mismatch:stiffness", "parameter_mismatch:damping",  # mass is not declared uncertain
+                          "input_saturation:force", "parameter_mismatch:stiffness",
+                          "parameter_mismatch:damping",  # mass is not declared uncertain
                           "stiffening_spring:spring"}  # the core mass-spring-damper's own entry
     delay = found["input_delay:force"]
     assert [b.name for b in delay.spec.blocks] == ["diagnosed_delay_force", "spring"]
@@ -153,6 +157,27 @@ def test_candidates_are_edits_of_the_model_and_apply_their_values() -> None:
     assert written.block("diagnosed_delay_force").trainable == ()
     assert applied(found["parameter_mismatch:stiffness"], {"stiffness": 350.0}).parameters == {"stiffness": 350.0}
     assert applied(found["output_offset:position"], {"position": 0.01}).sensor_offsets == {"position": 0.01}
+    limit = found["input_saturation:force"]  # starts at 1.5 x the peak (the catalogue's expression of peak)
+    assert limit.spec.block("diagnosed_limit_force").parameters == {"limit": 1.5 * 200.0}
+    assert limit.units == {"diagnosed_limit_force/limit": "N"}
+
+
+def test_a_limit_is_linear_below_and_bounded_above() -> None:
+    """The saturation element: u / (1 + |u / L|^6)^(1/6) on the physical value, signals normalized."""
+    import torch
+
+    from hypa.physics.elements import Saturation
+    from hypa.physics.parameters import ParameterSpec, PhysicalParameters
+
+    params = PhysicalParameters([ParameterSpec("lim/limit", 2.0, "N", trainable=True)])
+    block = Saturation(params, "lim/limit", [(1.0, 4.0)])
+    u = torch.linspace(-100.0, 100.0, 201, dtype=torch.float64)[None, :, None]  # normalized
+    y = block(u) * 4.0 + 1.0
+    physical = 1.0 + 4.0 * u
+    assert torch.allclose(y, physical / (1.0 + (physical.abs() / 2.0) ** 6) ** (1 / 6))
+    assert float(y.detach().abs().max()) <= 2.0 and abs(float(block(torch.zeros(1, 1, 1).double()) * 4 + 1) - 1.0) < 3e-3  # at L/2
+    y.sum().backward()
+    assert params.raw["lim/limit"].grad is not None and float(params.raw["lim/limit"].grad) != 0.0
 
 
 @pytest.mark.parametrize("cause, effect, knob, tolerance", [
@@ -173,6 +198,19 @@ def test_a_hidden_effect_is_named_with_its_estimate(tmp_path: Path, cause: str, 
     assert first.cause == cause, [f.describe() for f in search.rounds[0][:3]]
     assert first.values[knob] == pytest.approx(next(iter(effect.values())), rel=tolerance)
     assert first.gain > 0.5
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_hidden_actuator_limit_is_named(tmp_path: Path, seed: int) -> None:
+    """The force clipped hard at 45-65 % of its peak (a random level per seed): named as
+    ``input_saturation`` with its level (the smooth limit that fits a hard clip lies close to it)."""
+    peak = float(np.max(np.abs(truth(40.0, 0)["force"])))
+    level = np.random.default_rng(seed).uniform(0.45, 0.65) * peak
+    search = diagnose(tmp_path, force_limit=level)
+    first = search.named[0] if search.named else None
+    assert first is not None and first.cause == "input_saturation", [f.describe() for f in search.rounds[0][:3]]
+    assert first.values["diagnosed_limit_force/limit"] == pytest.approx(level, rel=0.25)
+    assert first.gain > 0.5 and "N" in first.describe()
 
 
 def test_clean_data_names_nothing(tmp_path: Path) -> None:

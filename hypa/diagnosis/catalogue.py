@@ -38,7 +38,7 @@ import yaml
 
 from hypa.diagnosis.edits import AFFINE, GRADIENT, NONE, Candidate, frozen
 from hypa.errors import UserError
-from hypa.models.spec import ModelSpec, ModelSpecError, parse_model_spec
+from hypa.models.spec import ELEMENT_PARAMETER, ModelSpec, ModelSpecError, parse_model_spec
 from hypa.physics.systems import PHYSICS_SYSTEMS, build_system
 
 GENERIC = Path(__file__).with_name("catalogue.yaml")
@@ -140,21 +140,25 @@ def _format(value: Any, context: Mapping[str, str]) -> Any:
     return value
 
 
-def _number(value: Any, dt: float, where: str) -> float:
+def _number(value: Any, variables: Mapping[str, float], where: str) -> float:
     if isinstance(value, (int, float)):
         return float(value)
     from hypa.data.expressions import Expression
 
     try:
-        return float(Expression(str(value), where).evaluate({"dt": dt}, where))
+        return float(Expression(str(value), where).evaluate(dict(variables), where))
     except Exception as error:  # a catalogue's expression: report it on one line
-        raise CatalogueError(f"{where}: parameter value {value!r} is neither a number nor an expression of dt "
-                             f"({error})") from None
+        raise CatalogueError(f"{where}: parameter value {value!r} is neither a number nor an expression of "
+                             f"{' and '.join(variables)} ({error})") from None
 
 
-def apply_patch(spec: ModelSpec, patch: Mapping[str, Any], dt: float, where: str = "") -> ModelSpec:
+def apply_patch(spec: ModelSpec, patch: Mapping[str, Any], dt: float, where: str = "",
+                variables: Mapping[str, float] | None = None) -> ModelSpec:
     """The model with a (formatted) patch applied: signals rewired, blocks added or merged, shared
-    parameters set. New blocks come first (the composition is ordered by dependency anyway)."""
+    parameters set. New blocks come first (the composition is ordered by dependency anyway).
+    Parameter values may be expressions of ``dt`` [s] and of ``variables`` (``peak``: the
+    largest |value| of the entry's channel in the training data)."""
+    variables = {"dt": dt, **(variables or {})}
     from hypa.diagnosis.system import spec_config
 
     config = spec_config(spec)
@@ -165,7 +169,7 @@ def apply_patch(spec: ModelSpec, patch: Mapping[str, Any], dt: float, where: str
     for name, fields in (patch.get("blocks") or {}).items():
         fields = copy.deepcopy(fields)
         if "parameters" in fields:
-            fields["parameters"] = {k: _number(v, dt, where) for k, v in fields["parameters"].items()}
+            fields["parameters"] = {k: _number(v, variables, where) for k, v in fields["parameters"].items()}
         if name in config["blocks"]:
             target = config["blocks"][name]
             for key, value in fields.items():
@@ -175,7 +179,7 @@ def apply_patch(spec: ModelSpec, patch: Mapping[str, Any], dt: float, where: str
     config["blocks"] = {**new, **config["blocks"]}
     if patch.get("parameters"):
         config["parameters"] = {**config.get("parameters", {}),
-                                **{k: _number(v, dt, where) for k, v in patch["parameters"].items()}}
+                                **{k: _number(v, variables, where) for k, v in patch["parameters"].items()}}
     try:
         return parse_model_spec(config)
     except ModelSpecError as error:
@@ -213,14 +217,17 @@ def _contexts(entry: Entry, spec: ModelSpec, inputs: Sequence[str], outputs: Seq
                     yield p.name, {"block": b.name, "parameter": local, "qualified": p.name}
 
 
-def _knobs(edited: ModelSpec, values: Mapping[str, float]) -> dict[str, str]:
+def _knobs(edited: ModelSpec, values: Mapping[str, float],
+           channels: Mapping[str, tuple[float, str]]) -> dict[str, str]:
     """Qualified trainable parameter -> unit, over the edited model's blocks."""
     knobs = {}
     for b in edited.blocks:
         if not b.trainable:
             continue
-        if b.kind == "delay":
-            knobs.update({f"{b.name}/delay_s": "s"} if "delay_s" in b.trainable else {})
+        own = ELEMENT_PARAMETER.get(b.kind)
+        if own:  # a dead time in s, a limit in its input's unit
+            unit = "s" if b.kind == "delay" else channels.get(b.inputs[0], (0.0, ""))[1]
+            knobs.update({f"{b.name}/{own}": unit} if own in b.trainable else {})
             continue
         specs = {s.name: s for s in build_system(b.system, b.name).parameter_specs({**values, **edited.parameters})}
         for t in b.trainable:
@@ -232,8 +239,13 @@ def _knobs(edited: ModelSpec, values: Mapping[str, float]) -> dict[str, str]:
 def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names: Sequence[str],
                          output_names: Sequence[str], scheduling_names: Sequence[str],
                          physical_values: Mapping[str, float], dt: float,
-                         uncertain: Mapping[str, Sequence[str]] | None = None) -> list[Candidate]:
-    """Every entry expanded over the model and the data's channels, as edits of the frozen model."""
+                         uncertain: Mapping[str, Sequence[str]] | None = None,
+                         channels: Mapping[str, tuple[float, str]] | None = None) -> list[Candidate]:
+    """Every entry expanded over the model and the data's channels, as edits of the frozen model.
+
+    ``channels``: per measured channel, its largest |value| in the training data [SI] (``peak``
+    in an entry's expressions) and its unit (of a limit on it)."""
+    channels = channels or {}
     uncertain = {b.name: b.trainable for b in spec.blocks} if uncertain is None else uncertain
     base = frozen(spec)
     out = []
@@ -248,8 +260,10 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
                 out.append(Candidate(entry.id, _format(entry.offset, context), base, AFFINE,
                                      (_format(entry.offset, context),)))
                 continue
-            edited = apply_patch(base, _format(dict(entry.patch), context), dt, where)
-            knobs = _knobs(edited, physical_values) if entry.fit == GRADIENT else {}
+            channel = context.get("input") or context.get("output") or context.get("channel")
+            variables = {"peak": channels[channel][0]} if channel in channels else {}
+            edited = apply_patch(base, _format(dict(entry.patch), context), dt, where, variables)
+            knobs = _knobs(edited, physical_values, channels) if entry.fit == GRADIENT else {}
             if entry.fit == GRADIENT and not knobs:
                 raise CatalogueError(f"{where}: fit: gradient but the patch makes nothing trainable")
             out.append(Candidate(entry.id, target, edited, entry.fit, tuple(knobs), knobs))

@@ -387,9 +387,13 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
     uncertain = {b.name: b.trainable for b in nominal.blocks}
     entries = load_catalogue() if catalogue is None else list(catalogue)
     if candidates is None:
+        measured = [*dm.input_names, *dm.output_names, *dm.scheduling_names]
+        channels = {n: (max(float(np.max(np.abs(r[n]))) for r in dm.records("train")), dm.channels[n].unit)
+                    for n in measured}
+
         def candidates(spec: ModelSpec) -> list[Candidate]:
             return catalogue_candidates(entries, spec, dm.input_names, dm.output_names, dm.scheduling_names,
-                                        problem.physical_values, dm.dt, uncertain)
+                                        problem.physical_values, dm.dt, uncertain, channels)
     torch.manual_seed(problem.seed)
     windows = _windows(dm)
     base = frozen(nominal)

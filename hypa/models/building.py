@@ -17,9 +17,9 @@ import torch
 from torch import nn
 
 from hypa.ann import build_ann
-from hypa.models.spec import BlockSpec, ModelSpec, ModelSpecError
+from hypa.models.spec import ELEMENT_PARAMETER, BlockSpec, ModelSpec, ModelSpecError
 from hypa.physics import LTIBlock, LTIModel, ParameterSpec, PhysicalParameters, Scaling, default_state_std
-from hypa.physics.elements import DeadTime, local_name
+from hypa.physics.elements import DeadTime, Saturation, local_name
 from hypa.physics.systems import build_system
 
 Scale = tuple[float, float]  # (mean, std) in SI units
@@ -60,16 +60,17 @@ def collect_parameters(spec: ModelSpec, values: Mapping[str, float]
         if b.kind == "ann":
             continue
         local = {local_name(b.name, k): v for k, v in b.parameters.items()}
-        system = None if b.kind == "delay" else build_system(b.system, b.name)
+        own = ELEMENT_PARAMETER.get(b.kind)  # an element's one parameter, else a system's
+        system = None if own else build_system(b.system, b.name)
         if system is not None:
             systems[b.name] = system
-        names = (local_name(b.name, "delay_s"),) if system is None else tuple(system.parameter_names)
+        names = (local_name(b.name, own),) if system is None else tuple(system.parameter_names)
         unknown_local = set(local) - set(names)
         if unknown_local:
             raise ModelSpecError(f"block {b.name!r}: parameters {sorted(unknown_local)} are not its own; "
                                  f"it has {', '.join(names)}")
-        if system is None:
-            block_specs = [ParameterSpec(names[0], local[names[0]], "s")]
+        if system is None:  # a dead time [s], a limit [the signal's unit]: both positive
+            block_specs = [ParameterSpec(names[0], local[names[0]], "s" if b.kind == "delay" else "")]
         else:
             given = {**system.nominal_values(), **values, **local}
             missing = [p for p in names if p not in given]
@@ -126,9 +127,11 @@ class BlockBuilder:
     def build(self, b: BlockSpec) -> nn.Module:
         if b.kind == "ann":
             return self._ann(b)
-        if b.kind == "delay":  # a shift: outputs keep their inputs' scale
-            self.scales.update(zip(b.outputs, self.scale_of(b.inputs, f"block {b.name!r} inputs")))
-            return DeadTime(self.params, local_name(b.name, "delay_s"), self.dt)
+        if b.kind in ELEMENT_PARAMETER:  # a shift or a limit: outputs keep their inputs' scale
+            scales = self.scale_of(b.inputs, f"block {b.name!r} inputs")
+            self.scales.update(zip(b.outputs, scales))
+            name = local_name(b.name, ELEMENT_PARAMETER[b.kind])
+            return DeadTime(self.params, name, self.dt) if b.kind == "delay" else Saturation(self.params, name, scales)
         return self._physics(b)
 
     def _ann(self, b: BlockSpec) -> nn.Module:

@@ -18,7 +18,7 @@ import torch
 from torch import Tensor, nn
 
 from hypa.models.building import ESTIMATE, MEASURED, STEADY, BlockBuilder, collect_parameters
-from hypa.models.spec import BlockSpec, ModelSpec, ModelSpecError
+from hypa.models.spec import ELEMENT_PARAMETER, BlockSpec, ModelSpec, ModelSpecError
 
 Signal = tuple[Tensor, int]  # (B, T, 1) normalized values, index of the first sample
 
@@ -185,7 +185,7 @@ class ComposedModel(nn.Module):
                                             for n in ns], dim=-1)
             if b.kind == "ann":
                 y, out_start = self._ann(b, aligned, y_past, start), start
-            elif b.kind == "delay":
+            elif b.kind in ELEMENT_PARAMETER:
                 y, out_start = self.blocks[b.name](aligned(b.inputs)), start
             else:
                 rho = torch.stack([physical[s][:, start:end] for s in b.scheduling.values()], -1) \

@@ -15,7 +15,9 @@ from typing import Any
 
 from hypa.physics.systems import PHYSICS_SYSTEMS, is_import_path
 
-BLOCK_KINDS = ("physics", "ann", "delay")
+BLOCK_KINDS = ("physics", "ann", "delay", "saturation")
+# elements: blocks that map each input to one output through one own parameter (not a state space)
+ELEMENT_PARAMETER = {"delay": "delay_s", "saturation": "limit"}
 STEADY = "steady"  # initial_state of a block that starts in equilibrium with its first input
 ESTIMATE = "estimate"  # initial_state estimated by least squares from the past samples
 ENCODER = "encoder"  # the least-squares estimate corrected by a network over the past samples
@@ -31,15 +33,16 @@ class BlockSpec:
     """One block of a composition.
 
     kind: ``physics`` (an LTI system from ``hypa.physics.systems``), ``ann`` (a network of
-        the ``ann`` config group) or ``delay`` (a dead time, ``hypa.physics.elements.DeadTime``:
-        each input delayed by the block's parameter ``delay_s``).
+        the ``ann`` config group), ``delay`` (a dead time, ``hypa.physics.elements.DeadTime``:
+        each input delayed by the block's parameter ``delay_s``) or ``saturation`` (a limit,
+        ``hypa.physics.elements.Saturation``: each input held within ±limit, nearly a clip).
     inputs / outputs: signal names read / written, in the block's own order.
     system: physics only, a built-in system (``single_track``, ``front_steering``, ...) or the import
         path of a user's ``LTIModel`` subclass (``mypackage.motors:DCMotor``).
-    trainable: physics and delay, parameter names learned from data (grey-box); a block's own
+    trainable: physics, delay and saturation, parameter names learned from data (grey-box); a block's own
         parameters by their short name (``tau_s``).
-    parameters: physics and delay, values [SI] of the block's own parameters (a lag's
-        ``tau_s``, a dead time's ``delay_s``), stored as ``<block>/<name>``.
+    parameters: physics, delay and saturation, values [SI] of the block's own parameters (a
+        lag's ``tau_s``, a dead time's ``delay_s``, a limit's ``limit``), stored as ``<block>/<name>``.
     residual_of: ann only, signals the network's output is added to (a correction network);
         when the block is bypassed (first stage of a staged training) its output is exactly
         these signals.
@@ -215,10 +218,11 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
             raise ModelSpecError(f"block {block_name!r}: only physics blocks take scheduling or observe")
         if kind == "ann" and (blocks[-1].parameters or blocks[-1].trainable):
             raise ModelSpecError(f"block {block_name!r}: an ann block has no physical parameters or trainable")
-        if kind == "delay" and "delay_s" not in blocks[-1].parameters:
-            raise ModelSpecError(f"block {block_name!r}: a delay block needs parameters: {{delay_s: <seconds>}}")
-        if kind == "delay" and len(blocks[-1].inputs) != len(blocks[-1].outputs):
-            raise ModelSpecError(f"block {block_name!r}: a delay block writes one output per input")
+        own = ELEMENT_PARAMETER.get(kind)
+        if own and own not in blocks[-1].parameters:
+            raise ModelSpecError(f"block {block_name!r}: a {kind} block needs parameters: {{{own}: <value>}}")
+        if own and len(blocks[-1].inputs) != len(blocks[-1].outputs):
+            raise ModelSpecError(f"block {block_name!r}: a {kind} block writes one output per input")
     stages = []
     for s in config.get("stages") or []:
         stages.append(StageSpec(name=str(s["name"]), train=_names(s.get("train"), "stage.train"),

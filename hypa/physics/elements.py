@@ -1,4 +1,5 @@
-"""Generic input-path elements: a first-order lag (an LTI system) and a dead time (a shift).
+"""Generic input-path elements: a first-order lag (an LTI system), a dead time (a shift) and a
+limit (a static saturation).
 
 Both carry their own parameter (a time constant, a delay), so several of them can sit in one
 model: their parameter names are prefixed with the block's name (``front_lag/tau_s``), while
@@ -10,7 +11,7 @@ They are what the diagnosis adds when it names an ``input_lag`` or an ``input_de
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import torch
 from torch import Tensor, nn
@@ -105,3 +106,41 @@ class DeadTime(nn.Module):
 
     def extra_repr(self) -> str:
         return f"{self.name}={float(self.delay_s().detach()):.4g} s, dt={self.dt:g} s"
+
+
+class Saturation(nn.Module):
+    """y = u / (1 + |u / L|^p)^(1/p), p = 6: a signal that cannot exceed ±L (an actuator's range).
+
+    Linear to within 0.3 % up to |u| = L/2, 0.89 L at |u| = L, L beyond: close to a hard clip,
+    yet differentiable in the limit L (the block's parameter ``limit``, in the signal's unit)
+    wherever the signal comes near it. (A tanh is too soft for a clip: fitted to one, its limit
+    comes out twice the clip level, to keep the linear range linear.)
+
+    The block reads and writes normalized signals û = (u - μ) / σ, the outputs on their inputs'
+    scale; the limit acts on the physical value u = μ + σ û (``scales``: (μ, σ) per channel).
+    """
+
+    SHARPNESS = 6.0  # p
+
+    def __init__(self, parameters: PhysicalParameters, name: str, scales: Sequence[tuple[float, float]]) -> None:
+        super().__init__()
+        if name not in parameters.names:
+            raise ValueError(f"Saturation needs the parameter {name!r}")
+        self.parameters_, self.name = parameters, name
+        self.register_buffer("mean", torch.tensor([float(m) for m, _ in scales]))
+        self.register_buffer("std", torch.tensor([float(s) for _, s in scales]))
+
+    def limit(self) -> Tensor:
+        return self.parameters_.value(self.name)
+
+    def forward(self, u: Tensor) -> Tensor:
+        """u (B, T, m) normalized -> limited u (B, T, m) normalized; differentiable in the limit."""
+        limit = self.limit().to(u.dtype)
+        mean, std = self.mean.to(u.dtype), self.std.to(u.dtype)
+        physical = mean + std * u
+        ratio = torch.clamp(physical.abs() / limit, max=1e4)  # beyond: the limit itself to float precision
+        limited = physical / (1.0 + ratio**self.SHARPNESS) ** (1.0 / self.SHARPNESS)
+        return (limited - mean) / std
+
+    def extra_repr(self) -> str:
+        return f"{self.name}={float(self.limit().detach()):.4g}, p={self.SHARPNESS:g}"
