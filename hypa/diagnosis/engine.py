@@ -203,7 +203,8 @@ class GradientFit:
         self.optimizer = torch.optim.Adam([g for g in groups if g["params"]])
         self.base_lr = [g["lr"] for g in self.optimizer.param_groups]
         self.generator = torch.Generator().manual_seed(problem.seed)
-        nonlinear = any(getattr(getattr(b, "model", None), "is_nonlinear", False) for b in self.model.blocks.values())
+        self.nonlinear = nonlinear = any(getattr(getattr(b, "model", None), "is_nonlinear", False)
+                                         for b in self.model.blocks.values())
         self.total, self.done = problem.steps // 2 if nonlinear else problem.steps, 0
         # nonlinear physics (simulated step by step, 3x slower per step) gets a third of the
         # steps: they start twice as long and shrink to a tenth (cosine), so the fit still settles
@@ -297,10 +298,13 @@ RUNGS = (0.25, 0.5, 1.0)  # shares of the fit steps after which the gradient fit
 
 def evaluate_round(candidates: Sequence[Candidate], problem: Problem, windows: Mapping[str, torch.Tensor],
                    base_score: float, refine: Sequence[str] = ()) -> list[Finding]:
-    """Every candidate of a round fitted and scored (best first), by successive halving: all
-    gradient fits run a quarter of their steps and are scored on the validation stretches, the
-    better half (at least 3) goes on to half the steps, the better half of those (at least 2)
-    to the end unless still worse than the base model. A fit stopped early says so (``Finding.steps``); its gain is a lower bound."""
+    """Every candidate of a round fitted and scored (best first). Fits of nonlinear physics
+    (simulated step by step, the expensive ones) race by successive halving: all run a quarter of
+    their steps and are scored on the validation stretches, the better half (at least 3) goes on
+    to half the steps, the better half of those (at least 2) to the end unless still worse than
+    the base model. Linear fits always run to the end: early in a fit (Adam's first steps are
+    about the learning rate whatever the gradient) a resonant system's error is no guide. A fit
+    stopped early says so (``Finding.steps``); its gain is a lower bound."""
     findings, fits = [], []
     for c in candidates:
         if c.fit != GRADIENT:
@@ -324,9 +328,12 @@ def evaluate_round(candidates: Sequence[Candidate], problem: Problem, windows: M
             entry[3] += time.perf_counter() - started
         alive = [e for e in alive if e[2] is None]
         if k + 1 < len(RUNGS):
-            alive = sorted(alive, key=lambda e: e[1])[: max(3 - k, math.ceil(len(alive) / 2))]
+            full = [e for e in alive if not e[0].nonlinear]  # cheap (the lifted form): always to the end
+            racing = sorted((e for e in alive if e[0].nonlinear), key=lambda e: e[1])
+            racing = racing[: max(3 - k, math.ceil(len(racing) / 2))]
             if k > 0:  # after half its steps a fit still worse than the base model will not win
-                alive = [e for e in alive if e[1] < base_score]
+                racing = [e for e in racing if e[1] < base_score]
+            alive = full + racing
     for fit, value, error, seconds in fits:
         if error is not None:
             findings.append(_failed(fit.candidate, error, seconds))
