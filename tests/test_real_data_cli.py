@@ -84,3 +84,27 @@ def test_user_errors_are_one_line_without_traceback(args: list[str], message: st
     assert result.returncode == 1
     assert message in result.stderr and "Traceback" not in result.stderr
     assert result.stderr.strip().splitlines()[-1].startswith(f"{args[0]}: error: ")
+
+
+def test_diagnosis_of_silverbox_names_the_stiffening_spring(tmp_path: Path) -> None:
+    """The issue's real-data case: the linear mass-spring-damper as the nominal physics of Silverbox
+    (whose spring stiffens with the deflection); the diagnosis must name the Duffing spring."""
+    result = hypa("hypa.diagnose", "dataset=silverbox", "model=silverbox_physical", "plot=false",
+                  f"hydra.run.dir={tmp_path}")
+    assert result.returncode == 0, result.stderr[-3000:]
+    diagnosis = json.loads((tmp_path / "diagnosis.json").read_text())
+    assert "stiffening_spring" in diagnosis["causes"], diagnosis["causes"]
+    spring = next(f for f in diagnosis["named"] if f["cause"] == "stiffening_spring")
+    assert 1.0 < spring["values"]["hardening"] < 3.0  # [1/V²]; 1.85-1.96 in the runs of the README
+    assert diagnosis["score"]["extended"] < 0.5 * diagnosis["score"]["nominal"]
+
+
+@pytest.mark.slow
+def test_diagnosis_of_the_race_car_names_the_speed_first_and_no_rear_steering(tmp_path: Path) -> None:
+    """The race car's nominal model runs at 20 m/s while the log goes from 5 to 28 m/s above 5 m/s."""
+    result = hypa("hypa.diagnose", "dataset=racecar", "model=racecar_nominal", "plot=false",
+                  f"hydra.run.dir={tmp_path}")
+    assert result.returncode == 0, result.stderr[-3000:]
+    diagnosis = json.loads((tmp_path / "diagnosis.json").read_text())
+    assert diagnosis["causes"][0] == "scheduling" and "unmodeled_input" not in diagnosis["causes"]
+    assert diagnosis["metrics"]["extended"]["yaw_rate"]["r2"] > 0.97
