@@ -252,7 +252,14 @@ def fit_affine(candidate: Candidate, problem: Problem) -> dict[str, float]:
         g, r = (p1 - p0) / probe, y - p0
         num += float(((g * r).sum((0, 1)) * weights).sum())
         den += float(((g * g).sum((0, 1)) * weights).sum())
-    return {channel: num / den if den > 0 else 0.0}
+    offset = num / den if den > 0 else 0.0
+    values = np.concatenate([r[channel] for r in problem.dm.records("train")])
+    span = float(np.max(values) - np.min(values))
+    if not abs(offset) <= span:  # e.g. a position offset the initial-state estimate absorbs
+        unit = problem.dm.channels[channel].unit
+        raise ValueError(f"offset {format_value(offset, unit)} beyond the channel's whole range "
+                         f"({format_value(span, unit)}): not identifiable from these data")
+    return {channel: offset}
 
 
 _FIT_ERRORS = (UnstablePhysicsError, SchedulingError, ModelSpecError, ValueError)
@@ -296,50 +303,69 @@ def _finding(candidate: Candidate, problem: Problem, values: Mapping[str, float]
 RUNGS = (0.25, 0.5, 1.0)  # shares of the fit steps after which the gradient fits are ranked
 
 
+@dataclass
+class _Runner:
+    """A gradient fit in the race: its score on the validation stretches now and at the previous rung."""
+
+    fit: GradientFit
+    seconds: float
+    score: float = math.inf
+    previous: float = math.inf
+    error: Exception | None = None
+
+    def advance(self, share: float, val: Stretches) -> None:
+        started = time.perf_counter()
+        self.previous = self.score
+        try:
+            self.fit.advance(share)
+            self.score = val.score(self.fit.model)
+        except _FIT_ERRORS as error:
+            self.score, self.error = math.inf, error
+        self.seconds += time.perf_counter() - started
+
+
 def evaluate_round(candidates: Sequence[Candidate], problem: Problem, windows: Mapping[str, torch.Tensor],
                    base_score: float, refine: Sequence[str] = ()) -> list[Finding]:
-    """Every candidate of a round fitted and scored (best first). Fits of nonlinear physics
-    (simulated step by step, the expensive ones) race by successive halving: all run a quarter of
-    their steps and are scored on the validation stretches, the better half (at least 3) goes on
-    to half the steps, the better half of those (at least 2) to the end unless still worse than
-    the base model. Linear fits always run to the end: early in a fit (Adam's first steps are
-    about the learning rate whatever the gradient) a resonant system's error is no guide. A fit
-    stopped early says so (``Finding.steps``); its gain is a lower bound."""
-    findings, fits = [], []
+    """Every candidate of a round fitted and scored (best first).
+
+    Fits of nonlinear physics (simulated step by step, the expensive ones) race by successive
+    halving: all run a quarter of their steps and are scored on the validation stretches, the
+    better half (at least 3) goes on to half the steps, the better half of those (at least 2) to
+    the end, unless still worse than the base model and no better than at the quarter. Linear
+    fits always run to the end: early in a fit (Adam's first steps are about the learning rate
+    whatever the gradient) a resonant system's error is no guide. A fit stopped early says so
+    (``Finding.steps``); its gain is a lower bound.
+    """
+    findings, runners = [], []
     for c in candidates:
         if c.fit != GRADIENT:
             findings.append(evaluate(c, problem, windows, base_score, refine))
             continue
         started = time.perf_counter()
         try:
-            fits.append([GradientFit(c, problem, windows, refine), math.inf, None, time.perf_counter() - started])
+            runners.append(_Runner(GradientFit(c, problem, windows, refine), time.perf_counter() - started))
         except _FIT_ERRORS as error:
             findings.append(_failed(c, error, time.perf_counter() - started))
-    val = problem.stretches("val")
-    alive = list(fits)
+    val, alive = problem.stretches("val"), list(runners)
     for k, share in enumerate(RUNGS):
-        for entry in alive:
-            started = time.perf_counter()
-            try:
-                entry[0].advance(share)
-                entry[1] = val.score(entry[0].model)
-            except _FIT_ERRORS as error:
-                entry[1], entry[2] = math.inf, error
-            entry[3] += time.perf_counter() - started
-        alive = [e for e in alive if e[2] is None]
-        if k + 1 < len(RUNGS):
-            full = [e for e in alive if not e[0].nonlinear]  # cheap (the lifted form): always to the end
-            racing = sorted((e for e in alive if e[0].nonlinear), key=lambda e: e[1])
-            racing = racing[: max(3 - k, math.ceil(len(racing) / 2))]
-            if k > 0:  # after half its steps a fit still worse than the base model will not win
-                racing = [e for e in racing if e[1] < base_score]
-            alive = full + racing
-    for fit, value, error, seconds in fits:
-        if error is not None:
-            findings.append(_failed(fit.candidate, error, seconds))
+        for runner in alive:
+            runner.advance(share, val)
+        alive = [r for r in alive if r.error is None]
+        if k + 1 == len(RUNGS):
+            break
+        full = [r for r in alive if not r.fit.nonlinear]  # cheap (the lifted form): always to the end
+        racing = sorted((r for r in alive if r.fit.nonlinear), key=lambda r: r.score)
+        racing = racing[: max(3 - k, math.ceil(len(racing) / 2))]
+        if k > 0:  # after half its steps, worse than the base model and not improving: it will not win
+            racing = [r for r in racing if r.score < base_score or r.score < r.previous]
+        alive = full + racing
+    for runner in runners:
+        if runner.error is not None:
+            findings.append(_failed(runner.fit.candidate, runner.error, runner.seconds))
             continue
-        finding = _finding(fit.candidate, problem, fit.values(), value, base_score, seconds)
-        finding.steps = (fit.done, fit.total)
+        finding = _finding(runner.fit.candidate, problem, runner.fit.values(), runner.score, base_score,
+                           runner.seconds)
+        finding.steps = (runner.fit.done, runner.fit.total)
         findings.append(finding)
     return sorted(findings, key=lambda f: f.score)
 
