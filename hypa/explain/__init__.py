@@ -5,8 +5,17 @@ delay, second order, odd nonlinearity, extra signals), scores each on the valida
 and chooses the simplest that explains the block (see :mod:`hypa.explain.forms`).
 """
 
-from hypa.explain.forms import Explanation, FittedForm, Form, Value, choose, explain
+from hypa.explain.forms import (
+    Explanation,
+    FittedForm,
+    Form,
+    Value,
+    choose,
+    explain,
+    frequency_response,
+    predict,
+)
 from hypa.explain.signals import AmplitudeBin, Band, Recording, Remainder
 
 __all__ = ["AmplitudeBin", "Band", "Explanation", "FittedForm", "Form", "Recording", "Remainder",
-           "Value", "choose", "explain"]
+           "Value", "choose", "explain", "frequency_response", "predict"]

@@ -191,6 +191,41 @@ def explain(train: Sequence[Recording], val: Sequence[Recording], dt: float, out
                        float(np.std(data_val.y_all)))
 
 
+def predict(explanation: Explanation, records: Sequence[Recording], form: int | None = None) -> list[np.ndarray]:
+    """The output of a fitted form (default: the chosen one) per record, from the records' inputs
+    and extra signals (each filtered from a steady start, as in the fit)."""
+    fitted = explanation.forms[explanation.chosen if form is None else form]
+    names = [*explanation.inputs, *explanation.extra]
+    check_recordings(list(records), names, "prediction")
+    data = _Data([np.zeros(len(r[names[0]])) for r in records],
+                 [[r[n] for n in explanation.inputs] for r in records],
+                 [[r[n] for n in explanation.extra] for r in records])
+    fit = _Fitter(data, data, explanation.dt, explanation.inputs, explanation.extra, {},
+                  explanation.output, explanation.penalty, 0.0, 0.0)
+    return fit.predict(fitted, data)
+
+
+def frequency_response(fitted: FittedForm, signal: str, frequency_hz: np.ndarray) -> np.ndarray:
+    """The linear part of a fitted form from input ``signal`` to the output, k (1 + T s) e^(-s d) / D(s)
+    at ``frequency_hz`` [Hz] (complex, output unit per input unit; a cubic term is left out: the
+    response to small inputs)."""
+    s = 2j * np.pi * np.asarray(frequency_hz, dtype=float)
+    gain = fitted.value("gain", signal)
+    if gain is None:
+        raise UserError(f"the form {fitted.form.name!r} has no gain on {signal!r}")
+    zero, lag, delay = (fitted.value(kind, signal if kind == "zero" else "") for kind in ("zero", "lag", "delay"))
+    frequency, damping = fitted.value("natural_frequency"), fitted.value("damping")
+    response = gain.value * (1.0 + (zero.value if zero else 0.0) * s)
+    if delay is not None:
+        response = response * np.exp(-s * delay.value)
+    if lag is not None:
+        response = response / (1.0 + lag.value * s)
+    if frequency is not None:
+        omega = 2 * np.pi * frequency.value
+        response = response / (1.0 + 2 * damping.value * s / omega + (s / omega) ** 2)
+    return response
+
+
 def choose(forms: Sequence[FittedForm], margin: float) -> int:
     """The form with the fewest parameters (then the lowest rung) scoring within ``margin`` of the best."""
     best = max(f.score for f in forms)

@@ -30,6 +30,7 @@ class Recording:
 
     name: str
     signals: Mapping[str, np.ndarray] = field(default_factory=dict)
+    start: int = 0  # the sample of the source (a free run's time base) where the signals start
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name not in self.signals:
@@ -61,7 +62,7 @@ class Recording:
         if index.size == 0:
             raise UserError(f"record {prediction.record!r}: signals {list(names)} never all have values")
         stretch = slice(index[0], index[-1] + 1)
-        return cls(prediction.record, {n: v[stretch] for n, v in grid.items()})
+        return cls(prediction.record, {n: v[stretch] for n, v in grid.items()}, int(index[0]))
 
 
 def check_recordings(records: list[Recording], names: list[str], what: str) -> None:

@@ -1,0 +1,49 @@
+"""Explain what the learned blocks of a trained run learned.
+
+    python -m hypa.explain run=outputs/train/v1-lstm/2026-11-22_10-00-00                    # every ANN block
+    python -m hypa.explain run=outputs/train/v1-lstm/2026-11-22_10-00-00 block=rear_steering
+
+Writes ``explanation.md``, ``explanation.json`` and the figures into the Hydra run folder
+(``outputs/explain/<time>/``; :mod:`hypa.explain.run` holds what it computes).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig
+
+from hypa.errors import user_errors
+
+
+@hydra.main(config_path="../../conf", config_name="explain", version_base="1.3")
+@user_errors("hypa.explain")
+def main(cfg: DictConfig) -> None:
+    from hydra.utils import get_original_cwd
+
+    from hypa.errors import setting
+    from hypa.evaluation.evaluation import run_datamodule
+    from hypa.evaluation.runs import load_run
+    from hypa.explain.run import Settings, explain_run, select_blocks
+
+    path = Path(setting(cfg, "run", str)).expanduser()
+    block = setting(cfg, "block", str, optional=True)
+    extra = cfg.get("extra")
+    settings = Settings(extra=None if extra is None else tuple(str(n) for n in ([extra] if isinstance(extra, str) else extra)),
+                        penalty=setting(cfg, "penalty", float), margin=setting(cfg, "margin", float),
+                        max_lag=setting(cfg, "max_lag", float), max_delay=setting(cfg, "max_delay", float),
+                        plot=bool(cfg.plot))
+    run = load_run(path if path.is_absolute() else Path(get_original_cwd()) / path)
+    select_blocks(run.module.model.spec, block)  # a wrong block name fails before the data are read
+    out = Path(HydraConfig.get().runtime.output_dir)
+    dm = run_datamodule(run)
+    results = explain_run(run, dm, out, block, settings, progress=lambda text: print(text, flush=True))
+    for result in results:
+        print(result.summary(), flush=True)
+    print(f"report: {out / 'explanation.md'}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,358 @@
+"""Explain the learned blocks of a trained run: ``python -m hypa.explain run=RUN [block=NAME]``.
+
+The trained model is driven (free run, :func:`hypa.evaluation.runs.free_run`) over the run's
+training and validation records; each output of an ANN block is the explained signal, the
+block's inputs the regressors, and by default the other measured outputs and the scheduling
+channels the extra signals (as the model itself simulates them). The ladder of forms
+(:func:`hypa.explain.explain`) is fitted on the training records and scored on the validation
+records. Where the records measure the block's output (the test bench's ``rear_wheel_angle``,
+an evaluation-only channel), the learned block, the explained form and the measurement are
+compared on the validation records.
+
+Writes ``explanation.md``, ``explanation.json`` and per explained signal three figures (the
+signal over time, the frequency response, the static curve) into ``out``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from hypa.data import HypaDataModule
+from hypa.errors import UserError
+from hypa.evaluation.runs import Prediction, TrainedRun, free_run
+from hypa.explain.forms import Explanation, explain, frequency_response, predict
+from hypa.explain.signals import Recording, unit_ratio
+from hypa.models import ComposedModel
+from hypa.models.spec import BlockSpec, ModelSpec
+
+FIT_SPLIT, SCORE_SPLIT = "train", "val"
+PAIRS = {"learned_vs_measured": ("measured", "learned"), "explained_vs_measured": ("measured", "explained"),
+         "explained_vs_learned": ("learned", "explained")}
+
+
+@dataclass(frozen=True)
+class Settings:
+    """How the ladder is fitted (see :func:`hypa.explain.explain`); ``extra`` None: the default extras."""
+
+    extra: tuple[str, ...] | None = None
+    penalty: float = 0.002
+    margin: float = 0.005
+    max_lag: float = 2.0  # [s]
+    max_delay: float = 0.25  # [s]
+    plot: bool = True
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One explained signal: an output of an ANN block, its regressors and extra signals, their units."""
+
+    block: str
+    output: str
+    inputs: tuple[str, ...]
+    extra: tuple[str, ...]
+    units: Mapping[str, str]
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return (self.output, *self.inputs, *self.extra)
+
+    @property
+    def key(self) -> str:
+        """A file-name stem: the block, and the output where the block has several."""
+        return self.block if self.output == self.block else f"{self.block}_{self.output}"
+
+
+@dataclass
+class BlockExplanation:
+    """The ladder fitted to one problem, compared with the measurement where one exists."""
+
+    problem: Problem
+    explanation: Explanation
+    comparison: dict[str, dict[str, float]] | None  # PAIRS -> corr, rms, share (validation)
+    figures: dict[str, Path] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    def summary(self) -> str:
+        """One line: the block, the chosen form, and the comparison with the measurement."""
+        line = f"{self.problem.block}: {self.explanation.describe()}"
+        if self.comparison:
+            unit = self.problem.units[self.problem.output]
+            lm, em = self.comparison["learned_vs_measured"], self.comparison["explained_vs_measured"]
+            line += (f"; vs measured {self.problem.output}: learned r {lm['corr']:.2f} (RMS {_num(lm['rms'])} {unit}), "
+                     f"explained r {em['corr']:.2f} (RMS {_num(em['rms'])} {unit})")
+        return line
+
+
+# --- which blocks, which signals --------------------------------------------------------------
+
+def ann_blocks(spec: ModelSpec) -> list[BlockSpec]:
+    """The model's network blocks, in the order of its configuration."""
+    return [b for b in spec.blocks if b.kind == "ann"]
+
+
+def select_blocks(spec: ModelSpec, name: str | None) -> list[BlockSpec]:
+    """The ANN block ``name`` (all ANN blocks for None); one-line errors for a wrong name or a model without networks."""
+    blocks = ann_blocks(spec)
+    if not blocks:
+        raise UserError(f"model {spec.name!r} has no ANN block: nothing learned to explain "
+                        f"(its blocks: {', '.join(b.name for b in spec.blocks)})")
+    if name is None:
+        return blocks
+    names = [b.name for b in blocks]
+    if name in names:
+        return [blocks[names.index(name)]]
+    what = "is not an ANN block" if name in [b.name for b in spec.blocks] else "does not exist"
+    raise UserError(f"block {name!r} {what} in model {spec.name!r}; its ANN blocks: {', '.join(names)}")
+
+
+def signal_unit(name: str, dm: HypaDataModule, spec: ModelSpec, depth: int = 0) -> str:
+    """SI unit of a signal: a measured channel's, else that of the channel its block scales it as
+    (``scale_as``, ``residual_of``), else that of the output a network adds to it (it is in a
+    ``residual_of``), else ``"-"``."""
+    if name in dm.channels:
+        return dm.channels[name].unit
+    for block in spec.blocks:
+        if name in block.outputs and depth < 8:
+            like = block.scale_as or block.residual_of
+            if like:
+                i = block.outputs.index(name)
+                return signal_unit(like[min(i, len(like) - 1)], dm, spec, depth + 1)
+    for block in spec.blocks:  # physics that a network corrects: the unit of the corrected output
+        if name in block.residual_of and depth < 8:
+            i = block.residual_of.index(name)
+            return signal_unit(block.outputs[min(i, len(block.outputs) - 1)], dm, spec, depth + 1)
+    return "-"
+
+
+def problems(spec: ModelSpec, dm: HypaDataModule, blocks: Sequence[BlockSpec],
+             extra: Sequence[str] | None = None) -> list[Problem]:
+    """One problem per output of each block. ``extra`` None: the measured outputs and scheduling
+    channels that are neither the block's inputs nor its outputs."""
+    out = []
+    for block in blocks:
+        own = {*block.inputs, *block.outputs}
+        chosen = [n for n in (*dm.output_names, *dm.scheduling_names) if n not in own] if extra is None else \
+            [n for n in extra if n not in own]
+        for output in block.outputs:
+            names = (output, *block.inputs, *chosen)
+            out.append(Problem(block.name, output, tuple(block.inputs), tuple(chosen),
+                               {n: signal_unit(n, dm, spec) for n in names}))
+    return out
+
+
+# --- the model's signals over the records -------------------------------------------------------
+
+def free_runs(model: ComposedModel, dm: HypaDataModule, split: str) -> list[Prediction]:
+    """The model over every record of a split, its scheduling channels added to the inputs."""
+    runs = []
+    for record in dm.records(split):
+        prediction = free_run(model, dm, record)
+        scheduling = {n: np.asarray(record[n], dtype=float) for n in dm.scheduling_names}
+        runs.append(replace(prediction, inputs={**prediction.inputs, **scheduling}))
+    return runs
+
+
+def recordings(predictions: Sequence[Prediction], problem: Problem) -> list[Recording]:
+    """The problem's signals of each free run, on the stretch where all of them exist; the
+    measurement of the output (where the record has one) as ``measured:<output>``."""
+    out = []
+    for prediction in predictions:
+        recording = Recording.from_prediction(prediction, list(problem.names))
+        truth = prediction.measured.get(problem.output)
+        if truth is not None:
+            n = len(recording[problem.output])
+            signals = {**recording.signals, f"measured:{problem.output}": truth[recording.start: recording.start + n]}
+            recording = Recording(recording.name, signals, recording.start)
+        out.append(recording)
+    return out
+
+
+def compare(reference: np.ndarray, other: np.ndarray) -> dict[str, float]:
+    """Correlation, RMS of the difference [signal unit] and the share of the reference's variance
+    that ``other`` explains (1 - Σ(ref - other)² / Σ(ref - mean)², R²)."""
+    ok = np.isfinite(reference) & np.isfinite(other)
+    a, b = reference[ok], other[ok]
+    spread = float(np.sum((a - a.mean()) ** 2))
+    corr = float(np.corrcoef(a, b)[0, 1]) if np.std(a) > 0 and np.std(b) > 0 else float("nan")
+    return {"corr": corr, "rms": float(np.sqrt(np.mean((a - b) ** 2))),
+            "share": float(1.0 - np.sum((a - b) ** 2) / spread) if spread > 0 else float("nan"),
+            "samples": int(ok.sum())}
+
+
+# --- the explanation ----------------------------------------------------------------------------
+
+def explain_problem(problem: Problem, train: Sequence[Prediction], val: Sequence[Prediction], dt: float,
+                    settings: Settings = Settings()) -> tuple[BlockExplanation, list[Recording], list[Recording]]:
+    """The ladder fitted on ``train``, scored on ``val``, and the comparison with the measurement."""
+    rec_train, rec_val = recordings(train, problem), recordings(val, problem)
+    try:
+        explanation = explain(rec_train, rec_val, dt, problem.output, problem.inputs, problem.extra, problem.units,
+                              penalty=settings.penalty, margin=settings.margin, max_lag=settings.max_lag,
+                              max_delay=settings.max_delay)
+    except UserError as error:
+        raise UserError(f"block {problem.block!r}: {error}") from error
+    comparison = None
+    truth = f"measured:{problem.output}"
+    if rec_val and all(truth in r.signals for r in rec_val):
+        explained = predict(explanation, rec_val)
+        series = {"measured": np.concatenate([r[truth] for r in rec_val]),
+                  "learned": np.concatenate([r[problem.output] for r in rec_val]),
+                  "explained": np.concatenate(explained)}
+        comparison = {pair: compare(series[a], series[b]) for pair, (a, b) in PAIRS.items()}
+        comparison["measured_rms"] = {"rms": float(np.sqrt(np.mean(series["measured"] ** 2)))}
+    return BlockExplanation(problem, explanation, comparison), rec_train, rec_val
+
+
+def explain_run(run: TrainedRun, dm: HypaDataModule, out: Path, block: str | None = None,
+                settings: Settings = Settings(),
+                progress: Callable[[str], None] = lambda text: None) -> list[BlockExplanation]:
+    """Explain the ANN blocks of a run (or the one named ``block``); writes the report, the json and the figures."""
+    model = run.module.model
+    spec = model.spec
+    chosen = problems(spec, dm, select_blocks(spec, block), settings.extra)
+    missing = sorted({n for p in chosen for n in p.extra if n not in (*dm.output_names, *dm.scheduling_names,
+                                                                     *dm.input_names) and n not in _signal_names(spec)})
+    if missing:
+        raise UserError(f"extra signals {missing} are neither measured channels nor signals of model {spec.name!r}")
+    progress(f"driving {run.label} over the {FIT_SPLIT} and {SCORE_SPLIT} records")
+    train, val = free_runs(model, dm, FIT_SPLIT), free_runs(model, dm, SCORE_SPLIT)
+    if not train or not val:
+        raise UserError(f"the run's data have {len(train)} {FIT_SPLIT} and {len(val)} {SCORE_SPLIT} records; "
+                        "the explanation needs both")
+    out.mkdir(parents=True, exist_ok=True)
+    results = []
+    for problem in chosen:
+        progress(f"fitting the ladder to {problem.block} ({', '.join(problem.inputs)} -> {problem.output})")
+        result, rec_train, rec_val = explain_problem(problem, train, val, dm.dt, settings)
+        if settings.plot:
+            from hypa.explain.figures import write_figures
+
+            result.figures, notes = write_figures(result, rec_train, rec_val, val, dm, out)
+            result.notes += notes
+        results.append(result)
+    write_json(run, results, out / "explanation.json")
+    write_report(run, results, out / "explanation.md")
+    return results
+
+
+def _signal_names(spec: ModelSpec) -> set[str]:
+    return {n for b in spec.blocks for n in (*b.inputs, *b.outputs)}
+
+
+# --- what is written ----------------------------------------------------------------------------
+
+def to_dict(run: TrainedRun, results: Sequence[BlockExplanation]) -> dict:
+    """The json: the run, and per explained signal its block, signals, units, the core's
+    :meth:`Explanation.to_dict`, the comparison with the measurement and the figures."""
+    return _finite({
+        "run": str(run.folder), "checkpoint": str(run.checkpoint), "model": run.module.model.spec.name,
+        "label": run.label, "fit_split": FIT_SPLIT, "score_split": SCORE_SPLIT,
+        "blocks": [{"block": r.problem.block, "output": r.problem.output, "inputs": list(r.problem.inputs),
+                    "extra": list(r.problem.extra), "units": dict(r.problem.units),
+                    "description": r.explanation.describe(), "explanation": r.explanation.to_dict(),
+                    "comparison": r.comparison, "figures": {k: v.name for k, v in r.figures.items()},
+                    "notes": r.notes} for r in results]})
+
+
+def write_json(run: TrainedRun, results: Sequence[BlockExplanation], path: Path) -> None:
+    path.write_text(json.dumps(to_dict(run, results), indent=2, ensure_ascii=False) + "\n")
+
+
+def _finite(value):
+    """NaN and infinities as null: the json stays standard."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def write_report(run: TrainedRun, results: Sequence[BlockExplanation], path: Path) -> None:
+    """``explanation.md``: an engineer's report, rounded numbers with units."""
+    lines = [f"# What the learned blocks of {run.label} learned", "",
+             (f"Run `{run.folder}` (checkpoint `{run.checkpoint.name}`). The trained model ran free over the "
+             f"{FIT_SPLIT} and {SCORE_SPLIT} records; each form was fitted on the {FIT_SPLIT} records and "
+             f"scored on the {SCORE_SPLIT} records (R², less a penalty per parameter; the simplest form "
+             "within the margin of the best score is chosen)."), ""]
+    for r in results:
+        lines += _report_block(r)
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _report_block(r: BlockExplanation) -> list[str]:
+    p, e = r.problem, r.explanation
+    u = p.units
+    lines = [f"## {p.block}: {', '.join(p.inputs)} → {p.output}", "",
+             f"**{e.describe()}**", "",
+             f"Signals: output {p.output} [{u[p.output]}]; inputs "
+             + ", ".join(f"{n} [{u[n]}]" for n in p.inputs)
+             + (f"; extra {', '.join(f'{n} [{u[n]}]' for n in p.extra)}" if p.extra else "; no extra signals")
+             + f". Sample time {1000 * e.dt:.3g} ms; validation std of the output {_num(e.output_std)} {u[p.output]}.", "",
+             "| rung | form | parameters | R² train | R² validation | score | |",
+             "|---:|---|---:|---:|---:|---:|---|"]
+    for i, f in enumerate(e.forms):
+        mark = "**chosen**" if i == e.chosen else ""
+        lines.append(f"| {f.form.rung} | {f.form.name} | {f.n_parameters} | {f.r2_train:.3f} | {f.r2_val:.3f} | "
+                     f"{f.score:.3f} | {mark} |")
+    lines += ["", f"Chosen: {e.best.form.name} (penalty {e.penalty:g} per parameter, margin {e.margin:g}).", "",
+              "| value | signal | estimate | 1σ | unit |", "|---|---|---:|---:|---|"]
+    for v in e.best.values:
+        lines.append(f"| {v.kind} | {v.signal or ''} | {_num(v.value)} | {_num(v.std)} | {v.unit} |")
+    rest = e.remainder
+    lines += ["", f"What remains: {rest.describe()}.", "",
+              "| band [Hz] | share of the remainder | unexplained share of the output there |",
+              "|---|---:|---:|"]
+    for band in rest.bands:
+        lines.append(f"| {band.low:.3g}-{band.high:.3g} | {100 * band.share:.0f} % | "
+                     f"{'-' if not math.isfinite(band.unexplained) else f'{100 * band.unexplained:.0f} %'} |")
+    unit = "" if rest.amplitude_unit == "-" else f" {rest.amplitude_unit}"
+    lines += ["", f"| abs({rest.amplitude_signal}){unit} | RMS error [{u[p.output]}] | share of the remainder |",
+              "|---|---:|---:|"]
+    for a in rest.amplitudes:
+        lines.append(f"| {_num(a.low)}-{_num(a.high)} | {_num(a.rms_error)} | {100 * a.share:.0f} % |")
+    if r.comparison:
+        c, unit = r.comparison, u[p.output]
+        lines += ["", (f"Against the measured {p.output} (validation records; never seen in training; "
+                      f"RMS of the measurement {_num(c['measured_rms']['rms'])} {unit}):"), "",
+                  f"| | correlation | RMS difference [{unit}] | share of the variance explained |",
+                  "|---|---:|---:|---:|"]
+        for pair, label in (("learned_vs_measured", "learned block vs measured"),
+                            ("explained_vs_measured", "explained form vs measured"),
+                            ("explained_vs_learned", "explained form vs learned block")):
+            lines.append(f"| {label} | {c[pair]['corr']:.3f} | {_num(c[pair]['rms'])} | "
+                         f"{100 * c[pair]['share']:.0f} % |")
+    else:
+        lines += ["", f"The records hold no measurement of {p.output}: no comparison with the truth."]
+    captions = {"time": "learned vs explained over time (first validation record)",
+                "frequency": "frequency response: the learned block (H1) and the chosen form",
+                "static": f"static curve: {p.output} against {p.inputs[0]}"}
+    for kind, path in r.figures.items():
+        lines += ["", f"![{captions.get(kind, kind)}]({path.name})"]
+    for note in r.notes:
+        lines += ["", f"Note: {note}"]
+    return lines + [""]
+
+
+def _num(x: float) -> str:
+    """Two to three significant digits, as an engineer reads them."""
+    if not math.isfinite(x):
+        return "-"
+    return f"{x:.3g}"
+
+
+def gain_unit(problem: Problem) -> str:
+    """Unit of the gain from the block's first input to its output."""
+    return unit_ratio(problem.units[problem.output], problem.units[problem.inputs[0]])
+
+
+__all__ = ["BlockExplanation", "Problem", "Settings", "ann_blocks", "compare", "explain_problem", "explain_run",
+           "free_runs", "frequency_response", "problems", "recordings", "select_blocks", "signal_unit", "to_dict",
+           "write_json", "write_report"]

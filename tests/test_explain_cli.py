@@ -1,0 +1,168 @@
+"""python -m hypa.explain end to end: a tiny V1 trained through the real command line, its rear-steering
+network explained (report, json, figures, the comparison with the measured rear-wheel angle), and
+bad input failing in one line.
+
+The tiny run (one epoch of two batches) has learned little, so only the plumbing is checked here;
+the slow test trains V1 on the default test bench and checks the explained rear-steering law
+against the bench's own (ratio 0.12 at 33.3 m/s, actuator lag 70 ms).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import SHORT_OVERRIDES
+
+from hypa.errors import UserError
+from hypa.explain import frequency_response
+from hypa.explain.run import compare, select_blocks
+from hypa.models.spec import parse_model_spec
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ["trainer.max_epochs=1", "trainer.limit_train_batches=2", "trainer.limit_val_batches=2",
+        "trainer.enable_progress_bar=false", "figures.enabled=false", "data.batch_size=8", "ann.hidden_size=8"]
+MANEUVERS_OFF = [f"testbench.records.{name}.maneuvers=[]" for name in ("train_1", "train_2", "val")]
+RUNGS = ["gain", "lag", "lag and delay", "second order", "odd nonlinearity"]
+
+
+def command(module: str, *overrides: str, cache: Path, timeout: int = 300) -> subprocess.CompletedProcess:
+    env = {**os.environ, "HYPA_CACHE_DIR": str(cache)}
+    return subprocess.run([sys.executable, "-m", module, *overrides], cwd=ROOT, env=env, capture_output=True,
+                          text=True, timeout=timeout, check=False)
+
+
+def train(folder: Path, cache: Path, *overrides: str) -> Path:
+    result = command("hypa.train", f"hydra.run.dir={folder}", *SHORT_OVERRIDES, *MANEUVERS_OFF, *overrides,
+                     cache=cache)
+    assert result.returncode == 0, result.stderr[-3000:]
+    return folder
+
+
+@pytest.fixture(scope="module")
+def explained(tmp_path_factory, hypa_cache: Path) -> tuple[subprocess.CompletedProcess, Path]:
+    tmp = tmp_path_factory.mktemp("explain")
+    run = train(tmp / "v1", hypa_cache, "model=v1", "ann=lstm", *TINY)
+    result = command("hypa.explain", f"run={run}", f"hydra.run.dir={tmp / 'explain'}", cache=hypa_cache)
+    return result, tmp / "explain"
+
+
+def test_explains_every_ann_block_into_report_json_and_figures(explained) -> None:
+    result, out = explained
+    assert result.returncode == 0, result.stderr[-3000:]
+    summary = [line for line in result.stdout.splitlines() if line.startswith("rear_steering: ")]
+    assert len(summary) == 1 and "rear_wheel_angle = " in summary[0] and "vs measured rear_wheel_angle" in summary[0]
+    assert f"report: {out / 'explanation.md'}" in result.stdout
+    data = json.loads((out / "explanation.json").read_text())
+    assert [b["block"] for b in data["blocks"]] == ["rear_steering"]
+    block = data["blocks"][0]
+    assert block["output"] == "rear_wheel_angle" and block["inputs"] == ["steering_wheel_angle"]
+    assert block["extra"] == ["yaw_rate", "side_slip"]
+    assert block["units"] == {"rear_wheel_angle": "rad", "steering_wheel_angle": "rad", "yaw_rate": "rad/s",
+                              "side_slip": "rad"}
+    explanation = block["explanation"]
+    names = [f["form"]["name"] for f in explanation["forms"]]
+    assert names[:5] == RUNGS and names[5].startswith("extra signals")
+    assert all(np.isfinite(f["r2_val"]) and np.isfinite(f["score"]) for f in explanation["forms"])
+    assert explanation["chosen_form"] == names[explanation["chosen"]]
+    assert block["description"] == explanation["description"]
+    for kind in ("time", "frequency", "static"):
+        figure = out / block["figures"][kind]
+        assert figure.is_file() and figure.stat().st_size > 5000
+    report = (out / "explanation.md").read_text()
+    assert explanation["description"] in report
+    assert all(f"| {name} |" in report for name in RUNGS) and "**chosen**" in report
+    assert "What remains: unexplained" in report and "![" in report
+
+
+def test_compares_learned_and_explained_with_the_measured_rear_wheel_angle(explained) -> None:
+    _, out = explained
+    block = json.loads((out / "explanation.json").read_text())["blocks"][0]
+    comparison = block["comparison"]
+    assert set(comparison) >= {"learned_vs_measured", "explained_vs_measured", "explained_vs_learned"}
+    for pair in ("learned_vs_measured", "explained_vs_measured", "explained_vs_learned"):
+        assert set(comparison[pair]) >= {"corr", "rms", "share"}
+        assert comparison[pair]["rms"] >= 0
+    # the chosen form on the validation records is exactly what the ladder scored
+    chosen = block["explanation"]["forms"][block["explanation"]["chosen"]]
+    assert comparison["explained_vs_learned"]["share"] == pytest.approx(chosen["r2_val"], abs=1e-9)
+    # the measured angle is the test bench's (a few tenths of a degree), not the network's
+    assert 1e-4 < comparison["measured_rms"]["rms"] < 0.06
+    assert "Against the measured rear_wheel_angle" in (out / "explanation.md").read_text()
+
+
+def bad(result: subprocess.CompletedProcess) -> str:
+    assert result.returncode == 1, result.stdout[-2000:] + result.stderr[-2000:]
+    assert "Traceback" not in result.stderr
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("hypa.explain: error: "), result.stderr
+    return lines[0]
+
+
+def test_bad_input_fails_in_one_line(explained, tmp_path: Path, hypa_cache: Path) -> None:
+    _, out = explained
+    run = out.parent / "v1"
+    missing = bad(command("hypa.explain", f"run={tmp_path / 'nowhere'}", f"hydra.run.dir={tmp_path / 'a'}",
+                          cache=hypa_cache))
+    assert "nowhere does not exist" in missing
+    unknown = bad(command("hypa.explain", f"run={run}", "block=rear_steerin", f"hydra.run.dir={tmp_path / 'b'}",
+                          cache=hypa_cache))
+    assert "'rear_steerin' does not exist" in unknown and "ANN blocks: rear_steering" in unknown
+    physics = bad(command("hypa.explain", f"run={run}", "block=single_track", f"hydra.run.dir={tmp_path / 'c'}",
+                          cache=hypa_cache))
+    assert "'single_track' is not an ANN block" in physics and "ANN blocks: rear_steering" in physics
+
+
+def test_a_model_without_networks_has_nothing_to_explain() -> None:
+    spec = parse_model_spec({"name": "lag", "outputs": ["y"], "blocks": {
+        "plant": {"kind": "physics", "system": "front_steering", "inputs": ["u"], "outputs": ["y"]}}})
+    with pytest.raises(UserError, match="model 'lag' has no ANN block: nothing learned to explain"):
+        select_blocks(spec, None)
+
+
+def test_compare_reads_correlation_rms_and_share() -> None:
+    t = np.linspace(0, 10 * np.pi, 1000, endpoint=False)
+    truth = np.sin(t)
+    same = compare(truth, truth)
+    assert same["corr"] == pytest.approx(1.0) and same["rms"] == 0.0 and same["share"] == pytest.approx(1.0)
+    half = compare(truth, 0.5 * truth)
+    assert half["corr"] == pytest.approx(1.0) and half["share"] == pytest.approx(0.75, abs=0.01)
+    assert half["rms"] == pytest.approx(0.5 * np.sqrt(np.mean(truth**2)))
+
+
+# --- slow: does the explanation find the test bench's rear-steering law? ---------------------
+
+TRUE_RATIO = 0.12  # δr/δf of the bench's ECU at 33.3 m/s (conf/testbench/default.yaml)
+TRUE_LAG = 0.07  # [s] its actuator
+STEERING_RATIO = 15.0  # δsw/δf
+
+
+@pytest.mark.slow
+def test_explained_rear_steering_is_the_test_bench_law(tmp_path: Path, hypa_cache: Path) -> None:
+    """V1 on the default test bench (full records), trained long enough that its rear-steering
+    network follows the true angle; the explained ratio and lag against the bench's."""
+    run = tmp_path / "v1"
+    result = command("hypa.train", "model=v1", "ann=lstm", f"hydra.run.dir={run}", "trainer.max_epochs=20",
+                     "trainer.enable_progress_bar=false", "figures.enabled=false", cache=hypa_cache, timeout=3600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    result = command("hypa.explain", f"run={run}", "block=rear_steering", f"hydra.run.dir={tmp_path / 'explain'}",
+                     cache=hypa_cache)
+    assert result.returncode == 0, result.stderr[-3000:]
+    block = json.loads((tmp_path / "explain" / "explanation.json").read_text())["blocks"][0]
+    assert block["comparison"]["learned_vs_measured"]["corr"] > 0.8, block["comparison"]
+    from hypa.explain.forms import FittedForm, Form, Value
+
+    chosen = block["explanation"]["forms"][block["explanation"]["chosen"]]
+    fitted = FittedForm(Form(**chosen["form"]), tuple(Value(**v) for v in chosen["values"]), chosen["n_parameters"],
+                        chosen["r2_train"], chosen["r2_val"], chosen["score"])
+    to_front = STEERING_RATIO if block["inputs"] == ["steering_wheel_angle"] else 1.0
+    ratio = fitted.value("gain", block["inputs"][0]).value * to_front
+    f = 0.2  # [Hz] the equivalent lag: the phase delay at low frequency (a lag, a dead time, a second order alike)
+    lag = -np.angle(frequency_response(fitted, block["inputs"][0], np.array([f]))[0]) / (2 * np.pi * f)
+    assert ratio == pytest.approx(TRUE_RATIO, rel=0.2), block["description"]
+    assert lag == pytest.approx(TRUE_LAG, rel=0.3), block["description"]
