@@ -348,17 +348,15 @@ def evaluate_round(candidates: Sequence[Candidate], problem: Problem, windows: M
             findings.append(_failed(c, error, time.perf_counter() - started))
     val, alive = problem.stretches("val"), list(runners)
     for k, share in enumerate(RUNGS):
-        for runner in alive:
-            runner.advance(share, val)
-        alive = [r for r in alive if r.error is None]
+        for runner in alive:  # linear fits (the lifted form: cheap) run to the end at once
+            runner.advance(share if runner.fit.nonlinear else 1.0, val)
+        alive = [r for r in alive if r.error is None and r.fit.done < r.fit.total]
         if k + 1 == len(RUNGS):
             break
-        full = [r for r in alive if not r.fit.nonlinear]  # cheap (the lifted form): always to the end
-        racing = sorted((r for r in alive if r.fit.nonlinear), key=lambda r: r.score)
-        racing = racing[: max(3 - k, math.ceil(len(racing) / 2))]
+        racing = sorted(alive, key=lambda r: r.score)[: max(3 - k, math.ceil(len(alive) / 2))]
         if k > 0:  # after half its steps, worse than the base model and not improving: it will not win
             racing = [r for r in racing if r.score < base_score or r.score < r.previous]
-        alive = full + racing
+        alive = racing
     for runner in runners:
         if runner.error is not None:
             findings.append(_failed(runner.fit.candidate, runner.error, runner.seconds))
