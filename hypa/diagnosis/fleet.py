@@ -149,7 +149,7 @@ def _relative(path: Path, root: Path) -> str:
 def estimates(named: Mapping[str, Any]) -> dict[str, Estimate]:
     """A named cause's fitted values (a ``named`` row of diagnosis.json, SI) for the summary,
     keyed ``"cause: what"``: a value that is its target by the target (``parameter_mismatch: cr``,
-    ``output_offset: yaw_rate``), the knobs of an inserted block by their own name
+    ``output_offset: position``), the knobs of an inserted block by their own name
     (``unmodeled_input: gain``, ``unmodeled_input: tau`` from ``.../tau_s``); in the units an
     engineer reads (:data:`DISPLAY`: times in ms, angles in deg)."""
     cause, target, units = named["cause"], named.get("target", ""), named.get("units") or {}

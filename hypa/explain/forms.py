@@ -127,8 +127,8 @@ class Explanation:
         return self.forms[self.chosen]
 
     def describe(self) -> str:
-        """One line in rounded numbers, e.g. ``rear_angle = 0.12 · front_angle, lag 65 ms, − 0.004 s ·
-        yaw_rate; explains 93 % of the learned block``."""
+        """One line in rounded numbers, e.g. ``y = 0.12 · u, lag 65 ms, − 0.004 s ·
+        w; explains 93 % of the learned block``."""
         return describe(self)
 
     def to_dict(self) -> dict:
