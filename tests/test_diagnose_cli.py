@@ -26,6 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SHORT = [f"testbench.records.{name}.stochastic_duration_s={d}" for name, d in
          (("train_1", 40), ("train_2", 40), ("val", 30))] + ["testbench.records.val.maneuvers=[]"]
 DELAY_ONLY = ["testbench.tires.enabled=false", "testbench.relaxation.enabled=false",
+              "testbench.load_transfer.enabled=false", "testbench.rear_steering.transient_ratio=0",
               "testbench.rear_steering.enabled=false", "testbench.sensors.bias_scale=0",
               "testbench.steering.delay_s=0.06"]
 

@@ -24,7 +24,7 @@ from hypa.testbench import (
     simulate_record,
 )
 from hypa.testbench import dataset as dataset_module
-from hypa.testbench.config import RecordConfig, StochasticConfig
+from hypa.testbench.config import RecordConfig, SteeringConfig, StochasticConfig
 from hypa.testbench.excitation import stochastic_steering
 from hypa.testbench.records import COLUMNS
 from hypa.testbench.truth import (
@@ -66,6 +66,7 @@ def truth_of(config: TestbenchConfig, steering_wheel_angle: np.ndarray):
         config.relaxation,
         config.rear_steering,
         config.steering,
+        config.load_transfer,
     )
 
 
@@ -212,7 +213,7 @@ def test_magic_formula_slope_at_zero_is_the_cornering_stiffness():
 
 
 def test_integration_loop_uses_the_documented_tyre_and_ecu_laws():
-    config = TestbenchConfig().merged({"relaxation": {"enabled": False}})
+    config = TestbenchConfig().merged({"relaxation": {"enabled": False}, "load_transfer": {"enabled": False}})
     vehicle, v = config.vehicle, config.vehicle.velocity
     t = np.arange(int(20 * FS)) / FS
     sw = 0.6 * np.sin(2 * np.pi * 0.3 * t) * np.minimum(t / 5.0, 1.0)
@@ -225,12 +226,48 @@ def test_integration_loop_uses_the_documented_tyre_and_ecu_laws():
     )
     np.testing.assert_allclose(truth.lateral_acceleration, forces / vehicle.mass, atol=1e-9)
     rws = config.rear_steering
-    command = rear_steering_command(sw / vehicle.steering_ratio, truth.yaw_rate, v, rws)
+    assert rws.transient_ratio > 0  # the default ECU's phase reversal is part of the check
+    lowpassed = front_wheel_angle(sw, FS, vehicle.steering_ratio, SteeringConfig(lag_tau_s=rws.transient_tau_s))
+    command = rear_steering_command(sw / vehicle.steering_ratio, truth.yaw_rate, v, rws, lowpassed)
     expected_rate = np.clip(
         (command - truth.rear_wheel_angle) / rws.actuator_tau_s, -rws.rate_limit, rws.rate_limit
     )
     rate = np.gradient(truth.rear_wheel_angle, 1 / FS)
     assert np.max(np.abs(rate - expected_rate)[1:-1]) < 1e-3 * np.max(np.abs(expected_rate))
+
+
+def test_load_transfer_in_steady_cornering_follows_the_documented_wheel_laws():
+    # a held steer: the roll mode settles (a_roll = a_y), so each axle is its two wheels at
+    # static load +- share m h a_y / track
+    config = TestbenchConfig().merged({"relaxation": {"enabled": False}, "rear_steering": {"enabled": False}})
+    vehicle, v, lt = config.vehicle, config.vehicle.velocity, config.load_transfer
+    sw = np.minimum(np.arange(int(8 * FS)) / FS, 1.0) * 0.5  # ramp to 0.5 rad, held
+    truth = truth_of(config, sw)
+    a_y = truth.lateral_acceleration[-1]
+    assert a_y > 5.0
+    load_f, load_r = static_axle_loads(vehicle)
+    alpha_f = truth.front_wheel_angle[-1] - truth.side_slip[-1] - vehicle.lf / v * truth.yaw_rate[-1]
+    alpha_r = -truth.side_slip[-1] + vehicle.lr / v * truth.yaw_rate[-1]
+    shift_f = lt.front_roll_share * vehicle.mass * lt.cg_height_m * a_y / lt.track_front_m
+    shift_r = (1 - lt.front_roll_share) * vehicle.mass * lt.cg_height_m * a_y / lt.track_rear_m
+    forces = (axle_characteristic(alpha_f, vehicle.cf, load_f, config.tires, lt, shift_f)
+              + axle_characteristic(alpha_r, vehicle.cr, load_r, config.tires, lt, shift_r))
+    assert forces / vehicle.mass == pytest.approx(a_y, rel=1e-6)
+    # degressive in load: a loaded axle has less slope and less peak than the same axle unloaded
+    h, alpha = 1e-7, np.linspace(0.0, 0.4, 4001)
+    for transfer in (0.0, shift_f):
+        slope = (axle_characteristic(h, vehicle.cf, load_f, config.tires, lt, transfer)
+                 - axle_characteristic(-h, vehicle.cf, load_f, config.tires, lt, transfer)) / (2 * h)
+        peak = np.max(axle_characteristic(alpha, vehicle.cf, load_f, config.tires, lt, transfer))
+        if transfer == 0.0:
+            assert slope == pytest.approx(vehicle.cf, rel=1e-6)
+            assert peak == pytest.approx(config.tires.mu * load_f, rel=1e-4)
+        else:
+            assert 0.8 * vehicle.cf < slope < 0.97 * vehicle.cf
+            assert 0.9 * config.tires.mu * load_f < peak < 0.99 * config.tires.mu * load_f
+    # and switched off, the truth is the plain axle (static loads) again
+    plain = truth_of(config.merged({"load_transfer": {"enabled": False}}), sw)
+    assert abs(plain.lateral_acceleration[-1]) > abs(a_y)
 
 
 def test_rear_steering_off_gives_zero_rear_angle():

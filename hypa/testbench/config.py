@@ -42,16 +42,52 @@ class RelaxationConfig:
 
 
 @dataclass
+class LoadTransferConfig:
+    """Lateral load transfer through the body's roll, and the tyres' load sensitivity.
+
+    Cornering moves vertical load from the inner to the outer wheel of each axle:
+    ``dFz = share m h a_roll / track`` (``share``: the axle's part of the roll stiffness,
+    front ``front_roll_share``, rear the rest), where ``a_roll`` is the lateral acceleration
+    through the body's roll mode (second order, ``roll_frequency_hz``, ``roll_damping``).
+    Each wheel is a magic formula of its own load Fz (static ``Fz0`` = half the axle load):
+    peak ``D = mu (1 + mu_load_gradient dfz) Fz`` with ``dfz = Fz / Fz0 - 1`` (MF pDy2) and
+    cornering stiffness ``K(Fz) ~ sin(2 atan(Fz / (stiffness_load_peak Fz0)))`` (MF pKy2),
+    scaled so the axle's slope at zero lateral acceleration is still ``c``. Both are
+    degressive in load, so the axle loses stiffness and peak force as |a_y| grows: the
+    outer wheel gains less than the inner one loses. Values of a mid-size sedan: centre of
+    gravity 0.55 m high, 1.6 m tracks, 60 % of the roll stiffness at the front (understeer
+    tuning), body roll at 1.5 Hz, 40 % damped; MF 5.2 tyre files of 205/60R15-sized tyres
+    have pKy2 ~ 2 and pDy2 ~ -0.1 (Pacejka, Tire and Vehicle Dynamics, 3rd ed., App. 3).
+    """
+
+    enabled: bool = True  # false: both wheels of an axle carry half its static load
+    cg_height_m: float = 0.55  # [m] centre-of-gravity height h
+    track_front_m: float = 1.60  # [m]
+    track_rear_m: float = 1.60  # [m]
+    front_roll_share: float = 0.60  # [-] front axle's part of the roll stiffness
+    roll_frequency_hz: float = 1.5  # [Hz] body roll natural frequency
+    roll_damping: float = 0.4  # [-] body roll damping ratio
+    stiffness_load_peak: float = 2.0  # [-] Fz / Fz0 at which a wheel's stiffness peaks (pKy2)
+    mu_load_gradient: float = -0.1  # [-] relative change of mu per relative load change (pDy2)
+
+
+@dataclass
 class RearSteeringConfig:
     """Active rear-wheel-steering ECU, unknown to the physics.
 
-    Command ``delta_r,cmd = strength (k(v) (1 + g tanh(|r| / r_ref)) delta_f,ECU + k_r r)``:
-    a speed-scheduled feedforward ratio ``k(v)`` (linear interpolation of the table, held
-    constant beyond its ends) modulated by the yaw rate ``r`` (g < 0: less in-phase when
-    turning hard, which offsets part of the tyres' growing understeer), plus a stabilizing
-    yaw-rate feedback. ``delta_f,ECU`` is the steering-wheel angle sensor over the steering ratio (the
-    ECU does not see steering lag or dead time). The actuator follows the angle-limited
-    command with a first-order lag whose rate is limited.
+    Command ``delta_r,cmd = strength (k(v) (1 + g tanh(|r| / r_ref)) delta_f,ECU + k_r r
+    - k_t (delta_f,ECU - lowpass_tau_t(delta_f,ECU)))``: a speed-scheduled feedforward ratio
+    ``k(v)`` (linear interpolation of the table, held constant beyond its ends) modulated by
+    the yaw rate ``r`` (g < 0: less in-phase when turning hard, which offsets part of the
+    tyres' growing understeer), a stabilizing yaw-rate feedback, and a phase-reversal term:
+    right after a steering change the rear wheels steer against the front ones by ``k_t``
+    (sharper yaw response), fading with ``tau_t`` into the in-phase ratio (stability); the
+    control of Honda's and Nissan's four-wheel steering (Sano et al., SAE 860625; Irie and
+    Kuroki, SAE 901748). In transfer-function form the linear part is
+    ``k (1 + T_z s) / (1 + tau_t s)`` with ``T_z = (1 - k_t / k) tau_t`` < 0: a non-minimum-phase
+    law no fixed ratio can follow. ``delta_f,ECU`` is the steering-wheel angle sensor over
+    the steering ratio (the ECU does not see steering lag or dead time). The actuator
+    follows the angle-limited command with a first-order lag whose rate is limited.
     """
 
     enabled: bool = True
@@ -65,6 +101,8 @@ class RearSteeringConfig:
     yaw_rate_ratio_gain: float = -0.3  # [-] relative change g of the ratio at large |r|
     yaw_rate_ref: float = 0.15  # [rad/s] yaw rate r_ref at which 76 % of the change is reached
     yaw_rate_feedback_s: float = 0.005  # [rad/(rad/s)] = [s] feedback gain k_r
+    transient_ratio: float = 0.3  # [-] k_t: counter-phase ratio right after a steering change
+    transient_tau_s: float = 0.3  # [s] tau_t: time over which that counter-phase part fades
     actuator_tau_s: float = 0.07  # [s] first-order actuator time constant
     rate_limit: float = 0.175  # [rad/s] actuator rate limit (10 deg/s)
     angle_limit: float = 0.0524  # [rad] rear wheel angle limit (3 deg)
@@ -210,6 +248,7 @@ class TestbenchConfig:
     vehicle: VehicleParameters = field(default_factory=VehicleParameters)  # truth vehicle
     tires: TireConfig = field(default_factory=TireConfig)
     relaxation: RelaxationConfig = field(default_factory=RelaxationConfig)
+    load_transfer: LoadTransferConfig = field(default_factory=LoadTransferConfig)
     rear_steering: RearSteeringConfig = field(default_factory=RearSteeringConfig)
     steering: SteeringConfig = field(default_factory=SteeringConfig)
     sensors: SensorConfig = field(default_factory=SensorConfig)
@@ -224,6 +263,11 @@ class TestbenchConfig:
             raise ValueError("rear_steering.table_speed_mps must be strictly increasing")
         if not self.tires.curvature_e < 1.0:
             raise ValueError("tires.curvature_e must be < 1 for a monotonic rising branch")
+        load = self.load_transfer
+        if not (0.0 <= load.front_roll_share <= 1.0 and load.roll_frequency_hz > 0
+                and load.roll_damping > 0 and load.stiffness_load_peak > 0):
+            raise ValueError("load_transfer: need 0 <= front_roll_share <= 1 and positive "
+                             "roll_frequency_hz, roll_damping, stiffness_load_peak")
         if self.steering.delay_s < 0 or self.steering.lag_tau_s < 0:
             raise ValueError("steering.delay_s and steering.lag_tau_s must be >= 0")
         for name, record in self.records.items():
@@ -249,6 +293,7 @@ class TestbenchConfig:
             {
                 "tires": {"enabled": False},
                 "relaxation": {"enabled": False},
+                "load_transfer": {"enabled": False},
                 "rear_steering": {"enabled": False},
                 "steering": {"delay_s": 0.0, "lag_tau_s": 0.0},
                 "sensors": {"enabled": noise, "bias_scale": 0.0},

@@ -24,7 +24,7 @@ from hypa.testbench.sensors import UNITS
 log = logging.getLogger(__name__)
 
 # Bump whenever the code changes what a given config generates: it is part of the cache key.
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 DESCRIPTION_FILE = "dataset.json"
 
 

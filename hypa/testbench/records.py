@@ -52,6 +52,7 @@ def simulate_record(config: TestbenchConfig, record: str | RecordConfig) -> Simu
         config.relaxation,
         config.rear_steering,
         config.steering,
+        config.load_transfer,
     )
     n = len(steering_wheel_angle)
     true_channels = {

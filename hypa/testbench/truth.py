@@ -1,19 +1,22 @@
 """The test bench's truth: nonlinear single-track model with active rear-wheel steering.
 
 States at constant speed v [m/s]: yaw rate r [rad/s], side slip beta [rad], the lagged
-axle slip angles alpha_f, alpha_r [rad] and the rear actuator angle delta_r [rad]:
+axle slip angles alpha_f, alpha_r [rad], the rear actuator angle delta_r [rad] and the
+roll mode's lateral acceleration a_roll [m/s^2] with its rate:
 
     beta'    = (Fyf + Fyr) / (m v) - r
     r'       = (lf Fyf - lr Fyr) / Izz
     alpha_f' = (delta_f - beta - lf r / v - alpha_f) v / sigma_f     (relaxation)
     alpha_r' = (delta_r - beta + lr r / v - alpha_r) v / sigma_r
     delta_r' = clip((clip(delta_r,cmd) - delta_r) / tau, +-rate)     (RWS actuator)
+    a_roll'' = w^2 (a_y - a_roll) - 2 zeta w a_roll'                 (body roll)
 
-with the axle forces Fy = F(alpha) of :func:`axle_characteristic` and the lateral
-acceleration a_y = v (beta' + r) = (Fyf + Fyr) / m. With linear axles, no relaxation and
-no rear steering this is exactly the linear single-track model of the paper (Sec. 5).
-Integration is classic RK4 at the sample rate with the inputs interpolated linearly
-within a step; the loop runs on Python floats because that beats per-step numpy here.
+with the axle forces Fy = F(alpha, dFz) of :func:`axle_characteristic` (two wheels, load
+dFz moved from the inner to the outer one in proportion to a_roll) and the lateral
+acceleration a_y = v (beta' + r) = (Fyf + Fyr) / m. With linear axles, no load transfer,
+no relaxation and no rear steering this is exactly the linear single-track model of the
+paper (Sec. 5). Integration is classic RK4 at the sample rate with the inputs interpolated
+linearly within a step; the loop runs on Python floats because that beats per-step numpy.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from scipy.signal import lfilter
 
 from hypa.vehicle import VehicleParameters
 from hypa.testbench.config import (
+    LoadTransferConfig,
     RearSteeringConfig,
     RelaxationConfig,
     SteeringConfig,
@@ -54,20 +58,46 @@ def static_axle_loads(vehicle: VehicleParameters) -> tuple[float, float]:
 
 
 def axle_characteristic(
-    alpha: np.ndarray | float, cornering_stiffness: float, vertical_load: float, tires: TireConfig
+    alpha: np.ndarray | float,
+    cornering_stiffness: float,
+    vertical_load: float,
+    tires: TireConfig,
+    load_transfer: LoadTransferConfig | None = None,
+    transfer: float = 0.0,
 ) -> np.ndarray:
-    """Lateral axle force Fy [N] of the slip angle alpha [rad].
+    """Lateral axle force Fy [N] of the slip angle alpha [rad]: the sum of its two wheels.
 
-    Magic formula Fy = D sin(C atan(B a - E (B a - atan(B a)))) with D = mu Fz and
-    B = c / (C D), hence dFy/dalpha(0) = B C D = c; linear Fy = c alpha when disabled.
+    Each wheel: magic formula Fy = D sin(C atan(B a - E (B a - atan(B a)))) with B = K / (C D)
+    (linear Fy = K a when the tyres are disabled). With ``load_transfer`` enabled the wheels
+    carry Fz0 +- ``transfer`` [N] (Fz0 = half the axle's ``vertical_load``) and D, K follow
+    the load as :class:`~hypa.testbench.config.LoadTransferConfig` describes; without it, or
+    at zero transfer, D = mu Fz and the slope at zero slip is ``cornering_stiffness``.
     (The integration loop inlines the same formula for speed.)
     """
     alpha = np.asarray(alpha, dtype=float)
-    if not tires.enabled:
-        return cornering_stiffness * alpha
-    d = tires.mu * vertical_load
-    x = cornering_stiffness / (tires.shape_c * d) * alpha
-    return d * np.sin(tires.shape_c * np.arctan(x - tires.curvature_e * (x - np.arctan(x))))
+    half = 0.5 * vertical_load
+    loads = (half + transfer, half - transfer) if load_transfer is not None and load_transfer.enabled else (half, half)
+    total = np.zeros_like(alpha)
+    for load in loads:
+        d, k = _wheel(load, half, 0.5 * cornering_stiffness, tires, load_transfer)
+        if not tires.enabled:
+            total = total + k * alpha
+            continue
+        x = k / (tires.shape_c * d) * alpha
+        total = total + d * np.sin(tires.shape_c * np.arctan(x - tires.curvature_e * (x - np.arctan(x))))
+    return total
+
+
+def _wheel(
+    load: float, static_load: float, stiffness: float, tires: TireConfig, load_transfer: LoadTransferConfig | None
+) -> tuple[float, float]:
+    """Peak force D [N] and cornering stiffness K [N/rad] of one wheel at its vertical load [N]."""
+    if load_transfer is None or not load_transfer.enabled:
+        return tires.mu * load, stiffness
+    x = max(load, 0.01 * static_load) / static_load  # a lifted wheel keeps 1 % (no division by 0)
+    p = load_transfer.stiffness_load_peak
+    k = stiffness * math.sin(2.0 * math.atan(x / p)) / math.sin(2.0 * math.atan(1.0 / p))
+    return tires.mu * (1.0 + load_transfer.mu_load_gradient * (x - 1.0)) * x * static_load, k
 
 
 def feedforward_ratio(speed: float, rear_steering: RearSteeringConfig) -> float:
@@ -80,22 +110,27 @@ def rear_steering_command(
     yaw_rate: np.ndarray | float,
     speed: float,
     rear_steering: RearSteeringConfig,
+    lowpassed_front: np.ndarray | float | None = None,
 ) -> np.ndarray:
     """The ECU's angle-limited command delta_r,cmd [rad].
 
-    delta_r,cmd = strength (k(v) (1 + g tanh(|r| / r_ref)) delta_f,ECU + k_r r) of the ECU's
-    front wheel angle delta_f,ECU [rad] and the yaw rate r [rad/s], clipped to the angle
-    limit. With g < 0 the in-phase ratio falls as the car turns harder, which offsets part
-    of the tyres' growing understeer; the yaw-rate feedback (in-phase for k_r > 0) damps
-    the yaw motion. (The integration loop inlines the same law for speed.)
+    delta_r,cmd = strength (k(v) (1 + g tanh(|r| / r_ref)) delta_f,ECU + k_r r
+    - k_t (delta_f,ECU - lowpassed_front)) of the ECU's front wheel angle delta_f,ECU [rad],
+    its first-order low-pass with tau_t ``lowpassed_front`` [rad] (None: the phase-reversal
+    term is left out) and the yaw rate r [rad/s], clipped to the angle limit. With g < 0 the
+    in-phase ratio falls as the car turns harder, which offsets part of the tyres' growing
+    understeer; the yaw-rate feedback (in-phase for k_r > 0) damps the yaw motion.
+    (The integration loop inlines the same law for speed.)
     """
     ratio = rear_steering.strength * feedforward_ratio(speed, rear_steering)
     r = np.asarray(yaw_rate, dtype=float)
+    front = np.asarray(front_wheel_angle, dtype=float)
     modulation = 1.0 + rear_steering.yaw_rate_ratio_gain * np.tanh(
         np.abs(r) / rear_steering.yaw_rate_ref
     )
-    command = ratio * modulation * np.asarray(front_wheel_angle, dtype=float)
-    command = command + rear_steering.strength * rear_steering.yaw_rate_feedback_s * r
+    command = ratio * modulation * front + rear_steering.strength * rear_steering.yaw_rate_feedback_s * r
+    if lowpassed_front is not None:
+        command = command - rear_steering.strength * rear_steering.transient_ratio * (front - lowpassed_front)
     return np.clip(command, -rear_steering.angle_limit, rear_steering.angle_limit)
 
 
@@ -132,13 +167,17 @@ def simulate_truth(
     relaxation: RelaxationConfig,
     rear_steering: RearSteeringConfig,
     steering: SteeringConfig,
+    load_transfer: LoadTransferConfig | None = None,
 ) -> TruthTrajectory:
-    """Integrate the truth from rest (all states 0) for a steering-wheel angle [rad]."""
+    """Integrate the truth from rest (all states 0) for a steering-wheel angle [rad].
+
+    ``load_transfer`` None: no load transfer (each wheel carries half its axle's load).
+    """
     front = front_wheel_angle(
         steering_wheel_angle, sample_rate_hz, vehicle.steering_ratio, steering
     )
     ecu_front = np.asarray(steering_wheel_angle, dtype=float) / vehicle.steering_ratio
-    rhs = _right_hand_side(vehicle, tires, relaxation, rear_steering)
+    rhs = _right_hand_side(vehicle, tires, relaxation, rear_steering, load_transfer)
     yaw, slip, accel, rear = _rk4(rhs, front.tolist(), ecu_front.tolist(), 1.0 / sample_rate_hz)
     return TruthTrajectory(front, np.array(rear), np.array(yaw), np.array(slip), np.array(accel))
 
@@ -148,7 +187,8 @@ def _right_hand_side(
     tires: TireConfig,
     relaxation: RelaxationConfig,
     rear_steering: RearSteeringConfig,
-) -> Callable[..., tuple[float, float, float, float, float, float]]:
+    load_transfer: LoadTransferConfig | None = None,
+) -> Callable[..., tuple[float, ...]]:
     """State derivatives and a_y as one flat closure over floats.
 
     It inlines :func:`axle_characteristic` and :func:`rear_steering_command`: calls and
@@ -172,9 +212,33 @@ def _right_hand_side(
     feedback = rear_steering.strength * rear_steering.yaw_rate_feedback_s
     limit, rate_limit = rear_steering.angle_limit, rear_steering.rate_limit
     inv_tau = 1.0 / rear_steering.actuator_tau_s
+    transient = rear_steering.strength * rear_steering.transient_ratio
+    inv_transient_tau = 1.0 / rear_steering.transient_tau_s
     sin, atan, tanh = math.sin, math.atan, math.tanh
 
-    def rhs(r, beta, alpha_f, alpha_r, delta_r, delta_f, delta_f_ecu):
+    transfer = load_transfer is not None and load_transfer.enabled
+    if transfer:
+        lt = load_transfer
+        omega = 2.0 * math.pi * lt.roll_frequency_hz
+        omega2, damping = omega * omega, 2.0 * lt.roll_damping * omega
+        # load moved per m/s^2 of a_roll [N s^2/m]: the axle's share of m h a / track
+        per_f = lt.front_roll_share * vehicle.mass * lt.cg_height_m / lt.track_front_m
+        per_r = (1.0 - lt.front_roll_share) * vehicle.mass * lt.cg_height_m / lt.track_rear_m
+
+        def axle(alpha, static, stiffness, shift):
+            force = 0.0
+            for load in (static + shift, static - shift):
+                d, k = _wheel(load, static, stiffness, tires, lt)
+                if magic:
+                    x = k / (shape * d) * alpha
+                    force += d * sin(shape * atan(x - curvature * (x - atan(x))))
+                else:
+                    force += k * alpha
+            return force
+
+        half_f, half_r, c_f, c_r = 0.5 * load_f, 0.5 * load_r, 0.5 * cf, 0.5 * cr
+
+    def rhs(r, beta, alpha_f, alpha_r, delta_r, a_roll, a_roll_rate, lagged_ecu, delta_f, delta_f_ecu):
         kin_f = delta_f - beta - lf_v * r  # kinematic slip angles
         kin_r = delta_r - beta + lr_v * r
         if relax:
@@ -182,7 +246,10 @@ def _right_hand_side(
             d_alpha_r = (kin_r - alpha_r) * rate_r
         else:
             alpha_f, alpha_r, d_alpha_f, d_alpha_r = kin_f, kin_r, 0.0, 0.0
-        if magic:
+        if transfer:
+            fyf = axle(alpha_f, half_f, c_f, per_f * a_roll)
+            fyr = axle(alpha_r, half_r, c_r, per_r * a_roll)
+        elif magic:
             x = b_f * alpha_f
             fyf = d_f * sin(shape * atan(x - curvature * (x - atan(x))))
             x = b_r * alpha_r
@@ -190,8 +257,10 @@ def _right_hand_side(
         else:
             fyf, fyr = cf * alpha_f, cr * alpha_r
         d_delta_r = 0.0
+        d_lagged = (delta_f_ecu - lagged_ecu) * inv_transient_tau
         if rws:
             cmd = ratio * (1.0 + gain * tanh(abs(r) / r_ref)) * delta_f_ecu + feedback * r
+            cmd -= transient * (delta_f_ecu - lagged_ecu)  # counter-phase while the steer changes
             cmd = limit if cmd > limit else (-limit if cmd < -limit else cmd)
             d_delta_r = (cmd - delta_r) * inv_tau
             if d_delta_r > rate_limit:
@@ -199,13 +268,18 @@ def _right_hand_side(
             elif d_delta_r < -rate_limit:
                 d_delta_r = -rate_limit
         force = fyf + fyr
+        a_y = force * inv_m
+        d_roll_rate = (omega2 * (a_y - a_roll) - damping * a_roll_rate) if transfer else 0.0
         return (
             (lf * fyf - lr * fyr) * inv_izz,
             force * inv_mv - r,
             d_alpha_f,
             d_alpha_r,
             d_delta_r,
-            force * inv_m,
+            a_roll_rate,
+            d_roll_rate,
+            d_lagged,
+            a_y,
         )
 
     return rhs
@@ -218,29 +292,19 @@ def _rk4(rhs, front: list, ecu: list, h: float):
     """
     n = len(front)
     yaw, slip, accel, rear = [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n
-    r = beta = af = ar = dr = 0.0
+    state = (0.0,) * 8
     h2, h6 = 0.5 * h, h / 6.0
     u1, e1 = front[0], ecu[0]
     for k in range(n):
         u0, e0 = u1, e1
-        r1, b1, f1, g1, d1, ay = rhs(r, beta, af, ar, dr, u0, e0)
-        yaw[k], slip[k], accel[k], rear[k] = r, beta, ay, dr
+        k1 = rhs(*state, u0, e0)
+        yaw[k], slip[k], accel[k], rear[k] = state[0], state[1], k1[8], state[4]
         if k == n - 1:
             break
         u1, e1 = front[k + 1], ecu[k + 1]
         um, em = 0.5 * (u0 + u1), 0.5 * (e0 + e1)
-        r2, b2, f2, g2, d2, _ = rhs(
-            r + h2 * r1, beta + h2 * b1, af + h2 * f1, ar + h2 * g1, dr + h2 * d1, um, em
-        )
-        r3, b3, f3, g3, d3, _ = rhs(
-            r + h2 * r2, beta + h2 * b2, af + h2 * f2, ar + h2 * g2, dr + h2 * d2, um, em
-        )
-        r4, b4, f4, g4, d4, _ = rhs(
-            r + h * r3, beta + h * b3, af + h * f3, ar + h * g3, dr + h * d3, u1, e1
-        )
-        r += h6 * (r1 + 2.0 * (r2 + r3) + r4)
-        beta += h6 * (b1 + 2.0 * (b2 + b3) + b4)
-        af += h6 * (f1 + 2.0 * (f2 + f3) + f4)
-        ar += h6 * (g1 + 2.0 * (g2 + g3) + g4)
-        dr += h6 * (d1 + 2.0 * (d2 + d3) + d4)
+        k2 = rhs(*[x + h2 * d for x, d in zip(state, k1)], um, em)
+        k3 = rhs(*[x + h2 * d for x, d in zip(state, k2)], um, em)
+        k4 = rhs(*[x + h * d for x, d in zip(state, k3)], u1, e1)
+        state = tuple(x + h6 * (a + 2.0 * (b + c) + d) for x, a, b, c, d in zip(state, k1, k2, k3, k4))
     return yaw, slip, accel, rear
