@@ -151,16 +151,21 @@ def test_transformer_long_record_is_processed_in_query_blocks() -> None:
 
 
 # -- the cores against their definitions -----------------------------------------------------
-def test_s4d_kernel_equals_its_zoh_recurrence() -> None:
-    """y_k = 2 Re(C x_k) + D u_k with x_k = Ā x_{k-1} + B̄ u_k, Ā = exp(ΔA), B̄ = (Ā - 1)/A."""
+@pytest.mark.parametrize("max_decay", [None, 7.0])
+def test_s4d_kernel_equals_its_zoh_recurrence(max_decay: float | None) -> None:
+    """y_k = 2 Re(C x_k) + D u_k with x_k = Ā x_{k-1} + B̄ u_k, Ā = exp(ΔA), B̄ = (Ā - 1)/A,
+    Re A = -exp(a_re_log) - 1/(τ_max Δ)."""
     torch.manual_seed(0)
-    ssm = S4DKernel(d_model=3, d_state=8, init="inv", dt_min=0.01, dt_max=0.5).double()
+    ssm = S4DKernel(d_model=3, d_state=8, init="inv", dt_min=0.01, dt_max=0.5,
+                    max_decay=max_decay).double()
     u = torch.randn(2, 3, 150, dtype=torch.float64)  # longer than the direct path: FFT
     x0 = torch.randn(2, 3, 4, dtype=torch.complex128)
     y, x_last = ssm(u, x0)
     with torch.no_grad():
-        a = torch.complex(-ssm.a_re_log.exp(), ssm.a_im)
-        a_bar = torch.exp(ssm.log_dt.exp()[:, None] * a)
+        dt = ssm.log_dt.exp()[:, None]
+        floor = 0.0 if max_decay is None else 1 / (max_decay * dt)
+        a = torch.complex(-ssm.a_re_log.exp() - floor, ssm.a_im)
+        a_bar = torch.exp(dt * a)
         b_bar, c = (a_bar - 1) / a, torch.view_as_complex(ssm.c)
         x, ys = x0, []
         for k in range(u.shape[-1]):
@@ -168,6 +173,57 @@ def test_s4d_kernel_equals_its_zoh_recurrence() -> None:
             ys.append(2 * (c * x).sum(-1).real + ssm.d * u[..., k])
     torch.testing.assert_close(y, torch.stack(ys, dim=-1), rtol=1e-10, atol=1e-10)
     torch.testing.assert_close(x_last, x, rtol=1e-10, atol=1e-10)
+
+
+# Raw parameters far outside what training starts from: a slow decay (Δ exp(a_re_log) -> 0,
+# where plain S4D's |Ā| rounds to 1 in float32) and a fast one, tiny and huge steps.
+ADVERSARIAL = [(-30.0, -30.0), (-30.0, 0.0), (0.0, -30.0), (-12.0, 0.0), (30.0, 30.0), (-30.0, 30.0),
+               (30.0, -30.0)]  # (log_dt, a_re_log)
+
+
+def _set_raw(block: torch.nn.Module, log_dt: float, a_re_log: float) -> None:
+    with torch.no_grad():
+        for ssm in (m for m in block.modules() if isinstance(m, S4DKernel)):
+            ssm.log_dt.fill_(log_dt)
+            ssm.a_re_log.fill_(a_re_log)
+
+
+@pytest.mark.parametrize("log_dt,a_re_log", ADVERSARIAL)
+def test_s4d_every_mode_decays_within_max_decay_for_any_parameters(log_dt: float,
+                                                                  a_re_log: float) -> None:
+    """The shipped S4 keeps |Ā| <= exp(-1/τ_max) < 1 in float32 whatever the raw parameters."""
+    block = make("s4", d_in=2, d_out=1)
+    _set_raw(block, log_dt, a_re_log)
+    for ssm in (m for m in block.modules() if isinstance(m, S4DKernel)):
+        with torch.no_grad():
+            a_bar, b_bar = ssm.discrete()
+        assert torch.isfinite(torch.view_as_real(a_bar)).all()
+        assert torch.isfinite(torch.view_as_real(b_bar)).all()
+        assert a_bar.abs().max() <= math.exp(-1 / 25.0) + 1e-6
+    with torch.no_grad():
+        assert torch.isfinite(block(random_input(1, 300, 2))[0]).all()
+
+
+@pytest.mark.parametrize("log_dt,a_re_log", [(-3.0, -20.0), (0.0, -12.0), (-1.0, 0.0)])
+def test_s4_long_free_run_depends_only_on_the_recent_past(log_dt: float, a_re_log: float) -> None:
+    """A free run far longer than a training window meets only states a window reaches.
+
+    The shipped S4 forgets within τ_max = 25 samples, so its output after 4000 steps equals the
+    output of a fresh start 200 samples before (e^-8 of the old state left) and stays as large
+    as in the first window, even with slow raw modes and an input with a mean (which plain
+    S4D's slow modes integrate: they drift as a ramp all run long).
+    """
+    block = make("s4", d_in=1, d_out=1, dtype=torch.float64)
+    _set_raw(block, log_dt, a_re_log)
+    x = 1.0 + random_input(1, 4000, 1, torch.float64)
+    with torch.no_grad():
+        y, state = block(x)
+        fresh, _ = block(x[:, -200:])
+        drift = [s.abs().max().item() for s in state]
+        start = [s.abs().max().item() for s in block(x[:, :200])[1]]
+    torch.testing.assert_close(y[:, -10:], fresh[:, -10:], rtol=1e-3, atol=1e-3)
+    assert y[:, 200:].abs().max() <= 2 * y[:, :200].abs().max()
+    assert max(d / s for d, s in zip(drift, start)) < 2
 
 
 def test_fft_and_direct_convolution_agree() -> None:
@@ -229,6 +285,8 @@ def test_build_ann_rejects_unknown_names_and_hyperparameters() -> None:
         build_ann("transformer", 1, 1, d_model=30, n_heads=4)
     with pytest.raises(ValueError, match="d_in"):
         build_ann("s4", 0, 1)
+    with pytest.raises(ValueError, match="max_decay"):
+        build_ann("s4", 1, 1, max_decay=0.0)
 
 
 def test_every_block_has_a_config_with_its_defaults() -> None:

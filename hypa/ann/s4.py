@@ -23,20 +23,30 @@ S4State = list[Tensor]  # per layer: complex SSM state (B, d_model, d_state // 2
 class S4DKernel(nn.Module):
     """H independent diagonal SSMs with N/2 complex modes each (conjugate pairs implied).
 
-    Continuous x' = A x + B u, y = 2 Re(C x) + D u with A = diag(-exp(a_re_log) + i a_im), B = 1
-    (absorbed into C) and step Δ = exp(log_dt). Zero-order hold gives
+    Continuous x' = A x + B u, y = 2 Re(C x) + D u with B = 1 (absorbed into C), step
+    Δ = exp(log_dt) and A = diag(-exp(a_re_log) - 1/(τ_max Δ) + i a_im). Zero-order hold gives
 
         Ā = exp(Δ A),   B̄ = (Ā - 1) / A,   x_k = Ā x_{k-1} + B̄ u_k,   y_k = 2 Re(C x_k) + D u_k,
 
     i.e. the causal convolution y = K * u + D u with kernel K_l = 2 Re(C Ā^l B̄), l = 0..L-1.
 
-    Init: S4D-Lin  A_n = -1/2 + i π n,  or  S4D-Inv  A_n = -1/2 + i (N/π)(N/(2n+1) - 1);
-    log Δ uniform in [log dt_min, log dt_max]; C ~ CN(0, 1).
+    The decay per step is r = -Δ Re A = Δ exp(a_re_log) + 1/τ_max, so every mode has
+    |Ā| = exp(-r) <= exp(-1/τ_max) < 1 whatever the parameters: each forgets its past within
+    ``max_decay`` = τ_max samples. Without that floor (``max_decay=None``, plain S4D) training
+    on short windows keeps modes much slower than the window (|Ā| -> 1 in float32 as
+    Δ exp(a_re_log) -> 0); within a window they act as ramps from its zero start, and a free run
+    far longer than the window drives them to levels training never saw.
+
+    Init: S4D-Lin  A_n = -1/2 + i π n,  or  S4D-Inv  A_n = -1/2 + i (N/π)(N/(2n+1) - 1) (before
+    the floor); log Δ uniform in [log dt_min, log dt_max]; C ~ CN(0, 1).
     """
 
-    def __init__(self, d_model: int, d_state: int, init: str, dt_min: float, dt_max: float
-                 ) -> None:
+    def __init__(self, d_model: int, d_state: int, init: str, dt_min: float, dt_max: float,
+                 max_decay: float | None = None) -> None:
         super().__init__()
+        if max_decay is not None and not max_decay > 0:
+            raise ValueError(f"max_decay must be a positive number of samples or None, got {max_decay}")
+        self.min_rate = 0.0 if max_decay is None else 1.0 / float(max_decay)
         h, n = d_model, d_state // 2
         log_dt = math.log(dt_min) + torch.rand(h) * (math.log(dt_max) - math.log(dt_min))  # (H,)
         modes = torch.arange(n, dtype=torch.float32)
@@ -63,17 +73,14 @@ class S4DKernel(nn.Module):
         powers Ā^l as the kernel, so a chunked call costs no recursion over time.
         """
         length, n = u.shape[-1], self.a_im.shape[-1]
-        dt = self.log_dt.exp()[:, None]  # (H, 1)
-        a_re = -self.a_re_log.exp()  # (H, N/2)
-        a = torch.complex(a_re, self.a_im)  # (H, N/2)
-        a_bar = torch.exp(dt * a)  # (H, N/2)
-        b_bar = (a_bar - 1) / a  # (H, N/2)
+        rate, angle = self.decay_rate(), self.log_dt.exp()[:, None] * self.a_im  # (H, N/2) each
+        a_bar, b_bar = self.discrete()  # (H, N/2) each
         c = torch.view_as_complex(self.c)  # (H, N/2)
-        # Ā^l = exp(l Δ Re A) (cos + i sin)(l Δ Im A) in real arithmetic: a complex exp over
+        # Ā^l = exp(-l r) (cos + i sin)(l Δ Im A) in real arithmetic: a complex exp over
         # (H, N/2, L) is two orders of magnitude slower on the CPU than real exp, cos and sin.
         steps = torch.arange(length, device=u.device, dtype=u.dtype)
-        magnitude = torch.exp((dt * a_re)[..., None] * steps)  # (H, N/2, L)
-        phase = (dt * self.a_im)[..., None] * steps  # (H, N/2, L)
+        magnitude = torch.exp(-rate[..., None] * steps)  # (H, N/2, L)
+        phase = angle[..., None] * steps  # (H, N/2, L)
         # Re and Im stacked along the mode axis, (H, N, L), so every product below is real.
         powers = torch.cat([magnitude * torch.cos(phase), magnitude * torch.sin(phase)], dim=1)
         cb = c * b_bar  # (H, N/2)
@@ -88,6 +95,21 @@ class S4DKernel(nn.Module):
             y = y + 2 * torch.einsum("bhn,hnl->bhl", torch.cat([w.real, -w.imag], dim=-1), powers)
             x_last = x_last + a_pow_len * x0
         return y, x_last
+
+    def decay_rate(self) -> Tensor:
+        """r = -Δ Re A (H, N/2): each mode's decay per step, at least 1/τ_max; |Ā| = exp(-r)."""
+        return self.log_dt.exp()[:, None] * self.a_re_log.exp() + self.min_rate
+
+    def discrete(self) -> tuple[Tensor, Tensor]:
+        """Ā = exp(Δ A) and B̄ = (Ā - 1)/A = Δ (Ā - 1)/(Δ A), complex (H, N/2) each.
+
+        Built from Δ A = -r + i Δ Im A, never from A itself: A's real part grows as 1/Δ
+        under the floor and would overflow for tiny Δ, Δ A stays finite.
+        """
+        dt = self.log_dt.exp()[:, None]  # (H, 1)
+        dt_a = torch.complex(-self.decay_rate(), dt * self.a_im)  # (H, N/2)
+        a_bar = torch.exp(dt_a)
+        return a_bar, dt * (a_bar - 1) / dt_a
 
 
 def causal_convolution(u: Tensor, kernel: Tensor, direct_max_len: int = 128) -> Tensor:
@@ -124,7 +146,13 @@ class S4Block(SequenceBlock):
         dropout: dropout on the residual branch.
         init: ``"lin"`` (S4D-Lin) or ``"inv"`` (S4D-Inv) initialisation of Im A.
         dt_min, dt_max: range of the initial step sizes Δ (log-uniform) in the time unit of A,
-            whose real part starts at -1/2: initial decay times of 2/dt_max to 2/dt_min steps.
+            whose real part starts at -1/2 (before the floor): decay times of 2/dt_max to
+            2/dt_min steps.
+        max_decay: the slowest decay time τ_max allowed, in samples: every mode forgets its
+            past within it (|Ā| <= exp(-1/τ_max)). Keep it well inside the training window
+            (a quarter of it: e^-4 of a window's zero start is left at its end), so that a free
+            run of any length meets only states that training windows reach. None: no floor,
+            plain S4D, whose slow modes drift in runs much longer than the window.
         zero_init: start with an all-zero head (output exactly 0).
     """
 
@@ -140,6 +168,7 @@ class S4Block(SequenceBlock):
         init: str = "lin",
         dt_min: float = 1e-3,
         dt_max: float = 1e-1,
+        max_decay: float | None = 25.0,
         zero_init: bool = False,
     ) -> None:
         super().__init__(d_in, d_out, zero_init=zero_init)
@@ -154,7 +183,7 @@ class S4Block(SequenceBlock):
         self.embed = nn.Linear(d_in, d_model)
         self.norms = nn.ModuleList(nn.LayerNorm(d_model) for _ in range(n_layers))
         self.ssms = nn.ModuleList(
-            S4DKernel(d_model, d_state, init, dt_min, dt_max) for _ in range(n_layers)
+            S4DKernel(d_model, d_state, init, dt_min, dt_max, max_decay) for _ in range(n_layers)
         )
         self.mixers = nn.ModuleList(nn.Linear(d_model, 2 * d_model) for _ in range(n_layers))
         self.drop = nn.Dropout(dropout)
