@@ -13,7 +13,7 @@ import torch
 from scipy.signal import lsim
 
 from hypa.physics import LTIBlock, ParameterSpec, PhysicalParameters, Scaling
-from hypa.physics.elements import DeadTime, FirstOrderLag
+from hypa.physics.elements import DeadTime, FirstOrderLag, LeadLag
 
 DT = 1 / 32
 
@@ -103,3 +103,29 @@ def test_elements_refuse_bad_settings() -> None:
         PhysicalParameters([ParameterSpec("lag/tau_s", 0.0, "s")])
     with pytest.raises(ValueError, match="needs the parameter"):
         DeadTime(PhysicalParameters([]), "d/delay_s", DT)
+
+
+@pytest.mark.parametrize(("gain", "transient"), [(0.12, 0.3), (0.2, 0.0), (-0.1, 0.05)])
+def test_lead_lag_matches_its_transfer_function(gain: float, transient: float) -> None:
+    """LeadLag against scipy's lsim of (k + (k - k_t) τ_t s) / ((1 + τ_t s)(1 + τ s)) from rest,
+    its steady start, and the phase reversal: with k_t > k a step first moves the other way."""
+    tau_t, tau = 0.3, 0.07
+    model = LeadLag("rws")
+    values = {"rws/gain": gain, "rws/transient": transient, "rws/transient_tau_s": tau_t, "rws/tau_s": tau}
+    params = PhysicalParameters([ParameterSpec(n, v, "-", positive=v > 0) for n, v in values.items()])
+    block = LTIBlock(model, params, DT, horizon=64, hold="foh").double()
+    rng = np.random.default_rng(2)
+    u = np.cumsum(rng.normal(size=201)) * 0.05
+    y = block(torch.zeros(1, 2, dtype=torch.float64), torch.tensor(u[None, : 200 + block.n_taps - 1, None]))
+    num = [(gain - transient) * tau_t, gain]
+    den = np.polymul([tau_t, 1.0], [tau, 1.0])
+    _, ref, _ = lsim((num, den), u, np.arange(201) * DT, interp=True)
+    np.testing.assert_allclose(y[0, :, 0].numpy(), ref[1:201], rtol=1e-8, atol=1e-10)
+    step = torch.ones(1, 80 + block.n_taps - 1, 1, dtype=torch.float64)
+    step[:, 0] = 0.0
+    x0 = block.steady_state(step[:, 0])
+    np.testing.assert_allclose(x0.numpy(), 0.0, atol=1e-15)
+    response = block(x0, step)[0, :, 0].numpy()
+    assert response[-1] == pytest.approx(gain, abs=1e-3)  # 2.5 s = 8 τ_t: settled at the gain
+    if transient > gain > 0:
+        assert response[2] < 0  # counter-phase first

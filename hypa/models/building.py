@@ -200,9 +200,6 @@ class BlockBuilder:
             if b.scheduling:
                 raise ModelSpecError(f"block {b.name!r}: a steady start needs constant matrices; use "
                                      "initial_state: estimate for a scheduled block")
-            if not system.outputs_are_states:
-                raise ModelSpecError(f"block {b.name!r}: a steady start needs a system whose outputs are its "
-                                     f"{system.n_states} states")
             return PhysicsStart(STEADY)
         if b.initial_state and not b.estimated:
             missing = [s for s in b.initial_state if s not in self.measured]
@@ -236,8 +233,11 @@ class BlockBuilder:
             scales = self.scale_of(b.scale_as, f"block {b.name!r} scale_as")
         elif start.mode == MEASURED and system.outputs_are_states:
             scales = [self.measured[s] for s in start.measured]
-        elif start.mode == STEADY:  # its outputs are its states: scaled like its inputs
-            scales = inputs
+        elif start.mode == STEADY:
+            if not system.outputs_are_states:
+                raise ModelSpecError(f"block {b.name!r}: its outputs are not its {system.n_states} states; give "
+                                     "scale_as so they have a physical scale")
+            scales = inputs  # its outputs are its states: scaled like its inputs
         else:
             observed = start.observed or (None,) * len(b.outputs)
             sources = [o if o in self.measured else m for o, m in zip(b.outputs, observed)]

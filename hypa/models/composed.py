@@ -218,8 +218,9 @@ class ComposedModel(nn.Module):
         how = self.starts[b.name]
         if how.mode == STEADY:  # in equilibrium with its first input: outputs from `start` on
             x0 = block.steady_state(u[:, 0])
+            y0 = block.output(x0, u[:, 0])  # the states themselves when the outputs are the states
             steps = end - start - 1
-            return torch.cat([x0[:, None], block(x0, u[:, : steps + block.extra_inputs])], dim=1), start
+            return torch.cat([y0[:, None], block(x0, u[:, : steps + block.extra_inputs])], dim=1), start
         past = y_past.shape[1] - 1
         if start > past:
             raise ModelSpecError(f"block {b.name!r} starts at sample {start}, after the window start {past}")

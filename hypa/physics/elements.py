@@ -71,6 +71,39 @@ class GainLag(LTIModel):
         return StateSpace(rate, (gain / tau).reshape(1, 1), one, tau.new_zeros(1, 1))
 
 
+class LeadLag(LTIModel):
+    """A gain with a transient part, through an actuator lag: ``y = G(s) u`` with
+
+        G(s) = (k + (k - k_t) τ_t s) / ((1 + τ_t s) (1 + τ s))
+
+    from the command ``c = k u - k_t (u - l)``, ``τ_t l̇ = u - l`` and ``τ ẏ = c - y``: right after
+    a change of u the output moves by ``k - k_t``, then settles at the gain ``k`` over ``τ_t``.
+    With ``transient`` k_t > k the first response has the opposite sign (a non-minimum-phase
+    zero: the phase-reversal rear steering of four-wheel-steered cars); with k_t = 0 it is
+    ``GainLag``. Parameters, the block's own: ``gain`` [-] and ``transient`` [-] (both signed),
+    ``transient_tau_s`` and ``tau_s`` [s]. Its two states are the low-passed input and the
+    output; started ``steady`` (both equal to their equilibrium) it needs no measured state.
+    """
+
+    state_names = ("lowpassed", "lagged")
+    input_names = ("input",)
+    output_names = ("lagged",)
+
+    def __init__(self, prefix: str = "") -> None:
+        self.parameters = (ParameterSpec(local_name(prefix, "gain"), 1.0, "-", positive=False),
+                           ParameterSpec(local_name(prefix, "transient"), 0.0, "-", positive=False),
+                           ParameterSpec(local_name(prefix, "transient_tau_s"), 0.3, "s"),
+                           ParameterSpec(local_name(prefix, "tau_s"), 0.1, "s"))
+
+    def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
+        gain, transient, tau_t, tau = (p[n] for n in self.parameter_names)
+        zero = tau.new_zeros(())
+        a = torch.stack([torch.stack([-1.0 / tau_t, zero]), torch.stack([transient / tau, -1.0 / tau])])
+        b = torch.stack([1.0 / tau_t, (gain - transient) / tau]).reshape(2, 1)
+        c = torch.stack([zero, torch.ones_like(tau)]).reshape(1, 2)
+        return StateSpace(a, b, c, tau.new_zeros(1, 1))
+
+
 class DeadTime(nn.Module):
     """y(t) = u(t - delay_s) on the sample grid: dead time between a command and its effect.
 
