@@ -240,20 +240,21 @@ def test_fft_and_direct_convolution_agree() -> None:
 
 
 def _selective_scan_reference(u: torch.Tensor, delta: torch.Tensor, a: torch.Tensor,
-                              b: torch.Tensor, c: torch.Tensor, d: torch.Tensor, h0: torch.Tensor
-                              ) -> tuple[torch.Tensor, torch.Tensor]:
+                              b: torch.Tensor, c: torch.Tensor, d: torch.Tensor, h0: torch.Tensor,
+                              min_rate: float = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
     """The definition, step by step (differentiated by autograd)."""
     h, ys = h0, []
     for k in range(u.shape[1]):
         drive = (delta[:, k] * u[:, k])[..., None] * b[:, k, None, :]
-        h = torch.exp(delta[:, k, :, None] * a) * h + drive
+        h = torch.exp(delta[:, k, :, None] * a - min_rate) * h + drive
         ys.append((h * c[:, k, None, :]).sum(-1) + d * u[:, k])
     return torch.stack(ys, dim=1), h
 
 
-@pytest.mark.parametrize("length,steps_per_block", [(7, None), (7, 1), (7, 3), (1, None)])
-def test_selective_scan_values_and_handwritten_gradients(length: int,
-                                                         steps_per_block: int | None) -> None:
+@pytest.mark.parametrize("length,steps_per_block,min_rate", [(7, None, 0.0), (7, 1, 0.0), (7, 3, 0.0),
+                                                         (1, None, 0.0), (7, 3, 0.3)])
+def test_selective_scan_values_and_handwritten_gradients(length: int, steps_per_block: int | None,
+                                                         min_rate: float) -> None:
     g = torch.Generator().manual_seed(3)
     batch, d_inner, n = 2, 3, 4
     args = [torch.randn(batch, length, d_inner, generator=g),
@@ -266,13 +267,35 @@ def test_selective_scan_values_and_handwritten_gradients(length: int,
     args = [t.double().requires_grad_() for t in args]
 
     def scan(*inputs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return selective_scan(*inputs, steps_per_block=steps_per_block)
+        return selective_scan(*inputs, steps_per_block=steps_per_block, min_rate=min_rate)
 
     y, h = scan(*args)
-    y_ref, h_ref = _selective_scan_reference(*args)
+    y_ref, h_ref = _selective_scan_reference(*args, min_rate=min_rate)
     torch.testing.assert_close(y, y_ref)
     torch.testing.assert_close(h, h_ref)
     assert torch.autograd.gradcheck(scan, args)  # y and the final state, w.r.t. all inputs
+
+
+@pytest.mark.parametrize("a_log,dt_bias", [(-20.0, -20.0), (-20.0, 0.0), (0.0, -20.0)])
+def test_mamba_long_free_run_depends_only_on_the_recent_past(a_log: float, dt_bias: float) -> None:
+    """The shipped Mamba forgets within max_decay = 25 samples whatever Δ and A learn: after 4000
+    steps its output equals a fresh start 200 samples before and its states stay as large as
+    in the first window (plain Mamba's slow states, Δ |A| -> 0, integrate an input's mean)."""
+    block = make("mamba", d_in=1, d_out=1, dtype=torch.float64)
+    with torch.no_grad():
+        for layer in block.layers:
+            layer.a_log.fill_(a_log)
+            layer.dt_proj.bias.fill_(dt_bias)
+    x = 1.0 + random_input(1, 4000, 1, torch.float64)
+    with torch.no_grad():
+        y, state = block(x)
+        fresh, _ = block(x[:, -200:])
+        drift = [s.abs().max().item() for _, s in state]
+        start = [s.abs().max().item() for _, s in block(x[:, :200])[1]]
+    torch.testing.assert_close(y[:, -10:], fresh[:, -10:], rtol=1e-3, atol=1e-3)
+    assert max(d / s for d, s in zip(drift, start)) < 2
+    with pytest.raises(ValueError, match="max_decay"):
+        build_ann("mamba", 1, 1, max_decay=-1.0)
 
 
 # -- registry and configs --------------------------------------------------------------------

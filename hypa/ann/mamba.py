@@ -28,8 +28,9 @@ class _MambaLayer(nn.Module):
     """
 
     def __init__(self, d_model: int, d_state: int, d_conv: int, expand: int, dt_rank: int,
-                 dt_min: float, dt_max: float) -> None:
+                 dt_min: float, dt_max: float, min_rate: float = 0.0) -> None:
         super().__init__()
+        self.min_rate = min_rate
         d_inner = expand * d_model
         self.d_inner, self.d_state, self.d_conv, self.dt_rank = d_inner, d_state, d_conv, dt_rank
         self.norm = nn.RMSNorm(d_model)
@@ -74,7 +75,7 @@ class _MambaLayer(nn.Module):
         dt_low, b, c = self.x_proj(u).split([self.dt_rank, self.d_state, self.d_state], dim=-1)
         delta = F.softplus(self.dt_proj(dt_low))  # (B, L, D_in)
         a = -self.a_log.exp()  # (D_in, N)
-        y, new_ssm = selective_scan(u, delta, a, b, c, self.d, ssm)  # (B, L, D_in), (B, D_in, N)
+        y, new_ssm = selective_scan(u, delta, a, b, c, self.d, ssm, min_rate=self.min_rate)  # (B, L, D_in), (B, D_in, N)
         return x + self.out_proj(y * F.silu(gate)), new_buf, new_ssm  # (B, L, d_model)
 
 
@@ -94,6 +95,10 @@ class MambaBlock(SequenceBlock):
         n_layers: Mamba layers.
         dt_rank: rank of the Δ projection; None means ceil(d_model / 16).
         dt_min, dt_max: range of the initial step sizes Δ (log-uniform).
+        max_decay: the slowest decay time allowed, in samples: the decay per step is Δ_k |A| +
+            1 / max_decay, so every state forgets within ``max_decay`` samples whatever is learned
+            (as ``S4Block``'s). Plain Mamba (None) keeps states far slower than a training window,
+            which a free run much longer than the window drives to levels training never saw.
         zero_init: start with an all-zero head (output exactly 0).
     """
 
@@ -110,9 +115,12 @@ class MambaBlock(SequenceBlock):
         dt_rank: int | None = None,
         dt_min: float = 1e-3,
         dt_max: float = 1e-1,
+        max_decay: float | None = 25.0,
         zero_init: bool = False,
     ) -> None:
         super().__init__(d_in, d_out, zero_init=zero_init)
+        if max_decay is not None and not max_decay > 0:
+            raise ValueError(f"max_decay must be a positive number of samples or None, got {max_decay}")
         if min(d_model, d_state, d_conv, expand, n_layers) < 1:
             raise ValueError("d_model, d_state, d_conv, expand and n_layers must be >= 1")
         if dt_rank is not None and dt_rank < 1:
@@ -123,7 +131,8 @@ class MambaBlock(SequenceBlock):
         self.d_inner, self.d_state, self.d_conv = expand * d_model, d_state, d_conv
         self.embed = nn.Linear(d_in, d_model)
         self.layers = nn.ModuleList(
-            _MambaLayer(d_model, d_state, d_conv, expand, rank, dt_min, dt_max)
+            _MambaLayer(d_model, d_state, d_conv, expand, rank, dt_min, dt_max,
+                        0.0 if max_decay is None else 1.0 / float(max_decay))
             for _ in range(n_layers)
         )
         # No final norm before the head: it would normalize away the amplitude that the head

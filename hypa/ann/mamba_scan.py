@@ -19,12 +19,15 @@ _BLOCK_BYTES = 1 << 19
 
 
 def selective_scan(u: Tensor, delta: Tensor, a: Tensor, b: Tensor, c: Tensor, d: Tensor,
-                   h0: Tensor, steps_per_block: int | None = None) -> tuple[Tensor, Tensor]:
+                   h0: Tensor, steps_per_block: int | None = None, min_rate: float = 0.0
+                   ) -> tuple[Tensor, Tensor]:
     """Selective SSM per inner channel i and state n (Gu & Dao, 2023, Alg. 2):
 
-        h_k = exp(Δ_k A) ⊙ h_{k-1} + (Δ_k u_k) B_k,   y_k = C_k · h_k + D ⊙ u_k
+        h_k = exp(Δ_k A - r) ⊙ h_{k-1} + (Δ_k u_k) B_k,   y_k = C_k · h_k + D ⊙ u_k
 
-    i.e. a zero-order hold of A and the simplified (Euler) hold of B that Mamba uses.
+    i.e. a zero-order hold of A and the simplified (Euler) hold of B that Mamba uses; r =
+    ``min_rate`` ≥ 0 is a floor on the decay per step (0: plain Mamba), so every state forgets
+    within 1 / r steps whatever Δ and A are.
 
     Args:
         u, delta: inputs and positive step sizes (B, L, D_in).
@@ -33,6 +36,7 @@ def selective_scan(u: Tensor, delta: Tensor, a: Tensor, b: Tensor, c: Tensor, d:
         d: skip gains (D_in,).
         h0: state before the first step (B, D_in, N).
         steps_per_block: time steps per cache block; None sizes blocks to ``_BLOCK_BYTES``.
+        min_rate: decay per step added to every state's (≥ 0).
 
     Returns:
         y (B, L, D_in) and the state after the last step (B, D_in, N).
@@ -45,7 +49,7 @@ def selective_scan(u: Tensor, delta: Tensor, a: Tensor, b: Tensor, c: Tensor, d:
     y, h_last = _SelectiveScan.apply(
         u.transpose(0, 1).contiguous(), delta.transpose(0, 1).contiguous(), a.t().contiguous(),
         b.transpose(0, 1).contiguous(), c.transpose(0, 1).contiguous(), d,
-        h0.transpose(1, 2).contiguous(), steps_per_block,
+        h0.transpose(1, 2).contiguous(), steps_per_block, float(min_rate),
     )
     return y.transpose(0, 1), h_last.transpose(1, 2)  # (B, L, D_in), (B, D_in, N)
 
@@ -59,7 +63,7 @@ class _SelectiveScan(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx: FunctionCtx, u: Tensor, delta: Tensor, a: Tensor, b: Tensor, c: Tensor,
-                d: Tensor, h0: Tensor, steps_per_block: int) -> tuple[Tensor, Tensor]:
+                d: Tensor, h0: Tensor, steps_per_block: int, min_rate: float) -> tuple[Tensor, Tensor]:
         length = u.shape[0]
         w = delta * u  # (L, B, D)
         hs = h0.new_empty(length, *h0.shape)  # (L, B, N, D)
@@ -68,7 +72,7 @@ class _SelectiveScan(torch.autograd.Function):
         workspace = h0.new_empty(min(steps_per_block, length), *h0.shape)  # (T, B, N, D)
         h = h0
         for s, e in _blocks(length, steps_per_block):
-            decay = torch.mul(delta[s:e].unsqueeze(-2), a, out=workspace[: e - s]).exp_()
+            decay = torch.mul(delta[s:e].unsqueeze(-2), a, out=workspace[: e - s]).sub_(min_rate).exp_()
             block = hs[s:e]  # (T, B, N, D): the drive B_k ⊗ w_k, then scanned in place
             torch.mul(b[s:e].unsqueeze(-1), w[s:e].unsqueeze(-2), out=block)
             for k in range(e - s):
@@ -76,7 +80,7 @@ class _SelectiveScan(torch.autograd.Function):
                 h = block[k]
             y[s:e] = torch.matmul(c[s:e].unsqueeze(-2), block).squeeze(-2)  # C_k · h_k
         y.addcmul_(d, u)
-        ctx.steps_per_block = steps_per_block
+        ctx.steps_per_block, ctx.min_rate = steps_per_block, min_rate
         ctx.save_for_backward(u, delta, a, b, c, d, h0, hs)
         return y, h.clone()
 
@@ -87,7 +91,7 @@ class _SelectiveScan(torch.autograd.Function):
         """Adjoint g_k = ∂ℓ/∂h_k = gy_k C_k + exp(Δ_{k+1} A) ⊙ g_{k+1} (+ ∂ℓ/∂h_L at k = L-1):
 
             ∂ℓ/∂h0 = decay_0 ⊙ g_0,   ∂ℓ/∂C_k = Σ_i gy_{k,i} h_{k,i},   ∂ℓ/∂drive_k = g_k,
-            p_k = ∂ℓ/∂(Δ_k A) = g_k ⊙ decay_k ⊙ h_{k-1},   ∂ℓ/∂A = Σ_k Δ_k p_k,
+            p_k = ∂ℓ/∂(Δ_k A) = g_k ⊙ decay_k ⊙ h_{k-1} (the floor r is a constant),   ∂ℓ/∂A = Σ_k Δ_k p_k,
             ∂ℓ/∂Δ = Σ_n p A + (∂ℓ/∂w) u,   with drive_k = B_k ⊗ w_k and w = Δ u.
 
         Unused outputs arrive as zeros (autograd materializes them).
@@ -102,7 +106,7 @@ class _SelectiveScan(torch.autograd.Function):
         carry = grad_last.clone()  # exp(Δ_e A) g_e sent back from the step after the block
         decay_ws, g_ws = (h0.new_empty(min(step, length), *h0.shape) for _ in range(2))
         for s, e in reversed(_blocks(length, step)):
-            decay = torch.mul(delta[s:e].unsqueeze(-2), a, out=decay_ws[: e - s]).exp_()
+            decay = torch.mul(delta[s:e].unsqueeze(-2), a, out=decay_ws[: e - s]).sub_(ctx.min_rate).exp_()
             g = torch.mul(c[s:e].unsqueeze(-1), grad_y[s:e].unsqueeze(-2), out=g_ws[: e - s])
             g[-1] += carry
             for k in range(e - s - 2, -1, -1):
@@ -122,4 +126,4 @@ class _SelectiveScan(torch.autograd.Function):
         grad_delta.addcmul_(grad_w, u)
         grad_u = grad_w.mul_(delta).addcmul_(grad_y, d)  # (L, B, D)
         grad_d = (grad_y * u).sum(dim=(0, 1))  # (D,)
-        return grad_u, grad_delta, grad_a, grad_b, grad_c, grad_d, carry, None
+        return grad_u, grad_delta, grad_a, grad_b, grad_c, grad_d, carry, None, None
