@@ -4,7 +4,9 @@ Trains every Table 1 row (``conf/row/``) over several seeds as one Hydra multiru
 runs on this machine), evaluates each run (``hypa.evaluate``) and writes, into ``results/``:
 ``table1.md`` / ``table1.csv`` (mean ± std over seeds, windowed and free-run, whole record,
 stochastic part and unseen maneuvers), ``yaw_transfer.png`` (every model against the
-measurement), ``rear_steer.png`` (the implicitly learned rear-wheel angles) and ``REPORT.md``.
+measurement), ``rear_steer.png`` (the implicitly learned rear-wheel angles) and ``REPORT.md``,
+which sets the paper's Table 1 beside ours (``hypa.evaluation.table1``): both rankings, the
+paper's claims checked on our numbers, and every difference with its reason.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from hypa.errors import UserError, setting, user_errors
 from hypa.evaluate import Evaluation, evaluate_run
 from hypa.evaluation.plots import bode, rear_steer
 from hypa.evaluation.runs import load_run
+from hypa.evaluation.table1 import comparison_markdown
 
 log = logging.getLogger(__name__)
 ROOT = Path(__file__).resolve().parents[1]
@@ -113,6 +116,7 @@ def report(table: list[dict[str, Any]], cfg: DictConfig, wall_s: float, runs: in
         "record simulated from its first sample. *Maneuvers*: lane change, step steer and sine sweep, "
         "which training never saw.", "",
         table_markdown(table), "",
+        comparison_markdown(table), "",
         "## Yaw transfer function (steering-wheel angle to yaw rate, H1 estimate)", "",
         "![yaw transfer](yaw_transfer.png)", "",
         "## Implicitly learned rear-wheel angle", "", "![rear steer](rear_steer.png)", "",
