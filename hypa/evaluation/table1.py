@@ -315,18 +315,20 @@ def pair_line(higher: str, lower: str, table: list[dict[str, Any]], paper: Paper
 
 
 def level_line(table: list[dict[str, Any]], paper: PaperTable) -> str | None:
-    """Where our free-run R² is above the paper's and where below, with the curated reasons that
-    name ``r2_levels``."""
+    """Where our free-run R² is above the paper's, with the curated reasons that name
+    ``r2_levels``, and where it is not."""
     r2 = _ours(table, R2)
     common = [label for label in paper.paper if label in r2]
-    higher = [label for label in common if r2[label][0] > paper.paper[label]["r2"]]
     if not common:
         return None
-    lower = [f"{label} ({_r2(r2[label])} vs {paper.paper[label]['r2']:.3f})" for label in common
-             if label not in higher]
+    higher = [label for label in common if r2[label][0] > paper.paper[label]["r2"]]
+    lower = [f"{label} ({_r2(r2[label])} vs {paper.paper[label]['r2']:.3f}"
+             + (", diverged)" if r2[label][0] <= DIVERGED_BELOW else ")") for label in common if label not in higher]
     reasons = [f"*{r.id}*" for r in paper.reasons if "r2_levels" in r.checks]
+    why = f"reason: {'; '.join(reasons)}" if reasons else "reason not known"
     return (f"- **R² level**: higher here than in the paper for {len(higher)} of {len(common)} rows"
-            + (f"; not for {', '.join(lower)}" if lower else "") + f". {_because(reasons)}")
+            + (f" ({why})" if higher else "")
+            + (f"; not for {', '.join(lower)}" if lower else "") + ".")
 
 
 def difference_lines(table: list[dict[str, Any]], paper: PaperTable, checks: list[Check]) -> list[str]:
