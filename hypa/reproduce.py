@@ -108,7 +108,8 @@ def report(table: list[dict[str, Any]], cfg: DictConfig, wall_s: float, runs: in
     experiment = OmegaConf.load(ROOT / "conf" / "experiment" / "table1.yaml")
     return "\n".join([
         "# HyPA-Net: the paper's experiment on the hypa test bench", "",
-        f"{runs} runs ({len(table)} models x {'/'.join(map(str, seeds))} seeds), trained and evaluated in "
+        f"{runs} runs ({len(table)} models x {'/'.join(map(str, seeds))} seeds), "
+        f"{'evaluated (trained before)' if cfg.skip_training else 'trained and evaluated'} in "
         f"{wall_s / 60:.1f} min on this machine (this invocation). Metrics on the validation run, mean ± std over seeds; "
         "states in SI units (yaw rate rad/s, side slip rad), overall = mean over both states. "
         "MAPE is floored (|error| / max(|y|, 10 % of the channel's RMS)) so zero crossings cannot explode it.", "",
