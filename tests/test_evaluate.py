@@ -83,3 +83,25 @@ def test_evaluate_cli_explains_a_wrong_path(tmp_path) -> None:
     result = subprocess.run([sys.executable, "-m", "hypa.evaluate", f"run={tmp_path / 'nope'}",
                              f"hydra.run.dir={tmp_path / 'hydra'}"], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert result.returncode != 0 and "does not exist" in result.stderr
+
+
+def test_a_run_trained_before_a_network_setting_existed_is_flagged(caplog) -> None:
+    """S4's max_decay changes what trained layers compute: a checkpoint without it gets a warning
+    naming the setting and its default; one with every setting (or no network) gets none."""
+    import logging
+
+    from hypa.ann import ann_hyperparameters
+    from hypa.evaluation.runs import _warn_new_network_settings
+
+    v1 = {"blocks": {"rear_steering": {"kind": "ann"}, "single_track": {"kind": "physics"}}}
+    current = {k: v for k, v in ann_hyperparameters("s4").items() if k != "zero_init"}
+    old = {k: v for k, v in current.items() if k != "max_decay"}
+    with caplog.at_level(logging.WARNING, logger="hypa.evaluation.runs"):
+        _warn_new_network_settings(Path("best.ckpt"), {"model_config": v1, "ann_name": "s4", "ann_hparams": old})
+    assert "ann.max_decay=25.0" in caplog.text and "retrain" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="hypa.evaluation.runs"):
+        _warn_new_network_settings(Path("best.ckpt"), {"model_config": v1, "ann_name": "s4", "ann_hparams": current})
+        physical = {"blocks": {"single_track": {"kind": "physics"}}}
+        _warn_new_network_settings(Path("best.ckpt"), {"model_config": physical, "ann_name": "s4", "ann_hparams": {}})
+    assert caplog.text == ""

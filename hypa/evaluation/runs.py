@@ -10,6 +10,7 @@ from __future__ import annotations
 import inspect
 import io
 import json
+import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -17,11 +18,13 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
+from hypa.ann import ann_hyperparameters
 from hypa.data import HypaDataModule, Record
 from hypa.errors import UserError, one_line
 from hypa.models import ComposedModel
 from hypa.training import HybridModule
 
+log = logging.getLogger(__name__)
 
 @dataclass
 class TrainedRun:
@@ -101,6 +104,7 @@ def load_module(checkpoint: Path) -> HybridModule:
     if unknown or missing:
         raise UserError(f"{checkpoint}: written by another version of hypa (settings {unknown or missing} "
                         f"{'unknown' if unknown else 'missing'} here); evaluate it with that version or retrain")
+    _warn_new_network_settings(checkpoint, hparams)
     try:
         module = HybridModule.load_from_checkpoint(io.BytesIO(content), map_location="cpu")
     except RuntimeError as error:
@@ -109,6 +113,27 @@ def load_module(checkpoint: Path) -> HybridModule:
         raise UserError(f"{checkpoint}: its weights do not fit its model ({one_line(error)[:300]})") from error
     module.eval()
     return module
+
+
+def _warn_new_network_settings(checkpoint: Path, hparams: dict) -> None:
+    """Warn when the checkpoint's network was trained before a setting it now takes existed: the
+    code's default then applies to weights trained without it (S4's and Mamba's ``max_decay``
+    change what the trained layers compute), so the run may not behave as it did in training."""
+    uses_ann = any(b.get("kind") == "ann" for b in (hparams["model_config"].get("blocks") or {}).values()
+                   if isinstance(b, dict))
+    name = hparams.get("ann_name")
+    if not uses_ann or not name:
+        return
+    try:
+        defaults = ann_hyperparameters(str(name))
+    except ValueError:  # an unknown network: building the module names it
+        return
+    new = {k: v for k, v in defaults.items() if k != "zero_init" and k not in (hparams.get("ann_hparams") or {})}
+    if new:
+        settings = ", ".join(f"ann.{k}={v}" for k, v in new.items())
+        log.warning("%s was trained before the %s setting(s) %s existed; their defaults apply now and may change "
+                    "what the network computes: retrain the run to evaluate it as hypa is now", checkpoint, name,
+                    settings)
 
 
 @dataclass
