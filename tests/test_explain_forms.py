@@ -85,6 +85,21 @@ def test_a_lag_with_40_ms_dead_time_recovers_all_three():
     assert result.best.value("delay").value == pytest.approx(0.04, abs=0.005)
 
 
+def test_a_phase_reversal_law_is_found_by_the_second_order_rung():
+    """The bench's ECU: (k + (k - k_t) τ_t s) / ((1 + τ_t s)(1 + τ s)) with k_t > k, counter-phase
+    right after a change (a zero in the right half plane, no dead time). The lag-and-delay form
+    mimics it with a long dead time; the second-order search must not start only there."""
+    k, k_t, tau_t, tau = 0.12, 0.3, 0.3, 0.07
+    law = ([(k - k_t) * tau_t, k], np.polymul([tau_t, 1.0], [tau, 1.0]))
+    result = run(lambda u, r: truth(u, *law), noise=0.0005)
+    assert result.best.form.name == "second order"
+    assert result.best.r2_val > 0.99
+    assert result.best.value("gain", "front_angle").value == pytest.approx(k, rel=0.05)
+    zero = result.best.value("zero", "front_angle").value
+    assert zero == pytest.approx((1 - k_t / k) * tau_t, rel=0.1)  # -0.45 s
+    assert result.best.value("delay").value < 0.01
+
+
 def test_an_odd_cubic_before_a_lag_is_found_by_the_nonlinear_rung():
     cubic = 40.0  # [1/rad²]: at 0.1 rad the cubic adds 40 % to the input
     result = run(lambda u, r: truth(u + cubic * u**3, [0.12], [0.07, 1.0]), noise=0.0005)

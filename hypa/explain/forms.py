@@ -327,12 +327,14 @@ class _Fitter:
         return [np.array([t, d]) for t in lags for d in delays]
 
     def second_order_grid(self, lag: float, delay: float) -> list[np.ndarray]:
-        """Starts of the second-order search: natural frequency [Hz] × damping at the delay of the
-        lag-and-delay form, and the second-order form closest to that lag (two real poles, the
+        """Starts of the second-order search: natural frequency [Hz] × damping at no delay and at the
+        delay of the lag-and-delay form, and the second-order form closest to that lag (two real poles, the
         faster one far away, so the search starts no worse than the lag)."""
         nyquist = 0.5 / self.dt
-        grid = [np.array([f, z, delay]) for f in np.geomspace(0.05, 0.4 * nyquist, 12)
-                for z in (0.3, 0.6, 1.0, 2.0, 4.0)]
+        # at no delay too: a second order with a zero (a lead, a non-minimum-phase transient)
+        # may need none where the lag-and-delay form found one to mimic it
+        grid = [np.array([f, z, d]) for f in np.geomspace(0.05, 0.4 * nyquist, 12)
+                for z in (0.3, 0.6, 1.0, 2.0, 4.0) for d in sorted({0.0, delay})]
         if lag > 0:
             grid.append(np.array([3.0 / (np.pi * lag), 3.0, delay]))  # slow pole 2ζ/ω = τ
         return grid
