@@ -77,9 +77,9 @@ def axle_characteristic(
     alpha = np.asarray(alpha, dtype=float)
     half = 0.5 * vertical_load
     loads = (half + transfer, half - transfer) if load_transfer is not None and load_transfer.enabled else (half, half)
-    total = np.zeros_like(alpha)
+    total, wheel = np.zeros_like(alpha), _wheel_law(tires, load_transfer)
     for load in loads:
-        d, k = _wheel(load, half, 0.5 * cornering_stiffness, tires, load_transfer)
+        d, k = wheel(load, half, 0.5 * cornering_stiffness)
         if not tires.enabled:
             total = total + k * alpha
             continue
@@ -88,16 +88,24 @@ def axle_characteristic(
     return total
 
 
-def _wheel(
-    load: float, static_load: float, stiffness: float, tires: TireConfig, load_transfer: LoadTransferConfig | None
-) -> tuple[float, float]:
-    """Peak force D [N] and cornering stiffness K [N/rad] of one wheel at its vertical load [N]."""
+def _wheel_law(
+    tires: TireConfig, load_transfer: LoadTransferConfig | None
+) -> Callable[[float, float, float], tuple[float, float]]:
+    """``wheel(load, static_load, stiffness)``: peak force D [N] and cornering stiffness K [N/rad]
+    of one wheel at its vertical load [N] (static load and stiffness at it: half the axle's),
+    its constants computed once (the integration loop calls it four times per RK4 stage)."""
+    mu = tires.mu
     if load_transfer is None or not load_transfer.enabled:
-        return tires.mu * load, stiffness
-    x = max(load, 0.01 * static_load) / static_load  # a lifted wheel keeps 1 % (no division by 0)
-    p = load_transfer.stiffness_load_peak
-    k = stiffness * math.sin(2.0 * math.atan(x / p)) / math.sin(2.0 * math.atan(1.0 / p))
-    return tires.mu * (1.0 + load_transfer.mu_load_gradient * (x - 1.0)) * x * static_load, k
+        return lambda load, static_load, stiffness: (mu * load, stiffness)
+    p, gradient = load_transfer.stiffness_load_peak, load_transfer.mu_load_gradient
+    norm = math.sin(2.0 * math.atan(1.0 / p))
+    sin, atan = math.sin, math.atan
+
+    def wheel(load: float, static_load: float, stiffness: float) -> tuple[float, float]:
+        x = max(load, 0.01 * static_load) / static_load  # a lifted wheel keeps 1 % (no division by 0)
+        return mu * (1.0 + gradient * (x - 1.0)) * x * static_load, stiffness * sin(2.0 * atan(x / p)) / norm
+
+    return wheel
 
 
 def feedforward_ratio(speed: float, rear_steering: RearSteeringConfig) -> float:
@@ -225,10 +233,12 @@ def _right_hand_side(
         per_f = lt.front_roll_share * vehicle.mass * lt.cg_height_m / lt.track_front_m
         per_r = (1.0 - lt.front_roll_share) * vehicle.mass * lt.cg_height_m / lt.track_rear_m
 
+        wheel = _wheel_law(tires, lt)
+
         def axle(alpha, static, stiffness, shift):
             force = 0.0
             for load in (static + shift, static - shift):
-                d, k = _wheel(load, static, stiffness, tires, lt)
+                d, k = wheel(load, static, stiffness)
                 if magic:
                     x = k / (shape * d) * alpha
                     force += d * sin(shape * atan(x - curvature * (x - atan(x))))
