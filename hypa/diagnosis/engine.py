@@ -206,23 +206,18 @@ class GradientFit:
         self.nonlinear = nonlinear = any(getattr(getattr(b, "model", None), "is_nonlinear", False)
                                          for b in self.model.blocks.values())
         self.total, self.done = problem.steps // 2 if nonlinear else problem.steps, 0
-        # nonlinear physics (simulated step by step, 3x slower per step) gets half the steps, on
-        # windows half as long (twice as many of them): they start twice as long and shrink to a
-        # tenth (cosine), so the fit still settles
+        # nonlinear physics (simulated step by step, 3x slower per step) gets a third of the
+        # steps: they start twice as long and shrink to a tenth (cosine), so the fit still settles
         self.boost = 2.0 if nonlinear else 1.0
         self.batch = problem.batch
 
     def advance(self, share: float) -> None:
         """Go on until ``share`` of the total steps are done."""
         first, count, w = self.problem.dm.past + 1, self.windows["u"].shape[0], self.windows
-        length, batch = w["u"].shape[1], self.batch
-        if self.nonlinear:  # simulated step by step, where the cost is per step, hardly per window:
-            length, batch = first + (length - first) // 2, 2 * batch  # half as long, twice as many
         while self.done < math.ceil(share * self.total):
-            index = torch.randperm(count, generator=self.generator)[:batch]
-            u, y = w["u"][index, :length], w["y"][index, :length]
-            s = w["s"][index, :length] if "s" in w else None
-            loss = torch.mean((self.model(u, y[:, :first], s) - y[:, first:]) ** 2)
+            index = torch.randperm(count, generator=self.generator)[: self.batch]
+            u, y = w["u"][index], w["y"][index]
+            loss = torch.mean((self.model(u, y[:, :first], w["s"][index] if "s" in w else None) - y[:, first:]) ** 2)
             self.optimizer.zero_grad()
             loss.backward()
             if self.boost != 1.0:
