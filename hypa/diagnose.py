@@ -54,7 +54,8 @@ def main(cfg: DictConfig) -> None:
         from hypa.diagnosis.trained import train_extension
 
         def trainer(command: Sequence[str]):
-            return train_extension(command, out / "extended_run", dm, [str(o) for o in cfg.extension.train_overrides])
+            return train_extension(command, out / "extended_run", dm, [str(o) for o in cfg.extension.train_overrides],
+                                   plot=bool(cfg.plot), progress=lambda text: print("          " + text, flush=True))
     result = diagnose_system(spec, problem, out, overrides, plot=bool(cfg.plot),
                              progress=lambda text: print(text, flush=True),
                              config_dir=user_dirs[0] if user_dirs else None, catalogue=catalogue,
@@ -68,6 +69,8 @@ def main(cfg: DictConfig) -> None:
     if trained:
         print(f"trained extension ({trained['run']}): validation error {100 * trained['gain']['all']['overall']:+.0f} % "
               "against the nominal physics", flush=True)
+        for explained in trained["explained"]:
+            print(f"  its network {explained['block']} learned: {explained['description']}", flush=True)
     else:
         for name, command in result["extended"]["train_command"].items():
             print(f"train {name} with\n  {command}", flush=True)

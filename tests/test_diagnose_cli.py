@@ -145,3 +145,32 @@ def test_extension_train_true_trains_and_reports_the_trained_gain(delay_run) -> 
     assert "trained extension" in result.stdout
     assert "extension." not in diagnosis["extended"]["train_command"]["diagnosed"]  # only the data overrides pass
     assert "trained RMS" in (run / "diagnosis.md").read_text()
+
+
+def test_the_trained_correction_network_is_explained(delay_run) -> None:
+    """With no cause allowed (max_causes=0) the delay stays unexplained: the diagnosis writes the
+    hybrid, extension.train=true trains it, and what its correction network adds to each output is
+    explained by hypa.explain's ladder, in the report, the json and extended_run/explanation."""
+    _, first = delay_run
+    env = {**os.environ, "HYPA_CACHE_DIR": str(first.parent / "cache")}
+    run = first.parent / "run_explained"
+    result = subprocess.run(
+        [sys.executable, "-m", "hypa.diagnose", f"hydra.run.dir={run}", *SHORT, *DELAY_ONLY, "plot=false",
+         "diagnosis.max_causes=0", "extension.train=true",
+         'extension.train_overrides=["trainer.max_epochs=1","trainer.limit_train_batches=3","figures.enabled=false"]'],
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    diagnosis = json.loads((run / "diagnosis.json").read_text())
+    trained = diagnosis["extended"]["trained"]
+    assert trained["model"] == "diagnosed_hybrid"
+    explained = trained["explained"]
+    assert [(e["block"], e["signal"]) for e in explained] == [("correction", "yaw_rate_correction"),
+                                                               ("correction", "side_slip_correction")]
+    for e in explained:
+        assert e["description"].startswith(f"{e['signal']} = ") and "explains" in e["description"]
+        assert Path(e["report"]) == run / "extended_run" / "explanation" / "explanation.md"
+    explanation = json.loads((run / "extended_run" / "explanation" / "explanation.json").read_text())
+    assert explanation["blocks"][0]["corrects"] == ["yaw_rate", "yaw_rate_physics"]
+    assert "yaw_rate_correction = yaw_rate − yaw_rate_physics" in Path(explained[0]["report"]).read_text()
+    assert "What its networks learned" in (run / "diagnosis.md").read_text()
+    assert "its network correction learned: yaw_rate_correction = " in result.stdout

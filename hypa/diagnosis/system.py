@@ -26,6 +26,7 @@ from hypa.diagnosis.catalogue import Entry
 from hypa.diagnosis.edits import frozen
 from hypa.diagnosis.engine import Finding, Problem, Search, name_causes
 from hypa.diagnosis.structure import OutputStructure, analyze_output
+from hypa.diagnosis.trained import TrainedExtension
 from hypa.evaluation.runs import Prediction, free_run
 from hypa.models.spec import ModelSpec
 
@@ -120,14 +121,14 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
                     plot: bool = True, max_causes: int = 5, min_gain: float = 0.15,
                     progress: Callable[[str], None] = print, config_dir: Path | None = None,
                     catalogue: Sequence[Entry] | None = None,
-                    train_extension: Callable[[Sequence[str]], Sequence[Prediction]] | None = None) -> dict:
+                    train_extension: Callable[[Sequence[str]], TrainedExtension] | None = None) -> dict:
     """Steps 1-4 for the nominal model on the problem's data; returns diagnosis.json's content.
 
     ``train_overrides`` select the same data for ``hypa.train``; ``config_dir``: the user's own
     config folder (``--config-dir``) that the train command needs too (their dataset YAML).
     ``train_extension(arguments)``: trains the written model with those ``hypa.train`` arguments
-    and returns its free runs over the validation records (:mod:`hypa.diagnosis.trained`); its
-    gain joins the report."""
+    and returns its free runs over the validation records and what its networks learned
+    (:mod:`hypa.diagnosis.trained`); its gain and those explanations join the report."""
     out.mkdir(parents=True, exist_ok=True)
     dm, started = problem.dm, time.perf_counter()
     progress(f"step 1/4: the nominal model {nominal.name!r} free-running on {len(dm.records('val'))} "
@@ -163,12 +164,14 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     if train_extension is not None:
         name = "diagnosed_hybrid" if "diagnosed_hybrid" in written else "diagnosed"
         progress(f"          training {name} with hypa.train (progress below)")
-        runs = list(train_extension(train_arguments(out / "conf", name, train_overrides, name != "diagnosed",
-                                                    config_dir)))
+        extension = train_extension(train_arguments(out / "conf", name, train_overrides, name != "diagnosed",
+                                                    config_dir))
+        runs = list(extension.predictions)
         metrics["trained"] = _metrics(runs, dm.output_names)
-        trained = {"model": name, "run": str(out / "extended_run"), "metrics": metrics["trained"],
+        trained = {"model": name, "run": str(extension.run), "metrics": metrics["trained"],
                    "gain": {"all": {**_change(metrics["nominal"], metrics["trained"], dm.output_names),
-                                    "overall": _overall(metrics["nominal"], metrics["trained"], dm.output_names)}}}
+                                    "overall": _overall(metrics["nominal"], metrics["trained"], dm.output_names)}},
+                   "explained": extension.explanations}
     result = {
         "cause": search.named[0].cause if search.named else "none",  # the first named (the schema of old reports)
         "estimate": dict(search.named[0].values) if search.named else {},
@@ -324,6 +327,10 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
     if trained:
         lines += ["", f"The trained extension is `{trained['model']}` trained by hypa.train (run `{trained['run']}`): "
                   f"validation error {100 * trained['gain']['all']['overall']:+.0f} % against the nominal model."]
+        if trained["explained"]:
+            lines += ["", "What its networks learned (hypa.explain; fitted on the training records, R² on the "
+                      f"validation records; report `{trained['explained'][0]['report']}`):", ""]
+            lines += [f"- `{e['block']}`, {e['signal']}: {e['description']}" for e in trained["explained"]]
     if result["extended"]["signals"]:
         lines += ["", "## Recovered signals against their measurement", "",
                   "What a diagnosed block recovers, compared with a channel the data measure but that was "

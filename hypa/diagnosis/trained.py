@@ -1,16 +1,20 @@
-"""Step 4 with training: train the written extension through ``hypa.train`` and free-run it.
+"""Step 4 with training: train the written extension through ``hypa.train``, free-run it and
+explain the networks it added.
 
 ``python -m hypa.diagnose extension.train=true`` runs the printed train command (its progress
 on the console, its run folder inside the diagnosis folder), loads the best checkpoint and
 free-runs it over the validation records, so the report can put the trained model (the named
 causes, plus a correction network where structure stays unexplained) beside the nominal one.
+Each network of the trained model is then explained by :func:`hypa.explain.explain_run` (what
+the correction adds, as a form in units), into ``extended_run/explanation``.
 """
 
 from __future__ import annotations
 
 import subprocess
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from hypa.data import HypaDataModule
@@ -23,11 +27,22 @@ class ExtensionTrainingError(UserError):
     the command to rerun it alone), so ``hypa.diagnose`` reports it in one line."""
 
 
+@dataclass
+class TrainedExtension:
+    """The trained extension: its run folder, its free runs over the validation records and, per
+    output of each of its networks, what that network learned (``explanations``)."""
+
+    run: Path
+    predictions: list[Prediction]
+    explanations: list[dict] = field(default_factory=list)
+
+
 def train_extension(arguments: Sequence[str], run_dir: Path, dm: HypaDataModule,
-                    extra_overrides: Sequence[str] = ()) -> list[Prediction]:
-    """Run ``python -m hypa.train ARGUMENTS`` into ``run_dir`` and free-run its best checkpoint
-    over ``dm``'s validation records. ``extra_overrides``: more ``hypa.train`` overrides (e.g. a
-    shorter training: ``trainer.max_epochs=5``)."""
+                    extra_overrides: Sequence[str] = (), explain: bool = True, plot: bool = True,
+                    progress: Callable[[str], None] = lambda text: None) -> TrainedExtension:
+    """Run ``python -m hypa.train ARGUMENTS`` into ``run_dir``, free-run its best checkpoint over
+    ``dm``'s validation records and (``explain``) explain its networks. ``extra_overrides``: more
+    ``hypa.train`` overrides (e.g. a shorter training: ``trainer.max_epochs=5``)."""
     from hypa.evaluation.runs import free_run, load_run
 
     argv = [sys.executable, "-m", "hypa.train", *arguments, f"hydra.run.dir={run_dir}", *extra_overrides]
@@ -35,5 +50,23 @@ def train_extension(arguments: Sequence[str], run_dir: Path, dm: HypaDataModule,
     if completed.returncode != 0:
         raise ExtensionTrainingError(f"hypa.train failed (exit status {completed.returncode}) on the extended "
                                      f"model: {' '.join(argv[1:])}")
-    model = load_run(run_dir).module.model
-    return [free_run(model, dm, record) for record in dm.records("val")]
+    run = load_run(run_dir)
+    model = run.module.model
+    trained = TrainedExtension(run_dir, [free_run(model, dm, record) for record in dm.records("val")])
+    if explain:
+        trained.explanations = explain_networks(run, dm, run_dir / "explanation", plot, progress)
+    return trained
+
+
+def explain_networks(run, dm: HypaDataModule, out: Path, plot: bool = True,
+                     progress: Callable[[str], None] = lambda text: None) -> list[dict]:
+    """What each network of a trained run learned (:func:`hypa.explain.explain_run`), one entry per
+    explained signal: block, signal, the chosen form in words, its validation R² and the report."""
+    from hypa.explain.run import Settings, ann_blocks, explain_run
+
+    if not ann_blocks(run.module.model.spec):
+        return []
+    results = explain_run(run, dm, out, settings=Settings(plot=plot), progress=progress)
+    return [{"block": r.problem.block, "signal": r.problem.output, "description": r.explanation.describe(),
+             "form": r.explanation.best.form.name, "r2_val": r.explanation.best.r2_val,
+             "report": str(out / "explanation.md")} for r in results]

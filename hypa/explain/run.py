@@ -50,13 +50,18 @@ class Settings:
 
 @dataclass(frozen=True)
 class Problem:
-    """One explained signal: an output of an ANN block, its regressors and extra signals, their units."""
+    """One explained signal: an output of an ANN block, its regressors and extra signals, their units.
+
+    A correction network (``residual_of``) adds its output to a physics signal: what it learned
+    is the difference, so ``output`` is then ``<output>_correction`` and ``corrects`` holds the
+    (total, physics) pair it is computed from."""
 
     block: str
     output: str
     inputs: tuple[str, ...]
     extra: tuple[str, ...]
     units: Mapping[str, str]
+    corrects: tuple[str, str] | None = None
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -139,10 +144,14 @@ def problems(spec: ModelSpec, dm: HypaDataModule, blocks: Sequence[BlockSpec],
         own = {*block.inputs, *block.outputs}
         chosen = [n for n in (*dm.output_names, *dm.scheduling_names) if n not in own] if extra is None else \
             [n for n in extra if n not in own]
-        for output in block.outputs:
-            names = (output, *block.inputs, *chosen)
-            out.append(Problem(block.name, output, tuple(block.inputs), tuple(chosen),
-                               {n: signal_unit(n, dm, spec) for n in names}))
+        for i, output in enumerate(block.outputs):
+            units = {n: signal_unit(n, dm, spec) for n in (output, *block.inputs, *chosen)}
+            corrects = None
+            if block.residual_of:
+                corrects = (output, block.residual_of[min(i, len(block.residual_of) - 1)])
+                units[f"{output}_correction"] = units[output]
+                output = f"{output}_correction"
+            out.append(Problem(block.name, output, tuple(block.inputs), tuple(chosen), units, corrects))
     return out
 
 
@@ -160,9 +169,18 @@ def free_runs(model: ComposedModel, dm: HypaDataModule, split: str) -> list[Pred
 
 def recordings(predictions: Sequence[Prediction], problem: Problem) -> list[Recording]:
     """The problem's signals of each free run, on the stretch where all of them exist; the
-    measurement of the output (where the record has one) as ``measured:<output>``."""
+    measurement of the output (where the record has one) as ``measured:<output>``. A correction
+    is the total output less the physics signal it corrects (nothing measures it)."""
     out = []
     for prediction in predictions:
+        if problem.corrects:
+            total, physics = problem.corrects
+            names = [*dict.fromkeys((total, physics, *problem.inputs, *problem.extra))]
+            recording = Recording.from_prediction(prediction, names)
+            signals = {n: recording[n] for n in problem.names[1:]}
+            signals[problem.output] = recording[total] - recording[physics]
+            out.append(Recording(recording.name, signals, recording.start))
+            continue
         recording = Recording.from_prediction(prediction, list(problem.names))
         truth = prediction.measured.get(problem.output)
         if truth is not None:
@@ -255,6 +273,7 @@ def to_dict(run: TrainedRun, results: Sequence[BlockExplanation]) -> dict:
         "label": run.label, "fit_split": FIT_SPLIT, "score_split": SCORE_SPLIT,
         "blocks": [{"block": r.problem.block, "output": r.problem.output, "inputs": list(r.problem.inputs),
                     "extra": list(r.problem.extra), "units": dict(r.problem.units),
+                    "corrects": list(r.problem.corrects) if r.problem.corrects else None,
                     "description": r.explanation.describe(), "explanation": r.explanation.to_dict(),
                     "comparison": r.comparison, "figures": {k: v.name for k, v in r.figures.items()},
                     "notes": r.notes} for r in results]})
@@ -291,13 +310,14 @@ def _report_block(r: BlockExplanation) -> list[str]:
     p, e = r.problem, r.explanation
     u = p.units
     lines = [f"## {p.block}: {', '.join(p.inputs)} → {p.output}", "",
-             f"**{e.describe()}**", "",
-             f"Signals: output {p.output} [{u[p.output]}]; inputs "
-             + ", ".join(f"{n} [{u[n]}]" for n in p.inputs)
-             + (f"; extra {', '.join(f'{n} [{u[n]}]' for n in p.extra)}" if p.extra else "; no extra signals")
-             + f". Sample time {1000 * e.dt:.3g} ms; validation std of the output {_num(e.output_std)} {u[p.output]}.", "",
-             "| rung | form | parameters | R² train | R² validation | score | |",
-             "|---:|---|---:|---:|---:|---:|---|"]
+             f"**{e.describe()}**", ""]
+    if p.corrects:
+        lines += [f"The block corrects the physics: {p.output} = {p.corrects[0]} − {p.corrects[1]}, what it adds.", ""]
+    lines += [f"Signals: output {p.output} [{u[p.output]}]; inputs "
+              + ", ".join(f"{n} [{u[n]}]" for n in p.inputs)
+              + (f"; extra {', '.join(f'{n} [{u[n]}]' for n in p.extra)}" if p.extra else "; no extra signals")
+              + f". Sample time {1000 * e.dt:.3g} ms; validation std of the output {_num(e.output_std)} {u[p.output]}.",
+              "", "| rung | form | parameters | R² train | R² validation | score | |", "|---:|---|---:|---:|---:|---:|---|"]
     for i, f in enumerate(e.forms):
         mark = "**chosen**" if i == e.chosen else ""
         lines.append(f"| {f.form.rung} | {f.form.name} | {f.n_parameters} | {f.r2_train:.3f} | {f.r2_val:.3f} | "
@@ -330,7 +350,8 @@ def _report_block(r: BlockExplanation) -> list[str]:
             lines.append(f"| {label} | {c[pair]['corr']:.3f} | {_num(c[pair]['rms'])} | "
                          f"{100 * c[pair]['share']:.0f} % |")
     else:
-        lines += ["", f"The records hold no measurement of {p.output}: no comparison with the truth."]
+        lines += ["", f"The records hold no measurement of {p.output}: no comparison with the truth."
+                  if not p.corrects else "A correction has no measurement to compare with."]
     captions = {"time": "learned vs explained over time (first validation record)",
                 "frequency": "frequency response: the learned block (H1) and the chosen form",
                 "static": f"static curve: {p.output} against {p.inputs[0]}"}
