@@ -13,6 +13,7 @@ no catalogue entry explains, the diagnosis says where it lives instead of naming
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -31,6 +32,8 @@ from hypa.physics import SchedulingError, UnstablePhysicsError
 
 REFINE_LR = 0.2  # the learning rate of the earlier causes' knobs, relative to the candidate's own
 ALTERNATIVE = 0.95  # a candidate explaining this share of the named one's gain is reported beside it
+OFFSET_Z = 5.0  # an offset below min_gain is still named this many standard errors away from zero ...
+OFFSET_GAIN = 0.01  # ... when it lowers the validation error by at least this share (a small sensor bias)
 
 
 @dataclass(frozen=True)
@@ -82,6 +85,8 @@ class Finding:
     note: str = ""  # what a value-less cause means on these data (scheduling: the ranges)
     refined: dict[str, float] = field(default_factory=dict)  # earlier causes' knobs, re-fitted with it
     steps: tuple[int, int] | None = None  # gradient fits: (steps done, of); fewer: stopped early, behind others
+    z: float | None = None  # offsets: |estimate| / its standard error (clustered by training stretch)
+    small: bool = False  # named below min_gain: an offset far from zero by its standard error
 
     @property
     def key(self) -> str:
@@ -100,7 +105,8 @@ class Finding:
         return {"cause": self.cause, "target": self.target, "values": self.values, "units": self.units,
                 "score": self.score, "gain": self.gain, "seconds": self.seconds, "error": self.error,
                 "alternatives": self.alternatives, "refined": self.refined,
-                "steps": list(self.steps) if self.steps else None, "text": self.describe()}
+                "steps": list(self.steps) if self.steps else None, "z": self.z, "small": self.small,
+                "text": self.describe()}
 
 
 READABLE = {"rad": ("deg", 180.0 / math.pi), "rad/s": ("deg/s", 180.0 / math.pi)}  # SI unit -> (shown, factor)
@@ -239,27 +245,47 @@ def fit_gradient(candidate: Candidate, problem: Problem, windows: Mapping[str, t
     return fit.values()
 
 
-def fit_affine(candidate: Candidate, problem: Problem) -> dict[str, float]:
-    """Least squares of one offset b: the (linear) model's outputs are affine in it, so two
-    simulations of the training stretches (b = 0 and a probe) give the response to b exactly."""
+def fit_affine(candidate: Candidate, problem: Problem) -> tuple[dict[str, float], float]:
+    """One offset (the candidate's channel): its least-squares value and |value| / standard error."""
     channel = candidate.target
-    probe = 0.1 * problem.scale([channel])[channel][1]
-    train = problem.stretches("train")
-    zero = train.predict(problem.build(candidate.spec))
-    moved = train.predict(problem.build(applied(candidate, {channel: probe})))
-    weights, num, den = train.weights(), 0.0, 0.0
-    for (p0, y), (p1, _) in zip(zero, moved):
-        g, r = (p1 - p0) / probe, y - p0
-        num += float(((g * r).sum((0, 1)) * weights).sum())
-        den += float(((g * g).sum((0, 1)) * weights).sum())
-    offset = num / den if den > 0 else 0.0
-    values = np.concatenate([r[channel] for r in problem.dm.records("train")])
-    span = float(np.max(values) - np.min(values))
-    if not abs(offset) <= span:  # e.g. a position offset the initial-state estimate absorbs
+    values, z = fit_offsets(candidate.spec, [channel], problem)
+    span = max(float(np.ptp(r[channel])) for r in problem.dm.records("train"))
+    if not abs(values[channel]) <= span:  # e.g. a position offset the initial-state estimate absorbs
         unit = problem.dm.channels[channel].unit
-        raise ValueError(f"offset {format_value(offset, unit)} beyond the channel's whole range "
+        raise ValueError(f"offset {format_value(values[channel], unit)} beyond the channel's whole range "
                          f"({format_value(span, unit)}): not identifiable from these data")
-    return {channel: offset}
+    return values, z[channel]
+
+
+def fit_offsets(spec: ModelSpec, channels: Sequence[str], problem: Problem) -> tuple[dict[str, float],
+                                                                                      dict[str, float]]:
+    """Joint least squares of the sensor offsets of ``channels`` in ``spec`` (whatever values the
+    spec holds for them are replaced). The (linear) model's outputs are affine in each offset, so
+    one simulation of the training stretches with them at zero and one per offset (a probe) give
+    the responses exactly. Returns the offsets [SI] and each one's |value| over its standard
+    error, clustered by stretch (the residuals of one stretch are correlated, those of different
+    stretches far less; the sandwich covariance of the weighted least squares)."""
+    zeroed = {**spec.sensor_offsets, **{c: 0.0 for c in channels}}
+    train = problem.stretches("train")
+    base = train.predict(problem.build(dataclasses.replace(spec, sensor_offsets=zeroed)))
+    responses = []
+    for channel in channels:
+        probe = 0.1 * problem.scale([channel])[channel][1]
+        moved = train.predict(problem.build(dataclasses.replace(spec, sensor_offsets={**zeroed, channel: probe})))
+        responses.append([(p1 - p0) / probe for (p1, _), (p0, _) in zip(moved, base)])
+    weights, k = train.weights(), len(channels)
+    batches = [(torch.stack([resp[b] for resp in responses], -1), y - p0) for b, (p0, y) in enumerate(base)]
+    gram = sum(torch.einsum("blpi,blpj,p->ij", g, g, weights) for g, _ in batches)  # g: (B, L, p, k)
+    rhs = sum(torch.einsum("blpi,blp,p->i", g, r, weights) for g, r in batches)
+    if torch.linalg.matrix_rank(gram) < k:
+        raise ValueError(f"offsets of {', '.join(channels)} cannot be told apart on these data")
+    offsets = torch.linalg.solve(gram, rhs)
+    scores = torch.cat([torch.einsum("blpi,blp,p->bi", g, r - torch.einsum("blpi,i->blp", g, offsets), weights)
+                        for g, r in batches])  # (stretches, k): each stretch's share of the normal equations
+    inverse = torch.linalg.inv(gram)
+    spread = torch.sqrt(torch.clamp(torch.diagonal(inverse @ (scores.T @ scores) @ inverse), min=0.0))
+    values = {c: float(v) for c, v in zip(channels, offsets)}
+    return values, {c: abs(values[c]) / float(e) if float(e) > 0 else math.inf for c, e in zip(channels, spread)}
 
 
 _FIT_ERRORS = (UnstablePhysicsError, SchedulingError, ModelSpecError, ValueError)
@@ -269,18 +295,20 @@ def evaluate(candidate: Candidate, problem: Problem, windows: Mapping[str, torch
              refine: Sequence[str] = ()) -> Finding:
     """Fit a candidate (with ``refine``, see :class:`GradientFit`) and score it on the validation
     stretches. ``values`` holds the candidate's own knobs, ``refined`` the others."""
-    started = time.perf_counter()
+    started, z = time.perf_counter(), None
     try:
         if candidate.fit == GRADIENT:
             values = fit_gradient(candidate, problem, windows, refine)
         elif candidate.fit == AFFINE:
-            values = fit_affine(candidate, problem)
+            values, z = fit_affine(candidate, problem)
         else:
             values = {}
         value = problem.stretches("val").score(problem.build(applied(candidate, values)))
     except _FIT_ERRORS as error:
         return _failed(candidate, error, time.perf_counter() - started)
-    return _finding(candidate, problem, values, value, base_score, time.perf_counter() - started)
+    finding = _finding(candidate, problem, values, value, base_score, time.perf_counter() - started)
+    finding.z = z
+    return finding
 
 
 def _failed(candidate: Candidate, error: Exception, seconds: float) -> Finding:
@@ -390,10 +418,11 @@ class Search:
     spec: ModelSpec
     final_score: float
     seconds: float
+    dropped: list[Finding] = field(default_factory=list)  # named, then dropped by the joint fit of the offsets
 
 
 def name_causes(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | None = None,
-                candidates: Callable[[ModelSpec], list[Candidate]] | None = None, max_causes: int = 5,
+                candidates: Callable[[ModelSpec], list[Candidate]] | None = None, max_causes: int = 8,
                 min_gain: float = 0.15, floor: float = 1e-4, progress: Callable[[str], None] = lambda _: None) -> Search:
     """Greedy forward search over the catalogue from the frozen ``nominal`` model.
 
@@ -430,7 +459,7 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
     base = frozen(nominal)
     base_score = nominal_score = problem.stretches("val").score(problem.build(base))
     progress(f"nominal model: validation error {100 * base_score:.3g} % of the output variance")
-    rounds, named, refine = [], [], []
+    rounds, named, refine, findings = [], [], [], []
     while len(named) < max_causes and base_score > floor:
         done = {f.key for f in named}
         findings = evaluate_round([c for c in candidates(base) if c.key not in done], problem, windows, base_score,
@@ -445,7 +474,67 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
         refine += [k for k in best.candidate.knobs if best.candidate.fit == GRADIENT and k not in refine]
         progress(f"named {best.describe()} (validation error {100 * best.gain:.0f} % lower)"
                  + (f"; the data cannot tell it from {' or '.join(best.alternatives)}" if best.alternatives else ""))
+        findings = []
+    # below min_gain: offsets (one number each, exact least squares) that sit far from zero by their
+    # standard error, a small sensor bias, one at a time (the best first, the others fitted again on top)
+    findings = [f for f in findings if _significant(f)]
+    while findings and len(named) < max_causes:
+        best = findings[0]
+        best.small = True
+        named.append(best)
+        base, base_score = applied(best.candidate, best.values), best.score
+        progress(f"named {best.describe()} (validation error {100 * best.gain:.2g} % lower: small, but "
+                 f"{best.z:.0f} standard errors from zero)")
+        keys = {f.key for f in findings[1:]}
+        findings = sorted((evaluate(c, problem, windows, base_score) for c in candidates(base) if c.key in keys),
+                          key=lambda f: f.score)
+        if findings:
+            rounds.append(findings)
+        findings = [f for f in findings if _significant(f)]
+    named, dropped, base, base_score = _joint_offsets(named, base, base_score, problem, progress)
     for k, f in enumerate(named):  # the final values: re-fitted jointly with every later cause
         for later in named[k + 1 :]:
             f.values.update({name: v for name, v in later.refined.items() if name in f.values})
-    return Search(nominal_score, rounds, named, base, base_score, time.perf_counter() - started)
+    return Search(nominal_score, rounds, named, base, base_score, time.perf_counter() - started, dropped)
+
+
+def _joint_offsets(named: list[Finding], spec: ModelSpec, score: float, problem: Problem,
+                   progress: Callable[[str], None]) -> tuple[list[Finding], list[Finding], ModelSpec, float]:
+    """The named offsets fitted again all together; while one of them is then under OFFSET_Z
+    standard errors from zero (it stood in for the others: a steering offset for a yaw-rate and a
+    side-slip bias), the weakest is dropped; an offset as weak in that fit lists it as the
+    alternative the data cannot tell it from. Returns the named causes, the dropped ones, the model
+    with the final offsets and its validation score."""
+    offsets = [f for f in named if f.candidate is not None and f.candidate.fit == AFFINE]
+    dropped: list[Finding] = []
+    if len(offsets) < 2:
+        return named, dropped, spec, score
+    while True:
+        values, z = fit_offsets(spec, [f.target for f in offsets], problem)
+        weakest = min(offsets, key=lambda f: z[f.target])
+        if z[weakest.target] >= OFFSET_Z or len(offsets) == 1:
+            break
+        offsets.remove(weakest)
+        dropped.append(weakest)
+        for other in offsets:  # as weak in the joint fit: the data cannot tell the two apart
+            if z[other.target] < OFFSET_Z:
+                other.alternatives = [a for a in other.alternatives
+                                      if not a.startswith(f"{weakest.cause} on {weakest.target}:")]
+                other.alternatives.append(weakest.describe())
+        spec = dataclasses.replace(spec, sensor_offsets={k: v for k, v in spec.sensor_offsets.items()
+                                                         if k != weakest.target})
+        weakest.note = (f"dropped: fitted together with the other offsets it is {z[weakest.target]:.1f} "
+                        "standard errors from zero (they carry what it explained)")
+        progress(f"{weakest.cause} on {weakest.target}: {weakest.note}")
+    if not dropped:
+        return named, dropped, spec, score
+    for f in offsets:
+        f.values, f.z = {f.target: values[f.target]}, z[f.target]
+    spec = dataclasses.replace(spec, sensor_offsets={**spec.sensor_offsets, **values})
+    return ([f for f in named if all(f is not d for d in dropped)], dropped, spec,
+            problem.stretches("val").score(problem.build(spec)))
+
+
+def _significant(f: Finding) -> bool:
+    """An offset fitted, far from zero by its standard error, and lowering the validation error."""
+    return f.error is None and f.z is not None and f.z >= OFFSET_Z and f.gain >= OFFSET_GAIN

@@ -118,7 +118,7 @@ def _metrics(runs: Sequence[Prediction], outputs: Sequence[str]) -> dict[str, di
 
 
 def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overrides: Sequence[str] = (),
-                    plot: bool = True, max_causes: int = 5, min_gain: float = 0.15,
+                    plot: bool = True, max_causes: int = 8, min_gain: float = 0.15,
                     progress: Callable[[str], None] = print, config_dir: Path | None = None,
                     catalogue: Sequence[Entry] | None = None,
                     train_extension: Callable[[Sequence[str]], TrainedExtension] | None = None) -> dict:
@@ -179,6 +179,7 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
                    "scheduling": list(dm.scheduling_names)},
         "causes": [f.cause for f in search.named],
         "named": [f.to_dict() for f in search.named],
+        "dropped": [f.to_dict() for f in search.dropped],
         "candidates": [_candidate(f, search.nominal_score) for f in search.named]
         + [_candidate(f, search.nominal_score) for f in (search.rounds[0] if search.rounds else [])
            if f.key not in {n.key for n in search.named}],
@@ -197,7 +198,7 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
         if plot else {}
     result["figures"] = figures
     (out / "diagnosis.json").write_text(json.dumps(result, indent=2, default=float))
-    (out / "diagnosis.md").write_text(markdown(result, search, structure, dm))
+    (out / "diagnosis.md").write_text(markdown(result, search, structure, dm, min_gain))
     return result
 
 
@@ -291,7 +292,7 @@ def _figures(out: Path, before: Sequence[Prediction], after: Sequence[Prediction
     return names
 
 
-def markdown(result: dict, search: Search, structure: Sequence[OutputStructure], dm) -> str:
+def markdown(result: dict, search: Search, structure: Sequence[OutputStructure], dm, min_gain: float = 0.15) -> str:
     """diagnosis.md: the engineer's report."""
     lines = [f"# Diagnosis of `{result['system']['model']}`", ""]
     lines += [f"Inputs {', '.join(result['system']['inputs'])}; outputs {', '.join(result['system']['outputs'])}"
@@ -303,17 +304,21 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
     lines.append(f"- with the named causes: **{100 * search.final_score:.3g} %**")
     lines += ["", "## Named causes", ""]
     if not search.named:
-        lines.append("None: no catalogue cause lowers the validation error by 15 % or more.")
+        lines.append(f"None: no catalogue cause lowers the validation error by {100 * min_gain:.0f} % or more.")
     previous = search.nominal_score
     for k, f in enumerate(search.named, 1):
         share = (previous - f.score) / search.nominal_score if search.nominal_score > 0 else 0.0
         lines.append(f"{k}. **{f.cause}** on `{f.target}`: "
                      + (f.describe().split(": ", 1)[1] if ": " in f.describe() else "no value")
-                     + f". Validation error {100 * f.gain:.0f} % lower than before it; "
-                     f"{100 * share:.0f} % of the nominal error.")
+                     + f". Validation error {100 * f.gain:.2g} % lower than before it; "
+                     f"{100 * share:.2g} % of the nominal error."
+                     + (f" Small (below the {100 * min_gain:.0f} % floor), but {f.z:.0f} standard errors from zero."
+                        if f.small else ""))
         if f.alternatives:
             lines.append(f"   The data cannot tell it from: {'; '.join(f.alternatives)}.")
         previous = f.score
+    for f in search.dropped:
+        lines.append(f"- Named, then dropped: **{f.cause}** on `{f.target}`; {f.note}.")
     models = [m for m in ("nominal", "extended", "trained") if m in result["metrics"]]
     lines += ["", "## Per output (validation, free run)", "",
               "| output | " + " | ".join(f"{m} RMS" for m in models) + " | " + " | ".join(f"{m} R²" for m in models)
