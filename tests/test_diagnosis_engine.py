@@ -69,12 +69,12 @@ def datamodule(folder: Path, **effect: float):
     return dm
 
 
-def diagnose(tmp_path: Path, catalogue=None, max_causes: int = 1, **effect: float):
+def diagnose(tmp_path: Path, catalogue=None, max_causes: int = 1, min_gain: float = 0.15, **effect: float):
     """The first round decides what these tests check: one cause (later rounds fit the nonlinear
     stiffening-spring candidate jointly with it, step by step: slow, and tested elsewhere)."""
     dm = datamodule(tmp_path, **effect)
     return name_causes(parse_model_spec(MODEL), Problem(dm, NOMINAL, hold="foh", horizon=100), catalogue=catalogue,
-                       max_causes=max_causes)
+                       max_causes=max_causes, min_gain=min_gain)
 
 
 USER_ENTRY = """
@@ -239,3 +239,22 @@ def test_values_are_written_with_units() -> None:
     assert format_value(1.234e5, "N/rad") == "1.23e+05 N/rad"
     assert format_value(3.0, "") == "3"
     assert format_value(0.00498, "rad") == "0.285 deg" and format_value(0.0017, "rad/s") == "0.0974 deg/s"
+
+
+@pytest.mark.parametrize("offset", [0.0, 0.01, -0.02])
+def test_an_offset_below_the_gain_floor_is_named_when_significant(tmp_path: Path, offset: float) -> None:
+    """With the floor out of reach (min_gain 1: no gain reaches it), an offset is still named, marked small, when it
+    sits 5 standard errors from zero; on clean data (offset 0) nothing is."""
+    search = diagnose(tmp_path, min_gain=1.0, offset=offset)
+    if offset == 0.0:
+        assert search.named == [], [f.describe() for f in search.named]
+        return
+    first = search.named[0] if search.named else None
+    assert first is not None and first.cause in ("output_offset", "input_offset"), [
+        f.describe() for f in search.rounds[0][:3]]
+    assert first.small and first.z >= 5 and 0.01 <= first.gain < 1.0
+    if first.cause == "input_offset":  # a constant force and a position offset are one thing to a spring
+        assert any(a.startswith("output_offset on position") for a in first.alternatives), first.alternatives
+        assert first.values["force"] == pytest.approx(-NOMINAL["stiffness"] * offset, rel=0.1)
+    else:
+        assert first.values["position"] == pytest.approx(offset, rel=0.1)

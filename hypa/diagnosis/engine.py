@@ -481,6 +481,7 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
     while findings and len(named) < max_causes:
         best = findings[0]
         best.small = True
+        best.alternatives = [f.describe() for f in findings[1:] if f.gain >= ALTERNATIVE * best.gain]
         named.append(best)
         base, base_score = applied(best.candidate, best.values), best.score
         progress(f"named {best.describe()} (validation error {100 * best.gain:.2g} % lower: small, but "
