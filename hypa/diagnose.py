@@ -45,7 +45,8 @@ def main(cfg: DictConfig) -> None:
     print("reading the data", flush=True)
     dm = datamodule(cfg)
     dm.setup()
-    problem = Problem(dm, values, hold=str(cfg.physics.hold), horizon=int(cfg.data.window))
+    workers = {} if cfg.diagnosis.get("workers") is None else {"workers": int(cfg.diagnosis.workers)}
+    problem = Problem(dm, values, hold=str(cfg.physics.hold), horizon=int(cfg.data.window), **workers)
     user_dirs = [Path(s.path.removeprefix("file://")) for s in HydraConfig.get().runtime.config_sources
                  if s.provider == "command-line" and s.schema == "file"]
     overrides = data_overrides(HydraConfig.get().overrides.task)

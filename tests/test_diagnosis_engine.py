@@ -258,3 +258,18 @@ def test_an_offset_below_the_gain_floor_is_named_when_significant(tmp_path: Path
         assert first.values["force"] == pytest.approx(-NOMINAL["stiffness"] * offset, rel=0.1)
     else:
         assert first.values["position"] == pytest.approx(offset, rel=0.1)
+
+
+def test_fits_on_worker_processes_give_the_results_of_one_process(tmp_path: Path) -> None:
+    """A round's gradient fits on forked workers (Problem.workers) are the same fits, seeded per
+    candidate: the same scores and values as in the calling process."""
+    from hypa.diagnosis.workers import can_fork
+
+    if not can_fork():
+        pytest.skip("this platform cannot fork")
+    dm = datamodule(tmp_path, delay_s=0.05)
+    searches = [name_causes(parse_model_spec(MODEL), Problem(dm, NOMINAL, hold="foh", horizon=100, workers=n),
+                            max_causes=1) for n in (1, 2)]
+    one, two = ([repr((f.key, f.score, f.values, f.steps)) for f in s.rounds[0]] for s in searches)  # nan == nan
+    assert sorted(one) == sorted(two)
+    assert searches[1].named[0].cause == "input_delay"

@@ -17,6 +17,8 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
+from contextlib import nullcontext
+from functools import partial
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,6 +27,7 @@ import torch
 from hypa.data import HypaDataModule, Record
 from hypa.diagnosis.catalogue import Entry, catalogue_candidates, load_catalogue
 from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, frozen, set_free
+from hypa.diagnosis.workers import Workers, can_fork, default_workers
 from hypa.models import ComposedModel
 from hypa.models.spec import ModelSpec, ModelSpecError
 from hypa.physics import SchedulingError, UnstablePhysicsError
@@ -49,6 +52,7 @@ class Problem:
     lr: float = 0.05  # on the raw (relative) parameters: about 5 % of a value per step
     seed: int = 0
     stretch_s: float = 20.0  # [s] the free runs that score a candidate restart from the data this often
+    workers: int = field(default_factory=default_workers)  # processes fitting a round's candidates at once
 
     def stretches(self, split: str) -> Stretches:
         """The ``split``'s records cut into stretches of ``stretch_s`` (made once, then cached)."""
@@ -340,6 +344,7 @@ class _Runner:
     score: float = math.inf
     previous: float = math.inf
     error: Exception | None = None
+    values: dict[str, float] | None = None  # the fitted values, when the fit ran in a worker process
 
     def advance(self, share: float, val: Stretches) -> None:
         started = time.perf_counter()
@@ -364,10 +369,10 @@ def evaluate_round(candidates: Sequence[Candidate], problem: Problem, windows: M
     whatever the gradient) a resonant system's error is no guide. A fit stopped early says so
     (``Finding.steps``); its gain is a lower bound.
     """
-    findings, runners = [], []
+    findings, runners, others = [], [], []
     for c in candidates:
         if c.fit != GRADIENT:
-            findings.append(evaluate(c, problem, windows, base_score, refine))
+            others.append(c)
             continue
         started = time.perf_counter()
         try:
@@ -375,25 +380,48 @@ def evaluate_round(candidates: Sequence[Candidate], problem: Problem, windows: M
         except _FIT_ERRORS as error:
             findings.append(_failed(c, error, time.perf_counter() - started))
     val, alive = problem.stretches("val"), list(runners)
-    for k, share in enumerate(RUNGS):
-        for runner in alive:  # linear fits (the lifted form: cheap) run to the end at once
-            runner.advance(share if runner.fit.nonlinear else 1.0, val)
-        alive = [r for r in alive if r.error is None and r.fit.done < r.fit.total]
-        if k + 1 == len(RUNGS):
-            break
-        racing = sorted(alive, key=lambda r: r.score)[: max(3 - k, math.ceil(len(alive) / 2))]
-        if k > 0:  # after half its steps, worse than the base model and not improving: it will not win
-            racing = [r for r in racing if r.score < base_score or r.score < r.previous]
-        alive = racing
+    count = min(problem.workers, len(runners)) if can_fork() else 1
+    with Workers(runners, count, val) if count > 1 else nullcontext() as workers:
+        for k, share in enumerate(RUNGS):
+            # linear fits (the lifted form: cheap) run to the end at once
+            shares = {i: share if r.fit.nonlinear else 1.0 for i, r in enumerate(runners) if r in alive}
+            # the offsets and structural candidates: in this process, while the workers fit
+            jobs = [partial(_append, findings, evaluate, c, problem, windows, base_score, refine)
+                    for c in (others if k == 0 else ())]
+            if workers is not None:
+                workers.run(shares, jobs)
+            else:
+                for i, s in shares.items():
+                    runners[i].advance(s, val)
+                for job in jobs:
+                    job()
+            alive = _next_rung(alive, k, base_score)
+            if not alive:
+                break
     for runner in runners:
         if runner.error is not None:
             findings.append(_failed(runner.fit.candidate, runner.error, runner.seconds))
             continue
-        finding = _finding(runner.fit.candidate, problem, runner.fit.values(), runner.score, base_score,
-                           runner.seconds)
+        values = runner.values if runner.values is not None else runner.fit.values()
+        finding = _finding(runner.fit.candidate, problem, values, runner.score, base_score, runner.seconds)
         finding.steps = (runner.fit.done, runner.fit.total)
         findings.append(finding)
     return sorted(findings, key=lambda f: f.score)
+
+
+def _append(findings: list[Finding], evaluate_one: Callable[..., Finding], *args) -> None:
+    findings.append(evaluate_one(*args))
+
+
+def _next_rung(alive: list[_Runner], k: int, base_score: float) -> list[_Runner]:
+    """The runners that go on after rung ``k`` (successive halving, see :func:`evaluate_round`)."""
+    alive = [r for r in alive if r.error is None and r.fit.done < r.fit.total]
+    if k + 1 == len(RUNGS):
+        return []
+    racing = sorted(alive, key=lambda r: r.score)[: max(3 - k, math.ceil(len(alive) / 2))]
+    if k > 0:  # after half its steps, worse than the base model and not improving: it will not win
+        racing = [r for r in racing if r.score < base_score or r.score < r.previous]
+    return racing
 
 
 def _scheduling_note(candidate: Candidate, problem: Problem) -> str:
