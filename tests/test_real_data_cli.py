@@ -95,8 +95,10 @@ def test_diagnosis_of_silverbox_names_the_stiffening_spring(tmp_path: Path) -> N
     diagnosis = json.loads((tmp_path / "diagnosis.json").read_text())
     assert "stiffening_spring" in diagnosis["causes"], diagnosis["causes"]
     spring = next(f for f in diagnosis["named"] if f["cause"] == "stiffening_spring")
-    assert 1.0 < spring["values"]["hardening"] < 3.0  # [1/V²]; 1.85-1.96 in the runs of the README
+    assert 1.0 < spring["values"]["hardening"] < 5.0  # [1/V²]; 3.29 (Levenberg-Marquardt; 1.85 with Adam)
     assert diagnosis["score"]["extended"] < 0.5 * diagnosis["score"]["nominal"]
+    # the validation RMS with the named causes: 2.78 mV (the nominal 6.83 mV; 3.64 mV with Adam fits)
+    assert diagnosis["metrics"]["extended"]["y"]["rmse"] < 3.2e-3
 
 
 @pytest.mark.slow

@@ -35,6 +35,10 @@ from hypa.physics import SchedulingError, UnstablePhysicsError
 
 REFINE_LR = 0.2  # the learning rate of the earlier causes' knobs, relative to the candidate's own
 ALTERNATIVE = 0.95  # a candidate explaining this share of the named one's gain is reported beside it
+LM_ITERATIONS = 8  # Levenberg-Marquardt steps of a nonlinear fit (the knobs are few: 1 to 7)
+LM_WINDOWS_PER_BATCH = 2  # its fixed windows: this many batches' worth (256 by default)
+LM_PROBE = 1e-5  # the finite-difference step on a raw knob (a relative 1e-5 for positive parameters)
+LM_DAMPING = 1e-2  # the starting damping (relative to the normal matrix's diagonal)
 OFFSET_Z = 5.0  # an offset below min_gain is still named this many standard errors away from zero ...
 OFFSET_GAIN = 0.01  # ... when it lowers the validation error by at least this share (a small sensor bias)
 
@@ -47,7 +51,7 @@ class Problem:
     physical_values: Mapping[str, float]
     hold: str = "foh"
     horizon: int = 100
-    steps: int = 60  # gradient steps per candidate fit (a third for nonlinear physics, simulated step by step)
+    steps: int = 60  # Adam steps per linear candidate fit (nonlinear physics: LM_ITERATIONS Levenberg-Marquardt steps)
     batch: int = 128  # training windows per step
     lr: float = 0.05  # on the raw (relative) parameters: about 5 % of a value per step
     seed: int = 0
@@ -191,11 +195,16 @@ class Stretches:
 
 
 class GradientFit:
-    """A candidate's physical knobs being fitted on the training windows (the training loss,
-    Adam), together with ``refine``, the knobs of the causes named before it (the causes are
-    fitted jointly: a rear-steering ratio fitted on linear tires moves once saturation joins
-    it). Resumable: the search advances only the promising fits to the full ``problem.steps``
-    (a third for nonlinear physics, simulated step by step)."""
+    """A candidate's physical knobs being fitted on the training windows (the training loss),
+    together with ``refine``, the knobs of the causes named before it (the causes are fitted
+    jointly: a rear-steering ratio fitted on linear tires moves once saturation joins it).
+    Resumable: the search advances only the promising fits to their full number of steps.
+
+    Linear physics (the lifted form, one graph node per window) takes ``problem.steps`` Adam
+    steps on random batches. Nonlinear physics is simulated step by step, and there the
+    backward pass through the step loop costs about eight times the forward run: such a fit
+    takes ``LM_ITERATIONS`` Levenberg-Marquardt steps on a fixed set of windows instead, its
+    Jacobian from finite differences of forward runs (one per knob, no autograd; a few knobs)."""
 
     def __init__(self, candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor],
                  refine: Sequence[str] = ()) -> None:
@@ -211,31 +220,64 @@ class GradientFit:
         groups = [{"params": [p for p in params if id(p) not in settled], "lr": problem.lr},
                   {"params": [p for p in params if id(p) in settled], "lr": REFINE_LR * problem.lr}]
         self.optimizer = torch.optim.Adam([g for g in groups if g["params"]])
-        self.base_lr = [g["lr"] for g in self.optimizer.param_groups]
         self.generator = torch.Generator().manual_seed(problem.seed)
         self.nonlinear = nonlinear = any(getattr(getattr(b, "model", None), "is_nonlinear", False)
                                          for b in self.model.blocks.values())
-        self.total, self.done = problem.steps // 2 if nonlinear else problem.steps, 0
-        # nonlinear physics (simulated step by step, 3x slower per step) gets a third of the
-        # steps: they start twice as long and shrink to a tenth (cosine), so the fit still settles
-        self.boost = 2.0 if nonlinear else 1.0
-        self.batch = problem.batch
+        self.total, self.done = LM_ITERATIONS if nonlinear else problem.steps, 0
+        self.batch, self.damping = problem.batch, LM_DAMPING
+        if nonlinear:  # Levenberg-Marquardt: a fixed set of windows, in double precision (finite differences)
+            count = windows["u"].shape[0]
+            index = torch.randperm(count, generator=self.generator)[: LM_WINDOWS_PER_BATCH * problem.batch]
+            self.fixed = {k: v[index].double() for k, v in windows.items()}
+            self.knobs = params
 
     def advance(self, share: float) -> None:
         """Go on until ``share`` of the total steps are done."""
         first, count, w = self.problem.dm.past + 1, self.windows["u"].shape[0], self.windows
         while self.done < math.ceil(share * self.total):
-            index = torch.randperm(count, generator=self.generator)[: self.batch]
-            u, y = w["u"][index], w["y"][index]
-            loss = torch.mean((self.model(u, y[:, :first], w["s"][index] if "s" in w else None) - y[:, first:]) ** 2)
-            self.optimizer.zero_grad()
-            loss.backward()
-            if self.boost != 1.0:
-                factor = self.boost * (0.1 + 0.45 * (1.0 + math.cos(math.pi * self.done / self.total)))
-                for group, lr in zip(self.optimizer.param_groups, self.base_lr):
-                    group["lr"] = lr * factor
-            self.optimizer.step()
+            if self.nonlinear:
+                self._least_squares_step()
+            else:
+                index = torch.randperm(count, generator=self.generator)[: self.batch]
+                u, y = w["u"][index], w["y"][index]
+                loss = torch.mean((self.model(u, y[:, :first], w["s"][index] if "s" in w else None)
+                                   - y[:, first:]) ** 2)
+                self.optimizer.zero_grad()
+                loss.backward()
+                self.optimizer.step()
             self.done += 1
+
+    @torch.no_grad()
+    def _residual(self) -> torch.Tensor:
+        w, first = self.fixed, self.problem.dm.past + 1
+        return (self.model(w["u"], w["y"][:, :first], w.get("s")) - w["y"][:, first:]).reshape(-1)
+
+    @torch.no_grad()
+    def _least_squares_step(self) -> None:
+        """One Levenberg-Marquardt step on the raw knobs (relative for positive parameters, so one
+        finite-difference step fits all); the damping grows until the step lowers the error."""
+        r0 = self._residual()
+        cost = float(r0 @ r0)
+        if not math.isfinite(cost):
+            raise ValueError("the model's error is not finite at the start of a step")
+        columns = []
+        for knob in self.knobs:
+            knob += LM_PROBE
+            columns.append((self._residual() - r0) / LM_PROBE)
+            knob -= LM_PROBE
+        jacobian = torch.stack(columns, 1)
+        normal, gradient = jacobian.T @ jacobian, jacobian.T @ r0
+        while self.damping < 1e6:
+            step = torch.linalg.solve(normal + self.damping * torch.diag(torch.diagonal(normal) + 1e-12), -gradient)
+            for knob, delta in zip(self.knobs, step):
+                knob += delta
+            trial = self._residual()
+            if bool(torch.isfinite(trial).all()) and float(trial @ trial) < cost:
+                self.damping = max(self.damping / 3.0, 1e-6)
+                return
+            for knob, delta in zip(self.knobs, step):
+                knob -= delta
+            self.damping *= 4.0
 
     def values(self) -> dict[str, float]:
         return {k: float(self.model.parameters_.value(k).detach()) for k in (*self.candidate.knobs, *self.refine)}
