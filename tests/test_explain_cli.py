@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from conftest import SHORT_OVERRIDES
 
 from hypa.errors import UserError
@@ -48,7 +49,9 @@ def train(folder: Path, cache: Path, *overrides: str) -> Path:
 def explained(tmp_path_factory, hypa_cache: Path) -> tuple[subprocess.CompletedProcess, Path]:
     tmp = tmp_path_factory.mktemp("explain")
     run = train(tmp / "v1", hypa_cache, "model=v1", "ann=lstm", *TINY)
-    result = command("hypa.explain", f"run={run}", f"hydra.run.dir={tmp / 'explain'}", cache=hypa_cache)
+    baseline = train(tmp / "physical", hypa_cache, "model=physical", *TINY)
+    result = command("hypa.explain", f"run={run}", f"baseline={baseline}", f"hydra.run.dir={tmp / 'explain'}",
+                     cache=hypa_cache)
     return result, tmp / "explain"
 
 
@@ -94,6 +97,32 @@ def test_compares_learned_and_explained_with_the_measured_rear_wheel_angle(expla
     # the measured angle is the test bench's (a few tenths of a degree), not the network's
     assert 1e-4 < comparison["measured_rms"]["rms"] < 0.06
     assert "Against the measured rear_wheel_angle" in (out / "explanation.md").read_text()
+
+
+def test_the_network_is_replaced_by_its_explanation_and_the_change_measured(explained) -> None:
+    """The form (or the best linear one) written as physics blocks in a model YAML that parses,
+    and the validation error of V1 with it, beside V1's and the physical baseline's."""
+    from hypa.models.spec import parse_model_spec
+
+    result, out = explained
+    block = json.loads((out / "explanation.json").read_text())["blocks"][0]
+    replacement = block["replacement"]
+    forms = {f["form"]["name"]: f for f in block["explanation"]["forms"]}
+    assert replacement["form"] in RUNGS[:4] and not forms[replacement["form"]]["form"]["cubic"]
+    config = Path(replacement["config"])
+    assert config == out / "v1_explained.yaml"
+    spec = parse_model_spec(yaml.safe_load(config.read_text().split("\n", 1)[1]))
+    kinds = {b.name: (b.kind, b.system) for b in spec.blocks}
+    assert kinds["rear_steering"][0] == "physics" and all(k != "ann" for k, _ in kinds.values())
+    assert spec.name == "v1_explained" and spec.stages == ()
+    for model in ("learned", "explained", "baseline"):
+        for output in ("yaw_rate", "side_slip"):
+            assert replacement[model][output]["rms"] > 0 and np.isfinite(replacement[model][output]["r2"])
+    assert replacement["baseline"]["label"].startswith("physical")
+    assert replacement["units"] == {"yaw_rate": "rad/s", "side_slip": "rad"}
+    assert "replaced by its " in result.stdout and "(baseline " in result.stdout
+    report = (out / "explanation.md").read_text()
+    assert "| yaw_rate | " in report and "(baseline) RMS" in report and " rad/s |" in report
 
 
 def bad(result: subprocess.CompletedProcess) -> str:

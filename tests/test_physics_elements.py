@@ -13,7 +13,7 @@ import torch
 from scipy.signal import lsim
 
 from hypa.physics import LTIBlock, ParameterSpec, PhysicalParameters, Scaling
-from hypa.physics.elements import DeadTime, FirstOrderLag, LeadLag
+from hypa.physics.elements import DeadTime, FirstOrderLag, LeadLag, SecondOrder, StaticGain
 
 DT = 1 / 32
 
@@ -129,3 +129,34 @@ def test_lead_lag_matches_its_transfer_function(gain: float, transient: float) -
     assert response[-1] == pytest.approx(gain, abs=1e-3)  # 2.5 s = 8 τ_t: settled at the gain
     if transient > gain > 0:
         assert response[2] < 0  # counter-phase first
+
+
+@pytest.mark.parametrize(("gain", "zero_s", "frequency_hz", "damping"), [(0.5, 0.1, 2.0, 0.4), (-0.02, -0.3, 0.8, 1.3)])
+def test_second_order_matches_its_transfer_function(gain: float, zero_s: float, frequency_hz: float,
+                                                    damping: float) -> None:
+    """SecondOrder (what hypa.explain writes for a second-order form) against scipy's lsim of
+    k (1 + T s) / (1 + 2ζ s/ω + s²/ω²) from rest, and its steady start at the gain."""
+    model = SecondOrder("form")
+    values = {"form/gain": gain, "form/zero_s": zero_s, "form/natural_frequency_hz": frequency_hz,
+              "form/damping": damping}
+    params = PhysicalParameters([ParameterSpec(n, v, "-", positive=v > 0) for n, v in values.items()])
+    block = LTIBlock(model, params, DT, horizon=64, hold="foh").double()
+    u = np.cumsum(np.random.default_rng(3).normal(size=201)) * 0.05
+    y = block(torch.zeros(1, 2, dtype=torch.float64), torch.tensor(u[None, : 200 + block.n_taps - 1, None]))
+    w = 2 * np.pi * frequency_hz
+    _, ref, _ = lsim(([gain * zero_s, gain], [1 / w**2, 2 * damping / w, 1.0]), u, np.arange(201) * DT, interp=True)
+    np.testing.assert_allclose(y[0, :, 0].numpy(), ref[1:201], rtol=1e-8, atol=1e-10)
+    level = torch.full((1, 1), 2.0, dtype=torch.float64)
+    x0 = block.steady_state(level)
+    steady = block(x0, level.expand(1, 50 + block.n_taps - 1)[..., None])[0, :, 0].numpy()
+    np.testing.assert_allclose(steady, 2.0 * gain, rtol=1e-9)
+
+
+def test_static_gain_has_no_states() -> None:
+    model = StaticGain("form")
+    block = LTIBlock(model, PhysicalParameters([ParameterSpec("form/gain", -0.3, "-", positive=False)]), DT,
+                     horizon=8, hold="foh").double()
+    u = torch.linspace(-1.0, 1.0, 8 + block.n_taps - 1, dtype=torch.float64)[None, :, None]
+    assert model.n_states == 0
+    y = block(torch.zeros(1, 0, dtype=torch.float64), u)[0, :, 0].numpy()
+    np.testing.assert_allclose(y, -0.3 * u[0, -len(y):, 0].numpy(), rtol=1e-12)

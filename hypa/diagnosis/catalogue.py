@@ -159,7 +159,7 @@ def apply_patch(spec: ModelSpec, patch: Mapping[str, Any], dt: float, where: str
     Parameter values may be expressions of ``dt`` [s] and of ``variables`` (``peak``: the
     largest |value| of the entry's channel in the training data)."""
     variables = {"dt": dt, **(variables or {})}
-    from hypa.diagnosis.system import spec_config
+    from hypa.models.spec import spec_config
 
     config = spec_config(spec)
     rewire = patch.get("rewire") or {}

@@ -17,7 +17,6 @@ import shlex
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import yaml
@@ -28,32 +27,9 @@ from hypa.diagnosis.engine import Finding, Problem, Search, name_causes
 from hypa.diagnosis.structure import OutputStructure, analyze_output
 from hypa.diagnosis.trained import TrainedExtension
 from hypa.evaluation.runs import Prediction, free_run
-from hypa.models.spec import ModelSpec
+from hypa.models.spec import ModelSpec, spec_config
 
 DIAGNOSED = "diagnosed_"  # the prefix of what the catalogue's edits add (blocks, signals)
-
-
-def spec_config(spec: ModelSpec, name: str | None = None) -> dict[str, Any]:
-    """A :class:`ModelSpec` as the mapping of a ``conf/model/*.yaml`` file (only keys that are set)."""
-    blocks = {}
-    for b in spec.blocks:
-        entry: dict[str, Any] = {"kind": b.kind, "inputs": list(b.inputs), "outputs": list(b.outputs)}
-        for key in ("system", "trainable", "residual_of", "scale_as", "initial_state", "parameters", "scheduling",
-                    "observe"):
-            value = getattr(b, key)
-            if value:
-                entry[key] = dict(value) if isinstance(value, Mapping) else (
-                    list(value) if isinstance(value, tuple) else value)
-        blocks[b.name] = entry
-    out: dict[str, Any] = {"name": name or spec.name, "blocks": blocks, "outputs": list(spec.outputs)}
-    if spec.hold:
-        out["hold"] = spec.hold
-    if spec.parameters:
-        out["parameters"] = {k: float(v) for k, v in spec.parameters.items()}
-    if spec.sensor_offsets:
-        out["sensor_offsets"] = {k: float(v) for k, v in spec.sensor_offsets.items()}
-    out["stages"] = [{"name": s.name, "train": list(s.train), "bypass": list(s.bypass)} for s in spec.stages]
-    return out
 
 
 def with_correction(spec: ModelSpec, inputs: Sequence[str]) -> ModelSpec:

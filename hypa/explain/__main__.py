@@ -2,6 +2,7 @@
 
     python -m hypa.explain run=outputs/train/v1-lstm/2026-11-22_10-00-00                    # every ANN block
     python -m hypa.explain run=outputs/train/v1-lstm/2026-11-22_10-00-00 block=rear_steering
+    python -m hypa.explain run=RUN baseline=outputs/train/physical/...   # the replacement beside a baseline
 
 Writes ``explanation.md``, ``explanation.json`` and the figures into the Hydra run folder
 (``outputs/explain/<time>/``; :mod:`hypa.explain.run` holds what it computes).
@@ -26,7 +27,7 @@ def main(cfg: DictConfig) -> None:
     from hypa.errors import setting
     from hypa.evaluation.evaluation import run_datamodule
     from hypa.evaluation.runs import load_run
-    from hypa.explain.run import Settings, explain_run, select_blocks
+    from hypa.explain.run import Settings, explain_run, replacement_line, select_blocks
 
     path = Path(setting(cfg, "run", str)).expanduser()
     block = setting(cfg, "block", str, optional=True)
@@ -35,13 +36,21 @@ def main(cfg: DictConfig) -> None:
                         penalty=setting(cfg, "penalty", float), margin=setting(cfg, "margin", float),
                         max_lag=setting(cfg, "max_lag", float), max_delay=setting(cfg, "max_delay", float),
                         plot=bool(cfg.plot))
-    run = load_run(path if path.is_absolute() else Path(get_original_cwd()) / path)
+    def here(p: Path) -> Path:
+        return p if p.is_absolute() else Path(get_original_cwd()) / p
+
+    run = load_run(here(path))
+    baseline = setting(cfg, "baseline", str, optional=True)
+    baseline = load_run(here(Path(baseline).expanduser())) if baseline else None
     select_blocks(run.module.model.spec, block)  # a wrong block name fails before the data are read
     out = Path(HydraConfig.get().runtime.output_dir)
     dm = run_datamodule(run)
-    results = explain_run(run, dm, out, block, settings, progress=lambda text: print(text, flush=True))
+    results = explain_run(run, dm, out, block, settings, progress=lambda text: print(text, flush=True),
+                          baseline=baseline)
     for result in results:
         print(result.summary(), flush=True)
+        if result.replacement:
+            print("  " + replacement_line(result.replacement), flush=True)
     print(f"report: {out / 'explanation.md'}", flush=True)
 
 

@@ -82,6 +82,7 @@ class BlockExplanation:
     comparison: dict[str, dict[str, float]] | None  # PAIRS -> corr, rms, share (validation)
     figures: dict[str, Path] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    replacement: dict | None = None  # the block replaced by its form: config, validation errors (hypa.explain.replace)
 
     def summary(self) -> str:
         """One line: the block, the chosen form, and the comparison with the measurement."""
@@ -228,9 +229,11 @@ def explain_problem(problem: Problem, train: Sequence[Prediction], val: Sequence
 
 
 def explain_run(run: TrainedRun, dm: HypaDataModule, out: Path, block: str | None = None,
-                settings: Settings = Settings(),
-                progress: Callable[[str], None] = lambda text: None) -> list[BlockExplanation]:
-    """Explain the ANN blocks of a run (or the one named ``block``); writes the report, the json and the figures."""
+                settings: Settings = Settings(), progress: Callable[[str], None] = lambda text: None,
+                baseline: TrainedRun | None = None) -> list[BlockExplanation]:
+    """Explain the ANN blocks of a run (or the one named ``block``); writes the report, the json and
+    the figures. Each network is also replaced by its explanation and the validation error of that
+    model compared with the run's (and with ``baseline``'s, another run on the same data)."""
     model = run.module.model
     spec = model.spec
     chosen = problems(spec, dm, select_blocks(spec, block), settings.extra)
@@ -248,6 +251,7 @@ def explain_run(run: TrainedRun, dm: HypaDataModule, out: Path, block: str | Non
     for problem in chosen:
         progress(f"fitting the ladder to {problem.block} ({', '.join(problem.inputs)} -> {problem.output})")
         result, rec_train, rec_val = explain_problem(problem, train, val, dm.dt, settings)
+        replace_block(result, run, dm, val, out, progress, baseline)
         if settings.plot:
             from hypa.explain.figures import write_figures
 
@@ -258,6 +262,39 @@ def explain_run(run: TrainedRun, dm: HypaDataModule, out: Path, block: str | Non
     write_report(run, results, out / "explanation.md")
     return results
 
+
+def replace_block(result: BlockExplanation, run: TrainedRun, dm: HypaDataModule, val: Sequence[Prediction],
+                  out: Path, progress: Callable[[str], None] = lambda text: None,
+                  baseline: TrainedRun | None = None) -> None:
+    """The network replaced by its explanation (:mod:`hypa.explain.replace`): the model YAML and
+    the validation errors beside the trained model's, into ``result.replacement`` (or a note why not)."""
+    from hypa.explain.replace import replace_and_score, writable_form
+
+    p, e = result.problem, result.explanation
+    block = next(b for b in run.module.model.spec.blocks if b.name == p.block)
+    fitted, note = writable_form(e.forms, e.chosen, block, p.inputs, p.corrects)
+    if note:
+        result.notes.append(("not replaced: " if fitted is None else "") + note)
+    if fitted is None:
+        return
+    progress(f"replacing {p.block} by its {fitted.form.name} and free-running the validation records")
+    result.replacement = replace_and_score(run, dm, p.block, fitted, val, out)
+    if baseline is not None:
+        from hypa.explain.replace import validation_errors
+
+        runs = [free_run(baseline.module.model, dm, record) for record in dm.records(SCORE_SPLIT)]
+        result.replacement["baseline"] = {"run": str(baseline.folder), "label": baseline.label,
+                                          **validation_errors(runs, dm.output_names)}
+
+
+def replacement_line(rp: dict) -> str:
+    """``replaced by its lag: yaw_rate RMS 0.0104 -> 0.0116 rad/s, ...`` (and the baseline's)."""
+    parts = []
+    for name, learned in rp["learned"].items():
+        unit, base = rp["units"][name], rp.get("baseline", {}).get(name)
+        parts.append(f"{name} RMS {_num(learned['rms'])} -> {_num(rp['explained'][name]['rms'])} {unit}"
+                     + (f" (baseline {_num(base['rms'])})" if base else ""))
+    return f"replaced by its {rp['form']} (validation, trained -> explained): " + "; ".join(parts)
 
 def _signal_names(spec: ModelSpec) -> set[str]:
     return {n for b in spec.blocks for n in (*b.inputs, *b.outputs)}
@@ -276,6 +313,7 @@ def to_dict(run: TrainedRun, results: Sequence[BlockExplanation]) -> dict:
                     "corrects": list(r.problem.corrects) if r.problem.corrects else None,
                     "description": r.explanation.describe(), "explanation": r.explanation.to_dict(),
                     "comparison": r.comparison, "figures": {k: v.name for k, v in r.figures.items()},
+                    "replacement": r.replacement,
                     "notes": r.notes} for r in results]})
 
 
@@ -352,6 +390,19 @@ def _report_block(r: BlockExplanation) -> list[str]:
     else:
         lines += ["", f"The records hold no measurement of {p.output}: no comparison with the truth."
                   if not p.corrects else "A correction has no measurement to compare with."]
+    if r.replacement:
+        rp = r.replacement
+        lines += ["", f"Replaced by its {rp['form']} (`{rp['config']}`: physics blocks with the fitted values; "
+                  "the rest of the model as trained), free-running over the validation records:", "",
+                  "| output | trained model RMS | R² | with the explanation RMS | R² |"
+                  + (f" {rp['baseline']['label']} (baseline) RMS | R² |" if "baseline" in rp else ""),
+                  "|---|---:|---:|---:|---:|" + ("---:|---:|" if "baseline" in rp else "")]
+        for name, learned in rp["learned"].items():
+            explained, unit = rp["explained"][name], rp["units"][name]
+            base = rp.get("baseline", {}).get(name)
+            lines.append(f"| {name} | {_num(learned['rms'])} {unit} | {learned['r2']:.4f} | "
+                         f"{_num(explained['rms'])} {unit} | {explained['r2']:.4f} |"
+                         + (f" {_num(base['rms'])} {unit} | {base['r2']:.4f} |" if base else ""))
     captions = {"time": "learned vs explained over time (first validation record)",
                 "frequency": "frequency response: the learned block (H1) and the chosen form",
                 "static": f"static curve: {p.output} against {p.inputs[0]}"}

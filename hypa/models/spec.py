@@ -237,3 +237,26 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
             if not spec.block(block_name).residual_of:
                 raise ModelSpecError(f"stage {stage.name!r} bypasses {block_name!r}, which has no residual_of")
     return spec
+
+
+def spec_config(spec: ModelSpec, name: str | None = None) -> dict[str, Any]:
+    """A :class:`ModelSpec` as the mapping of a ``conf/model/*.yaml`` file (only keys that are set)."""
+    blocks = {}
+    for b in spec.blocks:
+        entry: dict[str, Any] = {"kind": b.kind, "inputs": list(b.inputs), "outputs": list(b.outputs)}
+        for key in ("system", "trainable", "residual_of", "scale_as", "initial_state", "parameters", "scheduling",
+                    "observe"):
+            value = getattr(b, key)
+            if value:
+                entry[key] = dict(value) if isinstance(value, Mapping) else (
+                    list(value) if isinstance(value, tuple) else value)
+        blocks[b.name] = entry
+    out: dict[str, Any] = {"name": name or spec.name, "blocks": blocks, "outputs": list(spec.outputs)}
+    if spec.hold:
+        out["hold"] = spec.hold
+    if spec.parameters:
+        out["parameters"] = {k: float(v) for k, v in spec.parameters.items()}
+    if spec.sensor_offsets:
+        out["sensor_offsets"] = {k: float(v) for k, v in spec.sensor_offsets.items()}
+    out["stages"] = [{"name": s.name, "train": list(s.train), "bypass": list(s.bypass)} for s in spec.stages]
+    return out

@@ -104,6 +104,48 @@ class LeadLag(LTIModel):
         return StateSpace(a, b, c, tau.new_zeros(1, 1))
 
 
+class StaticGain(LTIModel):
+    """y = k u: a gain ``gain`` [-] (signed), no states (what ``hypa.explain`` writes for a
+    block it explains as a static gain)."""
+
+    state_names: tuple[str, ...] = ()
+    input_names = ("input",)
+    output_names = ("output",)
+
+    def __init__(self, prefix: str = "") -> None:
+        self.parameters = (ParameterSpec(local_name(prefix, "gain"), 1.0, "-", positive=False),)
+
+    def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
+        gain = p[self.parameter_names[0]]
+        return StateSpace(gain.new_zeros(0, 0), gain.new_zeros(0, 1), gain.new_zeros(1, 0), gain.reshape(1, 1))
+
+
+class SecondOrder(LTIModel):
+    """y = k (1 + T s) / (1 + 2ζ s/ω + s²/ω²) u, ω = 2π ``natural_frequency_hz``: a gain ``gain``
+    [-] with a zero ``zero_s`` T [s] (both signed) through two poles of damping ``damping`` ζ [-]
+    (what ``hypa.explain`` writes for a block it explains as a second-order form). Two states,
+    the low-passed input and its rate; started ``steady`` it needs no measured state."""
+
+    state_names = ("filtered", "filtered_rate")
+    input_names = ("input",)
+    output_names = ("output",)
+
+    def __init__(self, prefix: str = "") -> None:
+        self.parameters = (ParameterSpec(local_name(prefix, "gain"), 1.0, "-", positive=False),
+                           ParameterSpec(local_name(prefix, "zero_s"), 0.0, "s", positive=False),
+                           ParameterSpec(local_name(prefix, "natural_frequency_hz"), 1.0, "Hz"),
+                           ParameterSpec(local_name(prefix, "damping"), 0.7, "-"))
+
+    def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
+        gain, zero_s, frequency, damping = (p[n] for n in self.parameter_names)
+        w = 2.0 * math.pi * frequency
+        nil, one = w.new_zeros(()), w.new_ones(())
+        a = torch.stack([torch.stack([nil, one]), torch.stack([-w * w, -2.0 * damping * w])])
+        b = torch.stack([nil, w * w]).reshape(2, 1)
+        c = torch.stack([gain, gain * zero_s]).reshape(1, 2)
+        return StateSpace(a, b, c, w.new_zeros(1, 1))
+
+
 class DeadTime(nn.Module):
     """y(t) = u(t - delay_s) on the sample grid: dead time between a command and its effect.
 

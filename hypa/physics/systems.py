@@ -14,7 +14,7 @@ import inspect
 from collections.abc import Callable, Iterator, Mapping
 
 from hypa.physics.contract import SystemContractError, check_system
-from hypa.physics.elements import FirstOrderLag, GainLag, LeadLag
+from hypa.physics.elements import FirstOrderLag, GainLag, LeadLag, SecondOrder, StaticGain
 from hypa.physics.friction import MassWithCoulombFriction, MassWithFriction
 from hypa.physics.lti import LTIModel
 from hypa.physics.mass_spring_damper import DuffingOscillator, MassSpringDamper
@@ -57,6 +57,8 @@ PHYSICS_SYSTEMS = SystemRegistry({
     "first_order_lag": FirstOrderLag,  # τ ẏ = u - y, parameter <block>/tau_s
     "gain_lag": GainLag,  # τ ẏ = k u - y, parameters <block>/gain, <block>/tau_s
     "lead_lag": LeadLag,  # a gain with a transient part through a lag: <block>/gain, transient, transient_tau_s, tau_s
+    "gain": StaticGain,  # y = k u, parameter <block>/gain
+    "second_order": SecondOrder,  # k (1 + T s) / (1 + 2ζ s/ω + s²/ω²): <block>/gain, zero_s, natural_frequency_hz, damping
     "mass_spring_damper": lambda block: MassSpringDamper(),  # force -> position (Silverbox)
     "duffing_oscillator": lambda block: DuffingOscillator(),  # the same with a cubic spring (nonlinear)
     "mass_with_friction": lambda block: MassWithFriction(),  # force -> position (EMPS)
