@@ -40,11 +40,12 @@ def test_reproduce_notebook_runs_on_a_tiny_reproduction(tmp_path: Path, hypa_cac
 
 
 def test_diagnose_notebook_names_the_rear_steering_and_the_relaxation(tmp_path: Path, monkeypatch) -> None:
-    """02_diagnose on the default test bench shortened to 40 s records, two rounds: the rear-wheel
-    steering (unmodeled_input) and the tire relaxation are named, the gain and what remains shown."""
+    """02_diagnose on the default test bench shortened to 40 s records, three rounds: the rear-wheel
+    steering (unmodeled_input), the tire saturation and the tire relaxation are named, the gain and
+    what remains shown."""
     monkeypatch.setenv("HYPA_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.setenv("HYPA_DIAGNOSE_SECONDS", "40")
-    monkeypatch.setenv("HYPA_DIAGNOSE_MAX_CAUSES", "2")
+    monkeypatch.setenv("HYPA_DIAGNOSE_MAX_CAUSES", "3")
     notebook = nbformat.read(ROOT / "notebooks" / "02_diagnose.ipynb", as_version=4)
     NotebookClient(notebook, timeout=300, kernel_name="python3",
                    resources={"metadata": {"path": str(ROOT / "notebooks")}}).execute()
@@ -52,8 +53,8 @@ def test_diagnose_notebook_names_the_rear_steering_and_the_relaxation(tmp_path: 
     assert not [o for o in outputs if o.get("output_type") == "error"]
     text = "".join(o.get("text", "") for o in outputs if o.get("output_type") == "stream")
     named = next(line for line in text.splitlines() if line.startswith("named causes:"))
-    assert "unmodeled_input" in named and "tire_relaxation" in named, named
+    assert named == "named causes: unmodeled_input, tire_saturation, tire_relaxation", named
     assert "rear_wheel_angle: correlation" in text and "of its variance left" in text
     assert sum("image/png" in o.get("data", {}) for o in outputs) >= 2
     markdown = "".join(o.get("data", {}).get("text/markdown", "") for o in outputs)
-    assert "MSE change" in markdown and "| 2 | **tire_relaxation**" in markdown
+    assert "MSE change" in markdown and "| 3 | **tire_relaxation**" in markdown
