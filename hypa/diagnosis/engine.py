@@ -3,8 +3,9 @@
 The nominal model is a :class:`~hypa.models.ModelSpec` (the physics a user trusts, frozen). Each
 candidate cause (:mod:`hypa.diagnosis.edits`) is an edit of it; the edited model is built as a
 :class:`~hypa.models.ComposedModel` (the class ``hypa.train`` trains), its knobs are fitted on
-the training windows (gradient descent on the physical parameters, or least squares for an
-offset), and it is scored free-running over the validation records. A greedy search names the
+the training windows (:mod:`hypa.diagnosis.fitting`: gradient fits of the physical parameters,
+least squares for an offset; on worker processes, :mod:`hypa.diagnosis.workers`), and it is
+scored free-running over the validation records (:mod:`hypa.diagnosis.problem`). A greedy search names the
 candidate with the largest gain, writes its fitted values into the model and searches again
 from there, until no candidate improves the validation error by ``min_gain``. What remains is
 then tested for structure (:func:`residual_structure`): where significant error is left that
@@ -18,62 +19,24 @@ import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from contextlib import nullcontext
-from functools import partial
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 import torch
 
-from hypa.data import HypaDataModule, Record
 from hypa.diagnosis.catalogue import Entry, catalogue_candidates, load_catalogue
-from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, frozen, set_free
-from hypa.diagnosis.workers import Workers, can_fork, default_workers
-from hypa.models import ComposedModel
+from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, frozen
+from hypa.diagnosis.fitting import GradientFit, fit_affine, fit_gradient, fit_offsets
+from hypa.diagnosis.problem import Problem, Stretches, format_value, training_windows
+from hypa.diagnosis.workers import Workers, can_fork
 from hypa.models.spec import ModelSpec, ModelSpecError
 from hypa.physics import SchedulingError, UnstablePhysicsError
 
 
-REFINE_LR = 0.2  # the learning rate of the earlier causes' knobs, relative to the candidate's own
 ALTERNATIVE = 0.95  # a candidate explaining this share of the named one's gain is reported beside it
-LM_ITERATIONS = 8  # Levenberg-Marquardt steps of a nonlinear fit (the knobs are few: 1 to 7)
-LM_WINDOWS_PER_BATCH = 2  # its fixed windows: this many batches' worth (256 by default)
-LM_PROBE = 1e-5  # the finite-difference step on a raw knob (a relative 1e-5 for positive parameters)
-LM_DAMPING = 1e-2  # the starting damping (relative to the normal matrix's diagonal)
 OFFSET_Z = 5.0  # an offset below min_gain is still named this many standard errors away from zero ...
 OFFSET_GAIN = 0.01  # ... when it lowers the validation error by at least this share (a small sensor bias)
-
-
-@dataclass(frozen=True)
-class Problem:
-    """The data and the fixed settings every candidate model is built with."""
-
-    dm: HypaDataModule
-    physical_values: Mapping[str, float]
-    hold: str = "foh"
-    horizon: int = 100
-    steps: int = 60  # Adam steps per linear candidate fit (nonlinear physics: LM_ITERATIONS Levenberg-Marquardt steps)
-    batch: int = 128  # training windows per step
-    lr: float = 0.05  # on the raw (relative) parameters: about 5 % of a value per step
-    seed: int = 0
-    stretch_s: float = 20.0  # [s] the free runs that score a candidate restart from the data this often
-    workers: int = field(default_factory=default_workers)  # processes fitting a round's candidates at once
-
-    def stretches(self, split: str) -> Stretches:
-        """The ``split``'s records cut into stretches of ``stretch_s`` (made once, then cached)."""
-        cache = self.__dict__.setdefault("_stretches", {})
-        if split not in cache:
-            cache[split] = Stretches.cut(self.dm, self.dm.records(split), max(1, round(self.stretch_s / self.dm.dt)))
-        return cache[split]
-
-    def scale(self, names: Sequence[str]) -> dict[str, tuple[float, float]]:
-        norm = self.dm.normalization.subset(list(names))
-        return {n: (float(m), float(s)) for n, m, s in zip(names, norm.mean.tolist(), norm.std.tolist())}
-
-    def build(self, spec: ModelSpec) -> ComposedModel:
-        dm = self.dm
-        return ComposedModel(spec, self.physical_values, dm.input_names, dm.output_names, self.scale(dm.input_names),
-                             self.scale(dm.output_names), dm.dt, self.horizon, self.hold,
-                             scheduling_names=dm.scheduling_names, scheduling_scale=self.scale(dm.scheduling_names))
 
 
 @dataclass
@@ -115,223 +78,6 @@ class Finding:
                 "alternatives": self.alternatives, "refined": self.refined,
                 "steps": list(self.steps) if self.steps else None, "z": self.z, "small": self.small,
                 "text": self.describe()}
-
-
-READABLE = {"rad": ("deg", 180.0 / math.pi), "rad/s": ("deg/s", 180.0 / math.pi)}  # SI unit -> (shown, factor)
-
-
-def format_value(value: float, unit: str) -> str:
-    """Rounded to 3 significant digits with its unit (seconds below 1 s as ms, angles in degrees)."""
-    if unit == "s" and abs(value) < 1.0:
-        return f"{value * 1e3:.3g} ms"
-    unit, factor = READABLE.get(unit, (unit, 1.0))
-    return f"{value * factor:.3g} {'' if unit == '-' else unit}".rstrip()
-
-
-def _windows(dm: HypaDataModule) -> dict[str, torch.Tensor]:
-    """Every training window in one batch (u, y and s when the data has scheduling signals)."""
-    dataset = dm.dataset("train")
-    loader = torch.utils.data.DataLoader(dataset, batch_size=len(dataset), shuffle=False)
-    batch = next(iter(loader))
-    return {k: v for k, v in batch.items() if k in ("u", "y", "s")}
-
-
-@dataclass(frozen=True)
-class Stretches:
-    """Records cut into long windows (stretches) that tile them, batched by length: what the
-    search simulates to score a candidate (validation) and to fit an offset (training).
-
-    Each stretch starts like a training window, from its first ``first`` samples (the measured
-    state, or the estimate of an unmeasured one from the past), and predicts the next
-    ``samples``; consecutive stretches predict consecutive samples, the last one of a record
-    ends at its end. A batch is ``{"u", "y", "s"}``: normalized inputs and outputs, SI scheduling.
-    """
-
-    batches: tuple[dict[str, torch.Tensor], ...]
-    first: int
-
-    @classmethod
-    def cut(cls, dm: HypaDataModule, records: Sequence[Record], samples: int) -> Stretches:
-        first, groups = dm.past + 1, {}
-        norm = dm.normalization
-        for record in records:
-            length = min(len(record), first + samples)
-            if length <= first:
-                continue
-            starts = list(range(0, len(record) - length + 1, samples))
-            if starts[-1] != len(record) - length:
-                starts.append(len(record) - length)
-            arrays = {"u": norm.normalize(record.stack(dm.input_names), dm.input_names),
-                      "y": norm.normalize(record.stack(dm.output_names), dm.output_names),
-                      "s": record.stack(dm.scheduling_names)}
-            for start in starts:
-                groups.setdefault(length, []).append({k: a[start : start + length] for k, a in arrays.items()})
-        batches = tuple({k: torch.as_tensor(np.stack([w[k] for w in group]), dtype=torch.float32) for k in group[0]}
-                        for group in groups.values())
-        return cls(batches, first)
-
-    @torch.no_grad()
-    def predict(self, model: ComposedModel) -> list[tuple[torch.Tensor, torch.Tensor]]:
-        """(predicted, measured) normalized outputs (B, L - first, p) per batch, float64."""
-        out = []
-        for b in self.batches:
-            s = b["s"] if b["s"].shape[-1] else None
-            pred = model(b["u"], b["y"][:, : self.first], s)
-            out.append((pred.double(), b["y"][:, self.first :].double()))
-        return out
-
-    def weights(self) -> torch.Tensor:
-        """1 / the variance of each (normalized) output over the predicted samples."""
-        y = torch.cat([b["y"][:, self.first :].reshape(-1, b["y"].shape[-1]) for b in self.batches]).double()
-        return 1.0 / torch.clamp(y.var(0, unbiased=False), min=1e-300)
-
-    def score(self, model: ComposedModel) -> float:
-        """Mean over outputs of the error energy relative to the output's variance (1 - R²)."""
-        pairs = self.predict(model)
-        count = sum(p.shape[0] * p.shape[1] for p, _ in pairs)
-        mse = sum(((p - y) ** 2).sum((0, 1)) for p, y in pairs) / count
-        out = (mse * self.weights()).numpy()
-        return float(np.mean(out)) if np.all(np.isfinite(out)) else math.inf
-
-
-class GradientFit:
-    """A candidate's physical knobs being fitted on the training windows (the training loss),
-    together with ``refine``, the knobs of the causes named before it (the causes are fitted
-    jointly: a rear-steering ratio fitted on linear tires moves once saturation joins it).
-    Resumable: the search advances only the promising fits to their full number of steps.
-
-    Linear physics (the lifted form, one graph node per window) takes ``problem.steps`` Adam
-    steps on random batches. Nonlinear physics is simulated step by step, and there the
-    backward pass through the step loop costs about eight times the forward run: such a fit
-    takes ``LM_ITERATIONS`` Levenberg-Marquardt steps on a fixed set of windows instead, its
-    Jacobian from finite differences of forward runs (one per knob, no autograd; a few knobs)."""
-
-    def __init__(self, candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor],
-                 refine: Sequence[str] = ()) -> None:
-        self.candidate, self.problem, self.windows = candidate, problem, windows
-        self.model = problem.build(set_free(candidate.spec, refine) if refine else candidate.spec)
-        self.refine = [k for k in refine if k in self.model.parameters_.names]
-        params = [p for p in self.model.parameters() if p.requires_grad]
-        if not params:
-            raise ModelSpecError(f"{candidate.key}: nothing to fit")
-        # the earlier causes' knobs start at their optimum: slower steps, so that Adam's first
-        # steps (about lr each, whatever the gradient) do not throw them off it
-        settled = {id(self.model.parameters_.raw[k]) for k in self.refine}
-        groups = [{"params": [p for p in params if id(p) not in settled], "lr": problem.lr},
-                  {"params": [p for p in params if id(p) in settled], "lr": REFINE_LR * problem.lr}]
-        self.optimizer = torch.optim.Adam([g for g in groups if g["params"]])
-        self.generator = torch.Generator().manual_seed(problem.seed)
-        self.nonlinear = nonlinear = any(getattr(getattr(b, "model", None), "is_nonlinear", False)
-                                         for b in self.model.blocks.values())
-        self.total, self.done = LM_ITERATIONS if nonlinear else problem.steps, 0
-        self.batch, self.damping = problem.batch, LM_DAMPING
-        if nonlinear:  # Levenberg-Marquardt: a fixed set of windows, in double precision (finite differences)
-            count = windows["u"].shape[0]
-            index = torch.randperm(count, generator=self.generator)[: LM_WINDOWS_PER_BATCH * problem.batch]
-            self.fixed = {k: v[index].double() for k, v in windows.items()}
-            self.knobs = params
-
-    def advance(self, share: float) -> None:
-        """Go on until ``share`` of the total steps are done."""
-        first, count, w = self.problem.dm.past + 1, self.windows["u"].shape[0], self.windows
-        while self.done < math.ceil(share * self.total):
-            if self.nonlinear:
-                self._least_squares_step()
-            else:
-                index = torch.randperm(count, generator=self.generator)[: self.batch]
-                u, y = w["u"][index], w["y"][index]
-                loss = torch.mean((self.model(u, y[:, :first], w["s"][index] if "s" in w else None)
-                                   - y[:, first:]) ** 2)
-                self.optimizer.zero_grad()
-                loss.backward()
-                self.optimizer.step()
-            self.done += 1
-
-    @torch.no_grad()
-    def _residual(self) -> torch.Tensor:
-        w, first = self.fixed, self.problem.dm.past + 1
-        return (self.model(w["u"], w["y"][:, :first], w.get("s")) - w["y"][:, first:]).reshape(-1)
-
-    @torch.no_grad()
-    def _least_squares_step(self) -> None:
-        """One Levenberg-Marquardt step on the raw knobs (relative for positive parameters, so one
-        finite-difference step fits all); the damping grows until the step lowers the error."""
-        r0 = self._residual()
-        cost = float(r0 @ r0)
-        if not math.isfinite(cost):
-            raise ValueError("the model's error is not finite at the start of a step")
-        columns = []
-        for knob in self.knobs:
-            knob += LM_PROBE
-            columns.append((self._residual() - r0) / LM_PROBE)
-            knob -= LM_PROBE
-        jacobian = torch.stack(columns, 1)
-        normal, gradient = jacobian.T @ jacobian, jacobian.T @ r0
-        while self.damping < 1e6:
-            step = torch.linalg.solve(normal + self.damping * torch.diag(torch.diagonal(normal) + 1e-12), -gradient)
-            for knob, delta in zip(self.knobs, step):
-                knob += delta
-            trial = self._residual()
-            if bool(torch.isfinite(trial).all()) and float(trial @ trial) < cost:
-                self.damping = max(self.damping / 3.0, 1e-6)
-                return
-            for knob, delta in zip(self.knobs, step):
-                knob -= delta
-            self.damping *= 4.0
-
-    def values(self) -> dict[str, float]:
-        return {k: float(self.model.parameters_.value(k).detach()) for k in (*self.candidate.knobs, *self.refine)}
-
-
-def fit_gradient(candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor],
-                 refine: Sequence[str] = ()) -> dict[str, float]:
-    """The candidate's knobs (and ``refine``) fitted to the full number of steps (:class:`GradientFit`)."""
-    fit = GradientFit(candidate, problem, windows, refine)
-    fit.advance(1.0)
-    return fit.values()
-
-
-def fit_affine(candidate: Candidate, problem: Problem) -> tuple[dict[str, float], float]:
-    """One offset (the candidate's channel): its least-squares value and |value| / standard error."""
-    channel = candidate.target
-    values, z = fit_offsets(candidate.spec, [channel], problem)
-    span = max(float(np.ptp(r[channel])) for r in problem.dm.records("train"))
-    if not abs(values[channel]) <= span:  # e.g. a position offset the initial-state estimate absorbs
-        unit = problem.dm.channels[channel].unit
-        raise ValueError(f"offset {format_value(values[channel], unit)} beyond the channel's whole range "
-                         f"({format_value(span, unit)}): not identifiable from these data")
-    return values, z[channel]
-
-
-def fit_offsets(spec: ModelSpec, channels: Sequence[str], problem: Problem) -> tuple[dict[str, float],
-                                                                                      dict[str, float]]:
-    """Joint least squares of the sensor offsets of ``channels`` in ``spec`` (whatever values the
-    spec holds for them are replaced). The (linear) model's outputs are affine in each offset, so
-    one simulation of the training stretches with them at zero and one per offset (a probe) give
-    the responses exactly. Returns the offsets [SI] and each one's |value| over its standard
-    error, clustered by stretch (the residuals of one stretch are correlated, those of different
-    stretches far less; the sandwich covariance of the weighted least squares)."""
-    zeroed = {**spec.sensor_offsets, **{c: 0.0 for c in channels}}
-    train = problem.stretches("train")
-    base = train.predict(problem.build(dataclasses.replace(spec, sensor_offsets=zeroed)))
-    responses = []
-    for channel in channels:
-        probe = 0.1 * problem.scale([channel])[channel][1]
-        moved = train.predict(problem.build(dataclasses.replace(spec, sensor_offsets={**zeroed, channel: probe})))
-        responses.append([(p1 - p0) / probe for (p1, _), (p0, _) in zip(moved, base)])
-    weights, k = train.weights(), len(channels)
-    batches = [(torch.stack([resp[b] for resp in responses], -1), y - p0) for b, (p0, y) in enumerate(base)]
-    gram = sum(torch.einsum("blpi,blpj,p->ij", g, g, weights) for g, _ in batches)  # g: (B, L, p, k)
-    rhs = sum(torch.einsum("blpi,blp,p->i", g, r, weights) for g, r in batches)
-    if torch.linalg.matrix_rank(gram) < k:
-        raise ValueError(f"offsets of {', '.join(channels)} cannot be told apart on these data")
-    offsets = torch.linalg.solve(gram, rhs)
-    scores = torch.cat([torch.einsum("blpi,blp,p->bi", g, r - torch.einsum("blpi,i->blp", g, offsets), weights)
-                        for g, r in batches])  # (stretches, k): each stretch's share of the normal equations
-    inverse = torch.linalg.inv(gram)
-    spread = torch.sqrt(torch.clamp(torch.diagonal(inverse @ (scores.T @ scores) @ inverse), min=0.0))
-    values = {c: float(v) for c, v in zip(channels, offsets)}
-    return values, {c: abs(values[c]) / float(e) if float(e) > 0 else math.inf for c, e in zip(channels, spread)}
 
 
 _FIT_ERRORS = (UnstablePhysicsError, SchedulingError, ModelSpecError, ValueError)
@@ -525,7 +271,7 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
             return catalogue_candidates(entries, spec, dm.input_names, dm.output_names, dm.scheduling_names,
                                         problem.physical_values, dm.dt, uncertain, channels)
     torch.manual_seed(problem.seed)
-    windows = _windows(dm)
+    windows = training_windows(dm)
     base = frozen(nominal)
     base_score = nominal_score = problem.stretches("val").score(problem.build(base))
     progress(f"nominal model: validation error {100 * base_score:.3g} % of the output variance")

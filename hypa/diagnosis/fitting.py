@@ -1,0 +1,162 @@
+"""Fitting a candidate cause's knobs: gradient fits of physical parameters (Adam for linear
+physics, Levenberg-Marquardt on finite differences for nonlinear physics simulated step by
+step) and exact least squares of sensor offsets."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import torch
+
+from hypa.diagnosis.edits import Candidate, set_free
+from hypa.diagnosis.problem import Problem, format_value
+from hypa.models.spec import ModelSpec, ModelSpecError
+
+REFINE_LR = 0.2  # the learning rate of the earlier causes' knobs, relative to the candidate's own
+LM_ITERATIONS = 8  # Levenberg-Marquardt steps of a nonlinear fit (the knobs are few: 1 to 7)
+LM_WINDOWS_PER_BATCH = 2  # its fixed windows: this many batches' worth (256 by default)
+LM_PROBE = 1e-5  # the finite-difference step on a raw knob (a relative 1e-5 for positive parameters)
+LM_DAMPING = 1e-2  # the starting damping (relative to the normal matrix's diagonal)
+
+
+class GradientFit:
+    """A candidate's physical knobs being fitted on the training windows (the training loss),
+    together with ``refine``, the knobs of the causes named before it (the causes are fitted
+    jointly: a rear-steering ratio fitted on linear tires moves once saturation joins it).
+    Resumable: the search advances only the promising fits to their full number of steps.
+
+    Linear physics (the lifted form, one graph node per window) takes ``problem.steps`` Adam
+    steps on random batches. Nonlinear physics is simulated step by step, and there the
+    backward pass through the step loop costs about eight times the forward run: such a fit
+    takes ``LM_ITERATIONS`` Levenberg-Marquardt steps on a fixed set of windows instead, its
+    Jacobian from finite differences of forward runs (one per knob, no autograd; a few knobs)."""
+
+    def __init__(self, candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor],
+                 refine: Sequence[str] = ()) -> None:
+        self.candidate, self.problem, self.windows = candidate, problem, windows
+        self.model = problem.build(set_free(candidate.spec, refine) if refine else candidate.spec)
+        self.refine = [k for k in refine if k in self.model.parameters_.names]
+        params = [p for p in self.model.parameters() if p.requires_grad]
+        if not params:
+            raise ModelSpecError(f"{candidate.key}: nothing to fit")
+        # the earlier causes' knobs start at their optimum: slower steps, so that Adam's first
+        # steps (about lr each, whatever the gradient) do not throw them off it
+        settled = {id(self.model.parameters_.raw[k]) for k in self.refine}
+        groups = [{"params": [p for p in params if id(p) not in settled], "lr": problem.lr},
+                  {"params": [p for p in params if id(p) in settled], "lr": REFINE_LR * problem.lr}]
+        self.optimizer = torch.optim.Adam([g for g in groups if g["params"]])
+        self.generator = torch.Generator().manual_seed(problem.seed)
+        self.nonlinear = nonlinear = any(getattr(getattr(b, "model", None), "is_nonlinear", False)
+                                         for b in self.model.blocks.values())
+        self.total, self.done = LM_ITERATIONS if nonlinear else problem.steps, 0
+        self.batch, self.damping = problem.batch, LM_DAMPING
+        if nonlinear:  # Levenberg-Marquardt: a fixed set of windows, in double precision (finite differences)
+            count = windows["u"].shape[0]
+            index = torch.randperm(count, generator=self.generator)[: LM_WINDOWS_PER_BATCH * problem.batch]
+            self.fixed = {k: v[index].double() for k, v in windows.items()}
+            self.knobs = params
+
+    def advance(self, share: float) -> None:
+        """Go on until ``share`` of the total steps are done."""
+        first, count, w = self.problem.dm.past + 1, self.windows["u"].shape[0], self.windows
+        while self.done < math.ceil(share * self.total):
+            if self.nonlinear:
+                self._least_squares_step()
+            else:
+                index = torch.randperm(count, generator=self.generator)[: self.batch]
+                u, y = w["u"][index], w["y"][index]
+                loss = torch.mean((self.model(u, y[:, :first], w["s"][index] if "s" in w else None)
+                                   - y[:, first:]) ** 2)
+                self.optimizer.zero_grad()
+                loss.backward()
+                self.optimizer.step()
+            self.done += 1
+
+    @torch.no_grad()
+    def _residual(self) -> torch.Tensor:
+        w, first = self.fixed, self.problem.dm.past + 1
+        return (self.model(w["u"], w["y"][:, :first], w.get("s")) - w["y"][:, first:]).reshape(-1)
+
+    @torch.no_grad()
+    def _least_squares_step(self) -> None:
+        """One Levenberg-Marquardt step on the raw knobs (relative for positive parameters, so one
+        finite-difference step fits all); the damping grows until the step lowers the error."""
+        r0 = self._residual()
+        cost = float(r0 @ r0)
+        if not math.isfinite(cost):
+            raise ValueError("the model's error is not finite at the start of a step")
+        columns = []
+        for knob in self.knobs:
+            knob += LM_PROBE
+            columns.append((self._residual() - r0) / LM_PROBE)
+            knob -= LM_PROBE
+        jacobian = torch.stack(columns, 1)
+        normal, gradient = jacobian.T @ jacobian, jacobian.T @ r0
+        while self.damping < 1e6:
+            step = torch.linalg.solve(normal + self.damping * torch.diag(torch.diagonal(normal) + 1e-12), -gradient)
+            for knob, delta in zip(self.knobs, step):
+                knob += delta
+            trial = self._residual()
+            if bool(torch.isfinite(trial).all()) and float(trial @ trial) < cost:
+                self.damping = max(self.damping / 3.0, 1e-6)
+                return
+            for knob, delta in zip(self.knobs, step):
+                knob -= delta
+            self.damping *= 4.0
+
+    def values(self) -> dict[str, float]:
+        return {k: float(self.model.parameters_.value(k).detach()) for k in (*self.candidate.knobs, *self.refine)}
+
+
+def fit_gradient(candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor],
+                 refine: Sequence[str] = ()) -> dict[str, float]:
+    """The candidate's knobs (and ``refine``) fitted to the full number of steps (:class:`GradientFit`)."""
+    fit = GradientFit(candidate, problem, windows, refine)
+    fit.advance(1.0)
+    return fit.values()
+
+
+def fit_affine(candidate: Candidate, problem: Problem) -> tuple[dict[str, float], float]:
+    """One offset (the candidate's channel): its least-squares value and |value| / standard error."""
+    channel = candidate.target
+    values, z = fit_offsets(candidate.spec, [channel], problem)
+    span = max(float(np.ptp(r[channel])) for r in problem.dm.records("train"))
+    if not abs(values[channel]) <= span:  # e.g. a position offset the initial-state estimate absorbs
+        unit = problem.dm.channels[channel].unit
+        raise ValueError(f"offset {format_value(values[channel], unit)} beyond the channel's whole range "
+                         f"({format_value(span, unit)}): not identifiable from these data")
+    return values, z[channel]
+
+
+def fit_offsets(spec: ModelSpec, channels: Sequence[str], problem: Problem) -> tuple[dict[str, float],
+                                                                                      dict[str, float]]:
+    """Joint least squares of the sensor offsets of ``channels`` in ``spec`` (whatever values the
+    spec holds for them are replaced). The (linear) model's outputs are affine in each offset, so
+    one simulation of the training stretches with them at zero and one per offset (a probe) give
+    the responses exactly. Returns the offsets [SI] and each one's |value| over its standard
+    error, clustered by stretch (the residuals of one stretch are correlated, those of different
+    stretches far less; the sandwich covariance of the weighted least squares)."""
+    zeroed = {**spec.sensor_offsets, **{c: 0.0 for c in channels}}
+    train = problem.stretches("train")
+    base = train.predict(problem.build(dataclasses.replace(spec, sensor_offsets=zeroed)))
+    responses = []
+    for channel in channels:
+        probe = 0.1 * problem.scale([channel])[channel][1]
+        moved = train.predict(problem.build(dataclasses.replace(spec, sensor_offsets={**zeroed, channel: probe})))
+        responses.append([(p1 - p0) / probe for (p1, _), (p0, _) in zip(moved, base)])
+    weights, k = train.weights(), len(channels)
+    batches = [(torch.stack([resp[b] for resp in responses], -1), y - p0) for b, (p0, y) in enumerate(base)]
+    gram = sum(torch.einsum("blpi,blpj,p->ij", g, g, weights) for g, _ in batches)  # g: (B, L, p, k)
+    rhs = sum(torch.einsum("blpi,blp,p->i", g, r, weights) for g, r in batches)
+    if torch.linalg.matrix_rank(gram) < k:
+        raise ValueError(f"offsets of {', '.join(channels)} cannot be told apart on these data")
+    offsets = torch.linalg.solve(gram, rhs)
+    scores = torch.cat([torch.einsum("blpi,blp,p->bi", g, r - torch.einsum("blpi,i->blp", g, offsets), weights)
+                        for g, r in batches])  # (stretches, k): each stretch's share of the normal equations
+    inverse = torch.linalg.inv(gram)
+    spread = torch.sqrt(torch.clamp(torch.diagonal(inverse @ (scores.T @ scores) @ inverse), min=0.0))
+    values = {c: float(v) for c, v in zip(channels, offsets)}
+    return values, {c: abs(values[c]) / float(e) if float(e) > 0 else math.inf for c, e in zip(channels, spread)}

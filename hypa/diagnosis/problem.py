@@ -1,0 +1,126 @@
+"""The diagnosis' data and fixed settings (:class:`Problem`), and the long windows (stretches)
+that score a candidate on the validation records and fit an offset on the training records."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from hypa.data import HypaDataModule, Record
+from hypa.diagnosis.workers import default_workers
+from hypa.models import ComposedModel
+from hypa.models.spec import ModelSpec
+
+
+@dataclass(frozen=True)
+class Problem:
+    """The data and the fixed settings every candidate model is built with."""
+
+    dm: HypaDataModule
+    physical_values: Mapping[str, float]
+    hold: str = "foh"
+    horizon: int = 100
+    steps: int = 60  # Adam steps per linear candidate fit (nonlinear physics: LM_ITERATIONS Levenberg-Marquardt steps)
+    batch: int = 128  # training windows per step
+    lr: float = 0.05  # on the raw (relative) parameters: about 5 % of a value per step
+    seed: int = 0
+    stretch_s: float = 20.0  # [s] the free runs that score a candidate restart from the data this often
+    workers: int = field(default_factory=default_workers)  # processes fitting a round's candidates at once
+
+    def stretches(self, split: str) -> Stretches:
+        """The ``split``'s records cut into stretches of ``stretch_s`` (made once, then cached)."""
+        cache = self.__dict__.setdefault("_stretches", {})
+        if split not in cache:
+            cache[split] = Stretches.cut(self.dm, self.dm.records(split), max(1, round(self.stretch_s / self.dm.dt)))
+        return cache[split]
+
+    def scale(self, names: Sequence[str]) -> dict[str, tuple[float, float]]:
+        norm = self.dm.normalization.subset(list(names))
+        return {n: (float(m), float(s)) for n, m, s in zip(names, norm.mean.tolist(), norm.std.tolist())}
+
+    def build(self, spec: ModelSpec) -> ComposedModel:
+        dm = self.dm
+        return ComposedModel(spec, self.physical_values, dm.input_names, dm.output_names, self.scale(dm.input_names),
+                             self.scale(dm.output_names), dm.dt, self.horizon, self.hold,
+                             scheduling_names=dm.scheduling_names, scheduling_scale=self.scale(dm.scheduling_names))
+
+
+READABLE = {"rad": ("deg", 180.0 / math.pi), "rad/s": ("deg/s", 180.0 / math.pi)}  # SI unit -> (shown, factor)
+
+
+def format_value(value: float, unit: str) -> str:
+    """Rounded to 3 significant digits with its unit (seconds below 1 s as ms, angles in degrees)."""
+    if unit == "s" and abs(value) < 1.0:
+        return f"{value * 1e3:.3g} ms"
+    unit, factor = READABLE.get(unit, (unit, 1.0))
+    return f"{value * factor:.3g} {'' if unit == '-' else unit}".rstrip()
+
+
+def training_windows(dm: HypaDataModule) -> dict[str, torch.Tensor]:
+    """Every training window in one batch (u, y and s when the data has scheduling signals)."""
+    dataset = dm.dataset("train")
+    loader = torch.utils.data.DataLoader(dataset, batch_size=len(dataset), shuffle=False)
+    batch = next(iter(loader))
+    return {k: v for k, v in batch.items() if k in ("u", "y", "s")}
+
+
+@dataclass(frozen=True)
+class Stretches:
+    """Records cut into long windows (stretches) that tile them, batched by length: what the
+    search simulates to score a candidate (validation) and to fit an offset (training).
+
+    Each stretch starts like a training window, from its first ``first`` samples (the measured
+    state, or the estimate of an unmeasured one from the past), and predicts the next
+    ``samples``; consecutive stretches predict consecutive samples, the last one of a record
+    ends at its end. A batch is ``{"u", "y", "s"}``: normalized inputs and outputs, SI scheduling.
+    """
+
+    batches: tuple[dict[str, torch.Tensor], ...]
+    first: int
+
+    @classmethod
+    def cut(cls, dm: HypaDataModule, records: Sequence[Record], samples: int) -> Stretches:
+        first, groups = dm.past + 1, {}
+        norm = dm.normalization
+        for record in records:
+            length = min(len(record), first + samples)
+            if length <= first:
+                continue
+            starts = list(range(0, len(record) - length + 1, samples))
+            if starts[-1] != len(record) - length:
+                starts.append(len(record) - length)
+            arrays = {"u": norm.normalize(record.stack(dm.input_names), dm.input_names),
+                      "y": norm.normalize(record.stack(dm.output_names), dm.output_names),
+                      "s": record.stack(dm.scheduling_names)}
+            for start in starts:
+                groups.setdefault(length, []).append({k: a[start : start + length] for k, a in arrays.items()})
+        batches = tuple({k: torch.as_tensor(np.stack([w[k] for w in group]), dtype=torch.float32) for k in group[0]}
+                        for group in groups.values())
+        return cls(batches, first)
+
+    @torch.no_grad()
+    def predict(self, model: ComposedModel) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """(predicted, measured) normalized outputs (B, L - first, p) per batch, float64."""
+        out = []
+        for b in self.batches:
+            s = b["s"] if b["s"].shape[-1] else None
+            pred = model(b["u"], b["y"][:, : self.first], s)
+            out.append((pred.double(), b["y"][:, self.first :].double()))
+        return out
+
+    def weights(self) -> torch.Tensor:
+        """1 / the variance of each (normalized) output over the predicted samples."""
+        y = torch.cat([b["y"][:, self.first :].reshape(-1, b["y"].shape[-1]) for b in self.batches]).double()
+        return 1.0 / torch.clamp(y.var(0, unbiased=False), min=1e-300)
+
+    def score(self, model: ComposedModel) -> float:
+        """Mean over outputs of the error energy relative to the output's variance (1 - R²)."""
+        pairs = self.predict(model)
+        count = sum(p.shape[0] * p.shape[1] for p, _ in pairs)
+        mse = sum(((p - y) ** 2).sum((0, 1)) for p, y in pairs) / count
+        out = (mse * self.weights()).numpy()
+        return float(np.mean(out)) if np.all(np.isfinite(out)) else math.inf
