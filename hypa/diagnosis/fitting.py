@@ -42,12 +42,6 @@ class GradientFit:
         params = [p for p in self.model.parameters() if p.requires_grad]
         if not params:
             raise ModelSpecError(f"{candidate.key}: nothing to fit")
-        # the earlier causes' knobs start at their optimum: slower steps, so that Adam's first
-        # steps (about lr each, whatever the gradient) do not throw them off it
-        settled = {id(self.model.parameters_.raw[k]) for k in self.refine}
-        groups = [{"params": [p for p in params if id(p) not in settled], "lr": problem.lr},
-                  {"params": [p for p in params if id(p) in settled], "lr": REFINE_LR * problem.lr}]
-        self.optimizer = torch.optim.Adam([g for g in groups if g["params"]])
         self.generator = torch.Generator().manual_seed(problem.seed)
         self.nonlinear = nonlinear = any(getattr(getattr(b, "model", None), "is_nonlinear", False)
                                          for b in self.model.blocks.values())
@@ -58,6 +52,13 @@ class GradientFit:
             index = torch.randperm(count, generator=self.generator)[: LM_WINDOWS_PER_BATCH * problem.batch]
             self.fixed = {k: v[index].double() for k, v in windows.items()}
             self.knobs = params
+        else:
+            # the earlier causes' knobs start at their optimum: slower steps, so that Adam's first
+            # steps (about lr each, whatever the gradient) do not throw them off it
+            settled = {id(self.model.parameters_.raw[k]) for k in self.refine}
+            groups = [{"params": [p for p in params if id(p) not in settled], "lr": problem.lr},
+                      {"params": [p for p in params if id(p) in settled], "lr": REFINE_LR * problem.lr}]
+            self.optimizer = torch.optim.Adam([g for g in groups if g["params"]])
 
     def advance(self, share: float) -> None:
         """Go on until ``share`` of the total steps are done."""

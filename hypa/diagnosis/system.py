@@ -26,7 +26,7 @@ from hypa.diagnosis.edits import frozen
 from hypa.diagnosis.engine import Finding, Problem, Search, name_causes
 from hypa.diagnosis.structure import OutputStructure, analyze_output
 from hypa.diagnosis.trained import TrainedExtension
-from hypa.evaluation.runs import Prediction, free_run
+from hypa.evaluation.runs import Prediction, free_run, free_run_metrics
 from hypa.models.spec import ModelSpec, spec_config
 
 DIAGNOSED = "diagnosed_"  # the prefix of what the catalogue's edits add (blocks, signals)
@@ -83,16 +83,6 @@ def _overall(before: Mapping[str, dict], after: Mapping[str, dict], outputs: Seq
     return float(np.mean([1.0 - after[o]["r2"] for o in outputs])) / b - 1.0 if b > 0 else 0.0
 
 
-def _metrics(runs: Sequence[Prediction], outputs: Sequence[str]) -> dict[str, dict[str, float]]:
-    out = {}
-    for name in outputs:
-        y = np.concatenate([r.measured[name][r.first:] for r in runs])
-        p = np.concatenate([r.predicted[name][r.first:] for r in runs])
-        mse = float(np.mean((p - y) ** 2))
-        out[name] = {"rmse": mse**0.5, "mse": mse, "r2": 1.0 - mse / float(np.var(y))}
-    return out
-
-
 def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overrides: Sequence[str] = (),
                     plot: bool = True, max_causes: int = 8, min_gain: float = 0.15,
                     progress: Callable[[str], None] = print, config_dir: Path | None = None,
@@ -133,7 +123,8 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
                                              dataclasses.replace(hybrid, name="diagnosed_hybrid"), search.named)
     commands = {name: train_command(out / "conf", name, train_overrides, name != "diagnosed", config_dir)
                 for name in written}
-    metrics = {"nominal": _metrics(before, dm.output_names), "extended": _metrics(after, dm.output_names)}
+    metrics = {"nominal": free_run_metrics(before, dm.output_names),
+               "extended": free_run_metrics(after, dm.output_names)}
     change = _change(metrics["nominal"], metrics["extended"], dm.output_names)
     change["overall"] = search.final_score / search.nominal_score - 1.0 if search.nominal_score > 0 else 0.0
     trained = None
@@ -143,7 +134,7 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
         extension = train_extension(train_arguments(out / "conf", name, train_overrides, name != "diagnosed",
                                                     config_dir))
         runs = list(extension.predictions)
-        metrics["trained"] = _metrics(runs, dm.output_names)
+        metrics["trained"] = free_run_metrics(runs, dm.output_names)
         trained = {"model": name, "run": str(extension.run), "metrics": metrics["trained"],
                    "gain": {"all": {**_change(metrics["nominal"], metrics["trained"], dm.output_names),
                                     "overall": _overall(metrics["nominal"], metrics["trained"], dm.output_names)}},

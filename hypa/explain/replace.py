@@ -17,13 +17,11 @@ import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 
-import numpy as np
-
 from hypa.data import HypaDataModule
-from hypa.evaluation.runs import Prediction, TrainedRun, free_run
+from hypa.evaluation.runs import Prediction, TrainedRun, free_run, free_run_metrics
 from hypa.explain.forms import FittedForm
 from hypa.models import ComposedModel
-from hypa.models.spec import BlockSpec, ModelSpec
+from hypa.models.spec import BlockSpec, ModelSpec, spec_config
 
 SYSTEMS = {"static": "gain", "lag": "gain_lag", "lag_delay": "gain_lag", "second_order": "second_order"}
 
@@ -96,38 +94,21 @@ def replaced_spec(spec: ModelSpec, block: str, fitted: FittedForm) -> ModelSpec:
 
 
 def build_like(run: TrainedRun, spec: ModelSpec) -> ComposedModel:
-    """``spec`` built as the run's model was (its data scales, sample time, horizon, hold,
-    network settings), with the run's trained physical values and networks where they remain."""
-    from hypa.data.normalization import Normalization
-
+    """``spec`` built by the run's own module class and settings (its data scales, sample time,
+    horizon, hold, network settings), with the run's trained physical values and the trained
+    weights of the networks that remain."""
     trained = run.module.model
-    hp = run.module.hparams
-    norm = Normalization.from_state_dict(hp["normalization"])
-
-    def scale(names):
-        sub = norm.subset(list(names))
-        return {n: (float(m), float(s)) for n, m, s in zip(names, sub.mean.tolist(), sub.std.tolist())}
-
-    model = ComposedModel(spec, trained.parameters_.as_floats(), hp["input_names"], hp["output_names"], scale(hp["input_names"]),
-                          scale(hp["output_names"]), hp["dt"], hp["horizon"], hp["hold"], hp["ann_name"],
-                          hp["ann_hparams"], hp["scheduling_names"], scale(hp["scheduling_names"]))
-    own = model.state_dict()  # the networks that remain keep their trained weights
+    hp = {**run.module.hparams, "model_config": spec_config(spec), "physical_values": trained.parameters_.as_floats()}
+    model = type(run.module)(**hp).model
+    own = model.state_dict()
     model.load_state_dict({k: v for k, v in trained.state_dict().items() if k.startswith("blocks.")
                            and k in own and own[k].shape == v.shape}, strict=False)
     return model.eval()
 
 
 def validation_errors(predictions: Sequence[Prediction], outputs: Sequence[str]) -> dict[str, dict[str, float]]:
-    """Per output, over the predicted samples of all records: RMS error [SI] and R²."""
-    out = {}
-    for name in outputs:
-        error = np.concatenate([p.measured[name][p.first:] - p.predicted[name][p.first:] for p in predictions])
-        truth = np.concatenate([p.measured[name][p.first:] for p in predictions])
-        ok = np.isfinite(error)
-        spread = float(np.sum((truth[ok] - truth[ok].mean()) ** 2))
-        out[name] = {"rms": float(np.sqrt(np.mean(error[ok] ** 2))),
-                     "r2": 1.0 - float(np.sum(error[ok] ** 2)) / spread if spread > 0 else float("nan")}
-    return out
+    """Per output over the free runs: ``rms`` [SI] and ``r2`` (:func:`hypa.evaluation.runs.free_run_metrics`)."""
+    return {n: {"rms": m["rmse"], "r2": m["r2"]} for n, m in free_run_metrics(predictions, outputs).items()}
 
 
 def replace_and_score(run: TrainedRun, dm: HypaDataModule, block: str, fitted: FittedForm,
@@ -135,8 +116,6 @@ def replace_and_score(run: TrainedRun, dm: HypaDataModule, block: str, fitted: F
     """Write ``<model>_explained.yaml`` into ``out`` and free-run it over the validation records;
     returns the form, the config path and the validation errors of the learned and the replaced model."""
     import yaml
-
-    from hypa.models.spec import spec_config
 
     spec = replaced_spec(run.module.model.spec, block, fitted)
     path = out / f"{spec.name}.yaml"

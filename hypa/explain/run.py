@@ -5,8 +5,8 @@ training and validation records; each output of an ANN block is the explained si
 block's inputs the regressors, and by default the other measured outputs and the scheduling
 channels the extra signals (as the model itself simulates them). The ladder of forms
 (:func:`hypa.explain.explain`) is fitted on the training records and scored on the validation
-records. Where the records measure the block's output (the test bench's ``rear_wheel_angle``,
-an evaluation-only channel), the learned block, the explained form and the measurement are
+records. Where the records measure the block's output (an evaluation-only channel of the same
+name), the learned block, the explained form and the measurement are
 compared on the validation records.
 
 Writes ``explanation.md``, ``explanation.json`` and per explained signal three figures (the
@@ -288,7 +288,7 @@ def replace_block(result: BlockExplanation, run: TrainedRun, dm: HypaDataModule,
 
 
 def replacement_line(rp: dict) -> str:
-    """``replaced by its lag: yaw_rate RMS 0.0104 -> 0.0116 rad/s, ...`` (and the baseline's)."""
+    """``replaced by its lag: y RMS 0.0104 -> 0.0116 V; ...`` per output (and the baseline's)."""
     parts = []
     for name, learned in rp["learned"].items():
         unit, base = rp["units"][name], rp.get("baseline", {}).get(name)
