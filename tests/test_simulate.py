@@ -11,7 +11,7 @@ import pytest
 
 from hypa.data import HypaDataModule
 from hypa.vehicle import VehicleParameters
-from hypa.simulate import fit_metrics, simulate_vehicle
+from hypa.vehicle.simulation import fit_metrics, simulate_vehicle
 from hypa.testbench import TestbenchConfig, ensure_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
