@@ -100,6 +100,23 @@ def test_a_phase_reversal_law_is_found_by_the_second_order_rung():
     assert result.best.value("delay").value < 0.01
 
 
+def test_the_second_order_rung_stays_below_the_nyquist_frequency():
+    """A plain lag is a second order with one pole infinitely fast: the search stops at the
+    Nyquist frequency (a pole the samples cannot resolve) and at damping 20, and the rung
+    still fits the lag; its two real poles read as two lags."""
+    from hypa.explain.forms import second_order_text
+
+    result = run(lambda u, r: truth(u, [0.12], [0.07, 1.0]), noise=0.0005)
+    second = next(f for f in result.forms if f.form.name == "second order")
+    assert second.value("natural_frequency").value <= 0.5 / DT * (1 + 1e-9)
+    assert second.value("damping").value <= 20.0 * (1 + 1e-9)
+    assert second.r2_val == pytest.approx(result.best.r2_val, abs=1e-3)
+    # (1 + 0.3 s)(1 + 0.07 s) = 1 + 2ζ s/ω + s²/ω²
+    omega = 1 / np.sqrt(0.3 * 0.07)
+    assert second_order_text(omega / (2 * np.pi), 0.37 * omega / 2) == "lags 300 ms and 70 ms"
+    assert second_order_text(1.234, 0.5) == "second order 1.2 Hz, damping 0.5"
+
+
 def test_an_odd_cubic_before_a_lag_is_found_by_the_nonlinear_rung():
     cubic = 40.0  # [1/rad²]: at 0.1 rad the cubic adds 40 % to the input
     result = run(lambda u, r: truth(u + cubic * u**3, [0.12], [0.07, 1.0]), noise=0.0005)

@@ -54,6 +54,9 @@ from hypa.explain.signals import (
 
 NONLINEAR = {"static": (), "lag": ("lag",), "lag_delay": ("lag", "delay"),
              "second_order": ("natural_frequency", "damping", "delay")}
+# upper bounds of the searched time constants: the natural frequency in units of the Nyquist
+# frequency, the damping (beyond it the second order is a lag and a pole faster than the samples)
+UPPER = {"natural_frequency": 1.0, "damping": 20.0}
 DEFAULT_PENALTY = 0.002  # score lost per parameter (share of the output variance)
 DEFAULT_MARGIN = 0.005  # a richer form must beat a simpler one by this much (share of the variance)
 CLUSTER_S = 2.0  # [s] segments of the sandwich covariance: longer than the residual's correlation
@@ -357,12 +360,16 @@ class _Fitter:
         """Maps between time constants (SI) and the unconstrained search coordinates."""
         names, dt = NONLINEAR[form.dynamics], self.dt
         is_delay = np.array([n == "delay" for n in names])
+        # a mode above the Nyquist frequency is not resolved by the samples (and written as a physics
+        # block it would be needlessly stiff): two real poles, one of them that fast, are a lag
+        upper = np.array([UPPER.get(n, np.inf) for n in names]) * np.array(
+            [0.5 / dt if n == "natural_frequency" else 1.0 for n in names])
 
         def to_z(theta: np.ndarray) -> np.ndarray:
-            return np.where(is_delay, theta / dt, np.log(np.maximum(theta, dt / 100)))
+            return np.where(is_delay, theta / dt, np.log(np.clip(theta, dt / 100, upper)))
 
         def from_z(z: np.ndarray) -> np.ndarray:
-            return np.where(is_delay, np.abs(z) * dt, np.exp(np.minimum(z, 50.0)))
+            return np.where(is_delay, np.abs(z) * dt, np.minimum(np.exp(np.minimum(z, 50.0)), upper))
 
         return to_z, from_z, np.where(is_delay, 0.5, 0.3)
 
@@ -458,8 +465,7 @@ def describe(explanation: Explanation) -> str:
         if v is not None and (kind != "delay" or v.value >= explanation.dt / 2):
             terms.append(text.format(_ms(v.value).removesuffix(" ms")))
     if fitted.value("natural_frequency") is not None:
-        terms.append(f"second order {fitted.value('natural_frequency').value:.2g} Hz, "
-                     f"damping {fitted.value('damping').value:.2g}")
+        terms.append(second_order_text(fitted.value("natural_frequency").value, fitted.value("damping").value))
     for signal in explanation.extra:
         gain = fitted.value("gain", signal)
         if gain is not None:
@@ -471,6 +477,15 @@ def describe(explanation: Explanation) -> str:
     share = f"explains {round(100 * r2)} %" if r2 > 0 else f"explains nothing (R² {r2:.2f})"
     line = ", ".join(terms)
     return f"{explanation.output} = {line}; {share} of the learned block ({fitted.form.name})"
+
+
+def second_order_text(frequency: float, damping: float) -> str:
+    """``second order 1.2 Hz, damping 0.5`` for a resonance; two real poles (damping ≥ 1) read as
+    the lags they are, ``lags 300 ms and 70 ms`` (1 + 2ζ s/ω + s²/ω² = (1 + T1 s)(1 + T2 s))."""
+    if damping < 1.0:
+        return f"second order {frequency:.2g} Hz, damping {damping:.2g}"
+    omega, root = 2 * np.pi * frequency, np.sqrt(damping**2 - 1.0)
+    return f"lags {_ms((damping + root) / omega)} and {_ms((damping - root) / omega)}"
 
 
 def _signed(x: float, first: bool = False) -> str:
@@ -485,4 +500,5 @@ def _unit_text(unit: str) -> str:
 
 
 def _ms(seconds: float) -> str:
-    return f"{1000 * seconds:.2g} ms"
+    """Two significant digits in ms, without an exponent below 10⁶ ms (120 ms, not 1.2e+02 ms)."""
+    return f"{float(f'{1000 * seconds:.2g}'):g} ms"

@@ -251,6 +251,7 @@ def explain_run(run: TrainedRun, dm: HypaDataModule, out: Path, block: str | Non
     for problem in chosen:
         progress(f"fitting the ladder to {problem.block} ({', '.join(problem.inputs)} -> {problem.output})")
         result, rec_train, rec_val = explain_problem(problem, train, val, dm.dt, settings)
+        result.notes += hold_note(model, problem.block, dm.dt)
         replace_block(result, run, dm, val, out, progress, baseline)
         if settings.plot:
             from hypa.explain.figures import write_figures
@@ -261,6 +262,21 @@ def explain_run(run: TrainedRun, dm: HypaDataModule, out: Path, block: str | Non
     write_json(run, results, out / "explanation.json")
     write_report(run, results, out / "explanation.md")
     return results
+
+
+def hold_note(model: ComposedModel, block: str, dt: float) -> list[str]:
+    """A warning where a network feeds physics that holds its inputs constant between samples
+    (``zoh``): the physics then sees every input half a sample late, and a network beside a
+    physics input path learns to make up for it (measured on a test bench whose rear-steering
+    law is a known ratio and lag: with ``zoh`` V1's explained lag read 120 ms for 70 ms, with
+    ``foh`` 72 ms)."""
+    outputs = next(b.outputs for b in model.spec.blocks if b.name == block)
+    feeds = [b.name for b in model.spec.blocks if b.kind == "physics" and set(b.inputs) & set(outputs)]
+    if model.hold != "zoh" or not feeds:
+        return []
+    return [f"the run's physics ({', '.join(feeds)}) holds its inputs constant between samples (zero-order "
+            f"hold): it sees them {1000 * dt / 2:.3g} ms late, and part of what {block} learned may make up "
+            "for that; train with physics.hold=foh to explain the law itself"]
 
 
 def replace_block(result: BlockExplanation, run: TrainedRun, dm: HypaDataModule, val: Sequence[Prediction],
