@@ -27,7 +27,8 @@ def main(cfg: DictConfig) -> None:
     from hypa.errors import setting
     from hypa.evaluation.evaluation import run_datamodule
     from hypa.evaluation.runs import load_run
-    from hypa.explain.run import Settings, explain_run, replacement_line, select_blocks
+    from hypa.explain.report import replacement_line
+    from hypa.explain.run import Settings, explain_run, select_blocks
 
     path = Path(setting(cfg, "run", str)).expanduser()
     block = setting(cfg, "block", str, optional=True)
