@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -76,6 +77,16 @@ def test_tire_relaxation_is_named_and_no_dead_time_stands_in(tmp_path: Path) -> 
     assert gains["tire_relaxation"] > max(gains["input_delay"], gains["input_lag"])
     length = result["named"][0]["values"]["relaxation_length"]
     assert 0.4 < length < 1.0  # the truth's 0.7 m front, 0.6 m rear, as one length
+    # the relaxed slips are two more states than the measured outputs determine at the window
+    # start (data.past=0): the written train command raises data.past, and it trains
+    command = result["extended"]["train_command"]["diagnosed"]
+    assert "data.past=7" in shlex.split(command), command
+    env = {**os.environ, "HYPA_CACHE_DIR": str(tmp_path / "cache")}
+    arguments = [*shlex.split(command)[3:], f"hydra.run.dir={tmp_path / 'trained'}", "trainer.max_epochs=1", "trainer.limit_train_batches=2",
+                 "trainer.limit_val_batches=2", "trainer.enable_progress_bar=false", "figures.enabled=false"]
+    trained = subprocess.run([sys.executable, "-m", "hypa.train", *arguments], cwd=ROOT, env=env,
+                             capture_output=True, text=True, timeout=600)
+    assert trained.returncode == 0, trained.stderr[-3000:]
 
 
 def test_saturating_tires_are_named_with_their_friction(tmp_path: Path) -> None:

@@ -121,6 +121,7 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
         hybrid = with_correction(extended, dm.input_names)
         written["diagnosed_hybrid"] = _write(conf / "diagnosed_hybrid.yaml",
                                              dataclasses.replace(hybrid, name="diagnosed_hybrid"), search.named)
+    train_overrides = with_past(train_overrides, problem, extended)
     commands = {name: train_command(out / "conf", name, train_overrides, name != "diagnosed", config_dir)
                 for name in written}
     metrics = {"nominal": free_run_metrics(before, dm.output_names),
@@ -186,6 +187,20 @@ def _write(path: Path, spec: ModelSpec, named: Sequence[Finding]) -> Path:
     header += [f"#   {f.describe()}" for f in named] or ["#   (none named)"]
     path.write_text("\n".join(header) + "\n" + yaml.safe_dump(spec_config(spec), sort_keys=False))
     return path
+
+
+PAST_MARGIN = 4  # an estimated start sees this many times as many measured values as the block has states
+
+
+def with_past(overrides: Sequence[str], problem: Problem, spec: ModelSpec) -> list[str]:
+    """``overrides`` with ``data.past`` raised where the extended model estimates states (a cause
+    that added some, e.g. the slips of tire relaxation) from fewer past samples than it needs:
+    :data:`PAST_MARGIN` times the fewest that determine them."""
+    needed = problem.build(spec).past_needed()
+    if not needed or problem.dm.past >= max(needed.values()):
+        return list(overrides)
+    past = PAST_MARGIN * (max(needed.values()) + 1) - 1
+    return [*(o for o in overrides if o.split("=", 1)[0].lstrip("+~") != "data.past"), f"data.past={past}"]
 
 
 def train_arguments(written: Path, model: str, overrides: Sequence[str], with_ann: bool,

@@ -52,6 +52,10 @@ def train_extension(arguments: Sequence[str], run_dir: Path, dm: HypaDataModule,
                                      f"model: {' '.join(argv[1:])}")
     run = load_run(run_dir)
     model = run.module.model
+    if run.config.data.past != dm.past:  # raised for the extension (hypa.diagnosis.system.with_past)
+        from hypa.evaluation.evaluation import run_datamodule
+
+        dm = run_datamodule(run)
     trained = TrainedExtension(run_dir, [free_run(model, dm, record) for record in dm.records("val")])
     if explain:
         trained.explanations = explain_networks(run, dm, run_dir / "explanation", plot, progress)

@@ -86,6 +86,16 @@ class ComposedModel(nn.Module):
         self.bypassed: set[str] = set()
         self.set_stage(None)
 
+    def past_needed(self) -> dict[str, int]:
+        """Per physics block started from an estimate: the fewest past samples (``data.past``)
+        whose measured outputs, with the window start, are as many values as the block has states."""
+        needed = {}
+        for name, start in self.starts.items():
+            if start.mode == ESTIMATE:
+                measured = sum(m is not None for m in start.observed)
+                needed[name] = -(-self.blocks[name].model.n_states // measured) - 1
+        return needed
+
     # -- construction -------------------------------------------------------------------
     def _dependency_order(self, spec: ModelSpec) -> list[BlockSpec]:
         available = {*self.input_names, *self.scheduling_names}

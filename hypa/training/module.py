@@ -12,7 +12,6 @@ from torchmetrics import MeanAbsoluteError, MeanSquaredError, MetricCollection, 
 
 from hypa.data import Normalization
 from hypa.models import ComposedModel, ModelSpecError, parse_model_spec
-from hypa.models.building import ESTIMATE
 
 
 class HybridModule(L.LightningModule):
@@ -81,15 +80,13 @@ class HybridModule(L.LightningModule):
 
     def _check_past(self) -> None:
         """A state estimated from the past needs at least as many measured values as states."""
-        for name, start in self.model.starts.items():
-            if start.mode != ESTIMATE:
-                continue
-            states = self.model.blocks[name].model.n_states
-            seen = sum(m is not None for m in start.observed) * (self.past + 1)
-            if seen < states:
+        for name, past in self.model.past_needed().items():
+            if self.past < past:
+                states = self.model.blocks[name].model.n_states
+                seen = sum(m is not None for m in self.model.starts[name].observed) * (self.past + 1)
                 raise ModelSpecError(f"block {name!r} estimates its {states} states from {seen} measured value(s) "
-                                 f"(data.past={self.past}): too few to determine them; set data.past to at least "
-                                 f"{-(-states // sum(m is not None for m in start.observed)) - 1} (more for noisy data)")
+                                     f"(data.past={self.past}): too few to determine them; set data.past to at least "
+                                     f"{past} (more for noisy data)")
 
     def forward(self, u: Tensor, y_past: Tensor, s: Tensor | None = None) -> Tensor:
         """Normalized predicted outputs (B, L-P-1, p) from inputs (B, L, m), measured outputs
