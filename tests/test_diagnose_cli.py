@@ -78,6 +78,8 @@ def test_extended_model_is_a_hypa_model_that_trains(delay_run, tmp_path: Path) -
     estimate = diagnosis["estimate"][f"{DELAY_BLOCK}/delay_s"]
     assert model["blocks"][DELAY_BLOCK]["parameters"]["delay_s"] == pytest.approx(estimate)
     assert model["blocks"][DELAY_BLOCK]["trainable"] == ["delay_s"]
+    assert model["hold"] == "foh"  # the hold it was diagnosed with: the fitted values belong to it
+    assert "diagnosed_learned" not in diagnosis["extended"]["config"]  # a dead time is no subsystem to learn
     command = diagnosis["extended"]["train_command"]["diagnosed"]
     assert command in (run / "diagnosis.md").read_text()
     words = shlex.split(command)

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+import yaml
 
 from hypa.physics import LTIBlock, PhysicalParameters
 from hypa.vehicle import SingleTrack, SingleTrackRelaxation
@@ -66,6 +67,14 @@ def test_rear_steering_is_named_with_its_ratio_and_lag(tmp_path: Path) -> None:
     assert first["values"]["diagnosed_rear_steering/gain"] == pytest.approx(0.12, rel=0.25)
     assert first["values"]["diagnosed_rear_steering/tau_s"] == pytest.approx(0.07, rel=0.5)
     assert result["score"]["extended"] < 0.1 * result["score"]["nominal"]
+    # the rear steering as a network inside the diagnosed physics, every physical value frozen
+    learned = yaml.safe_load(Path(result["extended"]["config"]["diagnosed_learned"]).read_text())
+    block = learned["blocks"]["diagnosed_rear_steering"]
+    assert block["kind"] == "ann" and block["inputs"] == ["front_wheel_angle"]
+    assert block["outputs"] == ["diagnosed_rear_wheel_angle"] and block["scale_as"] == ["front_wheel_angle"]
+    assert all(not b.get("trainable") for b in learned["blocks"].values())
+    assert learned["blocks"]["single_track"]["system"] == "single_track" and learned["hold"] == "foh"
+    assert "model=diagnosed_learned" in result["extended"]["train_command"]["diagnosed_learned"]
 
 
 def test_tire_relaxation_is_named_and_no_dead_time_stands_in(tmp_path: Path) -> None:

@@ -2,15 +2,18 @@
 network explained (report, json, figures, the comparison with the measured rear-wheel angle), and
 bad input failing in one line.
 
-The tiny run (one epoch of two batches) has learned little, so only the plumbing is checked here;
-the slow test trains V1 on the default test bench and checks the explained rear-steering law
-against the bench's own (ratio 0.12 at 33.3 m/s, actuator lag 70 ms).
+The tiny run (one epoch of two batches) has learned little, so only the plumbing is checked here.
+Laws with known values: a simple ECU (a ratio through an actuator lag, random per seed) hidden in
+the bench and recovered from a small V1; and the default bench's own ECU (ratio 0.12 at 33.3 m/s,
+phase reversal, actuator lag 70 ms), recovered from the network of the model hypa.diagnose writes
+(slow).
 """
 
 from __future__ import annotations
 
 import json
 import os
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -21,7 +24,6 @@ import yaml
 from conftest import SHORT_OVERRIDES
 
 from hypa.errors import UserError
-from hypa.explain import frequency_response
 from hypa.explain.run import compare, select_blocks
 from hypa.models.spec import parse_model_spec
 
@@ -173,45 +175,48 @@ TRUE_TRANSIENT, TRUE_TRANSIENT_TAU, TRUE_LAG = 0.3, 0.3, 0.07  # phase reversal 
 STEERING_RATIO = 15.0  # δsw/δf
 
 
-def bench_law(frequency_hz: np.ndarray) -> np.ndarray:
-    """δr/δf of the bench's ECU without its yaw-rate terms: (k + (k - k_t) τ_t s) / ((1 + τ_t s)(1 + τ s))."""
-    s = 2j * np.pi * frequency_hz
-    numerator = TRUE_RATIO + (TRUE_RATIO - TRUE_TRANSIENT) * TRUE_TRANSIENT_TAU * s
-    return numerator / ((1 + TRUE_TRANSIENT_TAU * s) * (1 + TRUE_LAG * s))
+def lags(frequency: float, damping: float) -> tuple[float, float]:
+    """The two time constants [s] of 1 + 2ζ s/ω + s²/ω² with ζ ≥ 1, slower first."""
+    omega, root = 2 * np.pi * frequency, np.sqrt(damping**2 - 1.0)
+    return (damping + root) / omega, (damping - root) / omega
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason=(
-    "issue 11 open. On the phase-reversal bench (2026-11-23, 20 epochs): the learned angle follows the measured "
-    "one at r 0.91; the second-order rung explains 91 % of the block and has the law's shape (in phase 0.07 at "
-    "0.05 Hz, counter-phase from 0.5 Hz; truth 0.12) but 1.6x its size at 1-2 Hz; the chosen form adds yaw-rate "
-    "and side-slip terms (97 %) and its steering part then reads 0.52 at 0.05 Hz: the network mixes the ECU "
-    "with compensation"))
-def test_explained_rear_steering_is_the_test_bench_law(tmp_path: Path, hypa_cache: Path) -> None:
-    """V1 on the default test bench (full records), trained long enough that its rear-steering
-    network follows the true angle; the explained law's response to the steering against the
-    ECU's: in phase at 0.12 once settled, counter-phase at 2-3 Hz (the phase reversal)."""
-    run = tmp_path / "v1"
-    result = command("hypa.train", "model=v1", "ann=lstm", f"hydra.run.dir={run}", "trainer.max_epochs=20",
+def test_the_diagnosed_models_network_learns_the_test_bench_ecu(tmp_path: Path, hypa_cache: Path) -> None:
+    """The default test bench (full records): hypa.diagnose names the tires' saturation and
+    relaxation and an unmodelled rear steering; diagnosed_learned.yaml learns that steering with a
+    network inside the corrected physics (V1's idea), hypa.train trains it, hypa.explain explains
+    it. The ECU (conf/testbench/default.yaml): (k + (k - k_t) τ_t s) / ((1 + τ_t s)(1 + τ s)) with
+    k 0.12 at 33.3 m/s, k_t 0.3, τ_t 300 ms, actuator τ 70 ms, and a yaw-rate term 0.005 s · r
+    (collinear with the steering here: found, or reported as not resolved)."""
+    result = command("hypa.diagnose", "plot=false", f"hydra.run.dir={tmp_path / 'diagnosis'}", cache=hypa_cache,
+                     timeout=1200)
+    assert result.returncode == 0, result.stderr[-3000:]
+    diagnosis = json.loads((tmp_path / "diagnosis" / "diagnosis.json").read_text())
+    learned = diagnosis["extended"]["train_command"]["diagnosed_learned"]
+    run = tmp_path / "learned"
+    result = command("hypa.train", *shlex.split(learned)[3:], f"hydra.run.dir={run}", "trainer.max_epochs=20",
                      "trainer.enable_progress_bar=false", "figures.enabled=false", cache=hypa_cache, timeout=3600)
     assert result.returncode == 0, result.stderr[-3000:]
-    result = command("hypa.explain", f"run={run}", "block=rear_steering", f"hydra.run.dir={tmp_path / 'explain'}",
+    result = command("hypa.explain", f"run={run}", f"hydra.run.dir={tmp_path / 'explain'}", "plot=false",
                      cache=hypa_cache)
     assert result.returncode == 0, result.stderr[-3000:]
     block = json.loads((tmp_path / "explain" / "explanation.json").read_text())["blocks"][0]
-    assert block["comparison"]["learned_vs_measured"]["corr"] > 0.8, block["comparison"]
-    from hypa.explain.forms import FittedForm, Form, Value
-
-    chosen = block["explanation"]["forms"][block["explanation"]["chosen"]]
-    fitted = FittedForm(Form(**chosen["form"]), tuple(Value(**v) for v in chosen["values"]), chosen["n_parameters"],
-                        chosen["r2_train"], chosen["r2_val"], chosen["score"])
-    to_front = STEERING_RATIO if block["inputs"] == ["steering_wheel_angle"] else 1.0
-    frequencies = np.array([0.05, 2.0, 3.0])
-    explained = frequency_response(fitted, block["inputs"][0], frequencies) * to_front
-    truth = bench_law(frequencies)
-    assert explained[0].real == pytest.approx(truth[0].real, rel=0.3), block["description"]
-    assert np.all(explained[1:].real < 0), block["description"]  # counter-phase, as the ECU right after a change
-    np.testing.assert_allclose(np.abs(explained[1:]), np.abs(truth[1:]), rtol=0.4, err_msg=block["description"])
+    assert block["inputs"] == ["front_wheel_angle"] and block["measured"] == "rear_wheel_angle", block
+    assert block["comparison"]["learned_vs_measured"]["corr"] > 0.95, block["comparison"]
+    explanation = block["explanation"]
+    chosen = explanation["forms"][explanation["chosen"]]
+    values = {(v["kind"], v["signal"]): v["value"] for v in chosen["values"]}
+    found = block["description"]
+    assert values[("gain", "front_wheel_angle")] == pytest.approx(TRUE_RATIO, rel=0.2), found
+    assert chosen["form"]["dynamics"] == "second_order", found
+    slow, fast = lags(values[("natural_frequency", "")], values[("damping", "")])
+    assert fast + values[("delay", "")] == pytest.approx(TRUE_LAG, rel=0.3), found
+    assert slow == pytest.approx(TRUE_TRANSIENT_TAU, rel=0.3), found
+    zero = values[("zero", "front_wheel_angle")]  # (k - k_t) τ_t / k: counter-phase right after a change
+    assert zero == pytest.approx((1 - TRUE_TRANSIENT / TRUE_RATIO) * TRUE_TRANSIENT_TAU, rel=0.3), found
+    yaw = values.get(("gain", "yaw_rate"))
+    assert (yaw is not None and yaw == pytest.approx(0.005, rel=0.5)) or "yaw_rate" in explanation["unresolved"]
 
 
 # --- a law hidden with known values is recovered (one seed here, two more slow) -------------

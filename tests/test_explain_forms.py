@@ -136,6 +136,15 @@ def test_a_dependence_on_yaw_rate_is_found_with_its_sign_and_size():
     assert result.best.value("gain", "front_angle").value == pytest.approx(0.12, rel=0.02)
     assert result.describe().startswith("rear_angle = 0.12 · front_angle, lag 70 ms, − 0.004 s · yaw_rate; explains")
     assert result.forms[-2].r2_val < result.best.r2_val - 0.01  # the extra signal earned its place
+    assert result.unresolved() is None
+
+
+def test_a_yaw_rate_the_law_does_not_read_is_reported_as_not_resolved():
+    result = run(lambda u, r: truth(u, [0.12], [0.07, 1.0]), noise=0.0005, extra=("yaw_rate",))
+    assert result.best.form.name == "lag"
+    assert result.unresolved().startswith("a dependence on yaw_rate is not resolved by these data")
+    assert result.to_dict()["unresolved"] == result.unresolved()
+    assert run(lambda u, r: truth(u, [0.12], [0.07, 1.0]), noise=0.0005).unresolved() is None  # none tried
 
 
 # --- and nothing but the law ---------------------------------------------------------------------

@@ -17,6 +17,8 @@ the vehicle's, a user's own file with ``diagnosis.catalogue=[PATH]``)::
           diagnosed_delay_{input}: {kind: delay, inputs: ["{input}"], outputs: ["{input}__delayed"],
                                     parameters: {delay_s: 2 * dt}, trainable: [delay_s]}
         parameters: {}                 # shared parameter values
+      learn: [diagnosed_rear_steering]   # inserted blocks that stand in for a subsystem nobody
+                                       # modelled: diagnosed_learned.yaml learns each with a network
 
 Placeholders: ``{input}``, ``{output}``, ``{block}``, ``{parameter}`` (the block's own name of
 it), ``{channel}`` (scheduling), ``{block_input}`` (the block's first input), ``{system}`` (the
@@ -44,7 +46,7 @@ from hypa.physics.systems import PHYSICS_SYSTEMS, build_system
 GENERIC = Path(__file__).with_name("catalogue.yaml")
 FOR_EACH = ("input", "output", "parameter", "scheduling", "block")
 FITS = {"gradient": GRADIENT, "offset": AFFINE, "none": NONE}
-_KEYS = {"id", "name", "for_each", "where", "when", "fit", "offset", "patch"}
+_KEYS = {"id", "name", "for_each", "where", "when", "fit", "offset", "patch", "learn"}
 _WHEN = ("zero", "nonzero")
 _PATCH_KEYS = {"rewire", "blocks", "parameters"}
 
@@ -66,6 +68,7 @@ class Entry:
     when: Mapping[str, str] = field(default_factory=dict)  # parameter -> zero | nonzero
     offset: str = ""
     source: str = ""
+    learn: tuple[str, ...] = ()  # blocks of the patch a network may learn instead (placeholders allowed)
 
     def applies(self, values: Mapping[str, float]) -> bool:
         """Whether the nominal parameter values allow the entry (``when``; a missing one: no)."""
@@ -124,9 +127,15 @@ def _entry(item: Any, path: Path) -> Entry:
         raise CatalogueError(f"{where}: when maps parameters to zero or nonzero, got {when!r}")
     if item["for_each"] == "block" and not (item.get("where") or {}).get("system"):
         raise CatalogueError(f"{where}: for_each: block needs where: {{system: [...]}}")
+    learn = item.get("learn") or []
+    learn = [learn] if isinstance(learn, str) else learn
+    unknown = [b for b in learn if b not in (patch.get("blocks") or {})]
+    if not isinstance(learn, list) or unknown:
+        raise CatalogueError(f"{where}: learn lists blocks of the patch (a network learns each instead), "
+                             f"got {item.get('learn')!r}")
     return Entry(id=str(item["id"]), name=str(item.get("name", item["id"])), for_each=item["for_each"], fit=fit,
                  patch=patch, where=item.get("where") or {}, when=when, offset=str(item.get("offset", "")),
-                 source=str(path))
+                 source=str(path), learn=tuple(str(b) for b in learn))
 
 
 def _format(value: Any, context: Mapping[str, str]) -> Any:
@@ -266,5 +275,6 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
             knobs = _knobs(edited, physical_values, channels) if entry.fit == GRADIENT else {}
             if entry.fit == GRADIENT and not knobs:
                 raise CatalogueError(f"{where}: fit: gradient but the patch makes nothing trainable")
-            out.append(Candidate(entry.id, target, edited, entry.fit, tuple(knobs), knobs))
+            out.append(Candidate(entry.id, target, edited, entry.fit, tuple(knobs), knobs,
+                                 tuple(_format(b, context) for b in entry.learn)))
     return out

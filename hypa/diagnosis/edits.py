@@ -35,6 +35,7 @@ class Candidate:
     fit: str
     knobs: tuple[str, ...] = ()
     units: Mapping[str, str] = field(default_factory=dict)
+    learn: tuple[str, ...] = ()  # inserted blocks a network may learn instead (the catalogue's ``learn``)
 
     @property
     def key(self) -> str:

@@ -52,6 +52,19 @@ def with_correction(spec: ModelSpec, inputs: Sequence[str]) -> ModelSpec:
     return dataclasses.replace(spec, name=f"{spec.name}_hybrid", blocks=(*blocks, correction), stages=stages)
 
 
+def with_networks(spec: ModelSpec, blocks: Sequence[str]) -> ModelSpec:
+    """``diagnosed_learned``: the diagnosed model with ``blocks`` (inserted by named causes whose
+    catalogue entry lists them under ``learn``) learned by networks with the same inputs and
+    outputs, and every physical value frozen at its diagnosed value, so that the network learns the
+    subsystem and not the physics' other errors (V1's idea on corrected physics; ``hypa.explain``
+    then says what it learned)."""
+    from hypa.models.spec import BlockSpec
+
+    swapped = tuple(BlockSpec(name=b.name, kind="ann", inputs=b.inputs, outputs=b.outputs, scale_as=b.scale_as)
+                    if b.name in blocks else b for b in frozen(spec).blocks)
+    return dataclasses.replace(spec, name="diagnosed_learned", blocks=swapped, stages=())
+
+
 def refittable(spec: ModelSpec, nominal: ModelSpec, named: Sequence[Finding]) -> ModelSpec:
     """The extended model with what training may refine set free: the nominal's uncertain
     parameters and the knobs of the named causes' inserted blocks, starting from the fitted values."""
@@ -115,12 +128,18 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     progress("step 4/4: the extended model as a hypa model, and its gain")
     conf = out / "conf" / "model"
     conf.mkdir(parents=True, exist_ok=True)
-    extended = dataclasses.replace(refittable(search.spec, nominal, search.named), name="diagnosed")
+    # the written models keep the hold they were diagnosed with (their fitted values belong to it)
+    extended = dataclasses.replace(refittable(search.spec, nominal, search.named), name="diagnosed",
+                                   hold=nominal.hold or problem.hold)
     written = {"diagnosed": _write(conf / "diagnosed.yaml", extended, search.named)}
     if unexplained:
         hybrid = with_correction(extended, dm.input_names)
         written["diagnosed_hybrid"] = _write(conf / "diagnosed_hybrid.yaml",
                                              dataclasses.replace(hybrid, name="diagnosed_hybrid"), search.named)
+    learned = [b for f in search.named if f.candidate for b in f.candidate.learn]
+    if learned:
+        written["diagnosed_learned"] = _write(conf / "diagnosed_learned.yaml",
+                                              with_networks(extended, learned), search.named)
     train_overrides = with_past(train_overrides, problem, extended)
     commands = {name: train_command(out / "conf", name, train_overrides, name != "diagnosed", config_dir)
                 for name in written}

@@ -134,6 +134,18 @@ class Explanation:
         w; explains 93 % of the learned block``."""
         return describe(self)
 
+    def unresolved(self) -> str | None:
+        """Where extra signals were tried and the chosen form has none: the sentence that says a
+        dependence on them is not resolved by these data (with what the richest such form adds)."""
+        with_extra = [f for f in self.forms if f.form.extra != "none"]
+        if not self.extra or not with_extra or self.best.form.extra != "none":
+            return None
+        richest = max(with_extra, key=lambda f: f.score)
+        return (f"a dependence on {', '.join(self.extra)} is not resolved by these data: the best form with them "
+                f"({richest.form.name}) explains {100 * (richest.r2_val - self.best.r2_val):+.1f} % of the "
+                f"variance more on validation, less than its {richest.n_parameters - self.best.n_parameters} "
+                f"extra parameter(s) and the margin cost")
+
     def to_dict(self) -> dict:
         """Plain JSON-ready values (SI units, as in the dataclasses)."""
         out = asdict(self)
@@ -141,6 +153,7 @@ class Explanation:
             form.pop("theta"), form.pop("gains")
         out["chosen_form"] = self.best.form.name
         out["description"] = self.describe()
+        out["unresolved"] = self.unresolved()
         return out
 
 

@@ -32,6 +32,7 @@ def to_dict(run: TrainedRun, results: Sequence[BlockExplanation]) -> dict:
         "blocks": [{"block": r.problem.block, "output": r.problem.output, "inputs": list(r.problem.inputs),
                     "extra": list(r.problem.extra), "units": dict(r.problem.units),
                     "corrects": list(r.problem.corrects) if r.problem.corrects else None,
+                    "measured": r.problem.measured,
                     "description": r.explanation.describe(), "explanation": r.explanation.to_dict(),
                     "comparison": r.comparison, "figures": {k: v.name for k, v in r.figures.items()},
                     "replacement": r.replacement,
@@ -81,7 +82,9 @@ def _report_block(r: BlockExplanation) -> list[str]:
         mark = "**chosen**" if i == e.chosen else ""
         lines.append(f"| {f.form.rung} | {f.form.name} | {f.n_parameters} | {f.r2_train:.3f} | {f.r2_val:.3f} | "
                      f"{f.score:.3f} | {mark} |")
-    lines += ["", f"Chosen: {e.best.form.name} (penalty {e.penalty:g} per parameter, margin {e.margin:g}).", "",
+    unresolved = e.unresolved()
+    lines += ["", f"Chosen: {e.best.form.name} (penalty {e.penalty:g} per parameter, margin {e.margin:g})."
+              + (f" {unresolved[0].upper()}{unresolved[1:]}." if unresolved else ""), "",
               "| value | signal | estimate | 1σ | unit |", "|---|---|---:|---:|---|"]
     for v in e.best.values:
         lines.append(f"| {v.kind} | {v.signal or ''} | {rounded(v.value)} | {rounded(v.std)} | {v.unit} |")
@@ -99,7 +102,7 @@ def _report_block(r: BlockExplanation) -> list[str]:
         lines.append(f"| {rounded(a.low)}-{rounded(a.high)} | {rounded(a.rms_error)} | {100 * a.share:.0f} % |")
     if r.comparison:
         c, unit = r.comparison, u[p.output]
-        lines += ["", (f"Against the measured {p.output} (validation records; never seen in training; "
+        lines += ["", (f"Against the measured {p.measured} (validation records; never seen in training; "
                       f"RMS of the measurement {rounded(c['measured_rms']['rms'])} {unit}):"), "",
                   f"| | correlation | RMS difference [{unit}] | share of the variance explained |",
                   "|---|---:|---:|---:|"]

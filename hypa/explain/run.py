@@ -53,7 +53,8 @@ class Problem:
 
     A correction network (``residual_of``) adds its output to a physics signal: what it learned
     is the difference, so ``output`` is then ``<output>_correction`` and ``corrects`` holds the
-    (total, physics) pair it is computed from."""
+    (total, physics) pair it is computed from. ``measured``: the channel of the records that
+    measures the output, where one does (:func:`measuring_channel`)."""
 
     block: str
     output: str
@@ -61,6 +62,7 @@ class Problem:
     extra: tuple[str, ...]
     units: Mapping[str, str]
     corrects: tuple[str, str] | None = None
+    measured: str | None = None
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -89,7 +91,7 @@ class BlockExplanation:
         if self.comparison:
             unit = self.problem.units[self.problem.output]
             lm, em = self.comparison["learned_vs_measured"], self.comparison["explained_vs_measured"]
-            line += (f"; vs measured {self.problem.output}: learned r {lm['corr']:.2f} (RMS {rounded(lm['rms'])} {unit}), "
+            line += (f"; vs measured {self.problem.measured}: learned r {lm['corr']:.2f} (RMS {rounded(lm['rms'])} {unit}), "
                      f"explained r {em['corr']:.2f} (RMS {rounded(em['rms'])} {unit})")
         return line
 
@@ -151,8 +153,25 @@ def problems(spec: ModelSpec, dm: HypaDataModule, blocks: Sequence[BlockSpec],
                 corrects = (output, block.residual_of[min(i, len(block.residual_of) - 1)])
                 units[f"{output}_correction"] = units[output]
                 output = f"{output}_correction"
-            out.append(Problem(block.name, output, tuple(block.inputs), tuple(chosen), units, corrects))
+            measured = None if corrects else measuring_channel(output, dm)
+            if measured and units[output] == "-":
+                units[output] = dm.channels[measured].unit
+            for like in block.scale_as:  # scaled like the output: the same quantity, the same unit
+                if units.get(like) == "-":
+                    units[like] = units[output]
+            out.append(Problem(block.name, output, tuple(block.inputs), tuple(chosen), units, corrects, measured))
     return out
+
+
+def measuring_channel(signal: str, dm: HypaDataModule) -> str | None:
+    """The channel that measures a model's signal: its own name, or for what a diagnosis inserted
+    (``diagnosed_<channel>``, e.g. ``diagnosed_rear_wheel_angle``) that channel; None if neither."""
+    from hypa.diagnosis.system import DIAGNOSED
+
+    for name in (signal, signal.removeprefix(DIAGNOSED)):
+        if name in dm.channels:
+            return name
+    return None
 
 
 # --- the model's signals over the records -------------------------------------------------------
@@ -182,7 +201,7 @@ def recordings(predictions: Sequence[Prediction], problem: Problem) -> list[Reco
             out.append(Recording(recording.name, signals, recording.start))
             continue
         recording = Recording.from_prediction(prediction, list(problem.names))
-        truth = prediction.measured.get(problem.output)
+        truth = prediction.measured.get(problem.measured) if problem.measured else None
         if truth is not None:
             n = len(recording[problem.output])
             signals = {**recording.signals, f"measured:{problem.output}": truth[recording.start: recording.start + n]}
