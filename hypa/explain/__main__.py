@@ -10,6 +10,7 @@ Writes ``explanation.md``, ``explanation.json`` and the figures into the Hydra r
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import hydra
@@ -46,13 +47,17 @@ def main(cfg: DictConfig) -> None:
     select_blocks(run.module.model.spec, block)  # a wrong block name fails before the data are read
     out = Path(HydraConfig.get().runtime.output_dir)
     dm = run_datamodule(run)
+    started = time.perf_counter()
     results = explain_run(run, dm, out, block, settings, progress=lambda text: print(text, flush=True),
                           baseline=baseline)
+    seconds = time.perf_counter() - started
     for result in results:
         print(result.summary(), flush=True)
         if result.replacement:
             print("  " + replacement_line(result.replacement), flush=True)
-    print(f"report: {out / 'explanation.md'}", flush=True)
+    fits = ", ".join(f"{r.problem.key} {r.seconds:.1f} s" for r in results)
+    print(f"explained in {seconds:.1f} s after training (fitting the ladders: {fits}); "
+          f"report: {out / 'explanation.md'}", flush=True)
 
 
 if __name__ == "__main__":

@@ -35,7 +35,7 @@ def to_dict(run: TrainedRun, results: Sequence[BlockExplanation]) -> dict:
                     "measured": r.problem.measured,
                     "description": r.explanation.describe(), "explanation": r.explanation.to_dict(),
                     "comparison": r.comparison, "figures": {k: v.name for k, v in r.figures.items()},
-                    "replacement": r.replacement,
+                    "replacement": r.replacement, "seconds": r.seconds,
                     "notes": r.notes} for r in results]})
 
 

@@ -16,6 +16,7 @@ signal over time, the frequency response, the static curve) into ``out``.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -84,6 +85,7 @@ class BlockExplanation:
     figures: dict[str, Path] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     replacement: dict | None = None  # the block replaced by its form: config, validation errors (hypa.explain.replace)
+    seconds: float = 0.0  # [s] fitting the ladder (the free runs, the replacement and the figures not counted)
 
     def summary(self) -> str:
         """One line: the block, the chosen form, and the comparison with the measurement."""
@@ -268,7 +270,9 @@ def explain_run(run: TrainedRun, dm: HypaDataModule, out: Path, block: str | Non
     results = []
     for problem in chosen:
         progress(f"fitting the ladder to {problem.block} ({', '.join(problem.inputs)} -> {problem.output})")
+        started = time.perf_counter()
         result, rec_train, rec_val = explain_problem(problem, train, val, dm.dt, settings)
+        result.seconds = time.perf_counter() - started
         result.notes += hold_note(model, problem.block, dm.dt)
         replace_block(result, run, dm, val, out, progress, baseline)
         if settings.plot:
