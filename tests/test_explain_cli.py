@@ -64,7 +64,7 @@ def test_explains_every_ann_block_into_report_json_and_figures(explained) -> Non
     assert len(summary) == 1 and "rear_wheel_angle = " in summary[0] and "vs measured rear_wheel_angle" in summary[0]
     assert f"report: {out / 'explanation.md'}" in result.stdout
     timing = next(line for line in result.stdout.splitlines() if line.startswith("explained in "))
-    assert "s after training (fitting the ladders: rear_steering " in timing  # seconds, not minutes
+    assert "s after training (fitting the ladders: rear_steering rear_wheel_angle " in timing  # seconds
     data = json.loads((out / "explanation.json").read_text())
     assert [b["block"] for b in data["blocks"]] == ["rear_steering"]
     block = data["blocks"][0]

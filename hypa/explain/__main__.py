@@ -55,7 +55,7 @@ def main(cfg: DictConfig) -> None:
         print(result.summary(), flush=True)
         if result.replacement:
             print("  " + replacement_line(result.replacement), flush=True)
-    fits = ", ".join(f"{r.problem.key} {r.seconds:.1f} s" for r in results)
+    fits = ", ".join(f"{r.problem.block} {r.problem.output} {r.seconds:.1f} s" for r in results)
     print(f"explained in {seconds:.1f} s after training (fitting the ladders: {fits}); "
           f"report: {out / 'explanation.md'}", flush=True)
 
