@@ -31,6 +31,7 @@ from hypa.errors import user_errors
 def main(cfg: DictConfig) -> None:
     from hypa.diagnosis.catalogue import load_catalogue
     from hypa.diagnosis.engine import Problem
+    from hypa.diagnosis.problem import format_change
     from hypa.diagnosis.system import diagnose_system
     from hypa.entry import datamodule, vehicle_from_config
     from hypa.errors import UserError
@@ -63,12 +64,12 @@ def main(cfg: DictConfig) -> None:
                              max_causes=int(cfg.diagnosis.max_causes), min_gain=float(cfg.diagnosis.min_gain),
                              train_extension=trainer)
     change = result["gain"]["all"]["overall"]
-    print(f"named causes: {', '.join(result['causes']) or 'none'}; validation error {100 * change:+.0f} % with them "
+    print(f"named causes: {', '.join(result['causes']) or 'none'}; validation error {format_change(change)} with them "
           f"applied; unexplained: {', '.join(s['output'] for s in result['unexplained']) or 'nothing'}; "
           f"report: {out / 'diagnosis.md'}", flush=True)
     trained = result["extended"].get("trained")
     if trained:
-        print(f"trained extension ({trained['run']}): validation error {100 * trained['gain']['all']['overall']:+.0f} % "
+        print(f"trained extension ({trained['run']}): validation error {format_change(trained['gain']['all']['overall'])} "
               "against the nominal physics", flush=True)
         for explained in trained["explained"]:
             print(f"  its network {explained['block']} learned: {explained['description']}", flush=True)

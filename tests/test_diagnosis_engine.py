@@ -273,3 +273,9 @@ def test_fits_on_worker_processes_give_the_results_of_one_process(tmp_path: Path
     one, two = ([repr((f.key, f.score, f.values, f.steps)) for f in s.rounds[0]] for s in searches)  # nan == nan
     assert sorted(one) == sorted(two)
     assert searches[1].named[0].cause == "input_delay"
+
+
+def test_a_change_near_all_or_nothing_keeps_a_decimal() -> None:
+    from hypa.diagnosis.problem import format_change
+
+    assert [format_change(x) for x in (-0.996, -0.93, -0.004, 0.25)] == ["-99.6 %", "-93 %", "-0.4 %", "+25 %"]

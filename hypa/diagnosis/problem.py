@@ -52,6 +52,13 @@ class Problem:
 READABLE = {"rad": ("deg", 180.0 / math.pi), "rad/s": ("deg/s", 180.0 / math.pi)}  # SI unit -> (shown, factor)
 
 
+def format_change(change: float) -> str:
+    """A relative change in percent, signed: whole percent, one decimal near ±100 % and below 1 %
+    (a 99.6 % drop reads -99.6 %, not -100 %)."""
+    percent = 100 * change
+    return f"{percent:+.1f} %" if abs(percent) < 1 or abs(percent) >= 99.5 else f"{percent:+.0f} %"
+
+
 def format_value(value: float, unit: str) -> str:
     """Rounded to 3 significant digits with its unit (seconds below 1 s as ms, angles in degrees)."""
     if unit == "s" and abs(value) < 1.0:

@@ -24,6 +24,7 @@ import yaml
 from hypa.diagnosis.catalogue import Entry
 from hypa.diagnosis.edits import frozen
 from hypa.diagnosis.engine import Finding, Problem, Search, name_causes
+from hypa.diagnosis.problem import format_change
 from hypa.diagnosis.structure import OutputStructure, analyze_output
 from hypa.diagnosis.trained import TrainedExtension
 from hypa.evaluation.runs import Prediction, free_run, free_run_metrics
@@ -332,7 +333,7 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
     trained = result["extended"].get("trained")
     if trained:
         lines += ["", f"The trained extension is `{trained['model']}` trained by hypa.train (run `{trained['run']}`): "
-                  f"validation error {100 * trained['gain']['all']['overall']:+.0f} % against the nominal model."]
+                  f"validation error {format_change(trained['gain']['all']['overall'])} against the nominal model."]
         if trained["explained"]:
             lines += ["", "What its networks learned (hypa.explain; fitted on the training records, R² on the "
                       f"validation records; report `{trained['explained'][0]['report']}`):", ""]
