@@ -209,6 +209,10 @@ def _write(path: Path, spec: ModelSpec, named: Sequence[Finding]) -> Path:
     return path
 
 
+WRITTEN = {"diagnosed": "the named causes at their fitted values, the uncertain ones trainable",
+           "diagnosed_hybrid": "the same with a correction network on the outputs",
+           "diagnosed_learned": ("the subsystems the named causes stand in for learned by networks in the frozen "
+                                 "physics; then `python -m hypa.explain run=<its run>` says what they learned")}
 PAST_MARGIN = 4  # an estimated start sees this many times as many measured values as the block has states
 
 
@@ -357,7 +361,8 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
         lines.append(f"- `{s.output}`: {100 * s.share:.3g} % of its variance left; {text}.")
     lines += ["", "## The extended model", ""]
     for name, path in result["extended"]["config"].items():
-        lines.append(f"- `{path}`: train it with `{result['extended']['train_command'][name]}`")
+        lines.append(f"- `{path}` ({WRITTEN.get(name, name)}): train it with "
+                     f"`{result['extended']['train_command'][name]}`")
     lines += ["", "## Every candidate of the first round", "", "| cause | on | fitted | gain |", "|---|---|---|---|"]
     for f in search.rounds[0] if search.rounds else []:
         fitted = (f.describe().split(": ", 1)[1] if ": " in f.describe() else "") or (f.error or "–")
