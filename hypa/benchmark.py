@@ -2,12 +2,14 @@
 
     python -m hypa.benchmark dataset=silverbox            # quick budget: minutes
     python -m hypa.benchmark dataset=emps budget=full     # the benchmark (longer)
+    python -m hypa.benchmark dataset=emps budget=full seeds=[0,1,2]   # mean ± std over seeds
     make benchmark ARGS="dataset=racecar budget=full"
 
 Each model of the data set's suite (``conf/benchmark.yaml``) is trained by ``python -m
 hypa.train`` in its own run folder below this run's, then simulated free-running over every
-test set. Prints and writes ``benchmark.md`` and ``benchmark.json`` (RMS in SI units, R²,
-training time) beside the published figures.
+test set, once per seed of ``seeds``. Prints and writes ``benchmark.md`` and ``benchmark.json``
+(RMS in SI units, R², training time; means and standard deviations over the seeds, and each
+seed) beside the published figures.
 """
 
 from __future__ import annotations
@@ -54,17 +56,23 @@ def main(cfg: DictConfig) -> None:
     unknown = [m for m in labels if m not in suite.models]
     if unknown:
         raise UserError(f"models {unknown} are not in the {dataset} suite: {', '.join(suite.models)}")
+    seeds = [int(s) for s in cfg.seeds]
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise UserError(f"seeds must name at least one seed, each once; got {seeds}")
     out = Path(HydraConfig.get().runtime.output_dir)
     scores, times = [], {}
-    for i, label in enumerate(labels, 1):
-        print(f"[{i}/{len(labels)}] {dataset}: {label}", flush=True)
-        folder = out / label
-        overrides = [f"dataset={dataset}", *suite.models[label], *cfg.budgets[cfg.budget], *cfg.train_overrides]
+    jobs = [(label, seed) for label in labels for seed in seeds]
+    for i, (label, seed) in enumerate(jobs, 1):
+        print(f"[{i}/{len(jobs)}] {dataset}: {label}" + (f", seed {seed}" if len(seeds) > 1 else ""), flush=True)
+        folder = out / label if len(seeds) == 1 else out / f"{label}-seed{seed}"
+        overrides = [f"dataset={dataset}", *suite.models[label], *cfg.budgets[cfg.budget], *cfg.train_overrides,
+                     f"seed={seed}", f"data.seed={seed}"]  # the networks' start and the windows' order
         train_model(label, overrides, folder)
         run = load_run(folder)
         dm = run_datamodule(run)
-        scores += score_run(run, dm, label)
-        times[label] = float(json.loads((folder / "run.json").read_text()).get("training_time_s", float("nan")))
+        scores += score_run(run, dm, label, seed)
+        seconds = float(json.loads((folder / "run.json").read_text()).get("training_time_s", float("nan")))
+        times[label] = times.get(label, 0.0) + seconds / len(seeds)
     units = {n: (dm.channels[n].display_unit, dm.channels[n].display_factor) for n in dm.output_names}
     published = OmegaConf.to_container(suite.published, resolve=True)
     table = benchmark_table(scores, times, published, units, dataset)

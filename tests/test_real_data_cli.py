@@ -2,6 +2,7 @@
 trains a few batches on each, and ``python -m hypa.benchmark`` writes its table and JSON."""
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -32,14 +33,21 @@ def test_every_benchmark_model_trains_on_the_real_data(dataset: str, model: str,
 
 
 def test_benchmark_writes_the_table_and_json(tmp_path: Path) -> None:
-    result = hypa("hypa.benchmark", "dataset=racecar", "models=[physical]", "train_overrides=['ann.hidden_size=8']",
-                  f"hydra.run.dir={tmp_path}")
+    result = hypa("hypa.benchmark", "dataset=racecar", "models=[physical]", "seeds=[0,1]",
+                  "train_overrides=['ann.hidden_size=8']", f"hydra.run.dir={tmp_path}")
     assert result.returncode == 0, result.stderr[-3000:]
     assert "| test | yaw_rate |" in result.stdout and "deg/s" in result.stdout
+    assert "mean ± standard deviation over seeds physical [0, 1]" in result.stdout
     content = json.loads((tmp_path / "benchmark.json").read_text())["racecar"]
     scores = content["models"]["physical"]["test_sets"]["test"]
     assert set(scores) == {"yaw_rate", "side_slip"}
-    assert scores["yaw_rate"]["r2"] > 0.5 and scores["yaw_rate"]["rms"] > 0  # rad/s, SI
+    yaw = scores["yaw_rate"]
+    assert yaw["r2"] > 0.5 and yaw["rms"] > 0  # rad/s, SI
+    assert set(yaw["seeds"]) == {"0", "1"}  # each seed trained in its own run folder, with its own seed
+    assert yaw["rms"] == pytest.approx((yaw["seeds"]["0"]["rms"] + yaw["seeds"]["1"]["rms"]) / 2)
+    for seed in (0, 1):
+        config = (tmp_path / f"physical-seed{seed}" / "config.yaml").read_text()
+        assert re.search(rf"^seed: {seed}$", config, re.MULTILINE)
     assert content["models"]["physical"]["training_time_s"] > 0
 
 

@@ -1,0 +1,50 @@
+"""The benchmark's table and JSON from synthetic scores: means and spreads over seeds, units, published figures."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from hypa.evaluation.benchmark import Score, benchmark_table, summarize, write_benchmark_json
+
+UNITS = {"position": ("mm", 1000.0)}
+PUBLISHED = {"test": {"position": {"linear": 5.53}}}
+
+
+def scores() -> list[Score]:
+    return [Score("physical", "test", "position", 0.004, 0.99, 100, seed=0),
+            Score("physical", "test", "position", 0.006, 0.98, 100, seed=1),
+            Score("hybrid", "test", "position", 0.003, 0.995, 100, seed=0)]
+
+
+def test_seeds_are_summarized_by_mean_and_sample_std() -> None:
+    s = summarize(scores())
+    physical = s[("physical", "test", "position")]
+    assert physical.rms == pytest.approx(0.005) and physical.rms_std == pytest.approx(0.002 / 2**0.5)
+    assert physical.r2 == pytest.approx(0.985) and physical.seeds == {0: (0.004, 0.99), 1: (0.006, 0.98)}
+    assert s[("hybrid", "test", "position")].rms_std == 0.0  # one seed: no spread
+
+
+def test_the_table_shows_mean_and_spread_in_display_units() -> None:
+    table = benchmark_table(scores(), {"physical": 80.0, "hybrid": 300.0}, PUBLISHED, UNITS, "emps")
+    row = next(line for line in table.splitlines() if line.startswith("| test | position |"))
+    assert "| 5 ± 1.4 mm | 3 mm |" in row and "| 5.53 mm |" in row
+    assert "mean ± standard deviation over seeds physical [0, 1], hybrid [0]" in table
+    assert "training time: physical 80 s, hybrid 300 s" in table
+
+
+def test_one_seed_keeps_the_plain_table() -> None:
+    table = benchmark_table(scores()[2:], {"hybrid": 300.0}, PUBLISHED, UNITS, "emps")
+    assert "| 3 mm |" in table and "±" not in table
+
+
+def test_the_json_holds_means_in_si_units_and_every_seed(tmp_path: Path) -> None:
+    path = tmp_path / "benchmark.json"
+    write_benchmark_json(path, "emps", scores(), {"physical": 80.0}, PUBLISHED, UNITS)
+    content = json.loads(path.read_text())["emps"]
+    entry = content["models"]["physical"]["test_sets"]["test"]["position"]
+    assert entry["rms"] == pytest.approx(0.005) and entry["samples"] == 100
+    assert entry["seeds"] == {"0": {"rms": 0.004, "r2": 0.99}, "1": {"rms": 0.006, "r2": 0.98}}
+    assert content["published"] == PUBLISHED and content["display_units"]["position"]["unit"] == "mm"
