@@ -28,7 +28,7 @@ evaluate: $(STAMP) ## evaluate a run: make evaluate ARGS="run=outputs/train/v2-l
 reproduce: $(STAMP) ## train + evaluate every Table 1 row over 3 seeds -> results/REPORT.md
 	$(BIN)/python -m hypa.reproduce $(ARGS)
 
-simulate: $(STAMP) ## nominal physics vs measured data: make simulate ARGS="physics.hold=foh"
+simulate: $(STAMP) ## a physics model vs measured data: make simulate ARGS="dataset=silverbox model=silverbox_physical"
 	$(BIN)/python -m hypa.simulate $(ARGS)
 
 testbench: $(STAMP) ## generate (or find cached) test-bench data and print a summary

@@ -1,12 +1,14 @@
-"""Simulate the nominal vehicle physics on measured data and report how far off it is.
+"""Simulate a physics model at its configured values on measured data and report how far off it is.
 
-    python -m hypa.simulate                               # default test-bench data
+    python -m hypa.simulate                                  # the vehicle physics, default test bench
     python -m hypa.simulate physics.hold=foh vehicle.cf=140000
+    python -m hypa.simulate model=vehicle_nominal            # front steering only
+    python -m hypa.simulate dataset=silverbox model=silverbox_physical
     python -m hypa.simulate dataset=files data.dir=PATH data.channels.steering_wheel_angle.unit=deg
 
-The entry point only reads the settings; :func:`hypa.vehicle.simulation.simulate_records` runs
-the physics (windowed and free-running on each validation record) and writes
-``simulation.json`` and a figure per record into the Hydra run folder.
+The entry point only reads the settings; :func:`hypa.evaluation.nominal.simulate_nominal` runs
+the model (windowed and free-running on each validation record, through the same engine as
+training) and writes ``simulation.json`` and a figure per record into the Hydra run folder.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from pathlib import Path
 import hydra
 import numpy as np
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from hypa.errors import setting, settings, user_errors
 
@@ -26,20 +28,27 @@ from hypa.errors import setting, settings, user_errors
 def main(cfg: DictConfig) -> float:
     from hypa.data import datamodule_from_config
     from hypa.entry import data_dir_from_config, vehicle_from_config
+    from hypa.evaluation.nominal import nominal_module, report, simulate_nominal
     from hypa.physics import HOLDS
-    from hypa.vehicle.simulation import REAR_STEERING, simulate_records
 
     hold = setting(cfg, "physics.hold", str, choices=HOLDS)
-    rear = setting(cfg, "physics.rear_steering", str, choices=REAR_STEERING)
+    plot = setting(cfg, "plot", bool)
+    model_config = OmegaConf.to_container(cfg.model, resolve=True)
     with settings("vehicle"):
-        vehicle = vehicle_from_config(cfg.vehicle)
+        values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.vehicle else {}
     with settings("testbench"):  # the test bench's settings build its data (files: a folder only)
         data_dir = data_dir_from_config(cfg)
     dm = datamodule_from_config(cfg.data, data_dir)
+    dm.setup()
+    module = nominal_module(model_config, values, dm, hold)
     out = Path(HydraConfig.get().runtime.output_dir)
-    results = simulate_records(dm, vehicle, hold, rear, out, plot=bool(cfg.plot))
+    out.mkdir(parents=True, exist_ok=True)
+    results = simulate_nominal(module, dm, out, plot=plot)
+    print(report(results, dm, f"model {model_config['name']} at its configured values (hold={hold}) "
+                              "against the validation data:"))
     print(f"results and figures in {out}")
-    return float(np.mean([m["nrmse"] for m in results["windowed (100 steps)"].values()]))
+    return float(np.mean([m["nrmse"] for label, r in results.items() if label.startswith("windowed")
+                          for m in r.values()]))
 
 
 if __name__ == "__main__":

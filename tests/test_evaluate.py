@@ -45,7 +45,7 @@ def test_free_run_of_physical_model_equals_the_physics_recursion(trained, hypa_c
     from hypa.evaluation.runs import free_run, load_run
     from hypa.evaluate import run_datamodule
     from hypa.vehicle import VehicleParameters
-    from hypa.vehicle.simulation import simulate_vehicle
+    from vehicle_reference import simulate_vehicle
 
     run = load_run(trained["physical"])
     dm = run_datamodule(run)

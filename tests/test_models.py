@@ -9,7 +9,7 @@ import yaml
 
 from hypa.models import ComposedModel, ModelSpecError, parse_model_spec
 from hypa.vehicle import VehicleParameters
-from hypa.vehicle.simulation import simulate_vehicle
+from vehicle_reference import simulate_vehicle
 
 CONF = Path(__file__).resolve().parents[1] / "conf" / "model"
 INPUTS, STATES = ("steering_wheel_angle",), ("yaw_rate", "side_slip")
