@@ -30,7 +30,9 @@ def test_seeds_are_summarized_by_mean_and_sample_std() -> None:
 def test_the_table_shows_mean_and_spread_in_display_units() -> None:
     table = benchmark_table(scores(), {"physical": 80.0, "hybrid": 300.0}, PUBLISHED, UNITS, "emps")
     row = next(line for line in table.splitlines() if line.startswith("| test | position |"))
-    assert "| 5 ± 1.4 mm | 3 mm |" in row and "| 5.53 mm |" in row
+    assert "| 5 ± 1.4 mm | 3 mm | 0.9850 ± 0.0071 | 0.9950 |" in row and "| 5.53 mm |" in row
+    tiny = [Score("m", "t", "position", 0.004, 0.99001, 100, 0), Score("m", "t", "position", 0.004, 0.99002, 100, 1)]
+    assert "0.9900 ± 7e-06" in benchmark_table(tiny, {}, {}, UNITS, "emps")  # not "± 0.0000"
     assert "mean ± standard deviation over seeds physical [0, 1], hybrid [0]" in table
     assert "training time: physical 80 s, hybrid 300 s" in table
 

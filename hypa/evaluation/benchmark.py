@@ -92,7 +92,7 @@ def benchmark_table(scores: Sequence[Score], training_time_s: Mapping[str, float
         unit, factor = units.get(output, ("", 1.0))
         rms = [summary.get((m, test_set, output)) for m in models]
         cells = [test_set, output, *[_rms_cell(s, factor, unit) for s in rms],
-                 *[(f"{s.r2:.4f}" + (f" ± {s.r2_std:.4f}" if len(s.seeds) > 1 else "")) if s else "–" for s in rms]]
+                 *[_r2_cell(s) for s in rms]]
         figures = published.get(test_set, {}).get(output, {})
         cells += [f"{figures[k]:g} {unit}" if k in figures else "–" for k in shown]
         lines.append("| " + " | ".join(cells) + " |")
@@ -102,6 +102,14 @@ def benchmark_table(scores: Sequence[Score], training_time_s: Mapping[str, float
         lines += ["mean ± standard deviation over seeds " + ", ".join(f"{m} {v}" for m, v in seeds.items())
                   + " (training time: mean per seed); each seed in benchmark.json"]
     return "\n".join(lines)
+
+
+def _r2_cell(s: Summary | None) -> str:
+    if s is None:
+        return "–"
+    if len(s.seeds) == 1:
+        return f"{s.r2:.4f}"
+    return f"{s.r2:.4f} ± " + (f"{s.r2_std:.4f}" if s.r2_std >= 5e-5 else f"{s.r2_std:.0e}")
 
 
 def _rms_cell(s: Summary | None, factor: float, unit: str) -> str:
