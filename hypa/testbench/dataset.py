@@ -2,7 +2,8 @@
 
 A dataset folder holds one ``<record>.parquet`` per record of the config and
 ``dataset.json``: the full config, its hash, the column units and per file its segments
-as half-open time intervals [start_s, end_s) [s].
+as half-open time intervals [start_s, end_s) [s], its size ``bytes`` and its ``sha256``.
+A cached folder is checked against these before it is used (:func:`cache_damage`).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from hypa.metadata import sha256
 from hypa.testbench.config import TestbenchConfig
 from hypa.testbench.records import COLUMNS, SimulatedRecord, simulate_record, write_record
 from hypa.testbench.sensors import UNITS
@@ -45,7 +47,8 @@ def default_cache_dir() -> Path:
 def _simulate_and_write(config: TestbenchConfig, name: str, out_dir: Path) -> dict[str, Any]:
     start = time.perf_counter()
     record: SimulatedRecord = simulate_record(config, name)
-    write_record(out_dir / f"{name}.parquet", record.columns)
+    path = out_dir / f"{name}.parquet"
+    write_record(path, record.columns)
     samples = len(record.columns["time"])
     log.info(
         "testbench: %s done (%.0f s of data, %d samples) in %.1f s",
@@ -60,6 +63,8 @@ def _simulate_and_write(config: TestbenchConfig, name: str, out_dir: Path) -> di
         "segments": [
             {"name": s.name, "start_s": s.start_s, "end_s": s.end_s} for s in record.segments
         ],
+        "bytes": path.stat().st_size,
+        "sha256": sha256(path),
     }
 
 
@@ -92,29 +97,129 @@ def load_description(folder: Path) -> dict[str, Any]:
     return json.loads((Path(folder) / DESCRIPTION_FILE).read_text())
 
 
+def cache_damage(folder: Path, config: TestbenchConfig) -> str | None:
+    """Why the cached dataset folder of ``config`` cannot be used, as a short phrase
+    (``train_2.parquet missing``); ``None`` when it is intact.
+
+    Intact: ``dataset.json`` is readable JSON written for this config (same hash, format
+    version and config), it lists exactly the config's records, and each listed file has its
+    recorded size [bytes] and SHA-256. A file the description does not list (other than hidden
+    ones) is damage too, because a data folder's reader takes every ``train*``/``val*`` file.
+    Every file is hashed once.
+    """
+    folder = Path(folder)
+    try:
+        description = load_description(folder)
+    except FileNotFoundError:
+        return f"{DESCRIPTION_FILE} missing"
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        return f"{DESCRIPTION_FILE} unreadable: {type(error).__name__}"
+    if not isinstance(description, dict) or not isinstance(description.get("files"), dict):
+        return f"{DESCRIPTION_FILE} is not a dataset description"
+    if (
+        description.get("config_hash") != config_hash(config)
+        or description.get("format_version") != FORMAT_VERSION
+        or description.get("config") != json.loads(json.dumps(config.to_dict()))
+    ):
+        return f"{DESCRIPTION_FILE} describes another config"
+    files: dict[str, Any] = description["files"]
+    expected = {f"{name}.parquet" for name in config.records}
+    if set(files) != expected:
+        listed = ", ".join(sorted(files)) or "no files"
+        return f"{DESCRIPTION_FILE} lists {listed}, not {', '.join(sorted(expected))}"
+    if not all(isinstance(info, dict) and {"sha256", "bytes"} <= info.keys()
+               for info in files.values()):
+        return f"{DESCRIPTION_FILE} has no checksums (written by an older hypa)"
+    problems = []
+    for name, info in sorted(files.items()):
+        path = folder / name
+        try:
+            size = path.stat().st_size
+            if size != info["bytes"]:
+                problems.append(f"{name} has {size} bytes, not {info['bytes']}")
+            elif sha256(path) != info["sha256"]:
+                problems.append(f"{name} changed (SHA-256 differs)")
+        except FileNotFoundError:
+            problems.append(f"{name} missing")
+        except OSError as error:  # a folder in its place, no permission
+            problems.append(f"{name} unreadable: {error.strerror or type(error).__name__}")
+    known = files.keys() | {DESCRIPTION_FILE}
+    unexpected = sorted(p.name for p in folder.iterdir()
+                        if not p.name.startswith(".") and p.name not in known)
+    if unexpected:
+        problems.append(f"unexpected {', '.join(unexpected)}")
+    return "; ".join(problems) or None
+
+
+def _folder_id(folder: Path) -> tuple[int, int] | None:
+    """(device, inode) of a folder, ``None`` when absent: tells a folder another run renamed
+    into place from the one this run looked at."""
+    try:
+        stat = folder.stat()
+    except FileNotFoundError:
+        return None
+    return stat.st_dev, stat.st_ino
+
+
+def _install(staging: Path, target: Path, damaged: tuple[int, int] | None) -> None:
+    """Rename the complete ``staging`` folder to ``target``, moving the damaged folder
+    (identified by :func:`_folder_id`, ``None`` when there was none) out of the way first."""
+    try:
+        os.rename(staging, target)
+        return
+    except OSError:
+        if not target.exists():
+            raise
+    # A folder other than the damaged one is another run's complete, identical result
+    # (generation is deterministic): keep it rather than pull it from under that run's readers.
+    if _folder_id(target) != damaged:
+        log.info("testbench: another run finished %s first", target)
+        return
+    # Two renames, not one atomic swap (which needs renameat2): if another run installs its
+    # folder between the check above and the first rename, this moves that good folder aside
+    # and the name is absent for the instant until the second rename. A reader then fails
+    # loudly (file not found); it never sees a mix of old and new files.
+    aside = target.with_name(f".{target.name}-damaged-{os.getpid()}-{time.time_ns()}")
+    try:
+        os.rename(target, aside)
+    except FileNotFoundError:  # another run moved it aside a moment ago
+        aside = None
+    try:
+        os.rename(staging, target)
+    except OSError:
+        if not (target / DESCRIPTION_FILE).is_file():
+            raise
+        log.info("testbench: another run finished %s first", target)
+    finally:
+        if aside is not None:
+            shutil.rmtree(aside, ignore_errors=True)
+
+
 def ensure_dataset(config: TestbenchConfig, cache_dir: Path | None = None) -> Path:
-    """The cached dataset folder ``<cache_dir>/<config hash>`` for ``config``, made if absent.
+    """The cached dataset folder ``<cache_dir>/<config hash>`` for ``config``, made if absent
+    and made again, with a warning, when it is damaged (see :func:`cache_damage`).
 
     ``cache_dir`` defaults to :func:`default_cache_dir`. The data are generated into a
     temporary sibling folder that is renamed into place only when complete, so a crashed
-    run leaves no half folder and of two parallel runs the first rename wins.
+    run leaves no half folder and of two parallel runs the first rename wins. A damaged
+    folder is renamed aside just before and deleted after, so ``<config hash>`` never holds a
+    mix of old and new files.
     """
     cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     target = cache_dir / config_hash(config)
-    if (target / DESCRIPTION_FILE).is_file():
-        log.info("testbench: using cached data in %s", target)
-        return target
+    damaged = _folder_id(target)  # before the check: another run may replace it meanwhile
+    if damaged is not None:
+        damage = cache_damage(target, config) if target.is_dir() else "not a folder"
+        if damage is None:
+            log.info("testbench: using cached data in %s", target)
+            return target
+        log.warning("testbench: cached data in %s damaged (%s); regenerating", target, damage)
     cache_dir.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{target.name}-", dir=cache_dir))
     staging.chmod(0o755)  # mkdtemp's 0700 would survive the rename
     try:
         generate_dataset(config, staging)
-        try:
-            os.rename(staging, target)
-        except OSError:
-            if not (target / DESCRIPTION_FILE).is_file():
-                raise
-            log.info("testbench: another run finished %s first", target)
+        _install(staging, target, damaged)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return target
