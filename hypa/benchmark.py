@@ -20,11 +20,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from hypa.errors import UserError, user_errors
+from hypa.errors import UserError, hydra_command
 
 log = logging.getLogger(__name__)
 
@@ -39,8 +38,7 @@ def train_model(label: str, overrides: list[str], folder: Path) -> None:
                         f"run it alone: python {' '.join(command[1:])}")
 
 
-@hydra.main(config_path="../conf", config_name="benchmark", version_base="1.3")
-@user_errors("hypa.benchmark")
+@hydra_command("hypa.benchmark", "benchmark")
 def main(cfg: DictConfig) -> None:
     from hypa.evaluate import run_datamodule
     from hypa.evaluation.benchmark import benchmark_table, score_run, write_benchmark_json

@@ -17,16 +17,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from hypa.diagnosis.fleet import record_failures
-from hypa.errors import user_errors
+from hypa.errors import hydra_command
 
 
-@hydra.main(config_path="../conf", config_name="diagnose", version_base="1.3")
-@user_errors("hypa.diagnose")
+@hydra_command("hypa.diagnose", "diagnose")
 @record_failures("hypa.diagnose")  # -m over many logs: a bad log is reported in the fleet summary, the others run
 def main(cfg: DictConfig) -> None:
     from hypa.diagnosis.catalogue import load_catalogue

@@ -1,10 +1,13 @@
 """One-line errors for the entry points: a user's mistake is not a bug, so it gets no traceback.
 
-``@user_errors("hypa.train")`` under ``@hydra.main`` turns the errors that describe bad input
+``@hydra_command("hypa.train", "train")`` in place of ``@hydra.main`` (or ``@user_errors`` on a
+command without Hydra) turns the errors that describe bad input
 (data, model configuration, a user's system, physics that cannot run, a missing run folder or
-file, a bad checkpoint) into ``hypa.train: error: <message>`` (one line) on stderr and exit
-status 1. Anything else is a bug and keeps its traceback; ``HYDRA_FULL_ERROR=1`` keeps the
-traceback for user errors too.
+file, a bad checkpoint, a configuration Hydra cannot compose, an output folder that cannot be
+written or a full disk) into ``hypa.train: error: <message>`` (one line) on stderr and exit
+status 1, wherever they happen: in hypa's code or in Hydra's own set-up of the run folder.
+Anything else is a bug and keeps its traceback; ``HYDRA_FULL_ERROR=1`` (or ``HYPA_FULL_ERROR=1``)
+keeps the traceback for user errors too.
 
 A bad value of an override is reported where the value is used: :func:`setting` reads one
 typed value of the configuration, :func:`settings` turns the plain ``ValueError`` /
@@ -15,7 +18,9 @@ elsewhere stay bugs.
 
 from __future__ import annotations
 
+import errno
 import functools
+import math
 import os
 import sys
 from collections.abc import Callable, Collection, Iterator
@@ -32,6 +37,8 @@ class UserError(ValueError):
 
 def user_error_types() -> tuple[type[BaseException], ...]:
     """Exceptions that describe the user's input, never a bug: reported in one line."""
+    from hydra.errors import CompactHydraException, ConfigCompositionException, MissingConfigException
+    from hydra.errors import OverrideParseException, SearchPathException
     from omegaconf.errors import MissingMandatoryValue
 
     from hypa.data.errors import DataError
@@ -40,9 +47,35 @@ def user_error_types() -> tuple[type[BaseException], ...]:
     from hypa.physics.contract import SystemContractError
 
     # The OSErrors about a path the user gave (a missing run folder, a folder that cannot be
-    # written) and a required setting (``???``) left out, e.g. hypa.evaluate without run=.
+    # written), a required setting (``???``) left out, e.g. hypa.evaluate without run=, and a
+    # configuration Hydra cannot compose (a misspelt key or group).
     return (UserError, DataError, ModelSpecError, SystemContractError, UnstablePhysicsError, SchedulingError,
-            FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError, MissingMandatoryValue)
+            FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError, MissingMandatoryValue,
+            CompactHydraException, ConfigCompositionException, MissingConfigException, OverrideParseException,
+            SearchPathException)
+
+
+# What the machine says about the user's folders rather than about hypa: a disk or quota that is
+# full, a file over the size limit, a read-only file system, no permission.
+_OPERATOR_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EACCES, errno.EPERM})
+
+
+def is_user_error(error: BaseException) -> bool:
+    """Whether ``error`` describes the user's input or machine (one line) rather than a bug."""
+    if isinstance(error, user_error_types()):
+        return True
+    return isinstance(error, OSError) and error.errno in _OPERATOR_ERRNOS
+
+
+def full_error_requested() -> bool:
+    """The user asked for tracebacks of user errors too (``HYDRA_FULL_ERROR=1`` or ``HYPA_FULL_ERROR=1``).
+
+    :func:`user_errors` sets ``HYDRA_FULL_ERROR=1`` for Hydra itself (so that Hydra hands its errors
+    on instead of printing them) and keeps the user's own wish in ``HYPA_FULL_ERROR``, which the
+    commands hypa starts (the benchmark's, the diagnosis's training) inherit.
+    """
+    wish = os.environ.get("HYPA_FULL_ERROR")
+    return (wish if wish is not None else os.environ.get("HYDRA_FULL_ERROR")) == "1"
 
 
 def one_line(error: BaseException) -> str:
@@ -57,13 +90,18 @@ def one_line(error: BaseException) -> str:
 
 
 def user_errors(command: str) -> Callable[[F], F]:
+    """Decorate a command's ``main``, above ``@hydra.main``: a user error ends it with one line and
+    exit status 1 (see the module docstring)."""
     def decorate(main: F) -> F:
         @functools.wraps(main)
         def wrapped(*args: Any, **kwargs: Any) -> Any:
+            full = full_error_requested()
+            os.environ["HYPA_FULL_ERROR"] = "1" if full else "0"
+            os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing its own report
             try:
                 return main(*args, **kwargs)
-            except user_error_types() as error:
-                if os.environ.get("HYDRA_FULL_ERROR") == "1":
+            except Exception as error:
+                if full or not is_user_error(error):
                     raise
                 print(f"{command}: error: {one_line(error)}", file=sys.stderr, flush=True)
                 sys.exit(1)
@@ -73,16 +111,31 @@ def user_errors(command: str) -> Callable[[F], F]:
     return decorate
 
 
+def hydra_command(command: str, config_name: str, config_path: str = "../conf") -> Callable[[F], F]:
+    """``@hydra_command("hypa.train", "train")`` on a command's ``main(cfg)``: ``@hydra.main`` with
+    one-line user errors both inside the job (hypa's code: Hydra never sees them) and around it
+    (Hydra's own work: composing the configuration, creating and writing the run folder).
+    ``config_path`` is relative to the decorated function's file, as for ``@hydra.main``."""
+    import hydra
+
+    def decorate(main: F) -> F:
+        job = hydra.main(config_path=config_path, config_name=config_name, version_base="1.3")(user_errors(command)(main))
+        return user_errors(command)(job)
+
+    return decorate
+
+
 _KIND_NAMES = {int: "an integer", float: "a number", str: "a string"}
 
 
 def setting(cfg: Any, key: str, kind: Callable[[Any], T], choices: Collection[T] | None = None,
-            optional: bool = False) -> T:
+            optional: bool = False, minimum: float | None = None, positive: bool = False) -> T:
     """The value at ``key`` (dotted, e.g. ``trainer.max_epochs``) of the configuration as ``kind``.
 
-    A value that is not one (``trainer.max_epochs=abc``), or not among ``choices``, is the
-    user's error and names the override to fix. ``optional``: ``None`` (``null``) is allowed
-    and returned as is.
+    A value that is not one (``trainer.max_epochs=abc``), a number that is not finite
+    (``optimizer.lr=nan``), one below ``minimum`` or, with ``positive``, not above zero
+    (``optimizer.lr=-1``), or one not among ``choices`` is the user's error and names the override
+    to fix. ``optional``: ``None`` (``null``) is allowed and returned as is.
     """
     from omegaconf import OmegaConf
 
@@ -95,9 +148,15 @@ def setting(cfg: Any, key: str, kind: Callable[[Any], T], choices: Collection[T]
         if kind in (int, float) and isinstance(value, bool):  # True is an int to Python, not to a user
             raise ValueError
         converted = kind(value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         expected = _KIND_NAMES.get(kind, getattr(kind, "__name__", str(kind)))  # type: ignore[call-overload]
         raise UserError(f"{key}={value} is not {expected}; give {key}=<{expected.split()[-1]}>") from None
+    if isinstance(converted, float) and not math.isfinite(converted):
+        raise UserError(f"{key}={value} is not a finite number")
+    if positive and not converted > 0:  # type: ignore[operator]
+        raise UserError(f"{key}={value} must be > 0")
+    if minimum is not None and converted < minimum:  # type: ignore[operator]
+        raise UserError(f"{key}={value} must be >= {minimum:g}")
     if choices is not None and converted not in choices:
         raise UserError(f"{key}={value} is not one of {', '.join(map(str, choices))}")
     return converted

@@ -1,7 +1,7 @@
 """Evaluate a trained run on the validation (and test) data.
 
-    python -m hypa.evaluate run=outputs/train/v2-lstm/2026-11-22_10-00-00
-    python -m hypa.evaluate run=path/to/checkpoints/best-epoch=12.ckpt
+    python -m hypa.evaluate run=outputs/train/v2-lstm/2026-11-22_10-00-00    # its recorded best checkpoint
+    python -m hypa.evaluate run='path/to/checkpoints/best-epoch=12.ckpt'   # another checkpoint of it
 
 Writes ``metrics.json``, ``metrics.csv``, PNG figures and ``summary.md`` into
 ``<run>/evaluation/`` and the figures into the run's TensorBoard log
@@ -12,18 +12,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig
 
 from hypa.evaluation.evaluation import Evaluation, evaluate_run, run_datamodule
 from hypa.evaluation.runs import load_run
-from hypa.errors import user_errors
+from hypa.errors import hydra_command
 
 __all__ = ["Evaluation", "evaluate_run", "run_datamodule", "main"]
 
 
-@hydra.main(config_path="../conf", config_name="evaluate", version_base="1.3")
-@user_errors("hypa.evaluate")
+@hydra_command("hypa.evaluate", "evaluate")
 def main(cfg: DictConfig) -> None:
     from hydra.utils import get_original_cwd
 

@@ -20,12 +20,11 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-import hydra
 import matplotlib.pyplot as plt
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from hypa.errors import UserError, setting, user_errors
+from hypa.errors import UserError, hydra_command, setting
 from hypa.evaluate import Evaluation, evaluate_run
 from hypa.evaluation.plots import bode, rear_steer
 from hypa.evaluation.runs import load_run
@@ -129,8 +128,7 @@ def report(table: list[dict[str, Any]], cfg: DictConfig, wall_s: float, runs: in
         "Per-run evaluations: `runs/*/evaluation/summary.md`.", ""])
 
 
-@hydra.main(config_path="../conf", config_name="reproduce", version_base="1.3")
-@user_errors("hypa.reproduce")
+@hydra_command("hypa.reproduce", "reproduce")
 def main(cfg: DictConfig) -> None:
     from hydra.utils import get_original_cwd
 

@@ -15,16 +15,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import hydra
 import numpy as np
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from hypa.errors import setting, settings, user_errors
+from hypa.errors import hydra_command, setting, settings
 
 
-@hydra.main(config_path="../conf", config_name="simulate", version_base="1.3")
-@user_errors("hypa.simulate")
+@hydra_command("hypa.simulate", "simulate")
 def main(cfg: DictConfig) -> float:
     from hypa.data import datamodule_from_config
     from hypa.entry import data_dir_from_config, vehicle_from_config

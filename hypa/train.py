@@ -12,22 +12,21 @@ where; returns the best validation loss (for Hydra sweepers).
 
 from __future__ import annotations
 
-import json
 import logging
 import math
+import sys
 import time
 from pathlib import Path
 from typing import Any
 
-import hydra
 import lightning as L
 import torch
 from hydra.core.hydra_config import HydraConfig
-from lightning.pytorch.callbacks import EarlyStopping, ModelCheckpoint
+from lightning.pytorch.callbacks import EarlyStopping
 from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
-from hypa.errors import UserError, setting, settings, user_errors
+from hypa.errors import UserError, hydra_command, setting, settings
 
 log = logging.getLogger(__name__)
 
@@ -56,14 +55,19 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     from hypa.models import parse_model_spec
     from hypa.physics import HOLDS
     from hypa.training import HybridModule, StagedTraining, ValidationFigures
+    from hypa.training.checkpoints import AtomicCheckpointIO, RecordedCheckpoint, load_module
+    from hypa.training.divergence import DivergedError, StopOnNonFiniteLoss
+    from hypa.training.run_folder import CONFIG_FILE, RunFolder, write_text_atomic
 
     # every plain value first, so a bad override fails before any data are read or generated
-    seed, threads = setting(cfg, "seed", int), setting(cfg, "torch_threads", int)
-    epochs = setting(cfg, "trainer.max_epochs", int)
+    seed, threads = setting(cfg, "seed", int), setting(cfg, "torch_threads", int, minimum=1)
+    epochs = setting(cfg, "trainer.max_epochs", int, minimum=1)
     hold = setting(cfg, "physics.hold", str, choices=HOLDS)
     horizon = setting(cfg, "physics.horizon", int, optional=True) or setting(cfg, "data.window", int)
-    lr, physics_lr, weight_decay = (setting(cfg, f"optimizer.{k}", float) for k in ("lr", "physics_lr", "weight_decay"))
-    patience, min_delta = setting(cfg, "early_stopping.patience", int), setting(cfg, "early_stopping.min_delta", float)
+    lr, physics_lr = (setting(cfg, f"optimizer.{k}", float, positive=True) for k in ("lr", "physics_lr"))
+    weight_decay = setting(cfg, "optimizer.weight_decay", float, minimum=0.0)
+    patience = setting(cfg, "early_stopping.patience", int, minimum=0)
+    min_delta = setting(cfg, "early_stopping.min_delta", float, minimum=0.0)
     model_config = OmegaConf.to_container(cfg.model, resolve=True)
     ann = OmegaConf.to_container(cfg.ann, resolve=True)
     ann_name = str(ann.pop("name"))
@@ -71,8 +75,6 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     with settings("vehicle"):
         physical_values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.vehicle else {}
 
-    L.seed_everything(seed, workers=True)
-    torch.set_num_threads(threads)
     out, ckpt_path = Path(HydraConfig.get().runtime.output_dir), None
     if cfg.ckpt_path:
         from hydra.utils import get_original_cwd
@@ -81,67 +83,78 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         ckpt_path = ckpt_path if ckpt_path.is_absolute() else Path(get_original_cwd()) / ckpt_path
         if not ckpt_path.is_file():
             raise FileNotFoundError(f"ckpt_path={ckpt_path} does not exist")
-        from hypa.evaluation.runs import load_module
-
         resumed = load_module(ckpt_path).hparams.model_config.get("name")  # no hypa checkpoint: one line
         if resumed != model_config.get("name"):
             raise UserError(f"ckpt_path={ckpt_path} holds model {resumed}, not model={model_config.get('name')}; "
                             f"resume with model={resumed}")
         if ckpt_path.parent.name == "checkpoints":  # resume in the interrupted run's own folder
             out = ckpt_path.parent.parent
+    with RunFolder.claim(out, resume=ckpt_path) as folder:  # one run, one folder: refused before any data are read
+        if ckpt_path is not None:
             log.info("resuming %s in %s", ckpt_path.name, out)
-    with settings("testbench"):  # the test bench's settings build its data (files: a folder only)
-        data_dir = data_dir_from_config(cfg)
-    dm = datamodule_from_config(cfg.data, data_dir)
-    dm.setup()
-    out.mkdir(parents=True, exist_ok=True)
-    # where the data were, resolved, so hypa.evaluate finds them from any working directory; what
-    # the run was made from (code, packages, data checksums), so hypa.evaluate notices other data
-    run_info = {"data_dir": str(data_dir.resolve()), **run_metadata(dm.files, data_dir)}
-    (out / "run.json").write_text(json.dumps(run_info, indent=2))
-    OmegaConf.save(cfg, out / "config.yaml", resolve=True)  # .hydra/config.yaml keeps the interpolations
-    module = HybridModule(
-        model_config=model_config,
-        physical_values=physical_values,
-        normalization=dm.normalization.state_dict(),
-        input_names=dm.input_names, output_names=dm.output_names, eval_names=dm.eval_names,
-        scheduling_names=dm.scheduling_names, past=dm.past,
-        dt=dm.dt, horizon=horizon, hold=hold,
-        ann_name=ann_name, ann_hparams=ann,
-        lr=lr, physics_lr=physics_lr, weight_decay=weight_decay,
-    )
-    stages = parse_model_spec(model_config).stages
-    checkpoint = ModelCheckpoint(dirpath=out / "checkpoints", filename="best-{epoch:02d}", monitor="val/loss",
-                                 mode="min", save_top_k=1, save_last=True)
-    callbacks: list[L.Callback] = [
-        EarlyStopping(monitor="val/loss", mode="min", patience=patience, min_delta=min_delta,
-                      check_on_train_epoch_end=False),
-    ]
-    if stages:
-        callbacks.append(StagedTraining(stages, max_epochs=epochs))
-    if cfg.figures.enabled:
-        callbacks.append(ValidationFigures(setting(cfg, "figures.seconds", float), setting(cfg, "figures.start_s", float),
-                                           setting(cfg, "figures.every_n_epochs", int)))
-    callbacks.append(checkpoint)
-    logger = TensorBoardLogger(save_dir=str(out), name="tensorboard", version="", default_hp_metric=False)
-    trainer_args = OmegaConf.to_container(cfg.trainer, resolve=True)
-    trainer_args["max_epochs"] = epochs * max(len(stages), 1)
-    with settings("trainer"):  # passed to Lightning as given: its ValueError / TypeError is the user's
-        trainer = L.Trainer(**trainer_args, callbacks=callbacks, logger=logger, default_root_dir=str(out))
-    log.info("model %s:\n%s", model_config["name"], module.model)
-    started = time.perf_counter()
-    trainer.fit(module, datamodule=dm, ckpt_path=ckpt_path)
-    training_time_s = time.perf_counter() - started
+        L.seed_everything(seed, workers=True)
+        torch.set_num_threads(threads)
+        with settings("testbench"):  # the test bench's settings build its data (files: a folder only)
+            data_dir = data_dir_from_config(cfg)
+        dm = datamodule_from_config(cfg.data, data_dir)
+        dm.setup()
+        # where the data were, resolved, so hypa.evaluate finds them from any working directory; what
+        # the run was made from (code, packages, data checksums), so hypa.evaluate notices other data
+        folder.update_record(data_dir=str(data_dir.resolve()), **run_metadata(dm.files, data_dir))
+        # the run's own resolved configuration, written while this process holds the folder (a refused
+        # second run may already have overwritten Hydra's .hydra/config.yaml)
+        write_text_atomic(out / CONFIG_FILE, OmegaConf.to_yaml(cfg, resolve=True))
+        module = HybridModule(
+            model_config=model_config,
+            physical_values=physical_values,
+            normalization=dm.normalization.state_dict(),
+            input_names=dm.input_names, output_names=dm.output_names, eval_names=dm.eval_names,
+            scheduling_names=dm.scheduling_names, past=dm.past,
+            dt=dm.dt, horizon=horizon, hold=hold,
+            ann_name=ann_name, ann_hparams=ann,
+            lr=lr, physics_lr=physics_lr, weight_decay=weight_decay,
+        )
+        stages = parse_model_spec(model_config).stages
+        checkpoint = RecordedCheckpoint(folder)
+        callbacks: list[L.Callback] = [
+            StopOnNonFiniteLoss(hint=f"lower optimizer.lr={lr:g} or optimizer.physics_lr={physics_lr:g}"),
+            EarlyStopping(monitor="val/loss", mode="min", patience=patience, min_delta=min_delta,
+                          check_on_train_epoch_end=False),
+        ]
+        if stages:
+            callbacks.append(StagedTraining(stages, max_epochs=epochs))
+        if cfg.figures.enabled:
+            callbacks.append(ValidationFigures(setting(cfg, "figures.seconds", float, positive=True),
+                                               setting(cfg, "figures.start_s", float, minimum=0.0),
+                                               setting(cfg, "figures.every_n_epochs", int, minimum=1)))
+        callbacks.append(checkpoint)
+        logger = TensorBoardLogger(save_dir=str(out), name="tensorboard", version="", default_hp_metric=False)
+        trainer_args = OmegaConf.to_container(cfg.trainer, resolve=True)
+        trainer_args["max_epochs"] = epochs * max(len(stages), 1)
+        with settings("trainer"):  # passed to Lightning as given: its ValueError / TypeError is the user's
+            trainer = L.Trainer(**trainer_args, callbacks=callbacks, logger=logger, default_root_dir=str(out),
+                                plugins=[AtomicCheckpointIO()])
+        log.info("model %s:\n%s", model_config["name"], module.model)
+        started = time.perf_counter()
+        try:
+            trainer.fit(module, datamodule=dm, ckpt_path=ckpt_path, weights_only=True)
+        except DivergedError as error:
+            best = folder.record.get("best_checkpoint")
+            kept = (f"the best checkpoint before it (epoch {best['epoch']}, val/loss {best['val_loss']:.5g}) stays the "
+                    f"run's record" if best else "no checkpoint was recorded")
+            folder.update_record(stopped=str(error), training_time_s=time.perf_counter() - started)
+            raise DivergedError(f"{error}; {kept}") from None
+        training_time_s = time.perf_counter() - started
 
-    best = checkpoint.best_model_score
-    result = {"best_val_loss": float(best) if best is not None else float("nan"),
-              "checkpoint": checkpoint.best_model_path, "last_checkpoint": checkpoint.last_model_path,
-              "tensorboard": str(out / "tensorboard"), "epochs": trainer.current_epoch,
-              "training_time_s": training_time_s}
-    run_info.update(training_time_s=training_time_s, best_val_loss=result["best_val_loss"])
-    (out / "run.json").write_text(json.dumps(run_info, indent=2))
-    logger.log_hyperparams(_flat(OmegaConf.to_container(cfg, resolve=True)), {"hp/best_val_loss": result["best_val_loss"]})
-    logger.finalize("success")  # written now: after fit, nothing else flushes it before the process ends
+        best = checkpoint.best_model_score
+        result = {"best_val_loss": float(best) if best is not None else float("nan"),
+                  "checkpoint": checkpoint.best_model_path, "last_checkpoint": checkpoint.last_model_path,
+                  "tensorboard": str(out / "tensorboard"), "epochs": trainer.current_epoch,
+                  "training_time_s": training_time_s}
+        folder.update_record(training_time_s=training_time_s, best_val_loss=result["best_val_loss"])
+        logger.log_hyperparams(_flat(OmegaConf.to_container(cfg, resolve=True)),
+                               {"hp/best_val_loss": result["best_val_loss"]})
+        logger.finalize("success")  # written now: after fit, nothing else flushes it before the process ends
     print(f"best val/loss {result['best_val_loss']:.5g} after {result['epochs']} epochs\n"
           f"checkpoint:  {result['checkpoint']}\n"
           f"tensorboard: tensorboard --logdir {result['tensorboard']}")
@@ -174,12 +187,22 @@ def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:
     return {prefix.rstrip("/"): str(tree)}
 
 
-@hydra.main(config_path="../conf", config_name="train", version_base="1.3")
-@user_errors("hypa.train")
+@hydra_command("hypa.train", "train")
 def main(cfg: DictConfig) -> float:
     """The best validation loss, for sweepers; inf for a run without a finite one (diverged, or no
-    validation): Optuna's sweeper aborts the whole study on a NaN, whereas inf ranks the trial last."""
-    loss = train(cfg)["best_val_loss"]
+    validation): Optuna's sweeper aborts the whole study on a NaN, whereas inf ranks the trial last.
+    In a sweep a diverged run says so in one line and ranks last; alone it is an error (exit status 1)."""
+    from hydra.types import RunMode
+
+    from hypa.training.divergence import DivergedError
+
+    try:
+        loss = train(cfg)["best_val_loss"]
+    except DivergedError as error:
+        if not HydraConfig.initialized() or HydraConfig.get().mode != RunMode.MULTIRUN:
+            raise
+        print(f"hypa.train: {error}", file=sys.stderr, flush=True)
+        return math.inf
     return loss if math.isfinite(loss) else math.inf
 
 

@@ -50,8 +50,10 @@ CASES = [
     ("train-trainer-lightning", "hypa.train", [*FILES, "trainer.accelerator=abacus"],
      "trainer: You selected an invalid accelerator name"),
     ("evaluate-missing-run", "hypa.evaluate", ["run={root}/nowhere"], "nowhere does not exist"),
-    ("evaluate-text-checkpoint", "hypa.evaluate", ["run={text_run}"],
+    ("evaluate-text-checkpoint", "hypa.evaluate", ["run={text_run}/checkpoints/last.ckpt"],
      "text_run/checkpoints/last.ckpt: not a readable checkpoint"),
+    ("evaluate-no-recorded-checkpoint", "hypa.evaluate", ["run={text_run}"],
+     "text_run/run.json records no best checkpoint"),
     ("evaluate-foreign-checkpoint", "hypa.evaluate", ["run={other_run}/checkpoints/last.ckpt"],
      "last.ckpt: not a checkpoint of hypa.train"),
     ("simulate-unknown-hold", "hypa.simulate", [*FILES, "physics.hold=both"],
@@ -88,7 +90,7 @@ def test_user_error_is_one_line_with_exit_status_1(command: str, overrides: list
 
 
 def test_hydra_full_error_keeps_the_traceback(places: dict[str, Path], tmp_path: Path) -> None:
-    result = hypa("hypa.evaluate", ["run={text_run}"], places, tmp_path, HYDRA_FULL_ERROR="1")
+    result = hypa("hypa.evaluate", ["run={text_run}/checkpoints/last.ckpt"], places, tmp_path, HYDRA_FULL_ERROR="1")
     assert result.returncode == 1
     assert "Traceback" in result.stderr and "UserError" in result.stderr
     assert "not a readable checkpoint" in result.stderr

@@ -91,16 +91,16 @@ def test_a_run_trained_before_a_network_setting_existed_is_flagged(caplog) -> No
     import logging
 
     from hypa.ann import ann_hyperparameters
-    from hypa.evaluation.runs import _warn_new_network_settings
+    from hypa.training.checkpoints import _warn_new_network_settings
 
     v1 = {"blocks": {"rear_steering": {"kind": "ann"}, "single_track": {"kind": "physics"}}}
     current = {k: v for k, v in ann_hyperparameters("s4").items() if k != "zero_init"}
     old = {k: v for k, v in current.items() if k != "max_decay"}
-    with caplog.at_level(logging.WARNING, logger="hypa.evaluation.runs"):
+    with caplog.at_level(logging.WARNING, logger="hypa.training.checkpoints"):
         _warn_new_network_settings(Path("best.ckpt"), {"model_config": v1, "ann_name": "s4", "ann_hparams": old})
     assert "ann.max_decay=25.0" in caplog.text and "retrain" in caplog.text
     caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="hypa.evaluation.runs"):
+    with caplog.at_level(logging.WARNING, logger="hypa.training.checkpoints"):
         _warn_new_network_settings(Path("best.ckpt"), {"model_config": v1, "ann_name": "s4", "ann_hparams": current})
         physical = {"blocks": {"single_track": {"kind": "physics"}}}
         _warn_new_network_settings(Path("best.ckpt"), {"model_config": physical, "ann_name": "s4", "ann_hparams": {}})

@@ -38,7 +38,7 @@ import yaml
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
-from hypa.errors import UserError, one_line, user_error_types, user_errors
+from hypa.errors import UserError, full_error_requested, is_user_error, one_line, user_errors
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -330,7 +330,7 @@ class FleetSummary(Callback):
         try:
             fleet = write_summary(Path(str(config.hydra.sweep.dir)))
         except Exception as error:  # noqa: BLE001 (Hydra would turn it into a warning and exit 0)
-            if not isinstance(error, user_error_types()) or os.environ.get("HYDRA_FULL_ERROR") == "1":
+            if not is_user_error(error) or full_error_requested():
                 traceback.print_exc()
             print(f"hypa.{JOB_NAME}: error: fleet summary: {one_line(error)}", file=sys.stderr, flush=True)
             sys.exit(1)
@@ -356,12 +356,12 @@ def record_failures(command: str) -> Callable[[F], F]:
             except Exception as error:
                 if HydraConfig.get().mode != RunMode.MULTIRUN:
                     raise
-                user = isinstance(error, user_error_types())
+                user = is_user_error(error)
                 message = str(error) if user else f"{type(error).__name__}: {error}"
                 one_line = " ".join(message.split())
                 folder = Path(HydraConfig.get().runtime.output_dir)
                 (folder / ERROR_FILE).write_text(json.dumps({"error": one_line, "user_error": user}, indent=2))
-                if user and os.environ.get("HYDRA_FULL_ERROR") != "1":
+                if user and not full_error_requested():
                     print(f"{command}: error: {one_line}", file=sys.stderr, flush=True)
                 else:
                     traceback.print_exc()

@@ -22,6 +22,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from hypa.data import HypaDataModule
+from hypa.errors import UserError
 from hypa.evaluation.metrics import state_metrics
 from hypa.evaluation.plots import bode
 from hypa.evaluation.runs import Prediction, TrainedRun, free_run, windowed
@@ -91,8 +92,14 @@ def evaluate_split(run: TrainedRun, dm: HypaDataModule, split: str, subset: Sequ
     keep = np.isin(w["record"].astype(int), list(chosen))
     w = {k: v[keep] for k, v in w.items()}
     pred, target = w["pred"], w["target"]
-    result["windowed"]["all"] = state_metrics(pred.reshape(-1, len(names)), target.reshape(-1, len(names)), names)
     records = [split_records[i] for i in chosen]
+    if not np.isfinite(pred).all():
+        window, _, output = (int(i[0]) for i in np.nonzero(~np.isfinite(pred)))
+        rec = split_records[int(w["record"][window])]
+        raise UserError(f"{run.label} ({run.checkpoint}) predicts non-finite {names[output]} in the {split} windows "
+                        f"(first in {rec.name} at {rec.time[int(w['start'][window])]:.3g} s): the model diverges on "
+                        "these data; evaluate another checkpoint or retrain it")
+    result["windowed"]["all"] = state_metrics(pred.reshape(-1, len(names)), target.reshape(-1, len(names)), names)
     window_time = {}  # (record, start) -> time span, for per-segment windowed metrics
     for i, rec in zip(chosen, records):
         masks = _segment_masks(rec.time, segments_of(dm, rec.file, rec.duration_s))
@@ -105,6 +112,12 @@ def evaluate_split(run: TrainedRun, dm: HypaDataModule, split: str, subset: Sequ
             result["windowed"][name] = state_metrics(pred[idx].reshape(-1, len(names)),
                                                      target[idx].reshape(-1, len(names)), names)
     predictions = [free_run(run.module.model, dm, rec) for rec in records]
+    for p in predictions:
+        for name in names:
+            bad = np.nonzero(~np.isfinite(p.predicted[name]))[0]
+            if bad.size:
+                raise UserError(f"{run.label} ({run.checkpoint}) diverges in its free run over {p.record}: {name} is "
+                                f"not finite from {p.time[bad[0]]:.3g} s on; evaluate another checkpoint or retrain it")
     stacked = lambda values: np.stack([np.concatenate(v) for v in values], axis=-1)  # noqa: E731
     p_all = stacked([[p.predicted[n][p.first:] for p in predictions] for n in names])
     t_all = stacked([[p.measured[n][p.first:] for p in predictions] for n in names])

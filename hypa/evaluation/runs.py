@@ -7,9 +7,6 @@ from the record's first measured state and never sees a measured state again).
 
 from __future__ import annotations
 
-import inspect
-import io
-import json
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -19,11 +16,13 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from hypa.ann import ann_hyperparameters
 from hypa.data import HypaDataModule, Record
 from hypa.errors import UserError, one_line
+from hypa.metadata import sha256
 from hypa.models import ComposedModel
 from hypa.training import HybridModule
+from hypa.training.checkpoints import load_module
+from hypa.training.run_folder import CONFIG_FILE, RECORD_FILE, read_record
 
 log = logging.getLogger(__name__)
 
@@ -46,95 +45,70 @@ class TrainedRun:
         return f"{model.spec.name} {self.module.hparams.ann_name}" if has_ann else model.spec.name
 
 
-def find_checkpoint(folder: Path) -> Path:
-    """The best checkpoint of a run folder (``checkpoints/best-*.ckpt``, else ``last.ckpt``)."""
-    best = sorted((folder / "checkpoints").glob("best-*.ckpt"))
-    if best:
-        return best[-1]
-    last = folder / "checkpoints" / "last.ckpt"
-    if last.is_file():
-        return last
-    raise FileNotFoundError(f"no checkpoint in {folder / 'checkpoints'} (is {folder} a hypa.train run folder?)")
+def recorded_checkpoint(folder: Path, record: dict) -> Path:
+    """The best checkpoint that a run folder's ``run.json`` records, checked against its SHA-256.
+
+    Never "the last ``best-*`` by name": a checkpoint that is not the recorded one (another run's,
+    a damaged or replaced file) would be scored under this run's settings without a word.
+    """
+    best = record.get("best_checkpoint")
+    if not isinstance(best, dict) or "path" not in best:
+        files = sorted(p.name for p in (folder / "checkpoints").glob("*.ckpt")) if (folder / "checkpoints").is_dir() else []
+        if not files and not (folder / RECORD_FILE).is_file() and not (folder / "checkpoints").is_dir():
+            raise FileNotFoundError(f"no checkpoint in {folder / 'checkpoints'} (is {folder} a hypa.train run folder?)")
+        choice = f"give one of its checkpoints: run={folder / 'checkpoints'}/<{' | '.join(files)}>" if files else \
+            "it has no checkpoint"
+        raise UserError(f"{folder / RECORD_FILE} records no best checkpoint (a run of an older hypa, or one that "
+                        f"stopped before its first validation); {choice}")
+    path = Path(str(best["path"]))
+    path = path if path.is_absolute() else folder / path
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}, the best checkpoint that {folder / RECORD_FILE} records, is missing")
+    if "sha256" in best and sha256(path) != best["sha256"]:
+        raise UserError(f"{path} is not the checkpoint that {folder / RECORD_FILE} records (its checksum differs: "
+                        "replaced or damaged); give the checkpoint file itself to use it anyway")
+    return path
 
 
 def load_run(path: Path | str) -> TrainedRun:
-    """Load a run from its folder or from one of its checkpoints (CPU)."""
+    """Load a run from its folder (its recorded best checkpoint) or from one of its checkpoints (CPU)."""
     path = Path(path).expanduser().resolve()
     if not path.exists():
         raise FileNotFoundError(f"{path} does not exist: give a hypa.train run folder or a .ckpt file")
     if path.is_file():
         checkpoint, folder = path, path.parent.parent if path.parent.name == "checkpoints" else path.parent
+        info = read_record(folder)
     else:
-        folder, checkpoint = path, find_checkpoint(path)
-    config_file = folder / ".hydra" / "config.yaml"
-    if not config_file.is_file():
-        raise FileNotFoundError(f"{config_file} is missing: {folder} is not a hypa.train run folder")
-    config = OmegaConf.load(config_file)
+        folder, info = path, read_record(path)
+        checkpoint = recorded_checkpoint(folder, info)
     module = load_module(checkpoint)
+    config = run_config(folder)
     trained, configured = module.hparams.model_config.get("name"), OmegaConf.select(config, "model.name")
     if configured is not None and trained != configured:
         raise UserError(f"{checkpoint} holds model {trained}, but its run folder {folder} trained model "
                         f"{configured}; give the run folder (or a checkpoint) of the run to evaluate")
-    info_file = folder / "run.json"
-    info = json.loads(info_file.read_text()) if info_file.is_file() else {}
     data_dir = Path(info["data_dir"]) if "data_dir" in info else None
     return TrainedRun(folder=folder, checkpoint=checkpoint, config=config, module=module, data_dir=data_dir,
                       info=info)
 
 
-def load_module(checkpoint: Path) -> HybridModule:
-    """The trained module of a ``hypa.train`` checkpoint, on the CPU, in eval mode.
-
-    A file that is no checkpoint (a text file, a truncated download), a checkpoint of another
-    program's model or one whose weights do not fit its model is the user's error, named by
-    the file (checked here, where the file is read, not by catching everything around it).
-    """
-    checkpoint = Path(checkpoint)
-    content = checkpoint.read_bytes()  # read once, unpickled twice: checked, then by Lightning
+def run_config(folder: Path) -> DictConfig:
+    """A run folder's configuration: the ``config.yaml`` that hypa.train wrote while it held the
+    folder (Hydra's ``.hydra/config.yaml`` for runs of older versions). A broken file is one line."""
+    config_file = folder / CONFIG_FILE
+    if not config_file.is_file():
+        config_file = folder / ".hydra" / "config.yaml"
+    if not config_file.is_file():
+        raise FileNotFoundError(f"{folder / CONFIG_FILE} is missing: {folder} is not a hypa.train run folder")
     try:
-        state = torch.load(io.BytesIO(content), map_location="cpu", weights_only=False)
-    except Exception as error:  # unpickling, zip, EOF, import errors: whatever it is, it is no checkpoint
-        raise UserError(f"{checkpoint}: not a readable checkpoint ({type(error).__name__}: {one_line(error)}); "
-                        "give a .ckpt written by hypa.train") from error
-    hparams = state.get("hyper_parameters") if isinstance(state, dict) else None
-    if not isinstance(hparams, dict) or "model_config" not in hparams or "state_dict" not in state:
-        raise UserError(f"{checkpoint}: not a checkpoint of hypa.train (it holds no hypa model configuration)")
-    accepted = inspect.signature(HybridModule.__init__).parameters
-    unknown = sorted(set(hparams) - set(accepted))
-    missing = sorted(n for n, p in accepted.items() if n != "self" and p.default is p.empty and n not in hparams)
-    if unknown or missing:
-        raise UserError(f"{checkpoint}: written by another version of hypa (settings {unknown or missing} "
-                        f"{'unknown' if unknown else 'missing'} here); evaluate it with that version or retrain")
-    _warn_new_network_settings(checkpoint, hparams)
-    try:
-        module = HybridModule.load_from_checkpoint(io.BytesIO(content), map_location="cpu")
-    except RuntimeError as error:
-        if "state_dict" not in str(error):
-            raise
-        raise UserError(f"{checkpoint}: its weights do not fit its model ({one_line(error)[:300]})") from error
-    module.eval()
-    return module
-
-
-def _warn_new_network_settings(checkpoint: Path, hparams: dict) -> None:
-    """Warn when the checkpoint's network was trained before a setting it now takes existed: the
-    code's default then applies to weights trained without it (S4's and Mamba's ``max_decay``
-    change what the trained layers compute), so the run may not behave as it did in training."""
-    uses_ann = any(b.get("kind") == "ann" for b in (hparams["model_config"].get("blocks") or {}).values()
-                   if isinstance(b, dict))
-    name = hparams.get("ann_name")
-    if not uses_ann or not name:
-        return
-    try:
-        defaults = ann_hyperparameters(str(name))
-    except ValueError:  # an unknown network: building the module names it
-        return
-    new = {k: v for k, v in defaults.items() if k != "zero_init" and k not in (hparams.get("ann_hparams") or {})}
-    if new:
-        settings = ", ".join(f"ann.{k}={v}" for k, v in new.items())
-        log.warning("%s was trained before the %s setting(s) %s existed; their defaults apply now and may change "
-                    "what the network computes: retrain the run to evaluate it as hypa is now", checkpoint, name,
-                    settings)
+        config = OmegaConf.load(config_file)
+    except Exception as error:  # YAML's scanner and parser errors, an unreadable byte
+        raise UserError(f"{config_file}: not a readable run configuration ({one_line(error)[:200]}); "
+                        "the run folder is damaged") from None
+    if not isinstance(config, DictConfig) or not isinstance(config.get("data"), DictConfig):
+        raise UserError(f"{config_file}: not a hypa.train run configuration (no data settings); the run folder "
+                        "is damaged")
+    return config
 
 
 @dataclass

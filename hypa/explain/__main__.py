@@ -13,15 +13,13 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-from hypa.errors import user_errors
+from hypa.errors import hydra_command
 
 
-@hydra.main(config_path="../../conf", config_name="explain", version_base="1.3")
-@user_errors("hypa.explain")
+@hydra_command("hypa.explain", "explain", config_path="../../conf")
 def main(cfg: DictConfig) -> None:
     from hydra.utils import get_original_cwd
 

@@ -12,13 +12,12 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-import hydra
 import numpy as np
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 from scipy.signal import welch
 
-from hypa.errors import UserError, settings, user_errors
+from hypa.errors import UserError, hydra_command, settings
 from hypa.testbench.config import TestbenchConfig
 from hypa.testbench.dataset import ensure_dataset, generate_dataset, load_description
 from hypa.testbench.plots import plot_axle_characteristics, plot_record, plot_spectrum
@@ -100,8 +99,7 @@ def write_plots(folder: Path, record: str, config: TestbenchConfig, plot_dir: Pa
     return paths
 
 
-@hydra.main(config_path="../../conf", config_name="testbench", version_base="1.3")
-@user_errors("hypa.testbench")
+@hydra_command("hypa.testbench", "testbench", config_path="../../conf")
 def main(cfg: DictConfig) -> None:
     with settings("testbench"):  # the settings, and generating the records from them
         config = TestbenchConfig.from_dict(cfg.testbench)
