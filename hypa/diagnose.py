@@ -30,7 +30,7 @@ def main(cfg: DictConfig) -> None:
     from hypa.diagnosis.catalogue import load_catalogue
     from hypa.diagnosis.engine import Problem
     from hypa.diagnosis.problem import format_change
-    from hypa.diagnosis.system import diagnose_system
+    from hypa.diagnosis.system import diagnose_system, headline
     from hypa.entry import datamodule, vehicle_from_config
     from hypa.errors import UserError
     from hypa.models.spec import parse_model_spec
@@ -61,14 +61,17 @@ def main(cfg: DictConfig) -> None:
                              config_dir=user_dirs[0] if user_dirs else None, catalogue=catalogue,
                              max_causes=int(cfg.diagnosis.max_causes), min_gain=float(cfg.diagnosis.min_gain),
                              train_extension=trainer)
-    change = result["gain"]["all"]["overall"]
-    print(f"named causes: {', '.join(result['causes']) or 'none'}; validation error {format_change(change)} with them "
-          f"applied; unexplained: {', '.join(s['output'] for s in result['unexplained']) or 'nothing'}; "
+    figures = headline(result)  # the figures diagnosis.md's headline shows, formatted once
+    print(f"named causes: {', '.join(result['causes']) or 'none'}; validation error {figures['nominal']} → "
+          f"{figures['extended']} of the output variance ({figures['change']}) with them applied; "
+          f"unexplained: {', '.join(s['output'] for s in result['unexplained']) or 'nothing'}; "
           f"report: {out / 'diagnosis.md'}", flush=True)
+    for line in result["too_short"]:
+        print(f"too little data: {line}", flush=True)
     trained = result["extended"].get("trained")
     if trained:
-        print(f"trained extension ({trained['run']}): validation error {format_change(trained['gain']['all']['overall'])} "
-              "against the nominal physics", flush=True)
+        print(f"trained extension ({trained['run']}): validation error {figures['trained']} of the output variance "
+              f"({format_change(trained['gain']['all']['overall'])} against the nominal physics)", flush=True)
         for explained in trained["explained"]:
             print(f"  its network {explained['block']} learned: {explained['description']}", flush=True)
     else:

@@ -10,6 +10,12 @@ candidate with the largest gain, writes its fitted values into the model and sea
 from there, until no candidate improves the validation error by ``min_gain``. What remains is
 then tested for structure (:func:`residual_structure`): where significant error is left that
 no catalogue entry explains, the diagnosis says where it lives instead of naming a proxy.
+
+Nothing is named on more than the data can support (:class:`~hypa.diagnosis.problem.Evidence`):
+a fit of as many numbers as the training windows without overlap, or more, is not run, an offset's
+standard error needs more training stretches than the offsets fitted with it, and data that
+cannot support a fit of one number are refused (:meth:`Problem.require_data`). Each such
+shortfall is listed in :attr:`Search.too_short`.
 """
 
 from __future__ import annotations
@@ -28,7 +34,7 @@ import torch
 from hypa.diagnosis.catalogue import Entry, catalogue_candidates, load_catalogue
 from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, frozen
 from hypa.diagnosis.fitting import GradientFit, fit_affine, fit_gradient, fit_offsets
-from hypa.diagnosis.problem import Problem, Stretches, format_value, training_windows
+from hypa.diagnosis.problem import Problem, Stretches, TooLittleData, format_value, training_windows
 from hypa.diagnosis.workers import Workers, can_fork
 from hypa.models.spec import ModelSpec, ModelSpecError
 from hypa.physics import SchedulingError, UnstablePhysicsError
@@ -58,6 +64,7 @@ class Finding:
     steps: tuple[int, int] | None = None  # gradient fits: (steps done, of); fewer: stopped early, behind others
     z: float | None = None  # offsets: |estimate| / its standard error (clustered by training stretch)
     small: bool = False  # named below min_gain: an offset far from zero by its standard error
+    too_short: str = ""  # why the data are too short: to fit it (then not fitted) or to judge its standard error
 
     @property
     def key(self) -> str:
@@ -77,7 +84,7 @@ class Finding:
                 "score": self.score, "gain": self.gain, "seconds": self.seconds, "error": self.error,
                 "alternatives": self.alternatives, "refined": self.refined,
                 "steps": list(self.steps) if self.steps else None, "z": self.z, "small": self.small,
-                "text": self.describe()}
+                "too_short": self.too_short, "text": self.describe()}
 
 
 _FIT_ERRORS = (UnstablePhysicsError, SchedulingError, ModelSpecError, ValueError)
@@ -100,12 +107,16 @@ def evaluate(candidate: Candidate, problem: Problem, windows: Mapping[str, torch
         return _failed(candidate, error, time.perf_counter() - started)
     finding = _finding(candidate, problem, values, value, base_score, time.perf_counter() - started)
     finding.z = z
+    if candidate.fit == AFFINE and z is None:
+        finding.too_short = f"its standard error is not judged: {problem.evidence().error_shortfall(1)}"
     return finding
 
 
 def _failed(candidate: Candidate, error: Exception, seconds: float) -> Finding:
+    short = isinstance(error, TooLittleData)
     return Finding(candidate.cause, candidate.target, {}, {}, math.inf, -math.inf, seconds,
-                   str(error).split("\n")[0], candidate)
+                   ("too little data: " if short else "") + str(error).split("\n")[0], candidate,
+                   too_short=str(error) if short else "")
 
 
 def _finding(candidate: Candidate, problem: Problem, values: Mapping[str, float], value: float, base_score: float,
@@ -235,6 +246,7 @@ class Search:
     final_score: float
     seconds: float
     dropped: list[Finding] = field(default_factory=list)  # named, then dropped by the joint fit of the offsets
+    too_short: list[str] = field(default_factory=list)  # what the data were too short to fit or judge, and why
 
 
 def name_causes(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | None = None,
@@ -246,7 +258,12 @@ def name_causes(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry]
     ``candidates(spec)``, if given, lists the candidates of a base model instead. Each round fits all of them, names the best if it lowers the validation
     error (1 - R², mean over outputs) by at least ``min_gain`` (relative), applies it and goes on;
     below ``floor`` (share of the output variance: sensor noise) there is nothing left to name.
+    Refuses data too short to fit even one number (:meth:`Problem.require_data`); a candidate
+    that fits more numbers than the data support is not fitted, an offset whose standard error the
+    training stretches cannot judge is not named on it (:class:`~hypa.diagnosis.problem.Evidence`):
+    both are listed in ``Search.too_short``.
     """
+    problem.require_data()
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # tiny tensors: a second thread only waits (and on a busy machine, 20x slower)
     try:
@@ -274,7 +291,8 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
     windows = training_windows(dm)
     base = frozen(nominal)
     base_score = nominal_score = problem.stretches("val").score(problem.build(base))
-    progress(f"nominal model: validation error {100 * base_score:.3g} % of the output variance")
+    progress(f"nominal model: validation error {100 * base_score:.3g} % of the output variance (the search's "
+             f"score: free runs restarted from the data every {problem.stretch_s:g} s)")
     rounds, named, refine, findings = [], [], [], []
     while len(named) < max_causes and base_score > floor:
         done = {f.key for f in named}
@@ -293,7 +311,8 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
         findings = []
     # below min_gain: offsets (one number each, exact least squares) that sit far from zero by their
     # standard error, a small sensor bias, one at a time (the best first, the others fitted again on top)
-    findings = [f for f in findings if _significant(f)]
+    unjudged: dict[str, str] = {}
+    findings = _small_offsets(findings, unjudged)
     while findings and len(named) < max_causes:
         best = findings[0]
         best.small = True
@@ -307,24 +326,52 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
                           key=lambda f: f.score)
         if findings:
             rounds.append(findings)
-        findings = [f for f in findings if _significant(f)]
-    named, dropped, base, base_score = _joint_offsets(named, base, base_score, problem, progress)
+        findings = _small_offsets(findings, unjudged)
+    too_short = _not_fitted(rounds) + list(unjudged.values())
+    named, dropped, base, base_score = _joint_offsets(named, base, base_score, problem, progress, too_short)
     for k, f in enumerate(named):  # the final values: re-fitted jointly with every later cause
         for later in named[k + 1 :]:
             f.values.update({name: v for name, v in later.refined.items() if name in f.values})
-    return Search(nominal_score, rounds, named, base, base_score, time.perf_counter() - started, dropped)
+    return Search(nominal_score, rounds, named, base, base_score, time.perf_counter() - started, dropped,
+                  too_short)
+
+
+def _not_fitted(rounds: Sequence[Sequence[Finding]]) -> list[str]:
+    """One line per candidate the data were too short to fit, from the first round it was not fitted in."""
+    lines: dict[str, str] = {}
+    for findings in rounds:
+        for f in findings:
+            if f.too_short and f.error and f.key not in lines:
+                lines[f.key] = f"{f.cause} on {f.target} not fitted: {f.too_short}"
+    return list(lines.values())
+
+
+def _small_offsets(findings: Sequence[Finding], unjudged: dict[str, str]) -> list[Finding]:
+    """The findings below min_gain that are named as small offsets (:func:`_significant`); an offset
+    that would be weighed as one but whose standard error the data cannot judge goes to ``unjudged``."""
+    for f in findings:
+        if f.error is None and f.too_short and f.gain >= OFFSET_GAIN:
+            unjudged[f.key] = (f"{f.cause} on {f.target} lowers the validation error by {100 * f.gain:.2g} %, "
+                               f"but {f.too_short}, so it is not named as a small bias")
+    return [f for f in findings if _significant(f)]
 
 
 def _joint_offsets(named: list[Finding], spec: ModelSpec, score: float, problem: Problem,
-                   progress: Callable[[str], None]) -> tuple[list[Finding], list[Finding], ModelSpec, float]:
+                   progress: Callable[[str], None], too_short: list[str]
+                   ) -> tuple[list[Finding], list[Finding], ModelSpec, float]:
     """The named offsets fitted again all together; while one of them is then under OFFSET_Z
     standard errors from zero (it stood in for the others: a steering offset for a yaw-rate and a
     side-slip bias), the weakest is dropped; an offset as weak in that fit lists it as the
-    alternative the data cannot tell it from. Returns the named causes, the dropped ones, the model
-    with the final offsets and its validation score."""
+    alternative the data cannot tell it from. Where the training stretches cannot judge them
+    together, they stay as named and ``too_short`` says why. Returns the named causes, the
+    dropped ones, the model with the final offsets and its validation score."""
     offsets = [f for f in named if f.candidate is not None and f.candidate.fit == AFFINE]
     dropped: list[Finding] = []
     if len(offsets) < 2:
+        return named, dropped, spec, score
+    shortfall = problem.evidence().error_shortfall(len(offsets))
+    if shortfall:
+        too_short.append(f"the {len(offsets)} named offsets are not weighed against each other: {shortfall}")
         return named, dropped, spec, score
     while True:
         values, z = fit_offsets(spec, [f.target for f in offsets], problem)

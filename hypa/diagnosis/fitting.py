@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from hypa.diagnosis.edits import Candidate, set_free
-from hypa.diagnosis.problem import Problem, format_value
+from hypa.diagnosis.problem import Problem, TooLittleData, format_value
 from hypa.models.spec import ModelSpec, ModelSpecError
 
 REFINE_LR = 0.2  # the learning rate of the earlier causes' knobs, relative to the candidate's own
@@ -42,6 +42,9 @@ class GradientFit:
         params = [p for p in self.model.parameters() if p.requires_grad]
         if not params:
             raise ModelSpecError(f"{candidate.key}: nothing to fit")
+        shortfall = problem.evidence().fit_shortfall(sum(p.numel() for p in params))
+        if shortfall:
+            raise TooLittleData(shortfall)
         self.generator = torch.Generator().manual_seed(problem.seed)
         self.nonlinear = nonlinear = any(getattr(getattr(b, "model", None), "is_nonlinear", False)
                                          for b in self.model.blocks.values())
@@ -120,8 +123,9 @@ def fit_gradient(candidate: Candidate, problem: Problem, windows: Mapping[str, t
     return fit.values()
 
 
-def fit_affine(candidate: Candidate, problem: Problem) -> tuple[dict[str, float], float]:
-    """One offset (the candidate's channel): its least-squares value and |value| / standard error."""
+def fit_affine(candidate: Candidate, problem: Problem) -> tuple[dict[str, float], float | None]:
+    """One offset (the candidate's channel): its least-squares value and |value| / standard error
+    (``None`` where the training stretches are too few to judge it, see :func:`fit_offsets`)."""
     channel = candidate.target
     values, z = fit_offsets(candidate.spec, [channel], problem)
     span = max(float(np.ptp(r[channel])) for r in problem.dm.records("train"))
@@ -133,13 +137,16 @@ def fit_affine(candidate: Candidate, problem: Problem) -> tuple[dict[str, float]
 
 
 def fit_offsets(spec: ModelSpec, channels: Sequence[str], problem: Problem) -> tuple[dict[str, float],
-                                                                                      dict[str, float]]:
+                                                                                      dict[str, float | None]]:
     """Joint least squares of the sensor offsets of ``channels`` in ``spec`` (whatever values the
     spec holds for them are replaced). The (linear) model's outputs are affine in each offset, so
     one simulation of the training stretches with them at zero and one per offset (a probe) give
     the responses exactly. Returns the offsets [SI] and each one's |value| over its standard
     error, clustered by stretch (the residuals of one stretch are correlated, those of different
-    stretches far less; the sandwich covariance of the weighted least squares)."""
+    stretches far less; the sandwich covariance of the weighted least squares). With no more
+    stretches than offsets that ratio is ``None``: the stretches' shares sum to zero at the
+    optimum, so they cannot judge as many directions as there are offsets (one stretch gives a
+    standard error of exactly zero)."""
     zeroed = {**spec.sensor_offsets, **{c: 0.0 for c in channels}}
     train = problem.stretches("train")
     base = train.predict(problem.build(dataclasses.replace(spec, sensor_offsets=zeroed)))
@@ -155,9 +162,11 @@ def fit_offsets(spec: ModelSpec, channels: Sequence[str], problem: Problem) -> t
     if torch.linalg.matrix_rank(gram) < k:
         raise ValueError(f"offsets of {', '.join(channels)} cannot be told apart on these data")
     offsets = torch.linalg.solve(gram, rhs)
+    values = {c: float(v) for c, v in zip(channels, offsets)}
+    if problem.evidence().error_shortfall(k):
+        return values, {c: None for c in channels}
     scores = torch.cat([torch.einsum("blpi,blp,p->bi", g, r - torch.einsum("blpi,i->blp", g, offsets), weights)
                         for g, r in batches])  # (stretches, k): each stretch's share of the normal equations
     inverse = torch.linalg.inv(gram)
     spread = torch.sqrt(torch.clamp(torch.diagonal(inverse @ (scores.T @ scores) @ inverse), min=0.0))
-    values = {c: float(v) for c, v in zip(channels, offsets)}
     return values, {c: abs(values[c]) / float(e) if float(e) > 0 else math.inf for c, e in zip(channels, spread)}

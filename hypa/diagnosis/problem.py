@@ -1,5 +1,24 @@
-"""The diagnosis' data and fixed settings (:class:`Problem`), and the long windows (stretches)
-that score a candidate on the validation records and fit an offset on the training records."""
+"""The diagnosis' data and fixed settings (:class:`Problem`), the long windows (stretches)
+that score a candidate on the validation records and fit an offset on the training records,
+and what the data can support (:class:`Evidence`).
+
+**How much data a fit needs** (the rule comes from the data and the model, no length is
+assumed). The errors of one free run are correlated: they all follow from its start and the
+same few parameters, so at worst a run is one piece of evidence, not ``N`` samples. Counted so:
+
+- a gradient fit of ``k`` numbers (the candidate's knobs and the earlier causes' knobs re-fitted
+  with it) needs more than ``k`` training windows without overlap (``data.past + data.window + 1``
+  samples each, counted per record): with ``k`` or fewer, ``k`` knobs can match every window's
+  error whatever its cause, so the candidate is not fitted and the report says why;
+- the standard error of ``k`` offsets fitted together needs more than ``k`` training stretches
+  (the clusters of the sandwich estimator): the stretches' shares of the normal equations sum to
+  zero at the least-squares optimum, so ``G`` stretches judge at most ``G - 1`` directions; with
+  ``G <= k`` no standard error is reported (one stretch gives one of exactly zero: "10^15
+  standard errors from zero") and no offset is named as significant on it.
+
+Data with fewer than two windows without overlap cannot support a fit of even one number:
+:meth:`Problem.require_data` refuses them in one line, with the length that would do.
+"""
 
 from __future__ import annotations
 
@@ -12,6 +31,7 @@ import torch
 
 from hypa.data import HypaDataModule, Record
 from hypa.diagnosis.workers import default_workers
+from hypa.errors import UserError
 from hypa.models import ComposedModel
 from hypa.models.spec import ModelSpec
 
@@ -38,6 +58,25 @@ class Problem:
             cache[split] = Stretches.cut(self.dm, self.dm.records(split), max(1, round(self.stretch_s / self.dm.dt)))
         return cache[split]
 
+    def evidence(self) -> Evidence:
+        """How much independent evidence the training records hold (made once, then cached)."""
+        cache = self.__dict__
+        if "_evidence" not in cache:
+            dm = self.dm
+            span = dm.past + dm.window + 1
+            records = dm.records("train")
+            cache["_evidence"] = Evidence(
+                seconds=sum(len(r) for r in records) * dm.dt, records=len(records),
+                windows=sum(len(r) // span for r in records), window_samples=span, dt=dm.dt,
+                stretches=self.stretches("train").count, stretch_s=self.stretch_s)
+        return cache["_evidence"]
+
+    def require_data(self) -> None:
+        """Refuse (:class:`TooShortError`) data that cannot support a fit of even one number."""
+        reason = self.evidence().refusal()
+        if reason:
+            raise TooShortError(reason)
+
     def scale(self, names: Sequence[str]) -> dict[str, tuple[float, float]]:
         norm = self.dm.normalization.subset(list(names))
         return {n: (float(m), float(s)) for n, m, s in zip(names, norm.mean.tolist(), norm.std.tolist())}
@@ -47,6 +86,58 @@ class Problem:
         return ComposedModel(spec, self.physical_values, dm.input_names, dm.output_names, self.scale(dm.input_names),
                              self.scale(dm.output_names), dm.dt, self.horizon, self.hold,
                              scheduling_names=dm.scheduling_names, scheduling_scale=self.scale(dm.scheduling_names))
+
+
+class TooShortError(UserError):
+    """The training records cannot support a fit of even one number (:meth:`Evidence.refusal`)."""
+
+
+class TooLittleData(ValueError):
+    """A candidate's fit needs more independent training windows than the data hold: not fitted."""
+
+
+def _plural(count: int, word: str, plural: str | None = None) -> str:
+    return f"{count} {word if count == 1 else plural or word + 's'}"
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """The training data counted as independent pieces (see the module docstring): ``windows``
+    without overlap (``window_samples`` each), ``stretches`` (the offsets' clusters)."""
+
+    seconds: float  # [s] of training data
+    records: int
+    windows: int
+    window_samples: int
+    dt: float  # [s]
+    stretches: int
+    stretch_s: float  # [s]
+
+    def fit_shortfall(self, k: int) -> str | None:
+        """Why a fit of ``k`` numbers is not supported (``None``: it is)."""
+        if self.windows > k:
+            return None
+        return (f"{_plural(k, 'number')} to fit from {_plural(self.windows, 'training window')} without overlap "
+                f"({self.window_samples * self.dt:.3g} s each): needs {k + 1}, about "
+                f"{(k + 1) * self.window_samples * self.dt:.3g} s of training data")
+
+    def error_shortfall(self, k: int) -> str | None:
+        """Why the clustered standard errors of ``k`` offsets fitted together are not judged (``None``: they are)."""
+        if self.stretches > k:
+            return None
+        return (f"{_plural(self.stretches, 'training stretch', 'training stretches')} for "
+                f"{_plural(k, 'offset')}: the standard error clustered by stretch needs {k + 1} "
+                f"({k + 1} records, or one over {k * self.stretch_s:g} s)")
+
+    def refusal(self) -> str | None:
+        """The one-line refusal when not even one number can be fitted (``None``: some can)."""
+        if self.windows > 1:
+            return None
+        return (f"{self.seconds:.3g} s of training data in {_plural(self.records, 'record')}: "
+                f"{_plural(self.windows, 'window')} of {self.window_samples} samples (data.past + data.window + 1, "
+                f"{self.window_samples * self.dt:.3g} s) without overlap, too short to fit even one number (that "
+                f"needs 2 such windows); give at least {2 * self.window_samples * self.dt:.3g} s of training data, "
+                "or a shorter data.window")
 
 
 READABLE = {"rad": ("deg", 180.0 / math.pi), "rad/s": ("deg/s", 180.0 / math.pi)}  # SI unit -> (shown, factor)
@@ -88,6 +179,11 @@ class Stretches:
 
     batches: tuple[dict[str, torch.Tensor], ...]
     first: int
+
+    @property
+    def count(self) -> int:
+        """How many stretches."""
+        return sum(int(b["y"].shape[0]) for b in self.batches)
 
     @classmethod
     def cut(cls, dm: HypaDataModule, records: Sequence[Record], samples: int) -> Stretches:

@@ -91,10 +91,25 @@ def _change(before: Mapping[str, dict], after: Mapping[str, dict], outputs: Sequ
     return {o: after[o]["mse"] / before[o]["mse"] - 1.0 if before[o]["mse"] > 0 else 0.0 for o in outputs}
 
 
+def validation_error(metrics: Mapping[str, dict], outputs: Sequence[str]) -> float:
+    """The mean over outputs of 1 - R² of free-run metrics: the report's headline figure."""
+    return float(np.mean([1.0 - metrics[o]["r2"] for o in outputs]))
+
+
 def _overall(before: Mapping[str, dict], after: Mapping[str, dict], outputs: Sequence[str]) -> float:
-    """Relative change of the mean over outputs of 1 - R² (the search's score)."""
-    b = float(np.mean([1.0 - before[o]["r2"] for o in outputs]))
-    return float(np.mean([1.0 - after[o]["r2"] for o in outputs])) / b - 1.0 if b > 0 else 0.0
+    """Relative change of the mean over outputs of 1 - R² (:func:`validation_error`)."""
+    b = validation_error(before, outputs)
+    return validation_error(after, outputs) / b - 1.0 if b > 0 else 0.0
+
+
+def headline(result: Mapping) -> dict[str, str]:
+    """The headline figures as printed, for diagnosis.md and the command's last line alike (one
+    place, so the two cannot disagree): ``nominal``, ``extended`` (``trained``) as shares of the
+    output variance, and ``change``, extended against nominal."""
+    error = result["error"]
+    out = {m: f"{100 * error[m]:.3g} %" for m in ("nominal", "extended", "trained") if m in error}
+    out["change"] = format_change(error["change"])
+    return out
 
 
 def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overrides: Sequence[str] = (),
@@ -109,6 +124,7 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     ``train_extension(arguments)``: trains the written model with those ``hypa.train`` arguments
     and returns its free runs over the validation records and what its networks learned
     (:mod:`hypa.diagnosis.trained`); its gain and those explanations join the report."""
+    problem.require_data()  # before any step is announced: data too short are refused in one line
     out.mkdir(parents=True, exist_ok=True)
     dm, started = problem.dm, time.perf_counter()
     progress(f"step 1/4: the nominal model {nominal.name!r} free-running on {len(dm.records('val'))} "
@@ -147,7 +163,10 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     metrics = {"nominal": free_run_metrics(before, dm.output_names),
                "extended": free_run_metrics(after, dm.output_names)}
     change = _change(metrics["nominal"], metrics["extended"], dm.output_names)
-    change["overall"] = search.final_score / search.nominal_score - 1.0 if search.nominal_score > 0 else 0.0
+    # the headline's change: of the table's free runs, as the trained extension's below (the search's
+    # own score restarts its free runs every stretch_s: on long records a slightly different figure)
+    change["overall"] = _overall(metrics["nominal"], metrics["extended"], dm.output_names)
+    error = {m: validation_error(metrics[m], dm.output_names) for m in ("nominal", "extended")}
     trained = None
     if train_extension is not None:
         name = "diagnosed_hybrid" if "diagnosed_hybrid" in written else "diagnosed"
@@ -160,6 +179,9 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
                    "gain": {"all": {**_change(metrics["nominal"], metrics["trained"], dm.output_names),
                                     "overall": _overall(metrics["nominal"], metrics["trained"], dm.output_names)}},
                    "explained": extension.explanations}
+        error["trained"] = validation_error(metrics["trained"], dm.output_names)
+    error["change"] = change["overall"]
+    evidence = problem.evidence()
     result = {
         "cause": search.named[0].cause if search.named else "none",  # the first named (the schema of old reports)
         "estimate": dict(search.named[0].values) if search.named else {},
@@ -173,13 +195,17 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
            if f.key not in {n.key for n in search.named}],
         "rounds": [[f.to_dict() for f in r] for r in search.rounds],
         "score": {"nominal": search.nominal_score, "extended": search.final_score},
+        "error": error,
         "metrics": metrics,
         "gain": {"all": change},
+        "too_short": list(search.too_short),
         "unexplained": [s.to_dict() for s in unexplained],
         "structure": {s.output: s.to_dict() for s in structure},
         "extended": {"config": {k: str(v) for k, v in written.items()}, "train_command": commands,
                      "signals": signal_agreement(after), **({"trained": trained} if trained else {})},
-        "data": {"dt": dm.dt, "train_records": len(dm.records("train")), "val_records": len(dm.records("val"))},
+        "data": {"dt": dm.dt, "train_records": len(dm.records("train")), "val_records": len(dm.records("val")),
+                 "train_s": evidence.seconds, "train_windows": evidence.windows, "train_stretches": evidence.stretches,
+                 "stretch_s": problem.stretch_s},
         "seconds": time.perf_counter() - started,
     }
     figures = _figures(out, before, after, dm, runs if trained else (), list(result["extended"]["signals"])) \
@@ -305,12 +331,24 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
               + (f"; scheduling {', '.join(result['system']['scheduling'])}" if result["system"]["scheduling"] else "")
               + f". {result['data']['train_records']} training and {result['data']['val_records']} validation "
               f"record(s) at {1 / dm.dt:.4g} Hz. Free-run error on the validation records, as a share of each "
-              "output's variance (1 − R²), averaged over the outputs:", ""]
-    lines.append(f"- nominal model: **{100 * search.nominal_score:.3g} %**")
-    lines.append(f"- with the named causes: **{100 * search.final_score:.3g} %**")
-    lines += ["", "## Named causes", ""]
+              "output's variance (1 − R², the table \"Per output\"), averaged over the outputs:", ""]
+    figures = headline(result)
+
+    def per_output(model: str) -> str:
+        return ", ".join(f"{o} {100 * (1 - result['metrics'][model][o]['r2']):.3g} %" for o in dm.output_names)
+
+    lines.append(f"- nominal model: **{figures['nominal']}** ({per_output('nominal')})")
+    lines.append(f"- with the named causes: **{figures['extended']}** ({per_output('extended')})")
+    if "trained" in figures:
+        lines.append(f"- the trained extension: **{figures['trained']}** ({per_output('trained')})")
+    lines.append(f"- change with the named causes: **{figures['change']}**")
+    lines += ["", "## Named causes", "",
+              ("The gains below are the search's own score: free runs over the validation records restarted from "
+               f"the data every {result['data']['stretch_s']:g} s (on longer records a little different from the "
+               "figures above)."), ""]
     if not search.named:
-        lines.append(f"None: no catalogue cause lowers the validation error by {100 * min_gain:.0f} % or more.")
+        lines.append(f"None: no catalogue cause lowers the validation error by {100 * min_gain:.0f} % or more"
+                     + (" among those the data could support (see \"Too little data\")." if search.too_short else "."))
     previous = search.nominal_score
     for k, f in enumerate(search.named, 1):
         share = (previous - f.score) / search.nominal_score if search.nominal_score > 0 else 0.0
@@ -325,6 +363,12 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
         previous = f.score
     for f in search.dropped:
         lines.append(f"- Named, then dropped: **{f.cause}** on `{f.target}`; {f.note}.")
+    if search.too_short:
+        lines += ["", "## Too little data", "",
+                  ("What the training records are too short to fit or to judge (a fit needs more training windows "
+                   "without overlap than the numbers it fits; an offset's standard error needs more training "
+                   "stretches than the offsets fitted with it):"), ""]
+        lines += [f"- {line}." for line in search.too_short]
     models = [m for m in ("nominal", "extended", "trained") if m in result["metrics"]]
     lines += ["", "## Per output (validation, free run)", "",
               "| output | " + " | ".join(f"{m} RMS" for m in models) + " | " + " | ".join(f"{m} R²" for m in models)
@@ -368,7 +412,10 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
         fitted = (f.describe().split(": ", 1)[1] if ": " in f.describe() else "") or (f.error or "–")
         if f.steps and f.steps[0] < f.steps[1]:
             fitted += f" (stopped after {f.steps[0]} of {f.steps[1]} steps, behind others: gain at least this)"
-        lines.append(f"| {f.cause} | {f.target} | {fitted} | {100 * f.gain:+.1f} % |")
+        if f.too_short and not f.error:
+            fitted += " (standard error not judged: too few training stretches)"
+        gain = "–" if f.too_short and f.error else f"{100 * f.gain:+.1f} %"
+        lines.append(f"| {f.cause} | {f.target} | {fitted} | {gain} |")
     for name in [*result.get("figures", {}).get("time_series", []), *result.get("figures", {}).get("signals", [])]:
         lines += ["", f"![{name}]({name})"]
     return "\n".join(lines) + "\n"
