@@ -103,12 +103,21 @@ def user_errors(command: str) -> Callable[[F], F]:
             except Exception as error:
                 if full or not is_user_error(error):
                     raise
-                print(f"{command}: error: {one_line(error)}", file=sys.stderr, flush=True)
+                print(f"{command}: error: {one_line(error)}{_hint(error)}", file=sys.stderr, flush=True)
                 sys.exit(1)
 
         return wrapped  # type: ignore[return-value]
 
     return decorate
+
+
+def _hint(error: BaseException) -> str:
+    """What to do about an error whose own message does not say it."""
+    from hydra.errors import OverrideParseException
+
+    if isinstance(error, OverrideParseException) and "'='" in str(error):
+        return " (a value that holds '=' is quoted: key='a=b')"
+    return ""
 
 
 def hydra_command(command: str, config_name: str, config_path: str = "../conf") -> Callable[[F], F]:

@@ -145,6 +145,10 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             folder.update_record(stopped=str(error), training_time_s=time.perf_counter() - started)
             raise DivergedError(f"{error}; {kept}") from None
         training_time_s = time.perf_counter() - started
+        if trainer.interrupted:  # Ctrl-C: Lightning stops gracefully; the run is not finished, say how to go on
+            folder.update_record(stopped=f"interrupted at epoch {trainer.current_epoch}")
+            log.warning("interrupted at epoch %d; resume with ckpt_path=%s", trainer.current_epoch,
+                        folder.checkpoints / "last.ckpt")
 
         best = checkpoint.best_model_score
         result = {"best_val_loss": float(best) if best is not None else float("nan"),

@@ -96,19 +96,21 @@ def craft(checkpoint: Path, marker: Path) -> None:
 
 
 @pytest.mark.parametrize("command, argument", [
-    ("hypa.evaluate", "run={folder}"),
-    ("hypa.evaluate", "run='{checkpoint}'"),
-    ("hypa.explain", "run='{checkpoint}'"),
-    ("hypa.train", "ckpt_path='{checkpoint}'"),
+    pytest.param("hypa.evaluate", "run={folder}", id="evaluate-folder"),
+    pytest.param("hypa.evaluate", "run='{checkpoint}'", id="evaluate-checkpoint"),
+    pytest.param("hypa.explain", "run='{checkpoint}'", id="explain"),
+    pytest.param("hypa.train", "ckpt_path='{checkpoint}'", id="train-resume"),
+    pytest.param("hypa.reproduce", "skip_training=true out={results}", id="reproduce"),  # evaluates <out>/runs/*
 ])
 def test_a_crafted_checkpoint_runs_nothing(command: str, argument: str, run: Path, data: Path,
                                            tmp_path: Path) -> None:
-    folder = copy_run(run, tmp_path / "run")
+    folder = copy_run(run, tmp_path / "results" / "runs" / "run")
     checkpoint = folder / recorded(folder)["path"]
     marker = tmp_path / "payload-ran"
     craft(checkpoint, marker)
-    extra = [*FAST, f"data.dir={data}", f"hydra.run.dir={tmp_path / 'resumed'}"] if command == "hypa.train" else []
-    result = hypa(command, argument.format(folder=folder, checkpoint=checkpoint), *extra)
+    extra = [*FAST, f"data.dir={data}"] if command == "hypa.train" else []
+    arguments = argument.format(folder=folder, checkpoint=checkpoint, results=tmp_path / "results").split(" ")
+    result = hypa(command, *arguments, *extra, f"hydra.run.dir={tmp_path / 'out'}")
     one_line_error(result, command, "not a readable checkpoint", "posix.system", "did not run")
     assert not marker.exists()
 
