@@ -42,7 +42,7 @@ def data_dir_from_config(cfg: DictConfig) -> Path:
     if source == "testbench":
         from hypa.testbench import TestbenchConfig, ensure_dataset
 
-        testbench = TestbenchConfig.from_dict(cfg.get("testbench"))
+        testbench = TestbenchConfig.from_hydra(cfg.get("testbench"))
         folder = ensure_dataset(testbench)
         log.info("test-bench data: %s", folder)
         return folder

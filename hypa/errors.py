@@ -23,6 +23,7 @@ import functools
 import math
 import os
 import sys
+import traceback
 from collections.abc import Callable, Collection, Iterator
 from contextlib import contextmanager
 from typing import Any, TypeVar
@@ -101,7 +102,7 @@ def user_errors(command: str) -> Callable[[F], F]:
             try:
                 return main(*args, **kwargs)
             except Exception as error:
-                if full or not is_user_error(error):
+                if full or not (is_user_error(error) or _raised_composing(error)):
                     raise
                 print(f"{command}: error: {one_line(error)}{_hint(error)}", file=sys.stderr, flush=True)
                 sys.exit(1)
@@ -111,12 +112,21 @@ def user_errors(command: str) -> Callable[[F], F]:
     return decorate
 
 
+def _raised_composing(error: BaseException) -> bool:
+    """Raised while Hydra composed the configuration from the user's overrides (OmegaConf failing on
+    a value where the schema has a typed node, e.g. ``data.splits={train:[a]}``), not by a job."""
+    frames = traceback.extract_tb(error.__traceback__)
+    return any(f.name == "compose_config" and "hydra" in f.filename for f in frames)
+
+
 def _hint(error: BaseException) -> str:
     """What to do about an error whose own message does not say it."""
     from hydra.errors import OverrideParseException
 
     if isinstance(error, OverrideParseException) and "'='" in str(error):
         return " (a value that holds '=' is quoted: key='a=b')"
+    if _raised_composing(error) and not is_user_error(error):
+        return " (composing the configuration from the overrides)"
     return ""
 
 

@@ -407,3 +407,14 @@ def test_simulate_record_accepts_a_record_config():
         TestbenchConfig.linear(), RecordConfig(seed=5, stochastic_duration_s=3)
     )
     assert len(record.columns["time"]) == 3 * 1024 and record.segments[0].end_s == 3.0
+
+
+def test_a_record_removed_on_the_command_line_is_not_generated() -> None:
+    """``~testbench.records.train_2`` drops the record (the schema's defaults must not bring it back)."""
+    from hydra import compose, initialize_config_dir
+
+    root = Path(__file__).resolve().parents[1]
+    with initialize_config_dir(config_dir=str(root / "conf"), version_base="1.3"):
+        cfg = compose(config_name="testbench", overrides=["~testbench.records.train_2"])
+    assert sorted(TestbenchConfig.from_hydra(cfg.testbench).records) == ["train_1", "val"]
+    assert sorted(TestbenchConfig.from_dict(cfg.testbench).records) == ["train_1", "train_2", "val"]  # a partial update

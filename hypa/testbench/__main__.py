@@ -102,7 +102,7 @@ def write_plots(folder: Path, record: str, config: TestbenchConfig, plot_dir: Pa
 @hydra_command("hypa.testbench", "testbench", config_path="../../conf")
 def main(cfg: DictConfig) -> None:
     with settings("testbench"):  # the settings, and generating the records from them
-        config = TestbenchConfig.from_dict(cfg.testbench)
+        config = TestbenchConfig.from_hydra(cfg.testbench)
         if cfg.out is not None:
             folder = generate_dataset(config, Path(cfg.out))
         else:

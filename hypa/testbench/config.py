@@ -274,6 +274,9 @@ class TestbenchConfig:
             unknown = [m for m in record.maneuvers if m not in MANEUVERS]
             if unknown:
                 raise ValueError(f"record {name!r}: unknown maneuvers {unknown}, use {MANEUVERS}")
+            if not record.stochastic_duration_s > 0:
+                raise ValueError(f"record {name!r}: stochastic_duration_s must be > 0 (it is "
+                                 f"{record.stochastic_duration_s:g}); remove a record with ~testbench.records.{name}")
             if not 0 < record.break_frequency_hz < self.excitation.stochastic.cutoff_hz:
                 raise ValueError(f"record {name!r}: need 0 < break_frequency_hz < cutoff_hz")
 
@@ -281,6 +284,16 @@ class TestbenchConfig:
     def from_dict(cls, data: dict[str, Any] | DictConfig | None = None) -> TestbenchConfig:
         """Defaults updated by a (partial, nested) dict; misspelled keys raise an error."""
         return cls().merged(data)
+
+    @classmethod
+    def from_hydra(cls, node: DictConfig | dict[str, Any] | None) -> TestbenchConfig:
+        """The ``testbench`` node of a composed Hydra config: as :meth:`from_dict`, but it lists every
+        record, so the records are exactly those it names (``~testbench.records.train_2`` drops one)."""
+        config = cls.from_dict(node)
+        named = (node or {}).get("records")
+        if named is None:
+            return config
+        return dataclasses.replace(config, records={k: v for k, v in config.records.items() if k in named})
 
     @classmethod
     def linear(cls, noise: bool = False) -> TestbenchConfig:
