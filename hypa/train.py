@@ -17,7 +17,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import lightning as L
 import torch
@@ -27,6 +27,9 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
 from hypa.errors import UserError, hydra_command, setting, settings
+
+if TYPE_CHECKING:
+    from hypa.identification import IdentificationSettings
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +60,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     from hypa.training import HybridModule, StagedTraining, ValidationFigures
     from hypa.training.checkpoints import AtomicCheckpointIO, RecordedCheckpoint, load_module
     from hypa.training.divergence import DivergedError, StopOnNonFiniteLoss
+    from hypa.training.identified import fit_by_identification, identifiable
     from hypa.training.run_folder import CONFIG_FILE, RunFolder, write_text_atomic
 
     # every plain value first, so a bad override fails before any data are read or generated
@@ -74,6 +78,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     check_ann_settings(ann_name, ann)
     with settings("vehicle"):
         physical_values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.vehicle else {}
+    identification = identification_settings(cfg)
 
     out, ckpt_path = Path(HydraConfig.get().runtime.output_dir), None
     if cfg.ckpt_path:
@@ -136,33 +141,54 @@ def train(cfg: DictConfig) -> dict[str, Any]:
                                 plugins=[AtomicCheckpointIO()])
         log.info("model %s:\n%s", model_config["name"], module.model)
         started = time.perf_counter()
-        try:
-            trainer.fit(module, datamodule=dm, ckpt_path=ckpt_path, weights_only=True)
-        except DivergedError as error:
-            best = folder.record.get("best_checkpoint")
-            kept = (f"the best checkpoint before it (epoch {best['epoch']}, val/loss {best['val_loss']:.5g}) stays the "
-                    f"run's record" if best else "no checkpoint was recorded")
-            folder.update_record(stopped=str(error), training_time_s=time.perf_counter() - started)
-            raise DivergedError(f"{error}; {kept}") from None
-        training_time_s = time.perf_counter() - started
-        if trainer.interrupted:  # Ctrl-C: Lightning stops gracefully; the run is not finished, say how to go on
-            folder.update_record(stopped=f"interrupted at epoch {trainer.current_epoch}")
-            log.warning("interrupted at epoch %d; resume with ckpt_path=%s", trainer.current_epoch,
-                        folder.checkpoints / "last.ckpt")
-
-        best = checkpoint.best_model_score
-        result = {"best_val_loss": float(best) if best is not None else float("nan"),
-                  "checkpoint": checkpoint.best_model_path, "last_checkpoint": checkpoint.last_model_path,
-                  "tensorboard": str(out / "tensorboard"), "epochs": trainer.current_epoch,
-                  "training_time_s": training_time_s}
-        folder.update_record(training_time_s=training_time_s, best_val_loss=result["best_val_loss"])
+        if identification is not None and ckpt_path is None and identifiable(module):
+            result = fit_by_identification(trainer, module, dm, folder, identification, logger)
+            ended = "identification"
+        else:
+            try:
+                trainer.fit(module, datamodule=dm, ckpt_path=ckpt_path, weights_only=True)
+            except DivergedError as error:
+                best = folder.record.get("best_checkpoint")
+                kept = (f"the best checkpoint before it (epoch {best['epoch']}, val/loss {best['val_loss']:.5g}) "
+                        "stays the run's record" if best else "no checkpoint was recorded")
+                folder.update_record(stopped=str(error), training_time_s=time.perf_counter() - started)
+                raise DivergedError(f"{error}; {kept}") from None
+            if trainer.interrupted:  # Ctrl-C: Lightning stops gracefully; the run is not finished, say how to go on
+                folder.update_record(stopped=f"interrupted at epoch {trainer.current_epoch}")
+                log.warning("interrupted at epoch %d; resume with ckpt_path=%s", trainer.current_epoch,
+                            folder.checkpoints / "last.ckpt")
+            best = checkpoint.best_model_score
+            result = {"best_val_loss": float(best) if best is not None else float("nan"),
+                      "checkpoint": checkpoint.best_model_path, "last_checkpoint": checkpoint.last_model_path,
+                      "epochs": trainer.current_epoch}
+            ended = f"{result['epochs']} epochs"
+        result.update(tensorboard=str(out / "tensorboard"), training_time_s=time.perf_counter() - started)
+        folder.update_record(training_time_s=result["training_time_s"], best_val_loss=result["best_val_loss"])
         logger.log_hyperparams(_flat(OmegaConf.to_container(cfg, resolve=True)),
                                {"hp/best_val_loss": result["best_val_loss"]})
         logger.finalize("success")  # written now: after fit, nothing else flushes it before the process ends
-    print(f"best val/loss {result['best_val_loss']:.5g} after {result['epochs']} epochs\n"
+    print(f"best val/loss {result['best_val_loss']:.5g} after {ended}\n"
           f"checkpoint:  {result['checkpoint']}\n"
           f"tensorboard: tensorboard --logdir {result['tensorboard']}")
     return result
+
+
+def identification_settings(cfg: DictConfig) -> IdentificationSettings | None:
+    """``identification.*``: how a physics-only model is identified; ``None`` when not enabled."""
+    from hypa.identification import IdentificationSettings
+
+    enabled = OmegaConf.select(cfg, "identification.enabled", default=False)
+    if not isinstance(enabled, bool):
+        raise UserError(f"identification.enabled={enabled} is not true or false")
+    if not enabled:
+        return None
+    key = "identification."
+    with settings("identification"):
+        return IdentificationSettings(
+            stretch_s=setting(cfg, key + "stretch_s", float, optional=True, positive=True),
+            max_evaluations=setting(cfg, key + "max_evaluations", int, optional=True, minimum=1),
+            tolerance=setting(cfg, key + "tolerance", float, positive=True),
+            max_seconds=setting(cfg, key + "max_seconds", float, optional=True, positive=True))
 
 
 def check_ann_settings(name: str, hparams: dict[str, Any]) -> None:

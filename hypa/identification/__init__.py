@@ -1,0 +1,12 @@
+"""Grey-box identification of physical parameters by their output (simulation) error."""
+
+from hypa.identification.output_error import (
+    Estimate,
+    Identification,
+    IdentificationError,
+    IdentificationSettings,
+    identify,
+)
+from hypa.identification.stretches import Stretches
+
+__all__ = ["Estimate", "Identification", "IdentificationError", "IdentificationSettings", "Stretches", "identify"]

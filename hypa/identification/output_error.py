@@ -1,0 +1,344 @@
+"""Grey-box identification: the physical parameters that minimize the output (simulation) error.
+
+The criterion is the free-run error of the model over the training records, each output
+weighted by 1 / its variance, so that the cost is the mean over outputs of 1 - R²:
+
+    V(θ) = (1 / p) Σ_o Σ_k (ŷ_o,k(θ) - y_o,k)² / (N σ_o²)
+
+where ŷ(θ) runs free from the data at the start of each stretch (:mod:`hypa.identification.
+stretches`: one stretch per record is single shooting, shorter ones multiple shooting for a system
+that integrates or drifts). It is minimized by scipy's trust-region reflective least squares
+(``least_squares(method="trf")``) with a Jacobian from forward differences of float64 model runs,
+in coordinates where a step means the same for every parameter (:func:`coordinates`): the log of
+a positive parameter, a bounded one scaled to [0, 1] with those bounds, a signed one relative to
+its nominal value. Nothing is random: the same data give the same parameters.
+
+Each estimate gets ± 1σ from the Jacobian at the optimum, σ² (JᵀJ)⁻¹ with σ² the residual
+variance; it treats the residuals as independent, which the errors of a free run are not, so
+read it as a lower bound on the uncertainty. The correlation matrix comes from the same
+covariance. Warnings name a parameter that did not move, one at its bound, one the data do not
+determine (σ larger than its value) and pairs that cannot be told apart (|ρ| > 0.99).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from scipy.optimize import least_squares
+
+from hypa.errors import UserError
+from hypa.identification.stretches import Stretches
+from hypa.models import ComposedModel
+from hypa.physics import SchedulingError, UnstablePhysicsError
+from hypa.physics.parameters import BOUNDED, LOG, ParameterSpec
+
+log = logging.getLogger(__name__)
+
+_INSIDE = 1e-9  # a bounded parameter stays this share of its interval inside its bounds
+_PROBE = 1e-7  # forward-difference step in the fit's coordinates (relative for positive parameters)
+_MOVED = 1e-6  # a smaller change in the fit's coordinates: the parameter did not move
+_AT_BOUND = 1e-4  # a bounded parameter this close to a bound (share of its interval): at its bound
+
+
+class IdentificationError(UserError):
+    """The identification cannot start (the model's free run is not finite at its nominal values)."""
+
+
+@dataclass(frozen=True)
+class IdentificationSettings:
+    """How the output error is minimized.
+
+    ``stretch_s`` [s]: the free runs restart from the data this often (multiple shooting);
+    ``None`` runs each training record free from its start (single shooting). ``max_evaluations``:
+    model runs at most (``None``: scipy's 100 per parameter); ``tolerance``: scipy's ``ftol``,
+    ``xtol`` and ``gtol``; ``max_seconds``: stop after this long with the best point so far
+    (``None``: no limit; a limit makes the result depend on the machine's speed);
+    ``correlated``: |ρ| above which two parameters cannot be told apart.
+    """
+
+    stretch_s: float | None = None
+    max_evaluations: int | None = None
+    tolerance: float = 1e-10
+    max_seconds: float | None = None
+    correlated: float = 0.99
+
+    def __post_init__(self) -> None:
+        if self.stretch_s is not None and not (math.isfinite(self.stretch_s) and self.stretch_s > 0):
+            raise ValueError(f"identification.stretch_s must be > 0 or null, got {self.stretch_s}")
+        if self.max_evaluations is not None and self.max_evaluations < 1:
+            raise ValueError(f"identification.max_evaluations must be >= 1 or null, got {self.max_evaluations}")
+        if not (math.isfinite(self.tolerance) and 0 < self.tolerance < 1):
+            raise ValueError(f"identification.tolerance must lie in (0, 1), got {self.tolerance}")
+        if self.max_seconds is not None and not self.max_seconds > 0:
+            raise ValueError(f"identification.max_seconds must be > 0 or null, got {self.max_seconds}")
+        if not 0 < self.correlated < 1:
+            raise ValueError(f"identification.correlated must lie in (0, 1), got {self.correlated}")
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One identified parameter [``unit``]: its start, its value and ± 1σ (``None``: undetermined)."""
+
+    name: str
+    unit: str
+    initial: float
+    value: float
+    std: float | None
+    bounds: tuple[float, float] | None = None
+
+
+@dataclass
+class Identification:
+    """What the identification found, and how it got there (see the module docstring)."""
+
+    estimates: tuple[Estimate, ...]
+    correlation: list[list[float]]  # (p, p), NaN where a parameter is undetermined
+    converged: bool
+    message: str  # scipy's (or the time limit's) reason for stopping
+    iterations: int  # Jacobians evaluated: accepted steps + 1
+    evaluations: int  # model runs for residuals (Jacobian probes not counted)
+    final_step: float  # the last accepted step, largest over parameters, in the fit's coordinates
+    error_initial: float  # the cost V at the start: mean over outputs of 1 - R² on the fitted stretches
+    error_final: float
+    stretches: int
+    samples: int  # predicted samples per output
+    seconds: float
+    warnings: tuple[str, ...] = field(default_factory=tuple)
+
+    def values(self) -> dict[str, float]:
+        return {e.name: e.value for e in self.estimates}
+
+    def to_dict(self) -> dict:
+        """The JSON form (``run.json``'s ``identification``)."""
+        return {"converged": self.converged, "message": self.message, "iterations": self.iterations,
+                "evaluations": self.evaluations, "final_step": self.final_step,
+                "error": {"initial": self.error_initial, "final": self.error_final},
+                "stretches": self.stretches, "samples": self.samples, "seconds": self.seconds,
+                "parameters": {e.name: {"unit": e.unit, "initial": e.initial, "value": e.value, "std": e.std}
+                               for e in self.estimates},
+                "correlation": {"names": [e.name for e in self.estimates], "matrix": self.correlation},
+                "warnings": list(self.warnings)}
+
+    def summary(self) -> str:
+        """One line: the error before and after, convergence, and how many warnings."""
+        state = "converged" if self.converged else "did NOT converge"
+        return (f"identified {len(self.estimates)} parameter(s) on {self.stretches} free run(s): output error "
+                f"{100 * self.error_initial:.3g} % -> {100 * self.error_final:.3g} % of the output variance, "
+                f"{state} after {self.iterations} iteration(s), {self.seconds:.1f} s"
+                + (f"; {len(self.warnings)} warning(s)" if self.warnings else ""))
+
+    def markdown(self) -> str:
+        """The report: the estimates with ± 1σ, the correlations, convergence and warnings."""
+        lines = ["## Identification", "", self.summary() + f" ({self.message}; last step {self.final_step:.2g}).", "",
+                 "| parameter | start | identified | ± 1σ | unit |", "|---|---|---|---|---|"]
+        for e in self.estimates:
+            std = "undetermined" if e.std is None else f"{e.std:.3g}"
+            lines.append(f"| {e.name} | {e.initial:.4g} | {e.value:.4g} | {std} | {e.unit} |")
+        if len(self.estimates) > 1:
+            names = [e.name for e in self.estimates]
+            lines += ["", "Correlations of the estimates:", "", "| | " + " | ".join(names) + " |",
+                      "|---" * (len(names) + 1) + "|"]
+            for name, row in zip(names, self.correlation):
+                lines.append(f"| {name} | " + " | ".join("–" if math.isnan(v) else f"{v:+.2f}" for v in row) + " |")
+        if self.warnings:
+            lines += ["", "Warnings:", ""] + [f"- {w}" for w in self.warnings]
+        return "\n".join(lines) + "\n"
+
+
+@dataclass(frozen=True)
+class _Coordinate:
+    """One parameter in the fit's coordinates z: physical θ = ``physical(z)``, dθ/dz = ``slope(z)``."""
+
+    spec: ParameterSpec
+    scale: float  # signed: |nominal| (1 when 0)
+
+    def z(self, value: float) -> float:
+        if self.spec.storage == BOUNDED:
+            lo, hi = self.spec.bounds
+            return (value - lo) / (hi - lo)
+        return math.log(value) if self.spec.storage == LOG else value / self.scale
+
+    def physical(self, z: float) -> float:
+        if self.spec.storage == BOUNDED:
+            lo, hi = self.spec.bounds
+            return lo + (hi - lo) * z
+        return math.exp(z) if self.spec.storage == LOG else z * self.scale
+
+    def slope(self, z: float) -> float:
+        if self.spec.storage == BOUNDED:
+            return self.spec.bounds[1] - self.spec.bounds[0]
+        return math.exp(z) if self.spec.storage == LOG else self.scale
+
+    @property
+    def limits(self) -> tuple[float, float]:
+        return (_INSIDE, 1 - _INSIDE) if self.spec.storage == BOUNDED else (-np.inf, np.inf)
+
+
+def coordinates(model: ComposedModel, names: Sequence[str]) -> list[_Coordinate]:
+    """The fit's coordinate of each parameter: log for positive, [0, 1] for bounded, relative for signed."""
+    specs = model.parameters_.specs
+    return [_Coordinate(specs[n], abs(specs[n].value) or 1.0) for n in names]
+
+
+class _Stop(Exception):
+    """Raised inside the residual to end the fit at its time limit."""
+
+
+def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | None = None,
+             settings: IdentificationSettings = IdentificationSettings(),
+             progress: Callable[[str], None] = lambda text: None) -> Identification:
+    """Fit ``names`` (default: the model's trainable physical parameters) to minimize the output
+    error over ``stretches`` (see the module docstring). The model is left at the identified values.
+
+    Raises :class:`IdentificationError` when the model's free run is not finite at the start.
+    """
+    names = tuple(model.parameters_.trainable_names if names is None else names)
+    if not names:
+        raise IdentificationError("nothing to identify: the model has no trainable physical parameters")
+    started = time.perf_counter()
+    coords = coordinates(model, names)
+    data = stretches.to(torch.float64)
+    weights = data.weights()
+    count = sum(b["y"].shape[0] * (b["y"].shape[1] - data.first) for b in data.batches)
+    outputs = int(weights.numel())
+    norm = torch.sqrt(weights / (count * outputs))  # sum of squares = mean over outputs of 1 - R²
+    initial = model.parameters_.as_floats()
+    z0 = np.array([c.z(initial[n]) for c, n in zip(coords, names)])
+    best: dict[str, object] = {"cost": math.inf, "z": z0.copy()}
+
+    def set_z(z: np.ndarray) -> None:
+        model.parameters_.set_values({n: c.physical(float(v)) for n, c, v in zip(names, coords, z)})
+
+    last: dict[str, np.ndarray] = {}
+
+    def residual(z: np.ndarray) -> np.ndarray:
+        if "z" in last and np.array_equal(last["z"], z):  # scipy asks for f, then for J at the same point
+            return last["r"]
+        if settings.max_seconds is not None and time.perf_counter() - started > settings.max_seconds:
+            raise _Stop
+        try:
+            set_z(z)
+            pairs = data.predict(model)
+        except (UnstablePhysicsError, SchedulingError, ValueError, ArithmeticError, torch.linalg.LinAlgError):
+            # a trial the physics refuses or cannot compute (an overflowing matrix exponential): no step there
+            return np.full(count * outputs, np.inf)
+        r = torch.cat([((p - y) * norm).reshape(-1) for p, y in pairs]).numpy()
+        last.update(z=z.copy(), r=r)
+        cost = float(r @ r)
+        if math.isfinite(cost) and cost < best["cost"]:
+            best.update(cost=cost, z=z.copy())
+        return r
+
+    r0 = residual(z0)
+    if not np.all(np.isfinite(r0)):
+        raise IdentificationError("the model's free run over the training data is not finite at its starting "
+                                  "parameters: start nearer (the model's parameters), or restart the free runs "
+                                  "from the data more often (identification.stretch_s)")
+    error_initial = float(r0 @ r0)
+    iterates: list[np.ndarray] = []
+
+    def jacobian(z: np.ndarray) -> np.ndarray:
+        iterates.append(z.copy())
+        base = residual(z)
+        columns = []
+        for j, c in enumerate(coords):
+            step = _PROBE * max(1.0, abs(z[j]))
+            if z[j] + step > c.limits[1]:
+                step = -step
+            probe = z.copy()
+            probe[j] += step
+            columns.append((residual(probe) - base) / step)
+        progress(f"identification: iteration {len(iterates)}, output error {100 * float(base @ base):.4g} % "
+                 "of the output variance")
+        return np.stack(columns, axis=1)
+
+    lower, upper = zip(*(c.limits for c in coords))
+    try:
+        result = least_squares(residual, z0, jac=jacobian, bounds=(lower, upper), method="trf", x_scale="jac",
+                               ftol=settings.tolerance, xtol=settings.tolerance, gtol=settings.tolerance,
+                               max_nfev=settings.max_evaluations)
+        z, converged, message, evaluations = result.x, result.status > 0, result.message, int(result.nfev)
+    except _Stop:
+        z, converged = np.asarray(best["z"]), False
+        message, evaluations = f"stopped at the time limit of {settings.max_seconds:g} s", -1
+    set_z(z)
+    final = residual(z)
+    J = jacobian(z)
+    iterates.pop()  # that evaluation was for the covariance, not a step
+    final_step = float(np.max(np.abs(iterates[-1] - iterates[-2]))) if len(iterates) > 1 else 0.0
+    error_final = float(final @ final)
+    cov_z = _covariance(J, error_final, len(final))
+    estimates, slopes = [], []
+    for j, (name, c) in enumerate(zip(names, coords)):
+        slope = c.slope(float(z[j]))
+        variance = cov_z[j, j] * slope**2
+        std = math.sqrt(variance) if math.isfinite(variance) else None
+        estimates.append(Estimate(name, c.spec.unit, initial[name], c.physical(float(z[j])), std, c.spec.bounds))
+        slopes.append(slope)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = np.sqrt(np.diag(cov_z))
+        correlation = np.clip(cov_z / np.outer(d, d), -1.0, 1.0)
+    correlation[~np.isfinite(correlation)] = np.nan
+    warnings = _warnings(estimates, coords, z0, z, correlation, settings.correlated, converged, message)
+    identification = Identification(
+        tuple(estimates), correlation.tolist(), converged, message, len(iterates), evaluations, final_step,
+        error_initial, error_final, data.count, count, time.perf_counter() - started, tuple(warnings))
+    for line in warnings:
+        log.warning("identification: %s", line)
+    return identification
+
+
+def _covariance(J: np.ndarray, cost: float, m: int) -> np.ndarray:
+    """σ² (JᵀJ)⁻¹ in the fit's coordinates; infinite variance along a direction J does not see."""
+    p = J.shape[1]
+    sigma2 = cost / max(m - p, 1)
+    u, s, vt = np.linalg.svd(J, full_matrices=False)
+    tiny = s <= s.max(initial=0.0) * 1e-10 if s.size else s
+    with np.errstate(divide="ignore"):
+        inverse = np.where(tiny, np.inf, 1.0 / np.where(tiny, 1.0, s) ** 2)
+    if np.any(tiny):  # an undetermined direction: every parameter in it has no finite variance
+        cov = (vt.T * np.where(tiny, 0.0, inverse)) @ vt
+        blind = np.any(np.abs(vt[tiny]) > 1e-6, axis=0)
+        cov[blind, :] = np.inf
+        cov[:, blind] = np.inf
+        return sigma2 * cov
+    return sigma2 * (vt.T * inverse) @ vt
+
+
+def _warnings(estimates: Sequence[Estimate], coords: Sequence[_Coordinate], z0: np.ndarray, z: np.ndarray,
+              correlation: np.ndarray, correlated: float, converged: bool, message: str) -> list[str]:
+    out = [] if converged else [f"did not converge: {message}"]
+    for j, (e, c) in enumerate(zip(estimates, coords)):
+        if abs(z[j] - z0[j]) < _MOVED:
+            out.append(f"{e.name} did not move from {e.initial:.4g} {e.unit}".rstrip()
+                       + ": the data barely depend on it, or it started at its optimum")
+        if e.bounds is not None and min(z[j], 1 - z[j]) < _AT_BOUND:
+            out.append(f"{e.name} = {e.value:.4g} {e.unit} is at its bound ({e.bounds[0]:g}, {e.bounds[1]:g})")
+        if e.std is None or e.std > abs(e.value):
+            spread = "no finite" if e.std is None else f"± {e.std:.3g} {e.unit}, a larger"
+            out.append(f"{e.name} is not determined by the data ({spread} uncertainty than its value)")
+    # parameters linked by |ρ| > correlated, directly or through others: one group, one warning
+    group = list(range(len(estimates)))
+
+    def root(i: int) -> int:
+        while group[i] != i:
+            i = group[i]
+        return i
+
+    for i in range(len(estimates)):
+        for j in range(i + 1, len(estimates)):
+            if math.isfinite(correlation[i, j]) and abs(correlation[i, j]) > correlated:
+                group[root(j)] = root(i)
+    for members in {r: [i for i in range(len(estimates)) if root(i) == r] for r in map(root, range(len(estimates)))}.values():
+        if len(members) > 1:
+            names = ", ".join(estimates[i].name for i in members)
+            strongest = max(abs(correlation[i, j]) for i in members for j in members if i < j)
+            out.append(f"{names} cannot be told apart on these data (|correlation| up to {strongest:.3f}): "
+                       "read them together, or fix all but one")
+    return out

@@ -1,0 +1,89 @@
+"""Records cut into stretches: long windows that tile them, each started from the data.
+
+A stretch starts like a training window, from its first ``first`` samples (the measured state,
+or the estimate of an unmeasured one from its past samples) and then runs free. Cut into
+stretches, a free run that would drift or diverge over a whole record (an integrating or
+unstable system) restarts from the data every stretch: multiple shooting, with each segment's
+initial state taken from the measurements. One stretch per record is single shooting (the
+output error over the whole record). The diagnosis scores candidates on them; the
+identification fits parameters on them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from hypa.data import HypaDataModule, Record
+from hypa.models import ComposedModel
+
+
+@dataclass(frozen=True)
+class Stretches:
+    """Records cut into long windows (stretches) that tile them, batched by length: what the
+    search simulates to score a candidate (validation) and to fit an offset (training).
+
+    Each stretch starts like a training window, from its first ``first`` samples (the measured
+    state, or the estimate of an unmeasured one from the past), and predicts the next
+    ``samples``; consecutive stretches predict consecutive samples, the last one of a record
+    ends at its end. A batch is ``{"u", "y", "s"}``: normalized inputs and outputs, SI scheduling.
+    """
+
+    batches: tuple[dict[str, torch.Tensor], ...]
+    first: int
+
+    @property
+    def count(self) -> int:
+        """How many stretches."""
+        return sum(int(b["y"].shape[0]) for b in self.batches)
+
+    def to(self, dtype: torch.dtype) -> Stretches:
+        """The same stretches with inputs and outputs in ``dtype`` (float64 for finite differences)."""
+        return Stretches(tuple({k: v.to(dtype) for k, v in b.items()} for b in self.batches), self.first)
+
+    @classmethod
+    def cut(cls, dm: HypaDataModule, records: Sequence[Record], samples: int) -> Stretches:
+        first, groups = dm.past + 1, {}
+        norm = dm.normalization
+        for record in records:
+            length = min(len(record), first + samples)
+            if length <= first:
+                continue
+            starts = list(range(0, len(record) - length + 1, samples))
+            if starts[-1] != len(record) - length:
+                starts.append(len(record) - length)
+            arrays = {"u": norm.normalize(record.stack(dm.input_names), dm.input_names),
+                      "y": norm.normalize(record.stack(dm.output_names), dm.output_names),
+                      "s": record.stack(dm.scheduling_names)}
+            for start in starts:
+                groups.setdefault(length, []).append({k: a[start : start + length] for k, a in arrays.items()})
+        batches = tuple({k: torch.as_tensor(np.stack([w[k] for w in group]), dtype=torch.float32) for k in group[0]}
+                        for group in groups.values())
+        return cls(batches, first)
+
+    @torch.no_grad()
+    def predict(self, model: ComposedModel) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """(predicted, measured) normalized outputs (B, L - first, p) per batch, float64."""
+        out = []
+        for b in self.batches:
+            s = b["s"] if b["s"].shape[-1] else None
+            pred = model(b["u"], b["y"][:, : self.first], s)
+            out.append((pred.double(), b["y"][:, self.first :].double()))
+        return out
+
+    def weights(self) -> torch.Tensor:
+        """1 / the variance of each (normalized) output over the predicted samples."""
+        y = torch.cat([b["y"][:, self.first :].reshape(-1, b["y"].shape[-1]) for b in self.batches]).double()
+        return 1.0 / torch.clamp(y.var(0, unbiased=False), min=1e-300)
+
+    def score(self, model: ComposedModel) -> float:
+        """Mean over outputs of the error energy relative to the output's variance (1 - R²)."""
+        pairs = self.predict(model)
+        count = sum(p.shape[0] * p.shape[1] for p, _ in pairs)
+        mse = sum(((p - y) ** 2).sum((0, 1)) for p, y in pairs) / count
+        out = (mse * self.weights()).numpy()
+        return float(np.mean(out)) if np.all(np.isfinite(out)) else math.inf

@@ -1,0 +1,61 @@
+"""A physics-only run fitted by identification instead of gradient epochs.
+
+``identification.enabled=true`` (``hypa.train``): a model without networks has its trainable
+physical parameters identified by their output error over the whole training records
+(:func:`hypa.identification.identify`: trust-region least squares, deterministic), then
+validated once and saved as the run's best checkpoint, so every reader of the run
+(``hypa.evaluate``, ``hypa.explain``, the benchmark) sees the identified model. The report goes
+to ``identification.md``, ``run.json`` (``identification``) and TensorBoard (text and the
+parameters as ``physics/<name>``).
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import lightning as L
+from lightning.pytorch.loggers import TensorBoardLogger
+
+from hypa.data import HypaDataModule
+from hypa.identification import Identification, IdentificationSettings, Stretches, identify
+from hypa.metadata import sha256
+from hypa.training.module import HybridModule
+from hypa.training.run_folder import RunFolder, write_text_atomic
+
+log = logging.getLogger(__name__)
+
+
+def identifiable(module: HybridModule) -> bool:
+    """A model without networks and with trainable physical parameters."""
+    model = module.model
+    return bool(model.trainable_physics) and not any(b.kind == "ann" for b in model.spec.blocks)
+
+
+def fit_by_identification(trainer: L.Trainer, module: HybridModule, dm: HypaDataModule, folder: RunFolder,
+                          settings: IdentificationSettings, logger: TensorBoardLogger) -> dict[str, Any]:
+    """Identify, validate once, save the checkpoint and record it; returns the run's result fields."""
+    stretch = len(max(dm.records("train"), key=len)) if settings.stretch_s is None else \
+        max(1, round(settings.stretch_s / dm.dt))
+    stretches = Stretches.cut(dm, dm.records("train"), stretch)
+    result: Identification = identify(module.model, stretches, settings=settings,
+                                      progress=lambda text: log.info("%s", text))
+    print(result.summary(), flush=True)
+    for warning in result.warnings:
+        print(f"  warning: {warning}", flush=True)
+    write_text_atomic(folder.path / "identification.md", result.markdown())
+    folder.update_record(identification=result.to_dict())
+    module.model.parameters_.set_trainable(None, False)  # the identified values are the run's
+    validated = trainer.validate(module, datamodule=dm, verbose=False)[0]
+    val_loss = float(validated["val/loss"])
+    experiment = logger.experiment
+    experiment.add_text("identification", result.markdown().replace("\n", "  \n"), 0)
+    for name, value in result.values().items():
+        experiment.add_scalar(f"physics/{name}", value, 0)
+    best, last = folder.checkpoints / "best-identified.ckpt", folder.checkpoints / "last.ckpt"
+    for path in (best, last):  # the full checkpoint (second argument: not weights only), as ModelCheckpoint writes it
+        trainer.save_checkpoint(path, False)
+    folder.update_record(best_checkpoint={"path": folder.relative(best), "val_loss": val_loss, "epoch": 0,
+                                          "sha256": sha256(best)}, last_checkpoint=folder.relative(last))
+    return {"best_val_loss": val_loss, "checkpoint": str(best), "last_checkpoint": str(last), "epochs": 0,
+            "identification": result}
