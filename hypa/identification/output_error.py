@@ -44,6 +44,7 @@ _INSIDE = 1e-9  # a bounded parameter stays this share of its interval inside it
 _PROBE = 1e-7  # forward-difference step in the fit's coordinates (relative for positive parameters)
 _MOVED = 1e-6  # a smaller change in the fit's coordinates: the parameter did not move
 _AT_BOUND = 1e-4  # a bounded parameter this close to a bound (share of its interval): at its bound
+_DECADES = 4.0  # an unbounded parameter is searched within this many decades of its start (signed: 1e4 x |start|)
 
 
 class IdentificationError(UserError):
@@ -175,9 +176,16 @@ class _Coordinate:
             return self.spec.bounds[1] - self.spec.bounds[0]
         return math.exp(z) if self.spec.storage == LOG else self.scale
 
-    @property
-    def limits(self) -> tuple[float, float]:
-        return (_INSIDE, 1 - _INSIDE) if self.spec.storage == BOUNDED else (-np.inf, np.inf)
+    def limits(self, z0: float) -> tuple[float, float]:
+        """The search range in z: a bounded parameter's bounds; otherwise ``_DECADES`` decades around
+        its start, so that a fit the data push toward 0 or infinity stops at a finite, reported edge
+        (a cornering stiffness of 1e18 N/rad is no estimate) instead of leaving the physics' range."""
+        if self.spec.storage == BOUNDED:
+            return _INSIDE, 1 - _INSIDE
+        if self.spec.storage == LOG:
+            return z0 - _DECADES * math.log(10), z0 + _DECADES * math.log(10)
+        reach = 10**_DECADES * max(1.0, abs(z0))
+        return z0 - reach, z0 + reach
 
 
 def coordinates(model: ComposedModel, names: Sequence[str]) -> list[_Coordinate]:
@@ -210,6 +218,7 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
     norm = torch.sqrt(weights / (count * outputs))  # sum of squares = mean over outputs of 1 - R²
     initial = model.parameters_.as_floats()
     z0 = np.array([c.z(initial[n]) for c, n in zip(coords, names)])
+    limits = [c.limits(float(v)) for c, v in zip(coords, z0)]
     best: dict[str, object] = {"cost": math.inf, "z": z0.copy()}
 
     def set_z(z: np.ndarray) -> None:
@@ -249,7 +258,7 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
         columns = []
         for j, c in enumerate(coords):
             step = _PROBE * max(1.0, abs(z[j]))
-            if z[j] + step > c.limits[1]:
+            if z[j] + step > limits[j][1]:
                 step = -step
             probe = z.copy()
             probe[j] += step
@@ -258,7 +267,7 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
                  "of the output variance")
         return np.stack(columns, axis=1)
 
-    lower, upper = zip(*(c.limits for c in coords))
+    lower, upper = zip(*limits)
     try:
         result = least_squares(residual, z0, jac=jacobian, bounds=(lower, upper), method="trf", x_scale="jac",
                                ftol=settings.tolerance, xtol=settings.tolerance, gtol=settings.tolerance,
@@ -285,7 +294,7 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
         d = np.sqrt(np.diag(cov_z))
         correlation = np.clip(cov_z / np.outer(d, d), -1.0, 1.0)
     correlation[~np.isfinite(correlation)] = np.nan
-    warnings = _warnings(estimates, coords, z0, z, correlation, settings.correlated, converged, message)
+    warnings = _warnings(estimates, limits, z0, z, correlation, settings.correlated, converged, message)
     identification = Identification(
         tuple(estimates), correlation.tolist(), converged, message, len(iterates), evaluations, final_step,
         error_initial, error_final, data.count, count, time.perf_counter() - started, tuple(warnings))
@@ -311,15 +320,21 @@ def _covariance(J: np.ndarray, cost: float, m: int) -> np.ndarray:
     return sigma2 * (vt.T * inverse) @ vt
 
 
-def _warnings(estimates: Sequence[Estimate], coords: Sequence[_Coordinate], z0: np.ndarray, z: np.ndarray,
+def _warnings(estimates: Sequence[Estimate], limits: Sequence[tuple[float, float]], z0: np.ndarray, z: np.ndarray,
               correlation: np.ndarray, correlated: float, converged: bool, message: str) -> list[str]:
     out = [] if converged else [f"did not converge: {message}"]
-    for j, (e, c) in enumerate(zip(estimates, coords)):
+    for j, e in enumerate(estimates):
+        lo, hi = limits[j]
         if abs(z[j] - z0[j]) < _MOVED:
             out.append(f"{e.name} did not move from {e.initial:.4g} {e.unit}".rstrip()
                        + ": the data barely depend on it, or it started at its optimum")
         if e.bounds is not None and min(z[j], 1 - z[j]) < _AT_BOUND:
             out.append(f"{e.name} = {e.value:.4g} {e.unit} is at its bound ({e.bounds[0]:g}, {e.bounds[1]:g})")
+        elif e.bounds is None and min(z[j] - lo, hi - z[j]) < _AT_BOUND * (hi - lo):
+            out.append(f"{e.name} = {e.value:.4g} {e.unit} ran to the edge of its search range ({_DECADES:g} decades "
+                       f"from its start {e.initial:.4g}): the data push it toward "
+                       f"{'zero' if z[j] - lo < hi - z[j] else 'infinity'}, so the model cannot fit them with a "
+                       "physical value; it is no estimate")
         if e.std is None or e.std > abs(e.value):
             spread = "no finite" if e.std is None else f"± {e.std:.3g} {e.unit}, a larger"
             out.append(f"{e.name} is not determined by the data ({spread} uncertainty than its value)")

@@ -18,8 +18,9 @@ import lightning as L
 from lightning.pytorch.loggers import TensorBoardLogger
 
 from hypa.data import HypaDataModule
-from hypa.identification import Identification, IdentificationSettings, Stretches, identify
+from hypa.identification import Identification, IdentificationError, IdentificationSettings, Stretches, identify
 from hypa.metadata import sha256
+from hypa.training.divergence import DivergedError
 from hypa.training.module import HybridModule
 from hypa.training.run_folder import RunFolder, write_text_atomic
 
@@ -46,7 +47,12 @@ def fit_by_identification(trainer: L.Trainer, module: HybridModule, dm: HypaData
     write_text_atomic(folder.path / "identification.md", result.markdown())
     folder.update_record(identification=result.to_dict())
     module.model.parameters_.set_trainable(None, False)  # the identified values are the run's
-    validated = trainer.validate(module, datamodule=dm, verbose=False)[0]
+    try:
+        validated = trainer.validate(module, datamodule=dm, verbose=False)[0]
+    except DivergedError:
+        raise IdentificationError(f"the identified model predicts non-finite values on the validation data "
+                                  f"({', '.join(result.warnings) or 'no warning from the fit'}); its report: "
+                                  f"{folder.path / 'identification.md'}") from None
     val_loss = float(validated["val/loss"])
     experiment = logger.experiment
     experiment.add_text("identification", result.markdown().replace("\n", "  \n"), 0)
