@@ -60,7 +60,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     from hypa.training import HybridModule, StagedTraining, ValidationFigures
     from hypa.training.checkpoints import AtomicCheckpointIO, RecordedCheckpoint, load_module
     from hypa.training.divergence import DivergedError, StopOnNonFiniteLoss
-    from hypa.training.identified import fit_by_identification, identifiable
+    from hypa.training.identified import fit_by_identification, identifiable, identifiable_stage, identify_stage
     from hypa.training.run_folder import CONFIG_FILE, RunFolder, write_text_atomic
 
     # every plain value first, so a bad override fails before any data are read or generated
@@ -120,6 +120,11 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             lr=lr, physics_lr=physics_lr, weight_decay=weight_decay,
         )
         stages = parse_model_spec(model_config).stages
+        logger = TensorBoardLogger(save_dir=str(out), name="tensorboard", version="", default_hp_metric=False)
+        started = time.perf_counter()
+        if identification is not None and ckpt_path is None and stages and identifiable_stage(module, stages[0]):
+            identify_stage(module, stages[0], dm, folder, identification, logger)  # the physics stage, done
+            stages = stages[1:]
         checkpoint = RecordedCheckpoint(folder)
         callbacks: list[L.Callback] = [
             StopOnNonFiniteLoss(hint=f"lower optimizer.lr={lr:g} or optimizer.physics_lr={physics_lr:g}"),
@@ -133,14 +138,12 @@ def train(cfg: DictConfig) -> dict[str, Any]:
                                                setting(cfg, "figures.start_s", float, minimum=0.0),
                                                setting(cfg, "figures.every_n_epochs", int, minimum=1)))
         callbacks.append(checkpoint)
-        logger = TensorBoardLogger(save_dir=str(out), name="tensorboard", version="", default_hp_metric=False)
         trainer_args = OmegaConf.to_container(cfg.trainer, resolve=True)
         trainer_args["max_epochs"] = epochs * max(len(stages), 1)
         with settings("trainer"):  # passed to Lightning as given: its ValueError / TypeError is the user's
             trainer = L.Trainer(**trainer_args, callbacks=callbacks, logger=logger, default_root_dir=str(out),
                                 plugins=[AtomicCheckpointIO()])
         log.info("model %s:\n%s", model_config["name"], module.model)
-        started = time.perf_counter()
         if identification is not None and ckpt_path is None and identifiable(module):
             result = fit_by_identification(trainer, module, dm, folder, identification, logger)
             ended = "identification"

@@ -118,3 +118,22 @@ def test_diagnosis_of_the_race_car_names_the_speed_first_and_no_rear_steering(tm
     diagnosis = json.loads((tmp_path / "diagnosis.json").read_text())
     assert diagnosis["causes"][0] == "scheduling" and "unmodeled_input" not in diagnosis["causes"]
     assert diagnosis["metrics"]["extended"]["yaw_rate"]["r2"] > 0.97
+
+
+def test_a_residual_hybrid_trains_its_network_on_identified_physics(tmp_path: Path) -> None:
+    """identification.enabled=true: the hybrid's physics stage (network bypassed) is identified by the
+    output error, as the physics-only model is, and only the correction stage trains by epochs."""
+    result = hypa("hypa.train", "dataset=silverbox", "model=silverbox_hybrid", *TINY, "figures.enabled=false",
+                  "identification.enabled=true", f"hydra.run.dir={tmp_path}")
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert re.search(r"identified 4 parameter\(s\) on 1 free run\(s\).*converged", result.stdout), result.stdout[-2000:]
+    info = json.loads((tmp_path / "run.json").read_text())
+    assert set(info["identification"]["parameters"]) == {"mass", "stiffness", "damping", "offset_force"}
+    log = (tmp_path / "train.log").read_text()
+    assert "stage 1/1 (correction)" in log and "(physics)" not in log
+    from hypa.evaluation.runs import load_run
+
+    identified = {k: v["value"] for k, v in info["identification"]["parameters"].items()}
+    trained = load_run(tmp_path).module.model.parameters_.as_floats()
+    for name, value in identified.items():  # frozen through the correction stage
+        assert trained[name] == pytest.approx(value, rel=1e-6)
