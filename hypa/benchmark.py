@@ -3,10 +3,14 @@
     python -m hypa.benchmark dataset=silverbox            # quick budget: minutes
     python -m hypa.benchmark dataset=emps budget=full     # the benchmark (longer)
     python -m hypa.benchmark dataset=emps budget=full seeds=[0,1,2]   # mean ± std over seeds
+    python -m hypa.benchmark dataset=racecar data.dir=OTHER_LOG       # the suite on another log
+    python -m hypa.benchmark --config-dir DIR dataset=mine models=[mine_physical,blackbox]   # your own
     make benchmark ARGS="dataset=racecar budget=full"
 
-Each model of the data set's suite (``conf/benchmark.yaml``) is trained by ``python -m
-hypa.train`` in its own run folder below this run's, then simulated free-running over every
+Each model of the data set's suite (``conf/benchmark.yaml``; for a data set without one, the
+models named by ``models=[...]``) is trained by ``python -m hypa.train`` in its own run folder
+below this run's, with the data overrides of this command line (``data.dir=``, ``data.splits=``;
+a run that trained on other data than asked is an error), then simulated free-running over every
 test set, once per seed of ``seeds``. Prints and writes ``benchmark.md`` and ``benchmark.json``
 (RMS in SI units, R², training time; means and standard deviations over the seeds, and each
 seed) beside the published figures.
@@ -14,7 +18,6 @@ seed) beside the published figures.
 
 from __future__ import annotations
 
-import json
 import logging
 import subprocess
 import sys
@@ -28,9 +31,10 @@ from hypa.errors import UserError, hydra_command
 log = logging.getLogger(__name__)
 
 
-def train_model(label: str, overrides: list[str], folder: Path) -> None:
+def train_model(label: str, overrides: list[str], folder: Path, config_dirs: list[Path]) -> None:
     """Train one model through the command line a user types (its progress on the console)."""
-    command = [sys.executable, "-m", "hypa.train", *overrides, f"hydra.run.dir={folder}"]
+    command = [sys.executable, "-m", "hypa.train", *(a for d in config_dirs for a in ("--config-dir", str(d))),
+               *overrides, f"hydra.run.dir={folder}"]
     log.info("training %s: %s", label, " ".join(command[1:]))
     result = subprocess.run(command)
     if result.returncode != 0:
@@ -40,39 +44,55 @@ def train_model(label: str, overrides: list[str], folder: Path) -> None:
 
 @hydra_command("hypa.benchmark", "benchmark")
 def main(cfg: DictConfig) -> None:
+    from hypa.data import datamodule_from_config
+    from hypa.entry import data_dir_from_config, data_overrides, user_config_dirs
     from hypa.evaluate import run_datamodule
     from hypa.evaluation.benchmark import benchmark_table, score_run, write_benchmark_json
     from hypa.evaluation.runs import load_run
 
     dataset = HydraConfig.get().runtime.choices["dataset"]
-    if dataset not in cfg.suites:
-        raise UserError(f"no benchmark suite for dataset={dataset}; suites: {', '.join(cfg.suites)}")
     if cfg.budget not in cfg.budgets:
         raise UserError(f"unknown budget={cfg.budget}; use {' or '.join(cfg.budgets)}")
-    suite = cfg.suites[dataset]
-    labels = list(cfg.models) if cfg.models else list(suite.models)
-    unknown = [m for m in labels if m not in suite.models]
-    if unknown:
-        raise UserError(f"models {unknown} are not in the {dataset} suite: {', '.join(suite.models)}")
+    suite = cfg.suites.get(dataset)  # None: a user's own data set, its models named by models=[...]
+    if suite is None and not cfg.models:
+        raise UserError(f"dataset={dataset} has no benchmark suite ({', '.join(cfg.suites)} have): name the models "
+                        "to benchmark, models=[M1,M2] (conf/model/M1.yaml, or in your --config-dir)")
+    suite_models = suite.models if suite is not None else {}
+    labels = list(cfg.models) if cfg.models else list(suite_models)
     seeds = [int(s) for s in cfg.seeds]
     if not seeds or len(set(seeds)) != len(seeds):
         raise UserError(f"seeds must name at least one seed, each once; got {seeds}")
+    # the data asked for on this command line reach every run (after the suite's own settings), and
+    # every run must have trained on them: never a quiet fallback to the bundled files
+    asked = [o for o in data_overrides(HydraConfig.get().overrides.task) if not o.startswith("dataset=")]
+    expected = data_dir_from_config(cfg).resolve()
+    data = datamodule_from_config(cfg.data, expected)
+    data.setup()
+    if not data.records("test"):  # the benchmark's figures are test-set figures: none would be an empty table
+        raise UserError(f"dataset={dataset} has no test records in {expected}: the benchmark scores the test sets; "
+                        "add test files (test*.csv, ...) or a test part in data.splits")
+    config_dirs = user_config_dirs()
     out = Path(HydraConfig.get().runtime.output_dir)
     scores, times = [], {}
     jobs = [(label, seed) for label in labels for seed in seeds]
     for i, (label, seed) in enumerate(jobs, 1):
         print(f"[{i}/{len(jobs)}] {dataset}: {label}" + (f", seed {seed}" if len(seeds) > 1 else ""), flush=True)
         folder = out / label if len(seeds) == 1 else out / f"{label}-seed{seed}"
-        overrides = [f"dataset={dataset}", *suite.models[label], *cfg.budgets[cfg.budget], *cfg.train_overrides,
+        model = list(suite_models[label]) if label in suite_models else [f"model={label}"]
+        overrides = [f"dataset={dataset}", *model, *asked, *cfg.budgets[cfg.budget], *cfg.train_overrides,
                      f"seed={seed}", f"data.seed={seed}"]  # the networks' start and the windows' order
-        train_model(label, overrides, folder)
+        train_model(label, overrides, folder, config_dirs)
         run = load_run(folder)
+        trained_on = Path(str(run.info.get("data_dir", ""))).resolve()
+        if trained_on != expected:
+            raise UserError(f"{label} trained on {trained_on}, not on the data asked for ({expected}); "
+                            f"its run: {folder}")
         dm = run_datamodule(run)
         scores += score_run(run, dm, label, seed)
-        seconds = float(json.loads((folder / "run.json").read_text()).get("training_time_s", float("nan")))
+        seconds = float(run.info.get("training_time_s", float("nan")))
         times[label] = times.get(label, 0.0) + seconds / len(seeds)
     units = {n: (dm.channels[n].display_unit, dm.channels[n].display_factor) for n in dm.output_names}
-    published = OmegaConf.to_container(suite.published, resolve=True)
+    published = OmegaConf.to_container(suite.published, resolve=True) if suite is not None else {}
     table = benchmark_table(scores, times, published, units, dataset)
     (out / "benchmark.md").write_text(table + "\n")
     write_benchmark_json(out / "benchmark.json", dataset, scores, times, published, units)

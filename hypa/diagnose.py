@@ -31,7 +31,7 @@ def main(cfg: DictConfig) -> None:
     from hypa.diagnosis.engine import Problem
     from hypa.diagnosis.problem import format_change
     from hypa.diagnosis.system import diagnose_system, headline
-    from hypa.entry import datamodule, vehicle_from_config
+    from hypa.entry import data_overrides, datamodule, user_config_dirs, vehicle_from_config
     from hypa.errors import UserError
     from hypa.models.spec import parse_model_spec
 
@@ -46,8 +46,7 @@ def main(cfg: DictConfig) -> None:
     dm.setup()
     workers = {} if cfg.diagnosis.get("workers") is None else {"workers": int(cfg.diagnosis.workers)}
     problem = Problem(dm, values, hold=str(cfg.physics.hold), horizon=int(cfg.data.window), **workers)
-    user_dirs = [Path(s.path.removeprefix("file://")) for s in HydraConfig.get().runtime.config_sources
-                 if s.provider == "command-line" and s.schema == "file"]
+    user_dirs = user_config_dirs()
     overrides = data_overrides(HydraConfig.get().overrides.task)
     trainer = None
     if cfg.extension.train:
@@ -85,13 +84,6 @@ def _from_cwd(path: str) -> Path:
 
     path = Path(str(path)).expanduser()
     return path if path.is_absolute() else Path(get_original_cwd()) / path
-
-
-def data_overrides(overrides: Sequence[str]) -> list[str]:
-    """The command-line overrides that choose the data and the vehicle (``dataset``, ``data``,
-    ``testbench``, ``vehicle`` groups and their keys): what ``hypa.train`` needs to see the same data."""
-    groups = ("dataset", "data", "testbench", "vehicle")
-    return [o for o in overrides if o.lstrip("+~").split("=", 1)[0].split(".", 1)[0] in groups]
 
 
 if __name__ == "__main__":

@@ -7,6 +7,7 @@ arguments, never a config object.
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
@@ -76,3 +77,18 @@ def _original_cwd() -> Path:
 def datamodule(cfg: DictConfig) -> HypaDataModule:
     """Resolve the data folder and build the DataModule from the ``data`` node."""
     return datamodule_from_config(cfg.data, data_dir_from_config(cfg))
+
+
+def data_overrides(overrides: Sequence[str]) -> list[str]:
+    """The command-line overrides that choose the data and the vehicle (``dataset``, ``data``,
+    ``testbench``, ``vehicle`` groups and their keys): what ``hypa.train`` needs to see the same data."""
+    groups = ("dataset", "data", "testbench", "vehicle")
+    return [o for o in overrides if o.lstrip("+~").split("=", 1)[0].split(".", 1)[0] in groups]
+
+
+def user_config_dirs() -> list[Path]:
+    """The folders given with ``--config-dir`` (a user's own datasets, models, systems' configs)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    return [Path(s.path.removeprefix("file://")) for s in HydraConfig.get().runtime.config_sources
+            if s.provider == "command-line" and s.schema == "file"]

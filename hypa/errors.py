@@ -123,8 +123,8 @@ def _hint(error: BaseException) -> str:
     """What to do about an error whose own message does not say it."""
     from hydra.errors import OverrideParseException
 
-    if isinstance(error, OverrideParseException) and "'='" in str(error):
-        return " (a value that holds '=' is quoted: key='a=b')"
+    if isinstance(error, OverrideParseException) and "=" in str(error).split(";")[0]:
+        return " (a value that holds '=' is quoted: key='a=b', a list's items too: key=['a=b'])"
     if _raised_composing(error) and not is_user_error(error):
         return " (composing the configuration from the overrides)"
     return ""

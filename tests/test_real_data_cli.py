@@ -33,9 +33,18 @@ def test_every_benchmark_model_trains_on_the_real_data(dataset: str, model: str,
 
 
 def test_benchmark_writes_the_table_and_json(tmp_path: Path) -> None:
-    result = hypa("hypa.benchmark", "dataset=racecar", "models=[physical]", "seeds=[0,1]",
+    """On another copy of the log (data.dir=): every run trains on it, none on the bundled file."""
+    import shutil
+
+    log = tmp_path / "another_log"
+    log.mkdir()
+    for file in (SHARED / "racecar").glob("*.csv"):
+        shutil.copy(file, log)
+    result = hypa("hypa.benchmark", "dataset=racecar", "models=[physical]", "seeds=[0,1]", f"data.dir={log}",
                   "train_overrides=['ann.hidden_size=8']", f"hydra.run.dir={tmp_path}")
     assert result.returncode == 0, result.stderr[-3000:]
+    for seed in (0, 1):
+        assert json.loads((tmp_path / f"physical-seed{seed}" / "run.json").read_text())["data_dir"] == str(log)
     assert "| test | yaw_rate |" in result.stdout and "deg/s" in result.stdout
     assert "mean ± standard deviation over seeds physical [0, 1]" in result.stdout
     content = json.loads((tmp_path / "benchmark.json").read_text())["racecar"]
@@ -137,3 +146,18 @@ def test_a_residual_hybrid_trains_its_network_on_identified_physics(tmp_path: Pa
     trained = load_run(tmp_path).module.model.parameters_.as_floats()
     for name, value in identified.items():  # frozen through the correction stage
         assert trained[name] == pytest.approx(value, rel=1e-6)
+
+
+def test_a_run_that_trained_on_other_data_than_asked_is_an_error(tmp_path: Path) -> None:
+    """train_overrides naming another folder than data.dir: the benchmark refuses the run's figures."""
+    import shutil
+
+    asked, other = tmp_path / "asked", tmp_path / "other"
+    for folder in (asked, other):
+        folder.mkdir()
+        for file in (SHARED / "racecar").glob("*.csv"):
+            shutil.copy(file, folder)
+    result = hypa("hypa.benchmark", "dataset=racecar", "models=[physical]", f"data.dir={asked}",
+                  f"train_overrides=['data.dir={other}']", f"hydra.run.dir={tmp_path / 'run'}")
+    assert result.returncode == 1 and "Traceback" not in result.stderr, result.stderr[-3000:]
+    assert f"physical trained on {other}, not on the data asked for ({asked})" in result.stderr.strip().splitlines()[-1]

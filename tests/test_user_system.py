@@ -54,3 +54,21 @@ def test_user_system_evaluates_in_its_own_units(trained: Path, tmp_path: Path) -
     assert metrics["units"]["speed"] == "rad/s"
     assert "rpm" in (tmp_path / "summary.md").read_text()
     assert (tmp_path / "transfer_voltage_speed.png").stat().st_size > 1000
+
+
+def test_a_users_own_data_set_and_model_are_benchmarked(tmp_path: Path) -> None:
+    """python -m hypa.benchmark --config-dir DIR dataset=NAME models=[M]: no suite needed; without test
+    records it refuses (an empty table would be a silent non-result)."""
+    data = tmp_path / "data"
+    env = make_dc_motor_data(data, 10)
+    command = [sys.executable, "-m", "hypa.benchmark", "--config-dir", str(EXAMPLE / "conf"), "dataset=dc_motor",
+               "models=[dc_motor]", f"data.dir={data}", "train_overrides=['identification.enabled=true']"]
+    refused = subprocess.run([*command, f"hydra.run.dir={tmp_path / 'refused'}"], cwd=ROOT, capture_output=True,
+                             text=True, timeout=300, env=env)
+    assert refused.returncode == 1 and "has no test records" in refused.stderr, refused.stderr[-3000:]
+    (data / "test.csv").write_bytes((data / "val.csv").read_bytes())
+    result = subprocess.run([*command, f"hydra.run.dir={tmp_path / 'run'}"], cwd=ROOT, capture_output=True, text=True,
+                            timeout=600, env=env)
+    assert result.returncode == 0, result.stderr[-3000:]
+    scores = json.loads((tmp_path / "run" / "benchmark.json").read_text())["dc_motor"]["models"]["dc_motor"]
+    assert scores["test_sets"]["test"]["speed"]["r2"] > 0.999

@@ -65,7 +65,7 @@ class IdentificationSettings:
 
     stretch_s: float | None = None
     max_evaluations: int | None = None
-    tolerance: float = 1e-10
+    tolerance: float = 1e-8
     max_seconds: float | None = None
     correlated: float = 0.99
 
