@@ -42,6 +42,19 @@ def train_model(label: str, overrides: list[str], folder: Path, config_dirs: lis
                         f"run it alone: python {' '.join(command[1:])}")
 
 
+def diagnose_suite(dataset: str, nominal: str, overrides: list[str], folder: Path, config_dirs: list[Path]) -> Path:
+    """Run ``python -m hypa.diagnose`` on the data set's nominal model; returns the folder of the models it
+    writes (``conf``, for ``hydra.searchpath``)."""
+    command = [sys.executable, "-m", "hypa.diagnose", *(a for d in config_dirs for a in ("--config-dir", str(d))),
+               f"dataset={dataset}", f"model={nominal}", *overrides, "plot=false", f"hydra.run.dir={folder}"]
+    log.info("diagnosing %s: %s", nominal, " ".join(command[1:]))
+    result = subprocess.run(command)
+    if result.returncode != 0:
+        raise UserError(f"diagnosing {nominal} failed (exit status {result.returncode}); "
+                        f"run it alone: python {' '.join(command[1:])}")
+    return folder / "conf"
+
+
 @hydra_command("hypa.benchmark", "benchmark")
 def main(cfg: DictConfig) -> None:
     from hypa.data import datamodule_from_config
@@ -73,13 +86,24 @@ def main(cfg: DictConfig) -> None:
                         "add test files (test*.csv, ...) or a test part in data.splits")
     config_dirs = user_config_dirs()
     out = Path(HydraConfig.get().runtime.output_dir)
+    # the models hypa.diagnose writes (model=diagnosed, diagnosed_hybrid) come from diagnosing the suite's
+    # nominal model on the same data, once for all seeds
+    written = [o for label in labels for o in (suite_models[label] if label in suite_models else [f"model={label}"])
+               if o in ("model=diagnosed", "model=diagnosed_hybrid")]
+    searchpath = []
+    if written:
+        nominal = suite.get("diagnose") if suite is not None else None
+        if nominal is None:
+            raise UserError(f"models {sorted(set(written))} are written by hypa.diagnose, but the {dataset} suite names "
+                            "no nominal model to diagnose (diagnose: M in conf/benchmark.yaml)")
+        searchpath = [f"hydra.searchpath=[file://{diagnose_suite(dataset, str(nominal), asked, out / 'diagnosis', config_dirs)}]"]
     scores, times = [], {}
     jobs = [(label, seed) for label in labels for seed in seeds]
     for i, (label, seed) in enumerate(jobs, 1):
         print(f"[{i}/{len(jobs)}] {dataset}: {label}" + (f", seed {seed}" if len(seeds) > 1 else ""), flush=True)
         folder = out / label if len(seeds) == 1 else out / f"{label}-seed{seed}"
         model = list(suite_models[label]) if label in suite_models else [f"model={label}"]
-        overrides = [f"dataset={dataset}", *model, *asked, *cfg.budgets[cfg.budget], *cfg.train_overrides,
+        overrides = [*searchpath, f"dataset={dataset}", *model, *asked, *cfg.budgets[cfg.budget], *cfg.train_overrides,
                      f"seed={seed}", f"data.seed={seed}"]  # the networks' start and the windows' order
         train_model(label, overrides, folder, config_dirs)
         run = load_run(folder)

@@ -161,3 +161,17 @@ def test_a_run_that_trained_on_other_data_than_asked_is_an_error(tmp_path: Path)
                   f"train_overrides=['data.dir={other}']", f"hydra.run.dir={tmp_path / 'run'}")
     assert result.returncode == 1 and "Traceback" not in result.stderr, result.stderr[-3000:]
     assert f"physical trained on {other}, not on the data asked for ({asked})" in result.stderr.strip().splitlines()[-1]
+
+
+def test_benchmark_diagnoses_the_nominal_model_and_identifies_its_extension(tmp_path: Path) -> None:
+    """The silverbox suite's `diagnosed` row: hypa.diagnose extends the nominal linear physics (a stiffening
+    spring), and that model, identified by its output error, is tested like every other row."""
+    result = hypa("hypa.benchmark", "dataset=silverbox", "models=[physical,diagnosed]", f"hydra.run.dir={tmp_path}")
+    assert result.returncode == 0, result.stderr[-3000:]
+    written = (tmp_path / "diagnosis" / "conf" / "model" / "diagnosed.yaml").read_text()
+    assert "system: duffing_oscillator" in written and "- hardening" in written
+    scores = json.loads((tmp_path / "benchmark.json").read_text())["silverbox"]["models"]
+    physical, diagnosed = (scores[m]["test_sets"]["arrow_full"]["y"]["rms"] for m in ("physical", "diagnosed"))
+    assert diagnosed < 0.5 * physical  # the hardening spring extrapolates where the linear physics cannot
+    info = json.loads((tmp_path / "diagnosed" / "run.json").read_text())
+    assert "hardening" in info["identification"]["parameters"]

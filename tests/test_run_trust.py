@@ -255,8 +255,29 @@ def test_a_diverging_loss_stops_the_run_naming_the_epoch(data: Path, tmp_path: P
     ("trainer.max_epochs=-1", "trainer.max_epochs=-1 must be >= 1"),
 ])
 def test_bad_training_values_stop_before_training(override: str, message: str, data: Path, tmp_path: Path) -> None:
-    result = hypa("hypa.train", *FAST, f"data.dir={data}", override, f"hydra.run.dir={tmp_path / 'run'}")
-    one_line_error(result, "hypa.train", message)
+    """Refused before the run folder is claimed or any data read (in-process: the command's one line for a
+    UserError is shown once, below, and in tests/test_cli_errors.py)."""
+    from hydra import compose, initialize_config_dir
+    from hydra.core.hydra_config import HydraConfig
+    from omegaconf import open_dict
+
+    from hypa.errors import UserError
+    from hypa.train import train
+
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        cfg = compose(config_name="train", overrides=[*FAST, f"data.dir={data}", override], return_hydra_config=True)
+    with open_dict(cfg):
+        cfg.hydra.runtime.output_dir = str(tmp_path / "run")
+        cfg.hydra.job.num = 0
+    HydraConfig.instance().set_config(cfg)
+    with pytest.raises(UserError, match=message.replace(".", r"\.")):
+        train(cfg)
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_bad_learning_rate_is_one_line_through_the_command(data: Path, tmp_path: Path) -> None:
+    result = hypa("hypa.train", *FAST, f"data.dir={data}", "optimizer.lr=nan", f"hydra.run.dir={tmp_path / 'run'}")
+    one_line_error(result, "hypa.train", "optimizer.lr=nan is not a finite number")
     assert not (tmp_path / "run" / "checkpoints").exists()
 
 

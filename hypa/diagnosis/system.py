@@ -22,7 +22,7 @@ import numpy as np
 import yaml
 
 from hypa.diagnosis.catalogue import Entry
-from hypa.diagnosis.edits import frozen
+from hypa.diagnosis.edits import frozen, set_free
 from hypa.diagnosis.engine import Finding, Problem, Search, name_causes
 from hypa.diagnosis.problem import format_change
 from hypa.diagnosis.structure import OutputStructure, analyze_output
@@ -68,17 +68,13 @@ def with_networks(spec: ModelSpec, blocks: Sequence[str]) -> ModelSpec:
 
 def refittable(spec: ModelSpec, nominal: ModelSpec, named: Sequence[Finding]) -> ModelSpec:
     """The extended model with what training may refine set free: the nominal's uncertain
-    parameters and the knobs of the named causes' inserted blocks, starting from the fitted values."""
-    free = {b.name: list(b.trainable) for b in nominal.blocks}
-    for f in named:
-        for knob in (f.candidate.knobs if f.candidate and f.candidate.fit == "gradient" else ()):
-            if "/" in knob:
-                block, local = knob.split("/", 1)
-                free.setdefault(block, [])
-                if local not in free[block]:
-                    free[block].append(local)
-    return dataclasses.replace(spec, blocks=tuple(dataclasses.replace(b, trainable=tuple(free.get(b.name, ())))
+    parameters and every knob of the named causes (an inserted block's, ``<block>/<name>``, and a
+    swapped system's own, such as a stiffening spring's hardening), starting from the fitted values."""
+    nominal_free = {b.name: tuple(b.trainable) for b in nominal.blocks}
+    base = dataclasses.replace(spec, blocks=tuple(dataclasses.replace(b, trainable=nominal_free.get(b.name, ()))
                                                   for b in spec.blocks))
+    knobs = [k for f in named if f.candidate is not None and f.candidate.fit == "gradient" for k in f.candidate.knobs]
+    return set_free(base, knobs)
 
 
 def _runs(problem: Problem, spec: ModelSpec) -> list[Prediction]:
