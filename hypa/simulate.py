@@ -4,7 +4,7 @@
     python -m hypa.simulate physics.hold=foh vehicle.cf=140000
     python -m hypa.simulate model=vehicle_nominal            # front steering only
     python -m hypa.simulate dataset=silverbox model=silverbox_physical
-    python -m hypa.simulate dataset=files data.dir=PATH data.channels.steering_wheel_angle.unit=deg
+    python -m hypa.simulate dataset=files data.dir=PATH data.channels.<input>.unit=deg
 
 The entry point only reads the settings; :func:`hypa.evaluation.nominal.simulate_nominal` runs
 the model (windowed and free-running on each validation record, through the same engine as
