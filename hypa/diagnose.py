@@ -2,7 +2,7 @@
 
     python -m hypa.diagnose                                          # the test bench, model=vehicle_nominal
     python -m hypa.diagnose testbench.rear_steering.enabled=false    # hide / reveal effects
-    python -m hypa.diagnose dataset=racecar model=racecar_nominal    # a real log and its nominal model
+    python -m hypa.diagnose dataset=racecar                          # a real log and its own nominal model
     python -m hypa.diagnose dataset=files data.dir=PATH vehicle.cf=140000
     python -m hypa.diagnose -m dataset=files data.dir=LOG1,LOG2,LOG3   # a fleet: fleet.md in the sweep folder
 

@@ -3,7 +3,7 @@
     python -m hypa.simulate                                  # the vehicle physics, default test bench
     python -m hypa.simulate physics.hold=foh vehicle.cf=140000
     python -m hypa.simulate model=vehicle_nominal            # front steering only
-    python -m hypa.simulate dataset=silverbox model=silverbox_physical
+    python -m hypa.simulate dataset=silverbox                # its own model (<dataset>_physical)
     python -m hypa.simulate dataset=files data.dir=PATH data.channels.<input>.unit=deg
 
 The entry point only reads the settings; :func:`hypa.evaluation.nominal.simulate_nominal` runs
