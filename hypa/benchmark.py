@@ -23,6 +23,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
@@ -72,6 +73,12 @@ def main(cfg: DictConfig) -> None:
                         "to benchmark, models=[M1,M2] (conf/model/M1.yaml, or in your --config-dir)")
     suite_models = suite.models if suite is not None else {}
     labels = list(cfg.models) if cfg.models else list(suite_models)
+    configs = set(GlobalHydra.instance().config_loader().get_group_options("model"))  # --config-dir's too
+    unknown = [m for m in labels if m not in suite_models and m not in configs]
+    if unknown:
+        where = f"in the {dataset} suite ({', '.join(suite_models)}) nor " if suite is not None else ""
+        raise UserError(f"models {unknown} are {'not ' + where if where else 'not '}model configs "
+                        "(conf/model/*.yaml or your --config-dir)")
     seeds = [int(s) for s in cfg.seeds]
     if not seeds or len(set(seeds)) != len(seeds):
         raise UserError(f"seeds must name at least one seed, each once; got {seeds}")

@@ -144,6 +144,11 @@ def main(cfg: DictConfig) -> None:
     if not cfg.skip_training:
         seeds = ([setting(cfg, f"seeds.{i}", int) for i in range(len(cfg.seeds))] if OmegaConf.is_list(cfg.seeds)
                  else [setting(cfg, "seeds", int)])
+        if sweep.is_dir() and any(sweep.iterdir()):  # one run, one folder: an earlier reproduction's runs move aside
+            kept = sweep.with_name(f"runs-{time.strftime('%Y-%m-%d_%H-%M-%S', time.localtime(sweep.stat().st_mtime))}")
+            kept = kept if not kept.exists() else kept.with_name(f"{kept.name}-{time.time_ns()}")
+            sweep.rename(kept)
+            print(f"the runs of the previous reproduction are kept in {kept}", flush=True)
         train_rows(rows, seeds, sweep, setting(cfg, "n_jobs", int), list(cfg.train_overrides))
     folders = sorted(d for d in sweep.iterdir() if (d / ".hydra").is_dir()) if sweep.is_dir() else []
     if not folders:
