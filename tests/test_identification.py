@@ -107,6 +107,12 @@ def test_hypa_train_identifies_a_physics_only_model(data: Path, tmp_path: Path) 
         assert identified["parameters"][name]["value"] == pytest.approx(value, rel=0.02)
     assert record["best_checkpoint"]["path"] == "checkpoints/best-identified.ckpt"
     assert "| torque_constant | 0.05 | 0.065 |" in (run / "identification.md").read_text()
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    board = EventAccumulator(str(run / "tensorboard"), size_guidance={"tensors": 0}).Reload()
+    assert {"physics/torque_constant", "val/loss"} <= set(board.Tags()["scalars"])
+    assert "identification/text_summary" in board.Tags()["tensors"]
+    assert board.Scalars("physics/torque_constant")[0].value == pytest.approx(0.065, rel=0.02)
     evaluated = subprocess.run([sys.executable, "-m", "hypa.evaluate", f"run={run}", f"out={tmp_path / 'eval'}",
                                 "tensorboard=false", f"hydra.run.dir={tmp_path / 'hydra'}"],
                                cwd=ROOT, capture_output=True, text=True, timeout=300, env=env)

@@ -133,3 +133,30 @@ def test_only_some_rows_run() -> None:
     assert "| LSTM | 0.993 | – |" in markdown and "not run |" in markdown
     assert "- none: every pair both have is ordered alike" in markdown
     assert comparison_markdown([])  # nothing run at all: still a section
+
+
+def test_a_new_reproduction_moves_the_earlier_runs_aside(tmp_path, monkeypatch) -> None:
+    """One run, one folder: training anew into <out>/runs would be refused by the earlier runs there."""
+    from pathlib import Path
+
+    from hydra import compose, initialize_config_dir
+
+    import hypa.reproduce as reproduce
+
+    earlier = tmp_path / "results" / "runs" / "0_physical-seed0"
+    (earlier / ".hydra").mkdir(parents=True)
+    seen = {}
+
+    def train_rows(rows, seeds, sweep, n_jobs, overrides):
+        seen["sweep"] = sweep
+        seen["free"] = not sweep.exists()
+        raise RuntimeError("no training in this test")
+
+    monkeypatch.setattr(reproduce, "train_rows", train_rows)
+    with initialize_config_dir(config_dir=str(Path(reproduce.ROOT) / "conf"), version_base="1.3"):
+        cfg = compose(config_name="reproduce", overrides=[f"out={tmp_path / 'results'}", "rows=[physical]", "seeds=[0]"])
+    with pytest.raises(RuntimeError, match="no training"):
+        reproduce.main(cfg)
+    assert seen["free"] and seen["sweep"] == tmp_path / "results" / "runs"
+    kept = [p for p in (tmp_path / "results").iterdir() if p.name.startswith("runs-")]
+    assert len(kept) == 1 and (kept[0] / "0_physical-seed0" / ".hydra").is_dir()
