@@ -119,6 +119,7 @@ def test_hypa_train_identifies_a_physics_only_model(data: Path, tmp_path: Path) 
     assert evaluated.returncode == 0, evaluated.stderr[-3000:]
     metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())
     assert metrics["splits"]["val"]["free_run"]["all"]["speed"]["r2"] > 0.999
+    assert "## Identification" in (tmp_path / "eval" / "summary.md").read_text()  # the run's report says how
 
 
 @pytest.mark.parametrize("override, message", [

@@ -229,7 +229,11 @@ def evaluate_run(run: TrainedRun, out_dir: Path, tensorboard: bool = True) -> Ev
         fig.savefig(out_dir / f"{name}.png", dpi=110)
         if not tensorboard:
             plt.close(fig)
-    (out_dir / "summary.md").write_text(summary(metrics, [f"{n}.png" for n in figures], units, scale))
+    report = summary(metrics, [f"{n}.png" for n in figures], units, scale)
+    identified = run.folder / "identification.md"  # how the run's physics were identified (hypa.identification)
+    if identified.is_file():
+        report += "\n" + identified.read_text()
+    (out_dir / "summary.md").write_text(report)
     if tensorboard and (run.folder / "tensorboard").is_dir():
         from torch.utils.tensorboard import SummaryWriter
 
