@@ -166,7 +166,8 @@ def test_a_run_that_trained_on_other_data_than_asked_is_an_error(tmp_path: Path)
 def test_benchmark_diagnoses_the_nominal_model_and_identifies_its_extension(tmp_path: Path) -> None:
     """The silverbox suite's `diagnosed` row: hypa.diagnose extends the nominal linear physics (a stiffening
     spring), and that model, identified by its output error, is tested like every other row."""
-    result = hypa("hypa.benchmark", "dataset=silverbox", "models=[physical,diagnosed]", f"hydra.run.dir={tmp_path}")
+    result = hypa("hypa.benchmark", "dataset=silverbox", "models=[physical,diagnosed]", f"hydra.run.dir={tmp_path}",
+                  "train_overrides=['identification.stretch_s=2']")  # free runs restarted every 2 s: seconds, not a minute
     assert result.returncode == 0, result.stderr[-3000:]
     written = (tmp_path / "diagnosis" / "conf" / "model" / "diagnosed.yaml").read_text()
     assert "system: duffing_oscillator" in written and "- hardening" in written
