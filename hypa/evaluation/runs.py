@@ -53,9 +53,9 @@ def recorded_checkpoint(folder: Path, record: dict) -> Path:
     """
     best = record.get("best_checkpoint")
     if not isinstance(best, dict) or "path" not in best:
-        files = sorted(p.name for p in (folder / "checkpoints").glob("*.ckpt")) if (folder / "checkpoints").is_dir() else []
-        if not files and not (folder / RECORD_FILE).is_file() and not (folder / "checkpoints").is_dir():
+        if not (folder / RECORD_FILE).is_file() and not (folder / "checkpoints").is_dir():
             raise FileNotFoundError(f"no checkpoint in {folder / 'checkpoints'} (is {folder} a hypa.train run folder?)")
+        files = sorted(p.name for p in (folder / "checkpoints").glob("*.ckpt"))
         choice = f"give one of its checkpoints: run={folder / 'checkpoints'}/<{' | '.join(files)}>" if files else \
             "it has no checkpoint"
         raise UserError(f"{folder / RECORD_FILE} records no best checkpoint (a run of an older hypa, or one that "

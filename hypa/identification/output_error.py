@@ -283,13 +283,12 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
     final_step = float(np.max(np.abs(iterates[-1] - iterates[-2]))) if len(iterates) > 1 else 0.0
     error_final = float(final @ final)
     cov_z = _covariance(J, error_final, len(final))
-    estimates, slopes = [], []
+    estimates = []
     for j, (name, c) in enumerate(zip(names, coords)):
         slope = c.slope(float(z[j]))
         variance = cov_z[j, j] * slope**2
         std = math.sqrt(variance) if math.isfinite(variance) else None
         estimates.append(Estimate(name, c.spec.unit, initial[name], c.physical(float(z[j])), std, c.spec.bounds))
-        slopes.append(slope)
     with np.errstate(invalid="ignore", divide="ignore"):
         d = np.sqrt(np.diag(cov_z))
         correlation = np.clip(cov_z / np.outer(d, d), -1.0, 1.0)

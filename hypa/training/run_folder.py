@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from hypa.errors import UserError
+from hypa.metadata import file_name
 
 try:  # POSIX; elsewhere runs are not locked (said once in the log)
     import fcntl
@@ -170,5 +171,4 @@ class RunFolder:
 
     def relative(self, path: Path | str) -> str:
         """``path`` as recorded in ``run.json``: relative to the folder, so a moved folder still matches."""
-        path = Path(path).resolve()
-        return path.relative_to(self.path.resolve()).as_posix() if path.is_relative_to(self.path.resolve()) else str(path)
+        return file_name(Path(path), self.path)
