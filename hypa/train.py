@@ -60,7 +60,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     from hypa.training import HybridModule, StagedTraining, ValidationFigures
     from hypa.training.checkpoints import AtomicCheckpointIO, RecordedCheckpoint, load_module
     from hypa.training.divergence import DivergedError, StopOnNonFiniteLoss
-    from hypa.training.identified import fit_by_identification, identifiable, identifiable_stage, identify_stage
+    from hypa.training.identified import fit_by_identification, identify_physics, plan
     from hypa.training.run_folder import CONFIG_FILE, RunFolder, write_text_atomic
 
     # every plain value first, so a bad override fails before any data are read or generated
@@ -122,9 +122,10 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         stages = parse_model_spec(model_config).stages
         logger = TensorBoardLogger(save_dir=str(out), name="tensorboard", version="", default_hp_metric=False)
         started = time.perf_counter()
-        if identification is not None and ckpt_path is None and stages and identifiable_stage(module, stages[0]):
-            identify_stage(module, stages[0], dm, folder, identification, logger)  # the physics stage, done
-            stages = stages[1:]
+        how = plan(module, stages) if identification is not None and ckpt_path is None else None
+        if how in ("stage", "first"):  # a hybrid: its physics identified, then its networks train on it
+            identify_physics(module, how, stages, dm, folder, identification, logger)
+            stages = stages[1:] if how == "stage" else stages
         checkpoint = RecordedCheckpoint(folder)
         callbacks: list[L.Callback] = [
             StopOnNonFiniteLoss(hint=f"lower optimizer.lr={lr:g} or optimizer.physics_lr={physics_lr:g}"),
@@ -144,7 +145,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             trainer = L.Trainer(**trainer_args, callbacks=callbacks, logger=logger, default_root_dir=str(out),
                                 plugins=[AtomicCheckpointIO()])
         log.info("model %s:\n%s", model_config["name"], module.model)
-        if identification is not None and ckpt_path is None and identifiable(module):
+        if how == "model":
             result = fit_by_identification(trainer, module, dm, folder, identification, logger)
             ended = "identification"
         else:

@@ -6,7 +6,8 @@ from hypa.identification.output_error import (
     IdentificationError,
     IdentificationSettings,
     identify,
+    identify_records,
 )
 from hypa.identification.stretches import Stretches
 
-__all__ = ["Estimate", "Identification", "IdentificationError", "IdentificationSettings", "Stretches", "identify"]
+__all__ = ["Estimate", "Identification", "IdentificationError", "IdentificationSettings", "Stretches", "identify", "identify_records"]

@@ -5,9 +5,11 @@ weighted by 1 / its variance, so that the cost is the mean over outputs of 1 - R
 
     V(θ) = (1 / p) Σ_o Σ_k (ŷ_o,k(θ) - y_o,k)² / (N σ_o²)
 
-where ŷ(θ) runs free from the data at the start of each stretch (:mod:`hypa.identification.
-stretches`: one stretch per record is single shooting, shorter ones multiple shooting for a system
-that integrates or drifts). It is minimized by scipy's trust-region reflective least squares
+where ŷ(θ) runs free over each training record from the state the data give at its start (single
+shooting) or, with the records cut into stretches, over each stretch from its own initial state,
+estimated with the parameters and tied to the previous stretch's end by a continuity term
+(multiple shooting, for a system whose free run integrates, drifts or diverges: :mod:`hypa.
+identification.shooting`). It is minimized by scipy's trust-region reflective least squares
 (``least_squares(method="trf")``) with a Jacobian from forward differences of float64 model runs,
 in coordinates where a step means the same for every parameter (:func:`coordinates`): the log of
 a positive parameter, a bounded one scaled to [0, 1] with those bounds, a signed one relative to
@@ -30,20 +32,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+from scipy import sparse
 from scipy.optimize import least_squares
 
+from hypa.data import HypaDataModule, Record
 from hypa.errors import UserError
+from hypa.identification.shooting import CONTINUITY, Refused, Shooting
 from hypa.identification.stretches import Stretches
 from hypa.models import ComposedModel
-from hypa.physics import SchedulingError, UnstablePhysicsError
 from hypa.physics.parameters import BOUNDED, LOG, ParameterSpec
 
 log = logging.getLogger(__name__)
 
 _INSIDE = 1e-9  # a bounded parameter stays this share of its interval inside its bounds
-_PROBE = 1e-7  # forward-difference step in the fit's coordinates (relative for positive parameters)
 _MOVED = 1e-6  # a smaller change in the fit's coordinates: the parameter did not move
 _AT_BOUND = 1e-4  # a bounded parameter this close to a bound (share of its interval): at its bound
+_JOINED = 1e-3  # continuity defects (RMS, state std) above this: the stretches do not join (multiple shooting)
 _DECADES = 4.0  # an unbounded parameter is searched within this many decades of its start (signed: 1e4 x |start|)
 
 
@@ -55,8 +59,9 @@ class IdentificationError(UserError):
 class IdentificationSettings:
     """How the output error is minimized.
 
-    ``stretch_s`` [s]: the free runs restart from the data this often (multiple shooting);
-    ``None`` runs each training record free from its start (single shooting). ``max_evaluations``:
+    ``stretch_s`` [s]: the records are cut into stretches this long, each with its own estimated
+    initial state, joined by continuity (multiple shooting); ``None`` runs each training record
+    free from its start (single shooting). ``max_evaluations``:
     model runs at most (``None``: scipy's 100 per parameter); ``tolerance``: scipy's ``ftol``,
     ``xtol`` and ``gtol``; ``max_seconds``: stop after this long with the best point so far
     (``None``: no limit; a limit makes the result depend on the machine's speed);
@@ -111,6 +116,8 @@ class Identification:
     samples: int  # predicted samples per output
     seconds: float
     warnings: tuple[str, ...] = field(default_factory=tuple)
+    shooting: str = "single"  # single: one free run per record; multiple: stretches joined by continuity
+    continuity_defect: float = 0.0  # RMS of the junctions' state defects at the end [state std] (multiple)
 
     def values(self) -> dict[str, float]:
         return {e.name: e.value for e in self.estimates}
@@ -121,6 +128,7 @@ class Identification:
                 "evaluations": self.evaluations, "final_step": self.final_step,
                 "error": {"initial": self.error_initial, "final": self.error_final},
                 "stretches": self.stretches, "samples": self.samples, "seconds": self.seconds,
+                "shooting": self.shooting, "continuity_defect": self.continuity_defect,
                 "parameters": {e.name: {"unit": e.unit, "initial": e.initial, "value": e.value, "std": e.std}
                                for e in self.estimates},
                 "correlation": {"names": [e.name for e in self.estimates], "matrix": self.correlation},
@@ -129,7 +137,9 @@ class Identification:
     def summary(self) -> str:
         """One line: the error before and after, convergence, and how many warnings."""
         state = "converged" if self.converged else "did NOT converge"
-        return (f"identified {len(self.estimates)} parameter(s) on {self.stretches} free run(s): output error "
+        runs = f"{self.stretches} free run(s)" if self.shooting == "single" else \
+            f"{self.stretches} stretches by multiple shooting (continuity defects {self.continuity_defect:.2g} state std)"
+        return (f"identified {len(self.estimates)} parameter(s) on {runs}: output error "
                 f"{100 * self.error_initial:.3g} % -> {100 * self.error_final:.3g} % of the output variance, "
                 f"{state} after {self.iterations} iteration(s), {self.seconds:.1f} s"
                 + (f"; {len(self.warnings)} warning(s)" if self.warnings else ""))
@@ -202,7 +212,9 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
              settings: IdentificationSettings = IdentificationSettings(),
              progress: Callable[[str], None] = lambda text: None) -> Identification:
     """Fit ``names`` (default: the model's trainable physical parameters) to minimize the output
-    error over ``stretches`` (see the module docstring). The model is left at the identified values.
+    error over ``stretches`` (see the module docstring): single shooting with one stretch per
+    record, multiple shooting with several (:mod:`hypa.identification.shooting`). The model is
+    left at the identified values.
 
     Raises :class:`IdentificationError` when the model's free run is not finite at the start.
     """
@@ -211,78 +223,78 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
         raise IdentificationError("nothing to identify: the model has no trainable physical parameters")
     started = time.perf_counter()
     coords = coordinates(model, names)
-    data = stretches.to(torch.float64)
-    weights = data.weights()
-    count = sum(b["y"].shape[0] * (b["y"].shape[1] - data.first) for b in data.batches)
-    outputs = int(weights.numel())
-    norm = torch.sqrt(weights / (count * outputs))  # sum of squares = mean over outputs of 1 - R²
     initial = model.parameters_.as_floats()
     z0 = np.array([c.z(initial[n]) for c, n in zip(coords, names)])
     limits = [c.limits(float(v)) for c, v in zip(coords, z0)]
-    best: dict[str, object] = {"cost": math.inf, "z": z0.copy()}
 
     def set_z(z: np.ndarray) -> None:
         model.parameters_.set_values({n: c.physical(float(v)) for n, c, v in zip(names, coords, z)})
 
+    problem = Shooting(model, stretches, set_z, len(names))
+    v0 = problem.start(z0)
+    lower = np.concatenate([[lo for lo, _ in limits], np.full(problem.size - len(names), -np.inf)])
+    upper = np.concatenate([[hi for _, hi in limits], np.full(problem.size - len(names), np.inf)])
+    best: dict[str, object] = {"cost": math.inf, "v": v0.copy()}
     last: dict[str, np.ndarray] = {}
+    failed = np.full(1, np.inf)
 
-    def residual(z: np.ndarray) -> np.ndarray:
-        if "z" in last and np.array_equal(last["z"], z):  # scipy asks for f, then for J at the same point
+    def residual(v: np.ndarray) -> np.ndarray:
+        if "v" in last and np.array_equal(last["v"], v):  # scipy asks for f, then for J at the same point
             return last["r"]
         if settings.max_seconds is not None and time.perf_counter() - started > settings.max_seconds:
             raise _Stop
         try:
-            set_z(z)
-            pairs = data.predict(model)
-        except (UnstablePhysicsError, SchedulingError, ValueError, ArithmeticError, torch.linalg.LinAlgError):
-            # a trial the physics refuses or cannot compute (an overflowing matrix exponential): no step there
-            return np.full(count * outputs, np.inf)
-        r = torch.cat([((p - y) * norm).reshape(-1) for p, y in pairs]).numpy()
-        last.update(z=z.copy(), r=r)
+            r = problem.residual(v)
+        except Refused:
+            return np.full(failed.size, np.inf)  # no step there
+        failed.resize(r.size, refcheck=False)
+        last.update(v=v.copy(), r=r)
         cost = float(r @ r)
-        if math.isfinite(cost) and cost < best["cost"]:
-            best.update(cost=cost, z=z.copy())
+        if cost < best["cost"]:
+            best.update(cost=cost, v=v.copy())
         return r
 
-    r0 = residual(z0)
-    if not np.all(np.isfinite(r0)):
+    try:
+        error_initial = problem.output_cost(v0)
+    except Refused:
         raise IdentificationError("the model's free run over the training data is not finite at its starting "
                                   "parameters: start nearer (the model's parameters), or restart the free runs "
-                                  "from the data more often (identification.stretch_s)")
-    error_initial = float(r0 @ r0)
+                                  "from the data more often (identification.stretch_s)") from None
     iterates: list[np.ndarray] = []
 
-    def jacobian(z: np.ndarray) -> np.ndarray:
-        iterates.append(z.copy())
-        base = residual(z)
-        columns = []
-        for j, c in enumerate(coords):
-            step = _PROBE * max(1.0, abs(z[j]))
-            if z[j] + step > limits[j][1]:
-                step = -step
-            probe = z.copy()
-            probe[j] += step
-            columns.append((residual(probe) - base) / step)
-        progress(f"identification: iteration {len(iterates)}, output error {100 * float(base @ base):.4g} % "
-                 "of the output variance")
-        return np.stack(columns, axis=1)
+    def jacobian(v: np.ndarray):
+        iterates.append(v.copy())
+        base = residual(v)
+        progress(f"identification: iteration {len(iterates)}, output error "
+                 f"{100 * problem.output_cost(v):.4g} % of the output variance"
+                 + (f", continuity defects {problem.defect_rms(v):.2g} state std" if problem.junctions else ""))
+        return problem.jacobian(v, base, upper)
 
-    lower, upper = zip(*limits)
-    try:
-        result = least_squares(residual, z0, jac=jacobian, bounds=(lower, upper), method="trf", x_scale="jac",
-                               ftol=settings.tolerance, xtol=settings.tolerance, gtol=settings.tolerance,
-                               max_nfev=settings.max_evaluations)
-        z, converged, message, evaluations = result.x, result.status > 0, result.message, int(result.nfev)
-    except _Stop:
-        z, converged = np.asarray(best["z"]), False
-        message, evaluations = f"stopped at the time limit of {settings.max_seconds:g} s", -1
-    set_z(z)
-    final = residual(z)
-    J = jacobian(z)
+    v, converged, message, evaluations = v0, False, "", 0
+    for mu in CONTINUITY if problem.junctions else (None,):
+        if mu is not None:
+            problem.mu = mu
+            last.clear()
+            best.update(cost=math.inf)
+        try:
+            result = least_squares(residual, v, jac=jacobian, bounds=(lower, upper), method="trf", x_scale="jac",
+                                   ftol=settings.tolerance, xtol=settings.tolerance, gtol=settings.tolerance,
+                                   max_nfev=settings.max_evaluations)
+            v, converged, message = result.x, result.status > 0, result.message
+            evaluations += int(result.nfev)
+        except _Stop:
+            v, converged = np.asarray(best["v"]), False
+            message, evaluations = f"stopped at the time limit of {settings.max_seconds:g} s", -1
+            break
+    last.clear()
+    J = jacobian(v)
     iterates.pop()  # that evaluation was for the covariance, not a step
-    final_step = float(np.max(np.abs(iterates[-1] - iterates[-2]))) if len(iterates) > 1 else 0.0
-    error_final = float(final @ final)
-    cov_z = _covariance(J, error_final, len(final))
+    final_step = float(np.max(np.abs(iterates[-1][: len(names)] - iterates[-2][: len(names)]))) \
+        if len(iterates) > 1 else 0.0
+    error_final = problem.output_cost(v)
+    defect = problem.defect_rms(v)
+    z = v[: len(names)]
+    cov_z = _covariance(J, error_final, problem.samples * problem.outputs)[: len(names), : len(names)]
     estimates = []
     for j, (name, c) in enumerate(zip(names, coords)):
         slope = c.slope(float(z[j]))
@@ -294,16 +306,51 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
         correlation = np.clip(cov_z / np.outer(d, d), -1.0, 1.0)
     correlation[~np.isfinite(correlation)] = np.nan
     warnings = _warnings(estimates, limits, z0, z, correlation, settings.correlated, converged, message)
+    if defect > _JOINED:
+        warnings.append(f"the stretches do not join into one free run per record (continuity defects "
+                        f"{defect:.2g} state std): the model cannot follow the whole records; the estimates "
+                        "fit the stretches")
     identification = Identification(
         tuple(estimates), correlation.tolist(), converged, message, len(iterates), evaluations, final_step,
-        error_initial, error_final, data.count, count, time.perf_counter() - started, tuple(warnings))
+        error_initial, error_final, problem.stretches, problem.samples, time.perf_counter() - started,
+        tuple(warnings), "multiple" if problem.junctions else "single", defect)
     for line in warnings:
         log.warning("identification: %s", line)
     return identification
 
 
-def _covariance(J: np.ndarray, cost: float, m: int) -> np.ndarray:
-    """σ² (JᵀJ)⁻¹ in the fit's coordinates; infinite variance along a direction J does not see."""
+def identify_records(model: ComposedModel, dm: HypaDataModule, records: Sequence[Record],
+                     settings: IdentificationSettings = IdentificationSettings(),
+                     progress: Callable[[str], None] = lambda text: None) -> Identification:
+    """:func:`identify` over ``records`` of ``dm``: single shooting over whole records, or multiple
+    shooting over stretches of ``settings.stretch_s``.
+
+    Without ``stretch_s``, a model whose free run over a whole record is not finite at its start
+    (an unstable model, or one that overflows) is fitted by multiple shooting instead, its
+    stretches halved until every free run from the data is finite; the report says so.
+    """
+    first, longest = dm.past + 1, max(len(r) for r in records)
+    if settings.stretch_s is not None:
+        return identify(model, Stretches.cut(dm, records, max(1, round(settings.stretch_s / dm.dt))),
+                        settings=settings, progress=progress)
+    samples = longest
+    stretches = Stretches.cut(dm, records, samples)
+    while samples > 2 * first and not math.isfinite(stretches.to(torch.float64).score(model)):
+        samples //= 2
+        stretches = Stretches.cut(dm, records, samples)
+    result = identify(model, stretches, settings=settings, progress=progress)
+    if samples < longest:
+        note = (f"the free run over whole records is not finite at the starting parameters: multiple shooting "
+                f"over stretches of {samples * dm.dt:.3g} s instead (identification.stretch_s sets them)")
+        log.warning("identification: %s", note)
+        result.warnings = (note, *result.warnings)
+    return result
+
+
+def _covariance(J, cost: float, m: int) -> np.ndarray:
+    """σ² (JᵀJ)⁻¹ in the fit's coordinates (J dense or sparse; m residuals of the output error);
+    infinite variance along a direction J does not see."""
+    J = J.toarray() if sparse.issparse(J) else J
     p = J.shape[1]
     sigma2 = cost / max(m - p, 1)
     u, s, vt = np.linalg.svd(J, full_matrices=False)

@@ -12,7 +12,7 @@ identification fits parameters on them.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,6 +35,7 @@ class Stretches:
 
     batches: tuple[dict[str, torch.Tensor], ...]
     first: int
+    positions: tuple[tuple[tuple[int, int], ...], ...] = ()  # per batch, per stretch: (record index, first sample)
 
     @property
     def count(self) -> int:
@@ -43,13 +44,14 @@ class Stretches:
 
     def to(self, dtype: torch.dtype) -> Stretches:
         """The same stretches with inputs and outputs in ``dtype`` (float64 for finite differences)."""
-        return Stretches(tuple({k: v.to(dtype) for k, v in b.items()} for b in self.batches), self.first)
+        return Stretches(tuple({k: v.to(dtype) for k, v in b.items()} for b in self.batches), self.first,
+                         self.positions)
 
     @classmethod
     def cut(cls, dm: HypaDataModule, records: Sequence[Record], samples: int) -> Stretches:
-        first, groups = dm.past + 1, {}
+        first, groups, positions = dm.past + 1, {}, {}
         norm = dm.normalization
-        for record in records:
+        for index, record in enumerate(records):
             length = min(len(record), first + samples)
             if length <= first:
                 continue
@@ -61,17 +63,29 @@ class Stretches:
                       "s": record.stack(dm.scheduling_names)}
             for start in starts:
                 groups.setdefault(length, []).append({k: a[start : start + length] for k, a in arrays.items()})
+                positions.setdefault(length, []).append((index, start))
         batches = tuple({k: torch.as_tensor(np.stack([w[k] for w in group]), dtype=torch.float32) for k in group[0]}
                         for group in groups.values())
-        return cls(batches, first)
+        return cls(batches, first, tuple(tuple(positions[length]) for length in groups))
 
     @torch.no_grad()
-    def predict(self, model: ComposedModel) -> list[tuple[torch.Tensor, torch.Tensor]]:
-        """(predicted, measured) normalized outputs (B, L - first, p) per batch, float64."""
+    def predict(self, model: ComposedModel, initial: Sequence[Mapping[str, torch.Tensor]] | None = None,
+                states: list[dict[str, torch.Tensor]] | None = None) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """(predicted, measured) normalized outputs (B, L - first, p) per batch, float64.
+
+        ``initial``: per batch, the blocks' states at the stretches' starts instead of the data's
+        (:meth:`ComposedModel.signals`); ``states``, when given, receives per batch the states
+        the blocks ran through.
+        """
         out = []
-        for b in self.batches:
+        for i, b in enumerate(self.batches):
             s = b["s"] if b["s"].shape[-1] else None
-            pred = model(b["u"], b["y"][:, : self.first], s)
+            ran: dict[str, torch.Tensor] | None = None if states is None else {}
+            y_past = b["y"][:, : self.first]
+            pred = model.outputs(model.signals(b["u"], y_past, s, None if initial is None else initial[i], ran),
+                                 self.first - 1)
+            if states is not None:
+                states.append(ran)
             out.append((pred.double(), b["y"][:, self.first :].double()))
         return out
 

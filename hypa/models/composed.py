@@ -149,15 +149,24 @@ class ComposedModel(nn.Module):
         self.parameters_.set_trainable(physics, True)
 
     # -- simulation ---------------------------------------------------------------------
-    def forward(self, u: Tensor, y_past: Tensor, s: Tensor | None = None) -> Tensor:
+    def forward(self, u: Tensor, y_past: Tensor, s: Tensor | None = None,
+                initial: Mapping[str, Tensor] | None = None) -> Tensor:
         """Predicted outputs (B, L-P-1, p), normalized, at samples P+1..L-1.
 
         u: (B, L, m) normalized measured inputs at samples 0..L-1; y_past: (B, P+1, p)
         normalized measured outputs at samples 0..P (P past samples and the window start;
-        (B, p) means P = 0); s: (B, L, q) scheduling signals in SI units.
+        (B, p) means P = 0); s: (B, L, q) scheduling signals in SI units; ``initial``: see
+        :meth:`signals`.
         """
         y_past = y_past[:, None] if y_past.dim() == 2 else y_past
-        return self.outputs(self.signals(u, y_past, s), y_past.shape[1] - 1)
+        return self.outputs(self.signals(u, y_past, s, initial), y_past.shape[1] - 1)
+
+    def started_blocks(self) -> dict[str, int]:
+        """The physics blocks with states that start at the window start P from the measurements
+        (measured or estimated): block name -> its number of states. These are the states that
+        ``signals(initial=...)`` can set and ``signals(states=...)`` reports."""
+        return {name: self.blocks[name].model.n_states for name, how in self.starts.items()
+                if how.mode != STEADY and self.blocks[name].model.n_states}
 
     def outputs(self, signals: Mapping[str, Signal], past: int = 0) -> Tensor:
         """The model outputs (B, L-P-1, p) at samples P+1..L-1 from ``signals``."""
@@ -170,8 +179,15 @@ class ComposedModel(nn.Module):
         y = torch.cat(outputs, dim=-1)
         return y + self.output_offset.to(y.dtype) if self.has_offsets else y
 
-    def signals(self, u: Tensor, y_past: Tensor, s: Tensor | None = None) -> dict[str, Signal]:
-        """Every signal of the composition: name -> ((B, T, 1) normalized values, first sample)."""
+    def signals(self, u: Tensor, y_past: Tensor, s: Tensor | None = None, initial: Mapping[str, Tensor] | None = None,
+                states: dict[str, Tensor] | None = None) -> dict[str, Signal]:
+        """Every signal of the composition: name -> ((B, T, 1) normalized values, first sample).
+
+        ``initial``: block name -> its normalized state x̂_P (B, n) at the window start, used instead
+        of the measured or estimated one (multiple shooting estimates them); ``states``, when given,
+        receives block name -> x̂_{P..L-1} (B, L-P, n), the start and the states it ran through, for
+        each block of :meth:`started_blocks`.
+        """
         y_past = y_past[:, None] if y_past.dim() == 2 else y_past
         if self.has_offsets:  # the true signals behind the biased sensors
             u = u - self.input_offset.to(u.dtype)
@@ -200,7 +216,8 @@ class ComposedModel(nn.Module):
             else:
                 rho = torch.stack([physical[s][:, start:end] for s in b.scheduling.values()], -1) \
                     if b.scheduling else None  # (B, T, q) SI
-                y, out_start = self._physics(b, aligned(b.inputs), rho, y_past, start, end)
+                y, out_start = self._physics(b, aligned(b.inputs), rho, y_past, start, end,
+                                             None if initial is None else initial.get(b.name), states)
             for i, name in enumerate(b.outputs):
                 signals[name] = (y[..., i : i + 1], out_start)
         return signals
@@ -219,9 +236,11 @@ class ComposedModel(nn.Module):
         y, _ = self.blocks[b.name](x)  # (B, T, outputs)
         return y + aligned(b.residual_of) if b.residual_of else y
 
-    def _physics(self, b: BlockSpec, u: Tensor, rho: Tensor | None, y_past: Tensor, start: int,
-                 end: int) -> tuple[Tensor, int]:
-        """Outputs of a physics block and their first sample; u (B, end-start, m) from ``start``."""
+    def _physics(self, b: BlockSpec, u: Tensor, rho: Tensor | None, y_past: Tensor, start: int, end: int,
+                 x_start: Tensor | None = None, states: dict[str, Tensor] | None = None) -> tuple[Tensor, int]:
+        """Outputs of a physics block and their first sample; u (B, end-start, m) from ``start``.
+        ``x_start``: its state at the window start instead of the measured or estimated one;
+        ``states``: receives its states from the window start on (see :meth:`signals`)."""
         block = self.blocks[b.name]
         if not block.model.n_states:
             return block(None, u, scheduling=rho), start
@@ -234,7 +253,9 @@ class ComposedModel(nn.Module):
         past = y_past.shape[1] - 1
         if start > past:
             raise ModelSpecError(f"block {b.name!r} starts at sample {start}, after the window start {past}")
-        if how.mode == MEASURED:
+        if x_start is not None:
+            x0 = x_start.to(u.dtype)
+        elif how.mode == MEASURED:
             x0 = y_past[:, past, list(how.index)].to(u.dtype)
         else:  # ESTIMATE: least squares over samples start..past of the outputs it observes
             assert how.mode == ESTIMATE
@@ -250,7 +271,11 @@ class ComposedModel(nn.Module):
         take = steps + block.extra_inputs
         u_k = u[:, past - start : past - start + take]
         rho_k = None if rho is None else rho[:, past - start : past - start + take]
-        return block(x0, u_k, scheduling=rho_k), past + 1
+        if states is None:
+            return block(x0, u_k, scheduling=rho_k), past + 1
+        y, x = block.run(x0, u_k, scheduling=rho_k)
+        states[b.name] = torch.cat([x0[:, None], x], 1)
+        return y, past + 1
 
     def to_physical(self, name: str, values: Tensor) -> Tensor:
         """A signal in SI units from its normalized values."""

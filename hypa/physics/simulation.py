@@ -68,11 +68,15 @@ class BlockSimulation:
         if not self.model.n_states:
             rho = None if scheduling is None else scheduling[:, : u.shape[1]]
             return self.output(u.new_zeros(*u.shape[:-1], 0), u, rho)
+        return self.run(x0, u, scheduling)[0]
+
+    def run(self, x0: Tensor, u: Tensor, scheduling: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """``forward``'s outputs ŷ (B, S, p) and the states x̂_{k+1..k+S} (B, S, n) behind them, from one simulation."""
         steps = self._steps(u)
         states, out = self._simulate(x0, u, scheduling, steps)
         if out is None:  # y = x: the outputs share the states' names and scaling
-            return states
-        return apply_output(*out, states, u[:, 1 : steps + 1] if self.feedthrough else None)
+            return states, states
+        return apply_output(*out, states, u[:, 1 : steps + 1] if self.feedthrough else None), states
 
     def states(self, x0: Tensor | None, u: Tensor, scheduling: Tensor | None = None) -> Tensor:
         """Normalized states x̂_{k+1..k+S} (B, S, n), the samples of ``forward``'s outputs."""

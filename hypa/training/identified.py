@@ -1,12 +1,23 @@
-"""Physics fitted by identification instead of gradient epochs (``identification.enabled=true``).
+"""Physics fitted by identification instead of gradient epochs (``identification.enabled``, the default).
 
-- A model without networks has its trainable physical parameters identified by their output
-  error over the training records (:func:`hypa.identification.identify`: trust-region least
-  squares, deterministic), then validated once and saved as the run's best checkpoint, so every
-  reader of the run (``hypa.evaluate``, ``hypa.explain``, the benchmark) sees the identified model.
-- A staged hybrid whose first stage trains physics only, with every network bypassed (the
-  residual hybrids: ``silverbox_hybrid``, ``emps_hybrid``, ``racecar_hybrid``), has that stage
-  identified the same way; the later stages then train their networks on the identified physics.
+:func:`plan` says what the identification does for a model; every model with trainable
+physical parameters gets one of:
+
+- ``model``: a model without networks has its trainable physical parameters identified by their
+  output error over the training records (:func:`hypa.identification.identify`: trust-region
+  least squares, deterministic), then validated once and saved as the run's best checkpoint, so
+  every reader of the run (``hypa.evaluate``, ``hypa.explain``, the benchmark) sees the
+  identified model. No epochs.
+- ``stage``: a staged hybrid whose first stage trains physics only, with every network bypassed
+  (the residual hybrids: ``silverbox_hybrid``, ``emps_hybrid``, ``racecar_hybrid``), has that
+  stage identified the same way; the later stages then train their networks on the identified
+  physics.
+- ``first``: any other hybrid whose networks can all be bypassed (each corrects a physics signal,
+  ``residual_of``) has its physics identified with the networks bypassed before its configured
+  training starts, so its networks start on the identified physics, never on the nominal one.
+- ``None``: no trainable physical parameters, or a network feeds the physics (V1's rear
+  steering): there is no physics-only model to identify, and the physics trains with the
+  networks by epochs.
 
 The report goes to ``identification.md``, ``run.json`` (``identification``) and TensorBoard (text
 and the parameters as ``physics/<name>``).
@@ -15,13 +26,14 @@ and the parameters as ``physics/<name>``).
 from __future__ import annotations
 
 import logging
-from typing import Any
+from collections.abc import Sequence
+from typing import Any, Literal
 
 import lightning as L
 from lightning.pytorch.loggers import TensorBoardLogger
 
 from hypa.data import HypaDataModule
-from hypa.identification import Identification, IdentificationError, IdentificationSettings, Stretches, identify
+from hypa.identification import Identification, IdentificationError, IdentificationSettings, identify_records
 from hypa.metadata import sha256
 from hypa.models.spec import StageSpec
 from hypa.training.divergence import DivergedError
@@ -30,33 +42,48 @@ from hypa.training.run_folder import RunFolder, write_text_atomic
 
 log = logging.getLogger(__name__)
 
+Plan = Literal["model", "stage", "first"]
 
-def identifiable(module: HybridModule) -> bool:
-    """A model without networks and with trainable physical parameters."""
+
+def plan(module: HybridModule, stages: Sequence[StageSpec]) -> Plan | None:
+    """What the identification does for this model (see the module docstring)."""
     model = module.model
-    return bool(model.trainable_physics) and not any(b.kind == "ann" for b in model.spec.blocks)
+    if not model.trainable_physics:
+        return None
+    blocks = model.spec.blocks
+    anns = {b.name for b in blocks if b.kind == "ann"}
+    if not anns:
+        return "model"
+    first = stages[0] if stages else None
+    if first is not None and first.train and not anns & set(first.train) and anns <= set(first.bypass):
+        return "stage"
+    if all(b.residual_of for b in blocks if b.kind == "ann"):
+        return "first"
+    return None
 
 
-def identifiable_stage(module: HybridModule, stage: StageSpec) -> bool:
-    """A stage that trains physics blocks only, with every network bypassed: an identification problem."""
-    blocks = {b.name: b for b in module.model.spec.blocks}
-    anns = {name for name, b in blocks.items() if b.kind == "ann"}
-    return bool(stage.train) and not anns & set(stage.train) and anns <= set(stage.bypass)
-
-
-def identify_stage(module: HybridModule, stage: StageSpec, dm: HypaDataModule, folder: RunFolder,
-                   settings: IdentificationSettings, logger: TensorBoardLogger) -> Identification:
-    """Identify the physics of ``stage`` (its networks bypassed) and report it; the later stages train on it."""
-    module.model.set_stage(stage.train, stage.bypass)
-    return _identify(module, dm, folder, settings, logger)
+def identify_physics(module: HybridModule, how: Plan, stages: Sequence[StageSpec], dm: HypaDataModule,
+                     folder: RunFolder, settings: IdentificationSettings,
+                     logger: TensorBoardLogger) -> Identification:
+    """Identify a hybrid's physics (``how``: ``stage`` or ``first``) and report it; the networks then
+    train on it. ``stage`` leaves the first stage's settings (the trainer's stage callback sets the
+    next); ``first`` restores every block to training with nothing bypassed."""
+    model = module.model
+    if how == "stage":
+        model.set_stage(stages[0].train, stages[0].bypass)
+        return _identify(module, dm, folder, settings, logger)
+    anns = [b.name for b in model.spec.blocks if b.kind == "ann"]
+    model.set_stage([b.name for b in model.spec.blocks if b.kind != "ann"], anns)
+    try:
+        return _identify(module, dm, folder, settings, logger)
+    finally:
+        model.set_stage(None)
 
 
 def _identify(module: HybridModule, dm: HypaDataModule, folder: RunFolder, settings: IdentificationSettings,
               logger: TensorBoardLogger) -> Identification:
-    stretch = len(max(dm.records("train"), key=len)) if settings.stretch_s is None else \
-        max(1, round(settings.stretch_s / dm.dt))
-    stretches = Stretches.cut(dm, dm.records("train"), stretch)
-    result = identify(module.model, stretches, settings=settings, progress=lambda text: log.info("%s", text))
+    result = identify_records(module.model, dm, dm.records("train"), settings,
+                              progress=lambda text: log.info("%s", text))
     print(result.summary(), flush=True)
     for warning in result.warnings:
         print(f"  warning: {warning}", flush=True)
