@@ -1,6 +1,7 @@
 """Benchmark: the lifted physics block against the step-by-step recursion and a bare matmul.
 
     python -m hypa.bench [--batch 32] [--horizons 25 50 100 200 400 800] [--min-time 0.3]
+                         [--scheduled-only]
 
 Prints forward+backward wall times and the ratios measured in this one run (absolute times
 depend on the machine; the ratios are what the lifted form is for). Goals at N = 100, B = 32:
@@ -8,9 +9,12 @@ frozen physics >= 30x faster than the recursion and <= 2x a bare matmul of the s
 trainable physics (lifted matrices rebuilt every step) >= 5x faster than the recursion.
 
 Then the velocity-scheduled single track at N = 100 (matrices per sample: one vmap of the
-system, one batched matrix exponential, a parallel-prefix scan), forward and forward+backward,
-against the python recursion over the same per-sample matrices and against the constant-matrix
-lifted block (trainable cf, cr in all three).
+system, one batched hold exponential of the n x n A dt, a parallel-prefix scan with a hand-
+written adjoint), forward and forward+backward, against the python recursion over the same
+per-sample matrices and against the constant-matrix lifted block (trainable cf, cr in all
+three). Goals: scheduled <= 10x the lifted block's forward (which, without gradients, is its
+cached window matrices times the inputs) and <= 3x its forward+backward. A quick run of this
+part alone: ``python -m hypa.bench --scheduled-only --min-time 0.1``.
 """
 
 from __future__ import annotations
@@ -26,7 +30,8 @@ from hypa.physics import LTIBlock, Scaling, simulate_recursive
 from hypa.vehicle import SingleTrack, VehicleParameters, vehicle_parameters
 from hypa.physics.scheduled import simulate_scheduled_recursive
 
-GOALS = {"frozen_vs_recursion": 30.0, "frozen_vs_matmul": 2.0, "trainable_vs_recursion": 5.0}
+GOALS = {"frozen_vs_recursion": 30.0, "frozen_vs_matmul": 2.0, "trainable_vs_recursion": 5.0,
+         "scheduled_vs_lifted": 10.0, "scheduled_vs_lifted_backward": 3.0}
 
 
 def _time(fn: Callable[[], None], min_time: float) -> float:
@@ -111,6 +116,13 @@ def ratios(t: dict[str, float]) -> dict[str, float]:
     }
 
 
+def _print_goals(checks: list[tuple[str, float, str, float]]) -> None:
+    """One line per (label, measured ratio, ">=" or "<=", goal): the ratio and whether it meets the goal."""
+    for label, value, op, goal in checks:
+        ok = value >= goal if op == ">=" else value <= goal
+        print(f"  {label:<32} {value:8.2f}x  (goal {op} {goal:g}x)  {'met' if ok else 'NOT met'}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--batch", type=int, default=32)
@@ -118,14 +130,39 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--min-time", type=float, default=0.3, help="seconds of timing per variant")
     parser.add_argument("--threads", type=int, default=1,
                         help="intra-op threads (default 1: these matrices are too small to split)")
+    parser.add_argument("--scheduled-only", action="store_true", help="only the scheduled block's table")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, batch {args.batch}, "
-          "single-track block (n=2, m=2), forward+backward, median of repeated runs\n")
+          "single-track block (n=2, m=2), median of repeated runs\n")
+    if not args.scheduled_only:
+        _constant_table(args)
+    t = measure_scheduled(100, args.batch, args.min_time)
+    print(f"scheduled single track (velocity per sample, trainable cf, cr), N = 100, batch {args.batch}:")
+    print(f"  {'':<17} {'scheduled':>10} {'recursion':>10} {'naive':>10} {'lifted':>10} {'sched/lifted':>13}"
+          f" {'rec/sched':>10} {'naive/sched':>12}")
+    for label, key in (("forward", ""), ("forward+backward", "_backward")):
+        s, r, a, c = (t[name + key] for name in ("scheduled", "recursion", "naive", "lifted"))
+        print(f"  {label:<17} {s * 1e3:9.3f}m {r * 1e3:9.3f}m {a * 1e3:9.3f}m {c * 1e3:9.3f}m {s / c:12.1f}x"
+              f" {r / s:9.1f}x {a / s:11.1f}x")
+    print("  times in ms; recursion: all per-sample matrices at once, then a python loop over the samples;\n"
+          "  naive: the loop builds each sample's matrices too; lifted: the constant-matrix block (eq. 11) at\n"
+          "  one velocity (its forward without gradients multiplies cached window matrices)")
+    print("\ngoals, scheduled at N = 100:")
+    _print_goals([
+        ("forward: scheduled / lifted", t["scheduled"] / t["lifted"], "<=", GOALS["scheduled_vs_lifted"]),
+        ("fwd+bwd: scheduled / lifted", t["scheduled_backward"] / t["lifted_backward"], "<=",
+         GOALS["scheduled_vs_lifted_backward"]),
+    ])
+    return 0
+
+
+def _constant_table(args: argparse.Namespace) -> None:
+    """The constant-matrix block's table (forward+backward) and its goals at N = 100."""
     header = (f"{'N':>5} {'lifted':>10} {'recursion':>10} {'matmul':>10} {'lifted*':>10} {'recursion*':>11}"
               f" {'rec/lifted':>11} {'lifted/mm':>10} {'rec*/lifted*':>13}")
-    print(header + "\n" + "-" * len(header))
+    print("constant-matrix block, forward+backward:\n" + header + "\n" + "-" * len(header))
     results = {}
     for horizon in args.horizons:
         t = measure(horizon, args.batch, args.min_time)
@@ -139,26 +176,13 @@ def main(argv: list[str] | None = None) -> int:
     print("\ntimes in ms; * = trainable physical parameters (cf, cr): lifted matrices rebuilt every step")
     if 100 in results:
         r = results[100]
-        checks = [
+        print("\ngoals at N = 100:")
+        _print_goals([
             ("frozen: recursion / lifted", r["frozen_vs_recursion"], ">=", GOALS["frozen_vs_recursion"]),
             ("frozen: lifted / bare matmul", r["frozen_vs_matmul"], "<=", GOALS["frozen_vs_matmul"]),
             ("trainable: recursion / lifted", r["trainable_vs_recursion"], ">=", GOALS["trainable_vs_recursion"]),
-        ]
-        print("\ngoals at N = 100:")
-        for label, value, op, goal in checks:
-            ok = value >= goal if op == ">=" else value <= goal
-            print(f"  {label:<32} {value:8.2f}x  (goal {op} {goal:g}x)  {'met' if ok else 'NOT met'}")
-    t = measure_scheduled(100, args.batch, args.min_time)
-    print(f"\nscheduled single track (velocity per sample, trainable cf, cr), N = 100, batch {args.batch}:")
-    print(f"  {'':<17} {'scheduled':>10} {'recursion':>10} {'naive':>10} {'lifted':>10} {'rec/sched':>10}"
-          f" {'naive/sched':>12} {'sched/lifted':>13}")
-    for label, key in (("forward", ""), ("forward+backward", "_backward")):
-        s, r, a, c = (t[name + key] for name in ("scheduled", "recursion", "naive", "lifted"))
-        print(f"  {label:<17} {s * 1e3:9.3f}m {r * 1e3:9.3f}m {a * 1e3:9.3f}m {c * 1e3:9.3f}m {r / s:9.1f}x"
-              f" {a / s:11.1f}x {s / c:12.1f}x")
-    print("  recursion: all per-sample matrices at once, then a python loop over the samples; naive: the loop\n"
-          "  builds each sample's matrices too; lifted: the constant-matrix block (eq. 11) at one velocity")
-    return 0
+        ])
+    print()
 
 
 if __name__ == "__main__":

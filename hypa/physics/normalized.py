@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import torch
 from torch import Tensor
 
-from hypa.physics.discretization import DiscreteLTI, discretize, expm
+from hypa.physics.discretization import DiscreteLTI, discretize, hold_exponential
 
 if TYPE_CHECKING:
     from hypa.physics.lti import StateSpace
@@ -94,24 +94,26 @@ class NormalizingMaps:
     The constant term (A μx + B μu + e, the drift e included) is an input held at 1, exact under
     either hold, so one exponential
 
-        M = [[dt S_x⁻¹ [A, B, e] W_hold], [the hold's input dynamics]],   e^M[:n] = [Â, B̂_0, ..., Ĥ]
+        M = [[dt S_x⁻¹ [A, B, e] W_hold], [0, N]],   e^M[:n] = [Â, B̂_0, ..., Ĥ]
 
     gives eq. 6-8 directly: e^{D⁻¹ M D} = D⁻¹ e^M D for the rescaling D, and Ĥ of eq. 8 is
     S_x⁻¹ ∫_0^dt e^{Aτ} dτ (A μx + B μu + e) because Φ - I = ∫ e^{Aτ} dτ A and Σ_t Γ_t = ∫ e^{Aτ} dτ B.
     ZOH: W_hold = W (its last row, for e, picks the constant column) and the inputs (û, 1) are
-    constant (zero rows). FOH (see ``discretize``): W_hold has zero columns for û_{k+1}, and the
+    constant (N = 0). FOH (see ``discretize``): W_hold has zero columns for û_{k+1}, and the
     input ramp is written in the basis of its end points (û_k, û_{k+1}) by the similarity
     T = blockdiag(I, [[I, 0], [-I, I]], 1), which leaves the top rows e^M[:n] T =
     [Φ̂, E_1 - E_2, E_2, Ĥ] = [Â, B̂_0, B̂_1, Ĥ] and turns the ramp's dynamics [[0, I], [0, 0]]
-    into [[-I, I], [-I, I]].
+    into N = [[-I, I], [-I, I]] (still N² = 0). Only e^M's top rows are needed, and
+    ``hold_exponential`` computes them from M's top rows and N with n x n products.
 
     ``state_rows`` and ``output_rows`` also take stacks of matrices (..., n, n) (one system per
-    sample of a scheduled block): then the exponentials are one batched ``expm``.
+    sample of a scheduled block): then the exponentials are one batched ``hold_exponential``.
     """
 
-    state_left: Tensor  # (k, n): [dt S_x⁻¹; 0], k = n + T m + 1
+    state_left: Tensor  # (n, n): dt S_x⁻¹, so M[:n] = state_left [A, B, e] state_right (k = n + T m + 1)
     state_right: Tensor  # (n+m+1, k): [W_hold; the constant column's unit row (for e)]
-    state_rest: Tensor  # (k, k): the hold's input dynamics in rows n..k
+    state_map: Tensor  # (n, k, n+m+1): the same map row by row, M[i] = state_map[i] [A, B, e][i] (i < n; stacks)
+    state_bottom: Tensor  # (k-n, k): M[n:] = [0, N], N the hold's input dynamics (0 for a ZOH)
     output_left: Tensor  # (p, p): S_y⁻¹
     output_right: Tensor  # (n+m, n+m+1): W
     output_rest: Tensor  # (p, n+m+1): [0, 0, -μy/σy]
@@ -127,29 +129,30 @@ class NormalizingMaps:
         w_hold = torch.cat([w[:, :-1], w.new_zeros(n + m, k - n - m - 1), w[:, -1:]], dim=1)
         drift_row = w.new_zeros(1, k)
         drift_row[0, -1] = 1.0
-        rest = w.new_zeros(k, k)
+        bottom = w.new_zeros(k - n, k)
         if n_taps == 2:
             eye = torch.eye(m, dtype=dtype, device=w.device)
-            rest[n : n + 2 * m, n : n + 2 * m] = torch.cat([torch.cat([-eye, eye], 1)] * 2)
-        left = torch.cat([torch.diag(dt / s.state_std), w.new_zeros(k - n, n)])
+            bottom[: 2 * m, n : n + 2 * m] = torch.cat([torch.cat([-eye, eye], 1)] * 2)
         rest_out = torch.cat([w.new_zeros(p, n + m), (-s.output_mean / s.output_std)[:, None]], 1)
         right = torch.cat([w_hold, drift_row])
-        return NormalizingMaps(left, right, rest, torch.diag(1 / s.output_std), w, rest_out)
+        state_map = (dt / s.state_std)[:, None, None] * right.T
+        return NormalizingMaps(torch.diag(dt / s.state_std), right, state_map, bottom, torch.diag(1 / s.output_std),
+                               w, rest_out)
 
     def state_rows(self, a: Tensor, b: Tensor, e: Tensor | None = None) -> Tensor:
         """[Â, B̂_0, ..., B̂_{T-1}, Ĥ] (..., n, n + T m + 1) from continuous A, B (and drift e): one exponential.
 
-        a (..., n, n), b (..., n, m), e (..., n) or None; a stack is one batched ``expm``.
+        a (..., n, n), b (..., n, m), e (..., n) or None. A stack is one batched
+        ``hold_exponential`` over its samples laid out last, returned as a (..., n, k) view of
+        that (n, k, K) layout (so ``scheduled.simulate_scheduled`` reads it without a copy).
         """
-        n = a.shape[-1]
-        if e is None:
-            ab, right = torch.cat([a, b], -1), self.state_right[:-1]
-        else:
-            ab, right = torch.cat([a, b, e[..., None]], -1), self.state_right
-        if a.dim() == 2:
-            return expm(torch.addmm(self.state_rest, self.state_left, ab @ right))[:n]
-        generator = self.state_rest + self.state_left @ (ab @ right)  # (..., k, k)
-        return expm(generator)[..., :n, :]
+        parts = (a, b) if e is None else (a, b, e[..., None])
+        j, lead = a.shape[-1] + b.shape[-1] + (e is not None), a.shape[:-2]
+        if not lead:  # M[:n] (n, k) by two plain products (cheaper to differentiate than a broadcast scaling)
+            return hold_exponential(self.state_left @ (torch.cat(parts, -1) @ self.state_right[:j]), self.state_bottom)
+        ab = torch.cat([p.reshape(-1, *p.shape[-2:]).permute(1, 2, 0) for p in parts], 1)  # (n, j, K): samples last
+        rows = hold_exponential(torch.matmul(self.state_map[..., :j], ab), self.state_bottom)  # M[:n] (n, k, K), n products
+        return rows.permute(2, 0, 1).reshape(*lead, *rows.shape[:2])
 
     def output_rows(self, c: Tensor, d: Tensor) -> Tensor:
         """[Ĉ, D̂, Ĝ] (..., p, n + m + 1) from C (..., p, n), D (..., p, m)."""

@@ -266,8 +266,11 @@ class BlockSimulation:
         return per_sample_matrices(self.model, fixed, self.scheduled, rho)
 
     def _state_rows(self, ss: StateSpace, steps: int) -> Tensor:
-        """[Â_j, B̂_{t,j}, Ĥ_j] (B, steps, n, n + T m + 1) of samples 0..steps-1: one batched exponential."""
+        """[Â_j, B̂_{t,j}, Ĥ_j] (B, steps, n, n + T m + 1) of samples 0..steps-1: one batched exponential
+        (``NormalizingMaps.state_rows``: a view of its (n, k, B steps) layout, what ``simulate_scheduled`` reads)."""
         maps = self._normalizing_maps(ss.a.dtype, ss.a.device)
+        if ss.a.shape[1] == steps:  # no slices: their backward would copy each gradient once more
+            return maps.state_rows(ss.a, ss.b, ss.e)
         return maps.state_rows(ss.a[:, :steps], ss.b[:, :steps], ss.e[:, :steps])
 
     def _output_rows(self, ss: StateSpace) -> Output:
