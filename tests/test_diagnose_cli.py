@@ -80,6 +80,10 @@ def test_extended_model_is_a_hypa_model_that_trains(delay_run, tmp_path: Path) -
     assert model["blocks"][DELAY_BLOCK]["trainable"] == ["delay_s"]
     assert model["hold"] == "foh"  # the hold it was diagnosed with: the fitted values belong to it
     assert "diagnosed_learned" not in diagnosis["extended"]["config"]  # a dead time is no subsystem to learn
+    # nothing is left unexplained here, and the hybrid on the extension is written all the same (the benchmark's row)
+    hybrid = yaml.safe_load(Path(diagnosis["extended"]["config"]["diagnosed_hybrid"]).read_text())
+    assert hybrid["name"] == "diagnosed_hybrid" and hybrid["blocks"][DELAY_BLOCK] == model["blocks"][DELAY_BLOCK]
+    assert "model=diagnosed_hybrid" in diagnosis["extended"]["train_command"]["diagnosed_hybrid"]
     command = diagnosis["extended"]["train_command"]["diagnosed"]
     assert command in (run / "diagnosis.md").read_text()
     words = shlex.split(command)

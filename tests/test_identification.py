@@ -129,6 +129,53 @@ def test_the_multiple_shooting_jacobian_is_the_plain_finite_difference(data: Pat
     assert np.allclose(structured, plain, rtol=1e-6, atol=1e-9 * np.abs(plain).max())
 
 
+def test_the_correlation_time_of_the_errors() -> None:
+    """White errors count one by one; AR(1) errors with φ = 0.9 carry one independent error per
+    (1 + φ) / (1 - φ) = 19 samples, the factor by which the estimates' variance grows."""
+    import numpy as np
+
+    from hypa.identification.shooting import correlation_time
+
+    rng = np.random.default_rng(0)
+    assert correlation_time([rng.standard_normal((4, 20000, 2))]) == pytest.approx(1.0, abs=0.1)
+    white = rng.standard_normal((8, 20000, 1))
+    ar = np.zeros_like(white)
+    for k in range(1, white.shape[1]):
+        ar[:, k] = 0.9 * ar[:, k - 1] + white[:, k]
+    assert correlation_time([ar[:4], ar[4:, :15000]]) == pytest.approx(19.0, rel=0.1)
+
+
+def test_one_sigma_matches_the_spread_over_noise_realizations(data: Path) -> None:
+    """Coloured measurement noise (AR(1), φ = 0.95, as smooth as a free run's errors) on the output,
+    eight realizations: the reported ± 1σ is the spread of the estimates within a factor of two,
+    where the textbook σ² (JᵀJ)⁻¹ of independent errors would be several times too small."""
+    import numpy as np
+    import torch
+
+    from hypa.identification import Stretches, identify
+
+    model, clean = problem(data, list(TRUE), OFF)
+    estimates, sigmas, taus = [], [], []
+    for seed in range(8):
+        rng = np.random.default_rng(seed)
+        batches = []
+        for b in clean.batches:
+            white = rng.standard_normal(tuple(b["y"].shape))
+            noise = np.zeros_like(white)
+            for k in range(1, white.shape[1]):
+                noise[:, k] = 0.95 * noise[:, k - 1] + white[:, k]
+            noise *= 0.02 / noise.std()
+            batches.append({**b, "y": b["y"] + torch.as_tensor(noise, dtype=b["y"].dtype)})
+        model.parameters_.set_values(OFF)
+        result = identify(model, Stretches(tuple(batches), clean.first, clean.positions))
+        estimates.append(result.values()["torque_constant"])
+        sigmas.append(next(e.std for e in result.estimates if e.name == "torque_constant"))
+        taus.append(result.correlation_times["torque_constant"])
+    spread, sigma = float(np.std(estimates, ddof=1)), float(np.mean(sigmas))
+    assert 0.5 < sigma / spread < 2.0, (sigma, spread, estimates)
+    assert np.mean(taus) > 9  # without τ, σ would be more than 3 times too small
+
+
 def test_a_parameter_the_data_cannot_determine_is_flagged(data: Path) -> None:
     """With the resistance free too, the speed alone cannot tell it from the others."""
     from hypa.identification import identify

@@ -15,9 +15,13 @@ in coordinates where a step means the same for every parameter (:func:`coordinat
 a positive parameter, a bounded one scaled to [0, 1] with those bounds, a signed one relative to
 its nominal value. Nothing is random: the same data give the same parameters.
 
-Each estimate gets ± 1σ from the Jacobian at the optimum, σ² (JᵀJ)⁻¹ with σ² the residual
-variance; it treats the residuals as independent, which the errors of a free run are not, so
-read it as a lower bound on the uncertainty. The correlation matrix comes from the same
+Each estimate gets ± 1σ from the Jacobian at the optimum: σ² (JᵀJ)⁻¹ with σ² the residual
+variance, its entries (i, j) scaled by √(τ_i τ_j). τ_j is the correlation time in samples
+(1 + 2 Σ ρ_k over the lags where the autocorrelation ρ_k is positive) of the terms that parameter
+j's gradient sums, the errors times their sensitivity to it: a free run's errors are smooth, so
+N samples weigh as N / τ_j independent ones (without it, σ would be √τ_j times too small). It is
+a diagonal approximation of the sandwich (Newey-West) covariance, asymptotic and local: read it
+as the order of the uncertainty. The correlation matrix comes from the same
 covariance. Warnings name a parameter that did not move, one at its bound, one the data do not
 determine (σ larger than its value) and pairs that cannot be told apart (|ρ| > 0.99).
 """
@@ -118,6 +122,7 @@ class Identification:
     warnings: tuple[str, ...] = field(default_factory=tuple)
     shooting: str = "single"  # single: one free run per record; multiple: stretches joined by continuity
     continuity_defect: float = 0.0  # RMS of the junctions' state defects at the end [state std] (multiple)
+    correlation_times: dict[str, float] = field(default_factory=dict)  # [samples] per parameter (see identify)
 
     def values(self) -> dict[str, float]:
         return {e.name: e.value for e in self.estimates}
@@ -129,6 +134,7 @@ class Identification:
                 "error": {"initial": self.error_initial, "final": self.error_final},
                 "stretches": self.stretches, "samples": self.samples, "seconds": self.seconds,
                 "shooting": self.shooting, "continuity_defect": self.continuity_defect,
+                "correlation_time_samples": self.correlation_times,
                 "parameters": {e.name: {"unit": e.unit, "initial": e.initial, "value": e.value, "std": e.std}
                                for e in self.estimates},
                 "correlation": {"names": [e.name for e in self.estimates], "matrix": self.correlation},
@@ -147,10 +153,14 @@ class Identification:
     def markdown(self) -> str:
         """The report: the estimates with ± 1σ, the correlations, convergence and warnings."""
         lines = ["## Identification", "", self.summary() + f" ({self.message}; last step {self.final_step:.2g}).", "",
-                 "| parameter | start | identified | ± 1σ | unit |", "|---|---|---|---|---|"]
+                 "± 1σ counts the output errors as correlated over τ samples (the errors weighted by each "
+                 "parameter's sensitivity), not as independent.", "",
+                 "| parameter | start | identified | ± 1σ | unit | τ [samples] |", "|---|---|---|---|---|---|"]
         for e in self.estimates:
             std = "undetermined" if e.std is None else f"{e.std:.3g}"
-            lines.append(f"| {e.name} | {e.initial:.4g} | {e.value:.4g} | {std} | {e.unit} |")
+            tau = self.correlation_times.get(e.name)
+            lines.append(f"| {e.name} | {e.initial:.4g} | {e.value:.4g} | {std} | {e.unit} | "
+                         f"{'–' if tau is None else f'{tau:.3g}'} |")
         if len(self.estimates) > 1:
             names = [e.name for e in self.estimates]
             lines += ["", "Correlations of the estimates:", "", "| | " + " | ".join(names) + " |",
@@ -294,7 +304,9 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
     error_final = problem.output_cost(v)
     defect = problem.defect_rms(v)
     z = v[: len(names)]
-    cov_z = _covariance(J, error_final, problem.samples * problem.outputs)[: len(names), : len(names)]
+    tau = problem.correlation_times(v, J)
+    cov_z = np.sqrt(np.outer(tau, tau)) * _covariance(J, error_final, problem.samples * problem.outputs)[
+        : len(names), : len(names)]
     estimates = []
     for j, (name, c) in enumerate(zip(names, coords)):
         slope = c.slope(float(z[j]))
@@ -313,7 +325,8 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
     identification = Identification(
         tuple(estimates), correlation.tolist(), converged, message, len(iterates), evaluations, final_step,
         error_initial, error_final, problem.stretches, problem.samples, time.perf_counter() - started,
-        tuple(warnings), "multiple" if problem.junctions else "single", defect)
+        tuple(warnings), "multiple" if problem.junctions else "single", defect,
+        {name: float(t) for name, t in zip(names, tau)})
     for line in warnings:
         log.warning("identification: %s", line)
     return identification

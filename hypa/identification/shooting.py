@@ -50,6 +50,25 @@ _DENSE_BYTES = 2**28  # a Jacobian up to this size is dense (scipy's exact solve
 _REFUSED = (UnstablePhysicsError, SchedulingError, ValueError, ArithmeticError, torch.linalg.LinAlgError)
 
 
+def correlation_time(errors: Sequence[np.ndarray]) -> float:
+    """τ = 1 + 2 Σ_k ρ_k [samples]: how many consecutive terms carry one independent one.
+
+    ``errors``: arrays (stretches, samples, outputs). ρ_k is their autocorrelation at lag k,
+    pooled over stretches and outputs, summed while it stays positive (a free run's errors are
+    smooth, so τ is often tens or hundreds of samples; white errors give 1): N correlated terms
+    weigh as N / τ independent ones.
+    """
+    acf = np.zeros(max(x.shape[1] for x in errors))
+    for x in errors:  # Σ_t e_t e_{t+k} by FFT, zero-padded (no wrap-around)
+        spectrum = np.fft.rfft(x, n=2 * x.shape[1], axis=1)
+        acf[: x.shape[1]] += np.fft.irfft(np.abs(spectrum) ** 2, axis=1)[:, : x.shape[1]].sum((0, 2))
+    if acf[0] <= 0:
+        return 1.0
+    rho = acf[1:] / acf[0]
+    ends = np.flatnonzero(rho <= 0)
+    return float(1 + 2 * rho[: ends[0] if ends.size else rho.size].sum())
+
+
 class Refused(Exception):
     """A trial point where the physics refuses to run or its free run is not finite."""
 
@@ -150,6 +169,25 @@ class Shooting:
         for ran in states or ():
             trajectories.extend(torch.cat([ran[name] for name in self.blocks], -1).numpy())  # (B, S + 1, n) each
         return r, trajectories
+
+    def correlation_times(self, v: np.ndarray, jacobian) -> np.ndarray:
+        """Each parameter's τ_j [samples] (:func:`correlation_time`) of g_j = e ∂e/∂θ_j, the output
+        errors weighted by their sensitivity to it: the terms its gradient sums. Errors that are
+        smooth where the sensitivity is too (a slow drift, a slow parameter) give a large τ_j;
+        a bias met by a fast-changing sensitivity averages out and gives a small one."""
+        e, _ = self.simulate(v)
+        columns = jacobian[: e.size, : self.p]
+        columns = columns.toarray() if sparse.issparse(columns) else columns
+        return np.array([correlation_time(self._by_stretch(e * columns[:, j])) for j in range(self.p)])
+
+    def _by_stretch(self, rows: np.ndarray) -> list[np.ndarray]:
+        """Output rows as arrays (stretches, samples, outputs), one per batch."""
+        out, offset = [], 0
+        for b in self.data.batches:
+            shape = (int(b["y"].shape[0]), int(b["y"].shape[1]) - self.first, self.outputs)
+            out.append(rows[offset : offset + int(np.prod(shape))].reshape(shape))
+            offset += out[-1].size
+        return out
 
     def defects(self, v: np.ndarray, trajectories: Sequence[np.ndarray]) -> np.ndarray:
         """x_a(t_b) - ξ_b for every junction (J, n), normalized states."""
