@@ -52,6 +52,7 @@ _TABLE: dict[tuple[str, str], dict[str, float]] = {
     ("voltage", "V"): {"V": 1.0, "mV": 1e-3, "kV": 1e3},
     ("current", "A"): {"A": 1.0, "mA": 1e-3},
     ("power", "W"): {"W": 1.0, "kW": 1e3},
+    ("temperature", "K"): {"K": 1.0},  # absolute kelvin (degC needs an offset, not a factor)
 }
 
 UNITS: dict[str, Unit] = {
