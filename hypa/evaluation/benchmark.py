@@ -109,7 +109,8 @@ def _r2_cell(s: Summary | None) -> str:
         return "–"
     if len(s.seeds) == 1:
         return f"{s.r2:.4f}"
-    return f"{s.r2:.4f} ± " + (f"{s.r2_std:.4f}" if s.r2_std >= 5e-5 else f"{s.r2_std:.0e}")
+    std = _spread(s.r2_std, s.r2)
+    return f"{s.r2:.4f} ± " + (f"{std:.4f}" if std >= 5e-5 or std == 0 else f"{std:.0e}")
 
 
 def _rms_cell(s: Summary | None, factor: float, unit: str) -> str:
@@ -117,7 +118,13 @@ def _rms_cell(s: Summary | None, factor: float, unit: str) -> str:
         return "–"
     if len(s.seeds) == 1:
         return f"{s.rms * factor:.3g} {unit}"
-    return f"{s.rms * factor:.3g} ± {s.rms_std * factor:.2g} {unit}"
+    return f"{s.rms * factor:.3g} ± {_spread(s.rms_std, s.rms) * factor:.2g} {unit}"
+
+
+def _spread(std: float, mean: float) -> float:
+    """A standard deviation over seeds, 0 where it is round-off (seeds that gave the same model, e.g.
+    identified physics, differ by float summation order only)."""
+    return 0.0 if std <= 1e-9 * max(abs(mean), 1e-300) else std
 
 
 def write_benchmark_json(path: Path, dataset: str, scores: Sequence[Score], training_time_s: Mapping[str, float],
