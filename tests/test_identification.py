@@ -176,6 +176,17 @@ def test_one_sigma_matches_the_spread_over_noise_realizations(data: Path) -> Non
     assert np.mean(taus) > 9  # without τ, σ would be more than 3 times too small
 
 
+def test_a_fit_stopped_at_its_time_limit_reports_its_best_point(data: Path) -> None:
+    """``max_seconds``: the fit stops, keeps the best point it saw, and says it did not converge."""
+    from hypa.identification import IdentificationSettings, identify
+
+    model, stretches = problem(data, list(TRUE), OFF)
+    result = identify(model, stretches, settings=IdentificationSettings(max_seconds=1e-3))
+    assert not result.converged and "time limit" in result.message
+    assert result.warnings[0].startswith("did not converge: stopped at the time limit")
+    assert result.error_final <= result.error_initial and all(e.std is not None for e in result.estimates)
+
+
 def test_a_parameter_the_data_cannot_determine_is_flagged(data: Path) -> None:
     """With the resistance free too, the speed alone cannot tell it from the others."""
     from hypa.identification import identify

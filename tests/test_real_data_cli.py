@@ -14,7 +14,7 @@ SHARED = ROOT.parent / "shared" / "data"
 pytestmark = pytest.mark.skipif(not SHARED.is_dir(), reason="../shared/data is not beside the project")
 TINY = ["trainer.max_epochs=1", "trainer.limit_train_batches=2", "trainer.limit_val_batches=2",
         "trainer.enable_progress_bar=false", "figures.enabled=true", "figures.seconds=2", "figures.start_s=0",
-        "ann.hidden_size=8"]
+        "ann.hidden_size=8", "identification.max_seconds=8"]  # the fit's time limit: the best point so far
 CASES = [(d, m) for d in ("silverbox", "emps", "racecar") for m in (f"{d}_physical", f"{d}_hybrid", "blackbox")]
 
 

@@ -245,13 +245,14 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
     lower = np.concatenate([[lo for lo, _ in limits], np.full(problem.size - len(names), -np.inf)])
     upper = np.concatenate([[hi for _, hi in limits], np.full(problem.size - len(names), np.inf)])
     best: dict[str, object] = {"cost": math.inf, "v": v0.copy()}
+    fitting = True
     last: dict[str, np.ndarray] = {}
     failed = np.full(1, np.inf)
 
     def residual(v: np.ndarray) -> np.ndarray:
         if "v" in last and np.array_equal(last["v"], v):  # scipy asks for f, then for J at the same point
             return last["r"]
-        if settings.max_seconds is not None and time.perf_counter() - started > settings.max_seconds:
+        if fitting and settings.max_seconds is not None and time.perf_counter() - started > settings.max_seconds:
             raise _Stop
         try:
             r = problem.residual(v)
@@ -296,6 +297,7 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
             v, converged = np.asarray(best["v"]), False
             message, evaluations = f"stopped at the time limit of {settings.max_seconds:g} s", -1
             break
+    fitting = False  # the report's evaluations below run whatever the time limit
     last.clear()
     J = jacobian(v)
     iterates.pop()  # that evaluation was for the covariance, not a step
