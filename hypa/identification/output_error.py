@@ -166,12 +166,9 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
     upper = np.concatenate([[hi for _, hi in limits], np.full(problem.size - len(names), np.inf)])
     best: dict[str, object] = {"cost": math.inf, "v": v0.copy()}
     fitting = True
-    last: dict[str, np.ndarray] = {}
     failed = np.full(1, np.inf)
 
     def residual(v: np.ndarray) -> np.ndarray:
-        if "v" in last and np.array_equal(last["v"], v):  # scipy asks for f, then for J at the same point
-            return last["r"]
         if fitting and settings.max_seconds is not None and time.perf_counter() - started > settings.max_seconds:
             raise _Stop
         try:
@@ -179,7 +176,6 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
         except Refused:
             return np.full(failed.size, np.inf)  # no step there
         failed.resize(r.size, refcheck=False)
-        last.update(v=v.copy(), r=r)
         cost = float(r @ r)
         if cost < best["cost"]:
             best.update(cost=cost, v=v.copy())
@@ -205,7 +201,6 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
     for mu in CONTINUITY if problem.junctions else (None,):
         if mu is not None:
             problem.mu = mu
-            last.clear()
             best.update(cost=math.inf)
         try:
             result = least_squares(residual, v, jac=jacobian, bounds=(lower, upper), method="trf", x_scale="jac",
@@ -218,7 +213,6 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
             message, evaluations = f"stopped at the time limit of {settings.max_seconds:g} s", -1
             break
     fitting = False  # the report's evaluations below run whatever the time limit
-    last.clear()
     J = jacobian(v)
     iterates.pop()  # that evaluation was for the covariance, not a step
     final_step = float(np.max(np.abs(iterates[-1][: len(names)] - iterates[-2][: len(names)]))) \

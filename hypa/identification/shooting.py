@@ -104,6 +104,7 @@ class Shooting:
         self.n = sum(self.blocks.values())
         self.order = list(self.rows)  # stretch k's states are ξ[k]
         self.mu = CONTINUITY[0]
+        self._last: tuple[np.ndarray, np.ndarray, list[np.ndarray]] | None = None  # simulate's latest point
         self.xi0 = self._data_states() if self.n else np.zeros((0, 0))
 
     # -- layout ------------------------------------------------------------------------
@@ -154,8 +155,12 @@ class Shooting:
     # -- evaluation --------------------------------------------------------------------
     def simulate(self, v: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
         """Scaled output residuals (all rows) and, in multiple shooting, each stretch's states
-        (S + 1, n) from its start. Raises :class:`Refused` at a point the physics cannot run."""
+        (S + 1, n) from its start. Raises :class:`Refused` at a point the physics cannot run.
+        The model is left at v's parameters; the latest point's run is reused (scipy, the
+        progress line and the report ask for the same point several times)."""
         self.set_parameters(v[: self.p])
+        if self._last is not None and np.array_equal(self._last[0], v):
+            return self._last[1], self._last[2]
         xi = v[self.p :].reshape(len(self.order), self.n)
         states: list[dict[str, torch.Tensor]] | None = [] if self.n else None
         try:
@@ -168,6 +173,7 @@ class Shooting:
         trajectories: list[np.ndarray] = []  # in the order of self.order: batch by batch, stretch by stretch
         for ran in states or ():
             trajectories.extend(torch.cat([ran[name] for name in self.blocks], -1).numpy())  # (B, S + 1, n) each
+        self._last = (v.copy(), r, trajectories)
         return r, trajectories
 
     def correlation_times(self, v: np.ndarray, jacobian) -> np.ndarray:
@@ -217,6 +223,7 @@ class Shooting:
 
     def jacobian(self, v: np.ndarray, base: np.ndarray, upper: Sequence[float]):
         """dr/dv at v (``base`` = r(v)): dense, or sparse CSR for a large multiple-shooting problem."""
+        at_v = self.simulate(v)  # before the probes move the latest point away
         columns = []
         for j in range(self.p):
             step = PROBE * max(1.0, abs(v[j]))
@@ -228,14 +235,15 @@ class Shooting:
         dense = np.stack(columns, axis=1) if columns else np.zeros((base.size, 0))
         if not self.n:
             return dense
-        states = self._state_columns(v, base)
+        states = self._state_columns(v, base, *at_v)
         if base.size * self.size * 8 <= _DENSE_BYTES:  # small enough: the exact trust-region solver
             return np.hstack([dense, states.toarray()])
         return sparse.hstack([sparse.csr_matrix(dense), states], format="csr")
 
-    def _state_columns(self, v: np.ndarray, base: np.ndarray) -> sparse.csr_matrix:
-        """The columns of the stretches' states: one probe per state component, every stretch at once."""
-        r0, x0 = self.simulate(v)
+    def _state_columns(self, v: np.ndarray, base: np.ndarray, r0: np.ndarray,
+                       x0: Sequence[np.ndarray]) -> sparse.csr_matrix:
+        """The columns of the stretches' states (``r0``, ``x0``: the run at v): one probe per state
+        component, every stretch at once."""
         w, count, n = self._weight(), len(self.order), self.n
         index = {key: k for k, key in enumerate(self.order)}
         defect_row0 = r0.size
