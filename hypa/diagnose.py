@@ -32,7 +32,7 @@ def main(cfg: DictConfig) -> None:
     from hypa.diagnosis.problem import format_change
     from hypa.diagnosis.system import diagnose_system, headline
     from hypa.entry import data_overrides, datamodule, user_config_dirs, vehicle_from_config
-    from hypa.errors import UserError
+    from hypa.errors import UserError, setting
     from hypa.models.spec import parse_model_spec
 
     if cfg.get("model") is None:
@@ -45,7 +45,10 @@ def main(cfg: DictConfig) -> None:
     dm = datamodule(cfg)
     dm.setup()
     workers = {} if cfg.diagnosis.get("workers") is None else {"workers": int(cfg.diagnosis.workers)}
-    problem = Problem(dm, values, hold=str(cfg.physics.hold), horizon=int(cfg.data.window), **workers)
+    fit_seconds = setting(cfg, "diagnosis.fit_seconds", float, positive=True)
+    stretch_s = setting(cfg, "diagnosis.stretch_s", float, optional=True, positive=True)
+    problem = Problem(dm, values, hold=str(cfg.physics.hold), horizon=int(cfg.data.window), fit_seconds=fit_seconds,
+                      stretch_s=stretch_s, **workers)
     user_dirs = user_config_dirs()
     overrides = data_overrides(HydraConfig.get().overrides.task)
     trainer = None
@@ -65,6 +68,8 @@ def main(cfg: DictConfig) -> None:
           f"{figures['extended']} of the output variance ({figures['change']}) with them applied; "
           f"unexplained: {', '.join(s['output'] for s in result['unexplained']) or 'nothing'}; "
           f"report: {out / 'diagnosis.md'}", flush=True)
+    for line in result["not_covered"]:
+        print(f"validation data: {line}", flush=True)
     for line in result["too_short"]:
         print(f"too little data: {line}", flush=True)
     trained = result["extended"].get("trained")

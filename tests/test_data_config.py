@@ -109,7 +109,7 @@ BAD = [  # (changes to the silverbox node, the expected one-line error)
     ({"channels__z": {"role": "output"}}, r"^data\.channels\.z\.unit is missing"),
     ({"channels__u__role": "inptu"},
      r"channel 'u' has the unknown role 'inptu' \(did you mean 'input'\?\); roles: input, output"),
-    ({"channels__u__unit": "Volt"}, r"unknown unit 'Volt' of channel 'u'"),
+    ({"channels__u__unit": "Volts"}, r"unknown unit 'Volts' of channel 'u'"),
     ({"channels__y__display_unit": "deg"}, r"display unit 'deg' of channel 'y' is a unit of angle"),
     ({"splits__test__multisine": [{"fille": "SNLS80mV.csv"}]},
      r"^data\.splits\.test\.multisine\.0\.fille: unknown key"),

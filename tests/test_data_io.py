@@ -89,10 +89,44 @@ def test_unit_factors(unit, factor):
 
 
 def test_unknown_unit_names_the_channel_and_lists_the_known_ones():
-    with pytest.raises(DataError, match=r"unknown unit 'grad' of channel 'steering'.*deg/s.*km/h"):
-        unit_factor("grad", "steering")
-    with pytest.raises(DataError, match=r"unknown unit 'degree' of channel 'yaw_rate'"):
-        ChannelSpec("yaw_rate", "output", "degree")
+    with pytest.raises(DataError, match=r"unknown unit 'gradd' of channel 'steering'.*deg/s.*data.units"):
+        unit_factor("gradd", "steering")
+    with pytest.raises(DataError, match=r"unknown unit 'deg/' of channel 'yaw_rate'"):
+        ChannelSpec("yaw_rate", "output", "deg/")
+
+
+@pytest.mark.parametrize("name, factor, offset, si", [
+    ("degC", 1.0, 273.15, "K"), ("degF", 5 / 9, 255.3722222, "K"), ("delta_degC", 1.0, 0.0, "K"), ("K", 1.0, 0.0, "K"),
+    ("psi", 6894.757293, 0.0, "Pa"), ("l/min", 1e-3 / 60, 0.0, "m^3/s"), ("mA", 1e-3, 0.0, "A"),
+    ("N*m", 1.0, 0.0, "Nm"), ("kW", 1e3, 0.0, "W"), ("g", 9.80665, 0.0, "m/s^2"), ("1/min", 2 * np.pi / 60, 0.0, "rad/s"),
+])
+def test_units_for_any_field_convert_to_si(name, factor, offset, si):
+    from hypa.data.units import unit
+
+    found = unit(name, "x")
+    assert (found.factor, found.offset, found.si) == (pytest.approx(factor, rel=1e-9), pytest.approx(offset), si)
+
+
+def test_a_temperature_in_degc_is_read_as_kelvin_and_its_display_must_not_shift(tmp_path):
+    spec = ChannelSpec("t", "output", "degC")
+    assert (spec.unit, spec.factor, spec.offset, spec.display_unit) == ("K", 1.0, 273.15, "K")
+    assert ChannelSpec("t", "output", "degC", display_unit="delta_degC").display_factor == 1.0
+    with pytest.raises(DataError, match=r"display unit 'degC' of channel 't' has an offset"):
+        ChannelSpec("t", "output", "K", display_unit="degC")
+    with pytest.raises(DataError, match=r"display unit 'kPa' of channel 't' is a unit of pressure"):
+        ChannelSpec("t", "output", "degC", display_unit="kPa")
+
+
+def test_a_data_sets_own_unit_names(tmp_path):
+    from hypa.data.units import define_units, unit
+
+    define_units({"counts": "0.001 * m"})
+    define_units({"counts": "0.001 * m"})  # the same definition again: fine (several data modules)
+    assert unit("counts").factor == pytest.approx(1e-3) and unit("counts/s").si == "m/s"
+    with pytest.raises(DataError, match=r"data.units.counts: 'counts' is already a unit"):
+        define_units({"counts": "0.002 * m"})
+    with pytest.raises(DataError, match=r"data.units.ticks: cannot define 'ticks'"):
+        define_units({"ticks": "0.001 * blorp"})
 
 
 def test_display_unit_of_another_dimension_is_rejected():

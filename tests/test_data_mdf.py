@@ -177,9 +177,9 @@ def _one_group(path: Path, signals: dict[str, tuple[np.ndarray, str]], time=None
 
 
 def test_a_unit_hypa_does_not_know_names_channel_and_unit(tmp_path: Path) -> None:
-    path = _one_group(tmp_path / "a.mf4", {"u": (1.0, "V"), "Travel": (2.0, "furlong")})
+    path = _one_group(tmp_path / "a.mf4", {"u": (1.0, "V"), "Travel": (2.0, "furlongz")})
     channels = [ChannelSpec("u", "input", "V"), ChannelSpec("travel", "output", "m", column="Travel")]
-    with pytest.raises(DataError, match=r"'Travel' \(channel 'travel'\) is in 'furlong'"):
+    with pytest.raises(DataError, match=r"'Travel' \(channel 'travel'\) is in 'furlongz'"):
         load_record(path, channels)
     # the way out the message names: an expression takes the declared unit
     declared = [channels[0], ChannelSpec("travel", "output", "m", expression="Travel")]

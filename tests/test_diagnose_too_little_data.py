@@ -6,10 +6,11 @@ alone (``dataset=files``), at ``data.window=20`` (21 samples, 0.66 s at 32 Hz):
 
 - 1 s of training data hold one window without overlap: nothing with even one number can be
   fitted, so the command refuses in one line;
-- 3 s in one record are 4 windows (a fit of up to 3 numbers is allowed) but one 20 s stretch,
-  too few to judge an offset's standard error (clustered by stretch, it needs 2): no offset is
-  named on "N standard errors from zero" (before, one stretch gave a standard error of 0 and
-  offsets 10^15 standard errors from zero).
+- 1.5 s in one record are 2 windows (a fit of one number is allowed) but one stretch (the
+  scoring free runs last 10 of the vehicle's slowest decay times, at least 50 samples: 1.6 s
+  here), too few to judge an offset's standard error (clustered by stretch, it needs 2): no
+  offset is named on "N standard errors from zero" (before, one stretch gave a standard error
+  of 0 and offsets 10^15 standard errors from zero).
 """
 
 from __future__ import annotations
@@ -36,10 +37,10 @@ SHORT = ["data.window=20", "plot=false", "diagnosis.workers=1"]
 
 @pytest.fixture(scope="module")
 def folders(tmp_path_factory) -> dict[str, Path]:
-    """``tiny``: 1 s of training data; ``short``: 3 s; each with 3 s of validation data."""
+    """``tiny``: 1 s of training data; ``short``: 1.5 s; each with 3 s of validation data."""
     root = tmp_path_factory.mktemp("short_records")
     out = {}
-    for name, seconds in (("tiny", 1.0), ("short", 3.0)):
+    for name, seconds in (("tiny", 1.0), ("short", 1.5)):
         # records replaced, not merged: the default train_2 would add a second (300 s) record
         config = dataclasses.replace(TestbenchConfig.from_dict(EFFECTS_OFF),
                                      records={"train_1": RecordConfig(seed=1, stochastic_duration_s=seconds),
@@ -78,7 +79,7 @@ def test_no_standard_error_from_fewer_stretches_than_offsets(folders, tmp_path: 
     assert diagnosis["causes"] == [], diagnosis["causes"]
     offsets = [f for r in diagnosis["rounds"] for f in r if f["cause"].endswith("_offset")]
     assert offsets and all(f["z"] is None for f in offsets), [(f["text"], f["z"]) for f in offsets]
-    assert diagnosis["data"]["train_stretches"] == 1 and diagnosis["data"]["train_windows"] == 4
+    assert diagnosis["data"]["train_stretches"] == 1 and diagnosis["data"]["train_windows"] == 2
     # the side-slip bias lowers the validation error most: the report says why it is not named
     why = "its standard error is not judged: 1 training stretch for 1 offset"
     line = next(line for line in result.stdout.splitlines() if line.startswith("too little data: output_offset on "
@@ -86,9 +87,9 @@ def test_no_standard_error_from_fewer_stretches_than_offsets(folders, tmp_path: 
     assert why in line and "not named as a small bias" in line
     assert "## Too little data" in report and "output_offset on side_slip lowers the validation error" in report
     assert why in report
-    # a candidate of 4 numbers (the rear steering) is not fitted from 4 windows; 1-number fits are
+    # a candidate of 4 numbers (the rear steering) is not fitted from 2 windows; 1-number fits are
     assert any(line.startswith("too little data: unmodeled_input on single_track not fitted: 4 numbers to fit "
-                               "from 4 training windows") for line in result.stdout.splitlines()), result.stdout
+                               "from 2 training windows") for line in result.stdout.splitlines()), result.stdout
     first = {f["cause"] + ":" + f["target"]: f for f in diagnosis["rounds"][0]}
     assert first["unmodeled_input:single_track"]["error"].startswith("too little data")
     assert first["parameter_mismatch:cf"]["error"] is None

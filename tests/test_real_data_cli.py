@@ -92,7 +92,7 @@ def test_silverbox_state_estimated_from_the_past_starts_the_nominal_physics_righ
 
 @pytest.mark.parametrize("args, message", [
     (["hypa.train", "dataset=racecar", "data.dir=/nowhere"], "/nowhere does not exist"),
-    (["hypa.train", "dataset=racecar", "data.channels.velocity.unit=furlong"], "unknown unit 'furlong' of channel 'velocity'"),
+    (["hypa.train", "dataset=racecar", "data.channels.velocity.unit=furlongz"], "unknown unit 'furlongz' of channel 'velocity'"),
     (["hypa.train", "dataset=silverbox", "model=silverbox_physical", "data.past=0"], "set data.past to at least 1"),
     (["hypa.benchmark", "dataset=racecar", "models=[foo]"], "not in the racecar suite"),
 ])

@@ -44,6 +44,7 @@ class ChannelSpec:
     expression: str | None = None
     unit: str = field(init=False)
     factor: float = field(init=False)
+    offset: float = field(init=False)  # SI = file value * factor + offset (a temperature in degC or degF)
     display_factor: float = field(init=False)
 
     def __post_init__(self) -> None:
@@ -65,6 +66,7 @@ class ChannelSpec:
         factor = display_factor(self.file_unit, self.display_unit, self.name)
         object.__setattr__(self, "unit", measured.si)
         object.__setattr__(self, "factor", measured.factor)
+        object.__setattr__(self, "offset", measured.offset)
         object.__setattr__(self, "display_unit", self.display_unit or measured.si)
         object.__setattr__(self, "display_factor", factor)
         if self.expression is not None:

@@ -23,6 +23,7 @@ from hypa.data.errors import DataError
 from hypa.data.normalization import Normalization
 from hypa.data.schema import ChannelConfig, DataConfig, PieceConfig
 from hypa.data.splits import Piece, SplitSpec
+from hypa.data.units import define_units
 
 
 def datamodule_from_config(
@@ -35,6 +36,7 @@ def datamodule_from_config(
     from hypa.data.datamodule import HypaDataModule
 
     cfg = validated(data_cfg)
+    define_units(dict(cfg.units or {}))  # before any channel's unit is read
     return HypaDataModule(
         data_dir=Path(data_dir),
         channels=channels_from_config(cfg.channels),

@@ -81,7 +81,7 @@ def load_record(
             array = np.broadcast_to(np.asarray(values[channel.name], dtype=np.float64), (length,))
             if channel.expression is not None:
                 _check_finite(path, f"channel {channel.name!r} ({channel.expression})", array)
-            converted[channel.name] = array * channel.factor
+            converted[channel.name] = array * channel.factor + channel.offset
     if time is None:
         time = np.arange(length) / float(sample_rate_hz)
     else:

@@ -126,11 +126,12 @@ def load_mdf_record(
     converted: dict[str, np.ndarray] = {}
     for channel in wanted:
         if channel.expression is None:
-            converted[channel.name] = resampled[channel.column or channel.name] * factors[channel.name]
+            factor, offset = factors[channel.name]
+            converted[channel.name] = resampled[channel.column or channel.name] * factor + offset
         else:
             expression = Expression(channel.expression, channel.name)
             values = expression.evaluate({n: resampled[n] for n in expression.names}, str(path))
-            values = np.broadcast_to(values, time.shape) * channel.factor
+            values = np.broadcast_to(values, time.shape) * channel.factor + channel.offset
             bad = np.flatnonzero(~np.isfinite(values))
             if bad.size:
                 raise DataError(
@@ -162,18 +163,18 @@ def resample(time: np.ndarray, values: np.ndarray, new_time: np.ndarray,
     return np.interp(new_time, time, values)
 
 
-def file_factor(path: Path, channel: ChannelSpec, file_unit: str) -> float:
-    """Factor from the file's unit of ``channel`` to SI (see "Units" in the module docstring)."""
+def file_factor(path: Path, channel: ChannelSpec, file_unit: str) -> tuple[float, float]:
+    """Factor and offset from the file's unit of ``channel`` to SI (see "Units" in the module docstring)."""
     text = str(file_unit or "").strip()
     if not text:
-        return channel.factor
+        return channel.factor, channel.offset
     column = channel.column or channel.name
     try:
         measured = unit(text)
     except DataError:
         raise DataError(
             f"{path}: MDF channel {column!r} (channel {channel.name!r}) is in {text!r}, a unit "
-            f"hypa does not know; known units: {', '.join(KNOWN_UNITS)}. To use the declared "
+            f"hypa does not know (pint cannot read it; common units: {', '.join(KNOWN_UNITS)}). To use the declared "
             f"unit instead, read it as an expression: data.channels.{channel.name}.expression="
             f"'`{column}`' data.channels.{channel.name}.column=null"
         ) from None
@@ -185,10 +186,10 @@ def file_factor(path: Path, channel: ChannelSpec, file_unit: str) -> float:
             f"({declared.dimension}); check data.channels.{channel.name}.column, or declare "
             f"data.channels.{channel.name}.unit={text}"
         )
-    if measured.factor != declared.factor:
+    if (measured.factor, measured.offset) != (declared.factor, declared.offset):
         log.info("%s: channel %r is in %r in the file (declared %r); the file's unit is used",
                  path, channel.name, text, declared.name)
-    return measured.factor
+    return measured.factor, measured.offset
 
 
 def _filtered(channel_rate_hz: float, rate_hz: float) -> bool:

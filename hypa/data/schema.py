@@ -71,6 +71,7 @@ class DataConfig:
     channels: Dict[str, Any] = field(default_factory=dict)  # name -> ChannelConfig
     splits: Optional[SplitsConfig] = None  # None: train*, val*, test* files in dir
     select: List[str] = field(default_factory=list)  # conditions, e.g. "velocity > 5"
+    units: Dict[str, str] = field(default_factory=dict)  # the data set's own unit names -> pint definition
     window: int = 100  # predicted samples N per window
     past: int = 0  # past samples P before the window start
     stride: int = 5

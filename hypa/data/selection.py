@@ -69,7 +69,7 @@ class Condition:
                     f"select condition {text!r}: {given.name!r} is a unit of {given.dimension}, "
                     f"but {name!r} is in {channel.unit!r}"
                 )
-            value *= given.factor
+            value = value * given.factor + given.offset
         return cls(name, match["op"], value, str(text).strip())
 
     def holds(self, record: Record) -> np.ndarray:

@@ -1,101 +1,152 @@
-"""Units of measured channels: a table of unit -> (dimension, factor to SI).
+"""Units of measured channels, read by pint: any unit pint knows, and a user's own.
 
 A channel declares the unit of its file column (``unit``) and the unit it is shown in
 (``display_unit``); inside hypa every value is SI::
 
-    SI value      = file value * factor(unit)
+    SI value      = file value * factor(unit) + offset(unit)     (offset: degC, degF only)
     display value = SI value / factor(display_unit)
 
-Both units must have the same dimension, so ``display_unit: deg`` on a rate in ``rad/s`` is an
-error instead of a plot off by a factor. ``-`` (also ``1`` or an empty string) is dimensionless.
-``°``, ``°/s`` and ``1/min`` (rpm) are spelled as measurement tools write them into MDF files.
+Units are parsed by `pint <https://pint.readthedocs.io>`_, so temperatures (``K``, ``degC``,
+``degF`` and their differences ``delta_degC``), pressures (``kPa``, ``bar``, ``psi``), flows
+(``l/min``, ``m^3/h``), currents, torques (``N*m``), powers and every prefix work without a
+table here. A data set adds its own names in ``data.units`` (``{counts: "0.001 * m"}``, pint's
+definition syntax), e.g. for a sensor's raw counts.
+
+Two units are of the same kind when their SI base units agree, with the radian kept apart from
+the dimensionless (pint counts angles as dimensionless): ``display_unit: deg`` on a rate in
+``rad/s`` is an error instead of a plot off by a factor, and so is ``deg`` on a ``%`` channel.
+Spellings hypa has always read keep their meaning: ``-``, ``1`` or an empty string is
+dimensionless; ``g`` is the standard gravity (an accelerometer's unit, not the gram);
+``1/min`` is revolutions per minute; ``°``, ``°/s``, ``Nm``, ``kmph``, ``m/s2`` as logging tools
+write them. A display unit with an offset (``degC``) is refused: shown values are scaled only,
+so a temperature is shown in ``K`` (its errors are the same in ``delta_degC``).
 """
 
 from __future__ import annotations
 
-import math
+import functools
+from collections.abc import Mapping
 from dataclasses import dataclass
+
+import pint
 
 from hypa.data.errors import DataError
 
-_STANDARD_GRAVITY = 9.80665  # [m/s^2], ISO 80000-3
+# hypa's spellings -> pint's (what measurement tools and earlier hypa configs write)
+_ALIASES = {"-": "dimensionless", "1": "dimensionless", "": "dimensionless", "%": "percent", "°": "degree",
+            "°/s": "degree/s", "g": "g_n", "1/min": "revolutions/minute", "Nm": "N*m", "N m": "N*m",
+            "kNm": "kN*m", "kmph": "km/h", "m/s2": "m/s**2", "rad/s2": "rad/s**2"}
+# SI base units (pint's text) -> the name hypa shows; others are shown as pint abbreviates them
+_SI_NAMES = {"dimensionless": "-", "second": "s", "1 / second": "Hz", "radian": "rad", "radian / second": "rad/s",
+             "radian / second ** 2": "rad/s^2", "meter": "m", "meter / second": "m/s", "meter / second ** 2": "m/s^2",
+             "kilogram": "kg", "kilogram * meter / second ** 2": "N", "kilogram * meter ** 2 / second ** 2": "Nm",
+             "kilogram / meter / second ** 2": "Pa", "kilogram * meter ** 2 / ampere / second ** 3": "V",
+             "ampere": "A", "kilogram * meter ** 2 / second ** 3": "W", "kelvin": "K", "meter ** 3 / second": "m^3/s",
+             "meter ** 3": "m^3", "kilogram / second": "kg/s"}
+_KINDS = {"-": "dimensionless", "s": "time", "Hz": "frequency", "rad": "angle", "rad/s": "angular rate",
+          "rad/s^2": "angular acceleration", "m": "length", "m/s": "speed", "m/s^2": "acceleration", "kg": "mass",
+          "N": "force", "Nm": "torque or energy", "Pa": "pressure", "V": "voltage", "A": "current", "W": "power",
+          "K": "temperature", "m^3/s": "volume flow", "m^3": "volume", "kg/s": "mass flow"}
+
+_REGISTRY = pint.UnitRegistry()
+_USER: dict[str, str] = {}  # the users' own names (data.units) defined so far: name -> definition
 
 
 @dataclass(frozen=True)
 class Unit:
-    """A unit: its ``name``, its physical ``dimension``, ``factor`` to SI and the SI unit ``si``."""
+    """A unit: its ``name``, its kind (``dimension``), ``factor`` and ``offset`` to SI
+    (``SI = value * factor + offset``) and the SI unit ``si``."""
 
     name: str
     dimension: str
     factor: float
     si: str
+    offset: float = 0.0
 
 
-# dimension -> its SI unit, then every unit by dimension with its factor to that SI unit.
-_TABLE: dict[tuple[str, str], dict[str, float]] = {
-    ("dimensionless", "-"): {"-": 1.0, "1": 1.0, "": 1.0, "%": 0.01},
-    ("time", "s"): {"s": 1.0, "ms": 1e-3, "us": 1e-6, "min": 60.0, "h": 3600.0},
-    ("frequency", "Hz"): {"Hz": 1.0, "kHz": 1e3},
-    ("angle", "rad"): {"rad": 1.0, "mrad": 1e-3, "deg": math.pi / 180.0, "°": math.pi / 180.0},
-    ("angular rate", "rad/s"): {"rad/s": 1.0, "deg/s": math.pi / 180.0, "°/s": math.pi / 180.0,
-                                "rpm": 2.0 * math.pi / 60.0, "1/min": 2.0 * math.pi / 60.0},
-    ("angular acceleration", "rad/s^2"): {"rad/s^2": 1.0, "rad/s2": 1.0,
-                                          "deg/s^2": math.pi / 180.0},
-    ("length", "m"): {"m": 1.0, "mm": 1e-3, "cm": 1e-2, "um": 1e-6, "km": 1e3},
-    ("speed", "m/s"): {"m/s": 1.0, "mm/s": 1e-3, "km/h": 1.0 / 3.6, "kmph": 1.0 / 3.6,
-                       "mph": 0.44704},
-    ("acceleration", "m/s^2"): {"m/s^2": 1.0, "m/s2": 1.0, "m/s²": 1.0, "g": _STANDARD_GRAVITY},
-    ("mass", "kg"): {"kg": 1.0, "t": 1e3},
-    ("force", "N"): {"N": 1.0, "kN": 1e3},
-    ("torque", "Nm"): {"Nm": 1.0, "N m": 1.0, "kNm": 1e3},
-    ("pressure", "Pa"): {"Pa": 1.0, "kPa": 1e3, "MPa": 1e6, "bar": 1e5, "mbar": 1e2},
-    ("voltage", "V"): {"V": 1.0, "mV": 1e-3, "kV": 1e3},
-    ("current", "A"): {"A": 1.0, "mA": 1e-3},
-    ("power", "W"): {"W": 1.0, "kW": 1e3},
-    ("temperature", "K"): {"K": 1.0},  # absolute kelvin (degC needs an offset, not a factor)
-}
+def define_units(units: Mapping[str, str] | None) -> None:
+    """Make a data set's own unit names known (``data.units``: name -> pint definition, e.g.
+    ``counts: 0.001 * m``). A name defined again the same way is fine; otherwise a DataError."""
+    for name, definition in (units or {}).items():
+        name, definition = str(name).strip(), str(definition).strip()
+        if _USER.get(name) == definition:
+            continue
+        if name in _USER or name in _ALIASES:
+            raise DataError(f"data.units.{name}: {name!r} is already a unit ({_USER.get(name) or _ALIASES[name]}); "
+                            "choose another name")
+        try:
+            _REGISTRY.define(f"{name} = {definition}")
+            _REGISTRY.Quantity(1.0, name).to_base_units()
+        except Exception as error:  # pint's many error types: one line naming the setting
+            raise DataError(f"data.units.{name}: cannot define {name!r} as {definition!r} "
+                            f"({type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}); "
+                            "write it as pint reads it, e.g. counts: 0.001 * m") from None
+        _USER[name] = definition
+        _parse.cache_clear()
 
-UNITS: dict[str, Unit] = {
-    name: Unit(name, dimension, factor, si)
-    for (dimension, si), units in _TABLE.items()
-    for name, factor in units.items()
-}
-KNOWN_UNITS: tuple[str, ...] = tuple(name for name in UNITS if name)
+
+@functools.lru_cache(maxsize=None)
+def _parse(text: str) -> Unit | None:
+    spelled = _ALIASES.get(text, text).replace("^", "**")
+    try:
+        zero = _REGISTRY.Quantity(0.0, spelled).to_base_units()
+        one = _REGISTRY.Quantity(1.0, spelled).to_base_units()
+    except Exception:  # pint's undefined-unit, syntax and offset errors alike: not a unit
+        return None
+    base = str(one.units)
+    si = _SI_NAMES.get(base) or f"{one.units:~P}"
+    return Unit(text, _KINDS.get(si, base), float(one.magnitude - zero.magnitude), si, float(zero.magnitude))
 
 
 def unit(name: str, channel: str | None = None) -> Unit:
     """The :class:`Unit` called ``name``; an unknown one is a DataError naming the channel."""
     text = "" if name is None else str(name).strip()
-    if text in UNITS:
-        return UNITS[text]
+    found = _parse(text)
+    if found is not None:
+        return found
     where = f" of channel {channel!r}" if channel else ""
     raise DataError(
-        f"unknown unit {text!r}{where}; known units: {', '.join(KNOWN_UNITS)} "
-        f"('-' for a dimensionless channel; a scale factor goes into an expression)"
+        f"unknown unit {text!r}{where}: give it as pint reads it (m/s, deg/s, kPa, degC, l/min, N*m, mA, ...; "
+        "'-' for a dimensionless channel), or name your own in data.units, e.g. counts: 0.001 * m"
     )
 
 
 def unit_factor(name: str, channel: str | None = None) -> float:
-    """Factor that converts a value in unit ``name`` to SI (``SI = value * factor``)."""
-    return unit(name, channel).factor
+    """Factor that converts a value in unit ``name`` to SI (``SI = value * factor``); a unit with
+    an offset (degC) is refused here: :func:`unit` gives both."""
+    found = unit(name, channel)
+    if found.offset:
+        raise DataError(f"unit {found.name!r}{f' of {channel!r}' if channel else ''} has an offset to SI "
+                        f"({found.offset:g} {found.si}); it cannot be used here, give a unit without one")
+    return found.factor
 
 
 def display_factor(unit_name: str, display_unit: str | None, channel: str | None = None) -> float:
     """Factor from SI to ``display_unit`` (``display = SI * factor``), checked against the
-    dimension of ``unit_name``; ``None`` shows the SI unit (factor 1)."""
+    kind of ``unit_name``; ``None`` shows the SI unit (factor 1)."""
     measured = unit(unit_name, channel)
     if display_unit is None:
         return 1.0
     shown = unit(display_unit, channel)
-    if shown.dimension != measured.dimension:
+    if shown.si != measured.si:
         raise DataError(
-            f"display unit {shown.name!r} of channel {channel!r} is a unit of {shown.dimension}, "
-            f"but its unit {measured.name!r} is one of {measured.dimension}; units of "
-            f"{measured.dimension}: {', '.join(units_of(measured.dimension))}"
+            f"display unit {shown.name!r} of channel {channel!r} is a unit of {shown.dimension} ({shown.si}), "
+            f"but its unit {measured.name!r} is one of {measured.dimension} ({measured.si}); units of "
+            f"{measured.dimension}: {', '.join(units_of(measured.dimension)) or measured.si}"
         )
+    if shown.offset:
+        raise DataError(f"display unit {shown.name!r} of channel {channel!r} has an offset ({shown.offset:g} "
+                        f"{shown.si}); shown values are only scaled: show it in {measured.si}")
     return 1.0 / shown.factor
 
 
+COMMON = ("-", "%", "s", "ms", "min", "h", "Hz", "kHz", "rad", "mrad", "deg", "rad/s", "deg/s", "rpm", "rad/s^2",
+          "deg/s^2", "m", "mm", "cm", "km", "m/s", "mm/s", "km/h", "mph", "m/s^2", "g", "kg", "t", "N", "kN", "Nm",
+          "Pa", "kPa", "MPa", "bar", "mbar", "psi", "V", "mV", "A", "mA", "W", "kW", "K", "degC", "degF",
+          "delta_degC", "l/min", "m^3/s", "kg/s")
+KNOWN_UNITS: tuple[str, ...] = COMMON  # examples for messages; pint reads many more
+
+
 def units_of(dimension: str) -> tuple[str, ...]:
-    """Every known unit of a dimension (e.g. ``"angle"`` -> rad, mrad, deg)."""
-    return tuple(name for name, u in UNITS.items() if u.dimension == dimension and name)
+    """The common units of a kind (e.g. ``"angle"`` -> rad, mrad, deg)."""
+    return tuple(name for name in COMMON if (u := _parse(name)) is not None and u.dimension == dimension)

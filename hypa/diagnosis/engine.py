@@ -34,15 +34,17 @@ import torch
 from hypa.diagnosis.catalogue import Entry, catalogue_candidates, load_catalogue
 from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, frozen
 from hypa.diagnosis.fitting import GradientFit, fit_affine, fit_gradient, fit_offsets
-from hypa.diagnosis.problem import Problem, Stretches, TooLittleData, format_value, training_windows
+from hypa.diagnosis.problem import Problem, Stretches, TooLittleData, format_value
+from hypa.diagnosis.scales import duration
 from hypa.diagnosis.workers import Workers, can_fork
 from hypa.models.spec import ModelSpec, ModelSpecError
 from hypa.physics import SchedulingError, UnstablePhysicsError
 
 
 ALTERNATIVE = 0.95  # a candidate explaining this share of the named one's gain is reported beside it
-OFFSET_Z = 5.0  # an offset below min_gain is still named this many standard errors away from zero ...
-OFFSET_GAIN = 0.01  # ... when it lowers the validation error by at least this share (a small sensor bias)
+OFFSET_Z = 5.0  # an offset below min_gain is still named this many standard errors away from zero, when it
+# lowers the validation error at all (a small sensor bias: significant on the training records, and it generalizes)
+OFFSET_GAIN = 0.01  # an offset whose standard error the data cannot judge is reported from this gain on
 
 
 @dataclass
@@ -87,7 +89,8 @@ class Finding:
                 "too_short": self.too_short, "text": self.describe()}
 
 
-_FIT_ERRORS = (UnstablePhysicsError, SchedulingError, ModelSpecError, ValueError)
+_FIT_ERRORS = (UnstablePhysicsError, SchedulingError, ModelSpecError, ValueError, ArithmeticError,
+               torch.linalg.LinAlgError)  # a candidate that fails is reported, never ends the diagnosis
 
 
 def evaluate(candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor], base_score: float,
@@ -204,6 +207,13 @@ def evaluate_round(candidates: Sequence[Candidate], problem: Problem, windows: M
         values = runner.values if runner.values is not None else runner.fit.values()
         finding = _finding(runner.fit.candidate, problem, values, runner.score, base_score, runner.seconds)
         finding.steps = (runner.fit.done, runner.fit.total)
+        if runner.fit.diverged:  # reported with its last sane values, never named
+            sane = finding.describe().split(": ", 1)[-1]
+            finding.error = f"did not converge: {runner.fit.diverged} (last sane: {sane})"
+            finding.score, finding.gain = math.inf, -math.inf
+        elif runner.fit.timed_out:
+            finding.note = (finding.note + "; " if finding.note else "") + (
+                f"stopped at the time limit per fit ({problem.fit_seconds:g} s)")
         findings.append(finding)
     return sorted(findings, key=lambda f: f.score)
 
@@ -214,7 +224,7 @@ def _append(findings: list[Finding], evaluate_one: Callable[..., Finding], *args
 
 def _next_rung(alive: list[_Runner], k: int, base_score: float) -> list[_Runner]:
     """The runners that go on after rung ``k`` (successive halving, see :func:`evaluate_round`)."""
-    alive = [r for r in alive if r.error is None and r.fit.done < r.fit.total]
+    alive = [r for r in alive if r.error is None and not r.fit.finished]
     if k + 1 == len(RUNGS):
         return []
     racing = sorted(alive, key=lambda r: r.score)[: max(3 - k, math.ceil(len(alive) / 2))]
@@ -263,6 +273,7 @@ def name_causes(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry]
     training stretches cannot judge is not named on it (:class:`~hypa.diagnosis.problem.Evidence`):
     both are listed in ``Search.too_short``.
     """
+    problem = problem.scaled(frozen(nominal))
     problem.require_data()
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # tiny tensors: a second thread only waits (and on a busy machine, 20x slower)
@@ -288,11 +299,12 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
             return catalogue_candidates(entries, spec, dm.input_names, dm.output_names, dm.scheduling_names,
                                         problem.physical_values, dm.dt, uncertain, channels)
     torch.manual_seed(problem.seed)
-    windows = training_windows(dm)
+    windows = problem.windows()
     base = frozen(nominal)
     base_score = nominal_score = problem.stretches("val").score(problem.build(base))
+    progress(f"time scales: {problem.time_scales.describe()}")
     progress(f"nominal model: validation error {100 * base_score:.3g} % of the output variance (the search's "
-             f"score: free runs restarted from the data every {problem.stretch_s:g} s)")
+             f"score: free runs restarted from the data every {duration(problem.time_scales.stretch_s)})")
     rounds, named, refine, findings = [], [], [], []
     while len(named) < max_causes and base_score > floor:
         done = {f.key for f in named}
@@ -401,4 +413,4 @@ def _joint_offsets(named: list[Finding], spec: ModelSpec, score: float, problem:
 
 def _significant(f: Finding) -> bool:
     """An offset fitted, far from zero by its standard error, and lowering the validation error."""
-    return f.error is None and f.z is not None and f.z >= OFFSET_Z and f.gain >= OFFSET_GAIN
+    return f.error is None and f.z is not None and f.z >= OFFSET_Z and f.gain > 0

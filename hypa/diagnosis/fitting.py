@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -14,12 +15,16 @@ import torch
 from hypa.diagnosis.edits import Candidate, set_free
 from hypa.diagnosis.problem import Problem, TooLittleData, format_value
 from hypa.models.spec import ModelSpec, ModelSpecError
+from hypa.physics.parameters import LOG, SIGNED
 
 REFINE_LR = 0.2  # the learning rate of the earlier causes' knobs, relative to the candidate's own
 LM_ITERATIONS = 8  # Levenberg-Marquardt steps of a nonlinear fit (the knobs are few: 1 to 7)
 LM_WINDOWS_PER_BATCH = 2  # its fixed windows: this many batches' worth (256 by default)
 LM_PROBE = 1e-5  # the finite-difference step on a raw knob (a relative 1e-5 for positive parameters)
 LM_DAMPING = 1e-2  # the starting damping (relative to the normal matrix's diagonal)
+LM_MAX_STEP = 1.0  # the largest move of a raw knob per Levenberg-Marquardt step (a factor e for a positive one)
+SANE_DECADES = 3.0  # a positive knob more than this many decades from where its fit started has diverged
+SANE_SIGNED = 1e3  # so has a signed knob beyond this many times its nominal magnitude
 
 
 class GradientFit:
@@ -46,6 +51,11 @@ class GradientFit:
         if shortfall:
             raise TooLittleData(shortfall)
         self.generator = torch.Generator().manual_seed(problem.seed)
+        self.started, self.diverged, self.timed_out = time.perf_counter(), "", False
+        raw = self.model.parameters_.raw
+        self._knobs = {n: raw[n] for n in raw if raw[n].requires_grad}
+        self._start = {n: float(p.detach()) for n, p in self._knobs.items()}
+        self._sane = dict(self._start)  # the last values that passed :meth:`_check`
         self.nonlinear = nonlinear = any(getattr(getattr(b, "model", None), "is_nonlinear", False)
                                          for b in self.model.blocks.values())
         self.total, self.done = LM_ITERATIONS if nonlinear else problem.steps, 0
@@ -63,21 +73,58 @@ class GradientFit:
                       {"params": [p for p in params if id(p) in settled], "lr": REFINE_LR * problem.lr}]
             self.optimizer = torch.optim.Adam([g for g in groups if g["params"]])
 
+    @property
+    def finished(self) -> bool:
+        """Every step done, or stopped for good: diverged, or at the problem's time limit per fit."""
+        return self.done >= self.total or bool(self.diverged) or self.timed_out
+
+    def _check(self) -> str:
+        """Why the knobs left their physical range (not finite, a positive one more than
+        ``SANE_DECADES`` decades from its start, a signed one beyond ``SANE_SIGNED`` times its
+        nominal magnitude); empty when they did not."""
+        params = self.model.parameters_
+        for name, raw in self._knobs.items():
+            value, storage = float(raw.detach()), params.specs[name].storage
+            far = (abs(value - self._start[name]) > SANE_DECADES * math.log(10.0) if storage == LOG
+                   else storage == SIGNED and abs(value) > SANE_SIGNED)
+            if not math.isfinite(value) or far:
+                shown = float(params.value(name).detach()) if math.isfinite(value) else value
+                return f"{name} left its physical range ({shown:.3g})"
+        return ""
+
     def advance(self, share: float) -> None:
-        """Go on until ``share`` of the total steps are done."""
+        """Go on until ``share`` of the total steps are done (or the fit stopped for good: it
+        diverged, :meth:`_check`, and keeps its last sane values; or it reached the problem's
+        time limit per fit)."""
         first, count, w = self.problem.dm.past + 1, self.windows["u"].shape[0], self.windows
-        while self.done < math.ceil(share * self.total):
-            if self.nonlinear:
-                self._least_squares_step()
-            else:
-                index = torch.randperm(count, generator=self.generator)[: self.batch]
-                u, y = w["u"][index], w["y"][index]
-                loss = torch.mean((self.model(u, y[:, :first], w["s"][index] if "s" in w else None)
-                                   - y[:, first:]) ** 2)
-                self.optimizer.zero_grad()
-                loss.backward()
-                self.optimizer.step()
+        while self.done < math.ceil(share * self.total) and not self.finished:
+            if time.perf_counter() - self.started > self.problem.fit_seconds:
+                self.timed_out = True
+                break
+            try:
+                self._step(first, count, w)
+            except (ArithmeticError, torch.linalg.LinAlgError) as error:
+                self.diverged = f"{type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}"
+            self.diverged = self.diverged or self._check()
+            if self.diverged:
+                with torch.no_grad():
+                    for name, raw in self._knobs.items():
+                        raw.fill_(self._sane[name])
+                break
+            self._sane = {n: float(p.detach()) for n, p in self._knobs.items()}
             self.done += 1
+
+    def _step(self, first: int, count: int, w: Mapping[str, torch.Tensor]) -> None:
+        if self.nonlinear:
+            self._least_squares_step()
+        else:
+            index = torch.randperm(count, generator=self.generator)[: self.batch]
+            u, y = w["u"][index], w["y"][index]
+            loss = torch.mean((self.model(u, y[:, :first], w["s"][index] if "s" in w else None)
+                               - y[:, first:]) ** 2)
+            self.optimizer.zero_grad()
+            loss.backward()
+            self.optimizer.step()
 
     @torch.no_grad()
     def _residual(self) -> torch.Tensor:
@@ -101,6 +148,7 @@ class GradientFit:
         normal, gradient = jacobian.T @ jacobian, jacobian.T @ r0
         while self.damping < 1e6:
             step = torch.linalg.solve(normal + self.damping * torch.diag(torch.diagonal(normal) + 1e-12), -gradient)
+            step = step * min(1.0, LM_MAX_STEP / max(float(step.abs().max()), 1e-300))  # a trust region
             for knob, delta in zip(self.knobs, step):
                 knob += delta
             trial = self._residual()

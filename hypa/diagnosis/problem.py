@@ -22,13 +22,16 @@ Data with fewer than two windows without overlap cannot support a fit of even on
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 
 from hypa.data import HypaDataModule
+from hypa.diagnosis.scales import Scales
 from hypa.diagnosis.workers import default_workers
 from hypa.identification.stretches import Stretches
 from hypa.errors import UserError
@@ -48,27 +51,63 @@ class Problem:
     batch: int = 128  # training windows per step
     lr: float = 0.05  # on the raw (relative) parameters: about 5 % of a value per step
     seed: int = 0
-    stretch_s: float = 20.0  # [s] the free runs that score a candidate restart from the data this often
+    fit_seconds: float = 60.0  # [s] a candidate's fit stops here (and says so), whatever its steps
+    stretch_s: float | None = None  # [s] the scoring free runs' length; None: from the model's scales
     workers: int = field(default_factory=default_workers)  # processes fitting a round's candidates at once
+    scales: Scales | None = None  # the time scales (:meth:`scaled`: from the nominal model and the data)
+
+    def scaled(self, nominal: ModelSpec) -> Problem:
+        """This problem with its time scales read from the (frozen) ``nominal`` model and the data
+        (:class:`~hypa.diagnosis.scales.Scales`); itself when they are set already."""
+        if self.scales is not None:
+            return self
+        dm, model = self.dm, self.build(nominal)
+        train = [len(r) for r in dm.records("train")]
+        scales = Scales.of(model.eigenvalues().tolist(), dm.dt, [*train, *(len(r) for r in dm.records("val"))],
+                           train, dm.window)
+        if self.stretch_s is not None:
+            scales = dataclasses.replace(scales, stretch=max(1, round(self.stretch_s / dm.dt)))
+        return dataclasses.replace(self, scales=scales)
+
+    @property
+    def time_scales(self) -> Scales:
+        if self.scales is None:
+            raise RuntimeError("the problem's time scales are not set: use problem.scaled(nominal_spec)")
+        return self.scales
 
     def stretches(self, split: str) -> Stretches:
-        """The ``split``'s records cut into stretches of ``stretch_s`` (made once, then cached)."""
+        """The ``split``'s records cut into scoring stretches (made once, then cached)."""
         cache = self.__dict__.setdefault("_stretches", {})
         if split not in cache:
-            cache[split] = Stretches.cut(self.dm, self.dm.records(split), max(1, round(self.stretch_s / self.dm.dt)))
+            cache[split] = Stretches.cut(self.dm, self.dm.records(split), self.time_scales.stretch)
         return cache[split]
+
+    def windows(self) -> dict[str, torch.Tensor]:
+        """The training windows the gradient fits draw from (made once, then cached): the data
+        module's own where the scales' fit window is ``data.window``, else the training records
+        cut into windows of that length overlapping as much as ``data.stride`` makes the data
+        module's."""
+        cache = self.__dict__
+        if "_windows" not in cache:
+            dm, length = self.dm, self.time_scales.fit_window
+            if length == dm.window:
+                cache["_windows"] = training_windows(dm)
+            else:
+                stride = max(1, round(length * dm.stride / dm.window))
+                cache["_windows"] = _cut_windows(dm, dm.past + 1 + length, stride)
+        return cache["_windows"]
 
     def evidence(self) -> Evidence:
         """How much independent evidence the training records hold (made once, then cached)."""
         cache = self.__dict__
         if "_evidence" not in cache:
             dm = self.dm
-            span = dm.past + dm.window + 1
+            span = dm.past + self.time_scales.fit_window + 1
             records = dm.records("train")
             cache["_evidence"] = Evidence(
                 seconds=sum(len(r) for r in records) * dm.dt, records=len(records),
                 windows=sum(len(r) // span for r in records), window_samples=span, dt=dm.dt,
-                stretches=self.stretches("train").count, stretch_s=self.stretch_s)
+                stretches=self.stretches("train").count, stretch_s=self.time_scales.stretch_s)
         return cache["_evidence"]
 
     def require_data(self) -> None:
@@ -156,6 +195,21 @@ def format_value(value: float, unit: str) -> str:
         return f"{value * 1e3:.3g} ms"
     unit, factor = READABLE.get(unit, (unit, 1.0))
     return f"{value * factor:.3g} {'' if unit == '-' else unit}".rstrip()
+
+
+def _cut_windows(dm: HypaDataModule, length: int, stride: int) -> dict[str, torch.Tensor]:
+    """Every training record cut into windows of ``length`` samples every ``stride`` (u, y, s)."""
+    norm, windows = dm.normalization, []
+    for record in dm.records("train"):
+        arrays = {"u": norm.normalize(record.stack(dm.input_names), dm.input_names),
+                  "y": norm.normalize(record.stack(dm.output_names), dm.output_names),
+                  "s": record.stack(dm.scheduling_names)}
+        windows += [{k: a[start : start + length] for k, a in arrays.items()}
+                    for start in range(0, len(record) - length + 1, stride)]
+    if not windows:
+        raise TooShortError(f"no training record holds a fit window of {length} samples")
+    out = {k: torch.as_tensor(np.stack([w[k] for w in windows]), dtype=torch.float32) for k in windows[0]}
+    return out if out["s"].shape[-1] else {k: v for k, v in out.items() if k != "s"}
 
 
 def training_windows(dm: HypaDataModule) -> dict[str, torch.Tensor]:

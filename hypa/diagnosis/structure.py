@@ -4,14 +4,15 @@ For each output, over the validation free runs of the extended model, four tests
 
 - **size**: the error left, as a share of the output's variance (1 - R²);
 - **amplitude**: the error's RMS in the quartiles of the measured output's envelope (its RMS
-  about the mean over ``envelope`` samples: an oscillation's amplitude, not its phase); a ratio
+  about the mean over the scales' ``envelope`` samples: an oscillation's amplitude, not its phase); a ratio
   of the top to the bottom quartile far from 1 means the physics' gain depends on the amplitude
   (a stiffening spring, a saturating tire);
-- **band**: the error's power against the output's power in frequency bands (Welch); the band
+- **band**: the error's power against the output's power in frequency bands (Welch, bands and
+  segments from :class:`~hypa.diagnosis.scales.Scales`); the band
   where the model misses the largest share of the output (among bands holding at least 1 % of
   the output's power: above that, the error is sensor noise);
 - **inputs**: the peak normalized cross-correlation of the error with each input and
-  scheduling channel over ±``max_lag`` samples, against the white-noise bound 2 / √N: a
+  scheduling channel over ±``max_lag`` samples (the scales'), against the white-noise bound 2 / √N: a
   correlated error is a dynamic effect of that input the model lacks.
 
 A significant remainder is reported as **unexplained**, with where it lives, rather than named
@@ -25,6 +26,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 from scipy import signal
+
+from hypa.diagnosis.scales import Scales
 
 SIGNIFICANT = 0.002  # error share of the output variance above which a remainder is worth explaining
 AMPLITUDE_RATIO = 2.0  # top/bottom quartile error RMS beyond which the error depends on amplitude
@@ -65,9 +68,10 @@ def correlation_peak(error: np.ndarray, channel: np.ndarray, max_lag: int) -> tu
 
 
 def analyze_output(name: str, unit: str, measured: Sequence[np.ndarray], predicted: Sequence[np.ndarray],
-                   channels: Mapping[str, Sequence[np.ndarray]], dt: float, max_lag: int = 50, envelope: int = 25
-                   ) -> OutputStructure:
-    """The four tests for one output over several records (each record's arrays aligned)."""
+                   channels: Mapping[str, Sequence[np.ndarray]], scales: Scales) -> OutputStructure:
+    """The four tests for one output over several records (each record's arrays aligned), at the
+    model's and the data's time scales (``scales``: lags, envelope, Welch segments and bands)."""
+    dt, max_lag, envelope = scales.dt, scales.max_lag, scales.envelope
     y = np.concatenate(measured)
     err = y - np.concatenate(predicted)
     share = float(np.sum(err**2) / max(np.sum((y - y.mean()) ** 2), 1e-300))
@@ -78,16 +82,15 @@ def analyze_output(name: str, unit: str, measured: Sequence[np.ndarray], predict
     rmse = [float(np.sqrt(np.mean(err[bins == k] ** 2))) if np.any(bins == k) else 0.0 for k in range(4)]
     ratio = rmse[3] / rmse[0] if rmse[0] > 0 else float("inf")
     nyquist = 0.5 / dt
-    edges_hz = [0.0, *(nyquist * f for f in (0.01, 0.05, 0.2)), nyquist]
-    bands = list(zip(edges_hz[:-1], edges_hz[1:]))
+    bands = list(zip(scales.band_edges_hz[:-1], scales.band_edges_hz[1:]))
     band_share, band_power = [], []
     errors = [m - p for m, p in zip(measured, predicted)]
     per_record = [(e, m) for e, m in zip(errors, measured) if len(m) >= 16]
     for lo, hi in bands:
         e_pow = y_pow = 0.0
         for e_r, y_r in per_record:
-            f, pe = signal.welch(e_r, fs=1 / dt, nperseg=min(len(e_r), 1024))
-            _, py = signal.welch(y_r - y_r.mean(), fs=1 / dt, nperseg=min(len(y_r), 1024))
+            f, pe = signal.welch(e_r, fs=1 / dt, nperseg=min(len(e_r), scales.segment))
+            _, py = signal.welch(y_r - y_r.mean(), fs=1 / dt, nperseg=min(len(y_r), scales.segment))
             inside = (f >= lo) & (f < hi) if hi < nyquist else (f >= lo)
             e_pow += float(pe[inside].sum())
             y_pow += float(py[inside].sum())

@@ -22,9 +22,11 @@ import numpy as np
 import yaml
 
 from hypa.diagnosis.catalogue import Entry
+from hypa.diagnosis.coverage import coverage, short_lines
 from hypa.diagnosis.edits import frozen, set_free
 from hypa.diagnosis.engine import Finding, Problem, Search, name_causes
 from hypa.diagnosis.problem import format_change
+from hypa.diagnosis.scales import Scales, duration
 from hypa.diagnosis.structure import OutputStructure, analyze_output
 from hypa.diagnosis.trained import TrainedExtension
 from hypa.evaluation.runs import Prediction, free_run, free_run_metrics
@@ -120,11 +122,15 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     ``train_extension(arguments)``: trains the written model with those ``hypa.train`` arguments
     and returns its free runs over the validation records and what its networks learned
     (:mod:`hypa.diagnosis.trained`); its gain and those explanations join the report."""
+    problem = problem.scaled(frozen(nominal))
     problem.require_data()  # before any step is announced: data too short are refused in one line
     out.mkdir(parents=True, exist_ok=True)
     dm, started = problem.dm, time.perf_counter()
     progress(f"step 1/4: the nominal model {nominal.name!r} free-running on {len(dm.records('val'))} "
              "validation record(s)")
+    covered = coverage(dm)
+    for line in short_lines(dm, covered):
+        progress(f"          validation data: {line}: candidates are judged on a part of the operating range")
     progress(f"step 2/4: naming the causes (each candidate fitted on {len(dm.records('train'))} training "
              "record(s); seconds to a minute)")
     search = name_causes(nominal, problem, catalogue=catalogue, max_causes=max_causes, min_gain=min_gain,
@@ -136,7 +142,7 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     structure = [analyze_output(o, dm.channels[o].unit, [r.measured[o][r.first:] for r in after],
                                 [r.predicted[o][r.first:] for r in after],
                                 {c: [r.inputs[c][r.first:] if c in r.inputs else _record(dm, r, c) for r in after]
-                                 for c in channels}, dm.dt) for o in dm.output_names]
+                                 for c in channels}, problem.time_scales) for o in dm.output_names]
     unexplained = [s for s in structure if s.unexplained]
     progress("step 4/4: the extended model as a hypa model, and its gain")
     conf = out / "conf" / "model"
@@ -195,13 +201,15 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
         "metrics": metrics,
         "gain": {"all": change},
         "too_short": list(search.too_short),
+        "coverage": [c.to_dict() for c in covered],
+        "not_covered": short_lines(dm, covered),
         "unexplained": [s.to_dict() for s in unexplained],
         "structure": {s.output: s.to_dict() for s in structure},
         "extended": {"config": {k: str(v) for k, v in written.items()}, "train_command": commands,
                      "signals": signal_agreement(after), **({"trained": trained} if trained else {})},
         "data": {"dt": dm.dt, "train_records": len(dm.records("train")), "val_records": len(dm.records("val")),
                  "train_s": evidence.seconds, "train_windows": evidence.windows, "train_stretches": evidence.stretches,
-                 "stretch_s": problem.stretch_s},
+                 "stretch_s": problem.time_scales.stretch_s, "scales": problem.time_scales.to_dict()},
         "seconds": time.perf_counter() - started,
     }
     figures = _figures(out, before, after, dm, runs if trained else (), list(result["extended"]["signals"])) \
@@ -210,6 +218,12 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     (out / "diagnosis.json").write_text(json.dumps(result, indent=2, default=float))
     (out / "diagnosis.md").write_text(markdown(result, search, structure, dm, min_gain))
     return result
+
+
+def problem_scales(result: Mapping) -> Scales:
+    """The time scales a diagnosis ran at, from its result (``data.scales``)."""
+    fields = {k: v for k, v in result["data"]["scales"].items() if k != "stretch_s"}
+    return Scales(**{**fields, "band_edges_hz": tuple(fields["band_edges_hz"])})
 
 
 def _record(dm, run: Prediction, channel: str) -> np.ndarray:
@@ -338,10 +352,18 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
     if "trained" in figures:
         lines.append(f"- the trained extension: **{figures['trained']}** ({per_output('trained')})")
     lines.append(f"- change with the named causes: **{figures['change']}**")
+    if result.get("not_covered"):
+        lines += ["", "## Validation data", "",
+                  "Every candidate is judged on the validation records, and they do not cover the operating range "
+                  "of the training records (1st–99th percentile; amplitude as RMS about the training mean). A cause "
+                  "that matters outside what they cover can look useless here, and a stand-in can look right; "
+                  "other validation records are chosen with `data.splits`.", ""]
+        lines += [f"- {line}." for line in result["not_covered"]]
     lines += ["", "## Named causes", "",
               ("The gains below are the search's own score: free runs over the validation records restarted from "
-               f"the data every {result['data']['stretch_s']:g} s (on longer records a little different from the "
-               "figures above)."), ""]
+               f"the data every {duration(result['data']['stretch_s'])} (on longer records a little different from "
+               "the figures above). Time scales from the nominal model and the data: "
+               f"{problem_scales(result).describe()}."), ""]
     if not search.named:
         lines.append(f"None: no catalogue cause lowers the validation error by {100 * min_gain:.0f} % or more"
                      + (" among those the data could support (see \"Too little data\")." if search.too_short else "."))

@@ -93,6 +93,7 @@ class Workers:
         runner.score, runner.previous, runner.error, runner.seconds = (
             state["score"], state["previous"], state["error"], state["seconds"])
         runner.fit.done, runner.values = state["done"], state["values"]
+        runner.fit.diverged, runner.fit.timed_out = state["diverged"], state["timed_out"]
 
     def __enter__(self) -> Workers:
         return self
@@ -133,6 +134,7 @@ def _serve(pipe, runners: Sequence[Any], val: Any) -> None:
             error = None if runner.error is None else ValueError(str(runner.error))  # picklable, same text
             pipe.send(("done", (i, {"score": runner.score, "previous": runner.previous, "error": error,
                                     "seconds": runner.seconds, "done": runner.fit.done,
+                                    "diverged": runner.fit.diverged, "timed_out": runner.fit.timed_out,
                                     "values": runner.fit.values() if runner.error is None else None})))
         except BaseException:  # noqa: BLE001 - the parent raises it with the worker's traceback
             pipe.send(("failed", traceback.format_exc()))

@@ -168,6 +168,16 @@ class ComposedModel(nn.Module):
         return {name: self.blocks[name].model.n_states for name, how in self.starts.items()
                 if how.mode != STEADY and self.blocks[name].model.n_states}
 
+    @torch.no_grad()
+    def eigenvalues(self) -> Tensor:
+        """The modes [1/s] of the physics blocks' linear parts at the current parameter values
+        (complex, every block's eigenvalues of A together; a scheduled block's at its parameters'
+        nominal values, a nonlinear block's of its linear part). What the model's own time scales
+        are read from (:class:`hypa.diagnosis.scales.Scales`); empty for a model without states."""
+        modes = [torch.linalg.eigvals(self.blocks[b.name].state_space(torch.float64).a)
+                 for b in self.order if b.kind == "physics" and self.blocks[b.name].model.n_states]
+        return torch.cat(modes) if modes else torch.zeros(0, dtype=torch.complex128)
+
     def outputs(self, signals: Mapping[str, Signal], past: int = 0) -> Tensor:
         """The model outputs (B, L-P-1, p) at samples P+1..L-1 from ``signals``."""
         outputs = []

@@ -1,0 +1,118 @@
+"""The diagnosis' time scales, read from the data and the nominal model, never assumed.
+
+A diagnosis runs on kHz data and on data sampled every 10 s alike, so no length in it is a
+constant. Every one follows from three things: the sample time ``dt``, the record lengths, and
+the nominal model's own modes (:meth:`hypa.models.ComposedModel.eigenvalues`, the eigenvalues
+λ of its physics blocks' linear parts at the nominal values):
+
+- ``slowest_s``: the slowest decay time 1/|Re λ| of a mode that decays (an integrator, λ = 0 to
+  round-off, never settles and is left out; a model without decaying modes uses ``dt``);
+- ``period_s``: the longest period 2π/|Im λ| of an oscillating mode (none: 0);
+- **stretches** (the free runs that score a candidate, restarted from the data):
+  ``STRETCH_SPAN`` slowest decay times or ``STRETCH_PERIODS`` periods of the slowest
+  oscillation, whichever is longer, so that the transient of each restart (a few decay times
+  from an estimated state, which also absorbs a part of any offset) is a small share of the score
+  and a wrong gain, time constant or resonance has settled into the error; at least
+  ``MIN_STRETCH`` samples, at most the longest record (then one stretch per record: the whole
+  record's free run);
+- **fit windows** (a candidate's gradient fit): ``FIT_SPAN`` slowest decay times, at least
+  ``data.window`` (the user's training windows) and at most an eighth of the longest training
+  record, so that the records still hold several windows without overlap;
+- **residual analysis** (:mod:`hypa.diagnosis.structure`): cross-correlation lags up to
+  ``LAG_SPAN`` decay times; the envelope (an oscillation's amplitude) over the longer of one
+  decay time and ``ENVELOPE_PERIODS`` periods; Welch segments of ``SEGMENT_SPAN`` decay times (a
+  power of two, within the record); frequency bands from the lowest frequency the segments
+  resolve (and at least a tenth of the slowest mode's corner frequency 1/(2π·slowest_s)) up to
+  Nyquist, in ``BANDS`` steps even in log frequency, below the first one a band of its own.
+
+The spans are numbers of the model's own time constants, the same at every time scale; the
+report (``diagnosis.json``, ``data.scales``) lists what they came to.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+STRETCH_SPAN = 50.0  # slowest decay times per scoring stretch ...
+STRETCH_PERIODS = 10.0  # ... or periods of the slowest oscillation, whichever is longer
+MIN_STRETCH = 50  # [samples] a stretch is at least this long
+FIT_SPAN = 3.0  # slowest decay times per fit window
+LAG_SPAN = 3.0  # slowest decay times of cross-correlation lags
+ENVELOPE_PERIODS = 3.0  # periods of the slowest oscillation per envelope
+SEGMENT_SPAN = 8.0  # slowest decay times per Welch segment
+MIN_SEGMENT = 64  # [samples]
+BANDS = 3  # log-spaced bands from the lowest resolved frequency to Nyquist
+INTEGRATOR = 1e-9  # |λ| below this share of the fastest mode's: an integrator (λ = 0 to round-off)
+
+
+@dataclass(frozen=True)
+class Scales:
+    """What the rule in the module docstring gives for one model on one data set (samples, s, Hz)."""
+
+    dt: float  # [s]
+    slowest_s: float  # [s] the slowest decay time (dt if no mode decays)
+    fastest_s: float  # [s] the fastest mode's time 1/|λ| (dt if no mode)
+    period_s: float  # [s] the longest period of an oscillating mode (0: none)
+    integrating: bool  # a mode at λ = 0: the free run drifts (restarts keep it bounded)
+    stretch: int  # [samples] of a scoring stretch's free run
+    fit_window: int  # [samples] predicted by a fit window
+    max_lag: int  # [samples] of the cross-correlations
+    envelope: int  # [samples] of the moving RMS that reads an oscillation's amplitude
+    segment: int  # [samples] per Welch segment
+    band_edges_hz: tuple[float, ...]  # 0, ..., Nyquist
+
+    @classmethod
+    def of(cls, eigenvalues: Sequence[complex], dt: float, record_lengths: Sequence[int],
+           train_lengths: Sequence[int], window: int) -> Scales:
+        """The scales of a model with these modes [1/s] on records of these lengths [samples]."""
+        modes = np.asarray(list(eigenvalues), dtype=complex)
+        size = float(np.max(np.abs(modes))) if modes.size else 0.0
+        moving = modes[np.abs(modes) > INTEGRATOR * size] if size > 0 else modes[:0]
+        decaying = moving[moving.real < 0]
+        slowest = float(1.0 / np.min(-decaying.real)) if decaying.size else dt
+        slowest = max(slowest, dt)
+        fastest = max(1.0 / size, dt) if size > 0 else dt
+        oscillating = moving[np.abs(moving.imag) > 1e-12 * size]
+        period = float(2 * math.pi / np.min(np.abs(oscillating.imag))) if oscillating.size else 0.0
+        longest = max(record_lengths) if record_lengths else MIN_STRETCH
+        longest_train = max(train_lengths) if train_lengths else longest
+        stretch = min(max(math.ceil(max(STRETCH_SPAN * slowest, STRETCH_PERIODS * period) / dt), MIN_STRETCH), longest)
+        fit_window = max(window, min(math.ceil(FIT_SPAN * slowest / dt), longest_train // 8))
+        shortest = min(record_lengths) if record_lengths else longest
+        max_lag = max(1, min(math.ceil(LAG_SPAN * slowest / dt), shortest // 4))
+        envelope = max(3, min(round(max(slowest, ENVELOPE_PERIODS * period) / dt), max(3, shortest // 8)))
+        segment = min(max(MIN_SEGMENT, 2 ** math.ceil(math.log2(max(SEGMENT_SPAN * slowest / dt, 1.0)))), longest)
+        nyquist = 0.5 / dt
+        low = max(1.0 / (segment * dt), 0.1 / (2 * math.pi * slowest))
+        low = min(low, nyquist / 2)
+        edges = [0.0, *(low * (nyquist / low) ** (k / BANDS) for k in range(BANDS)), nyquist]
+        return cls(dt, slowest, fastest, period, bool(modes.size and moving.size < modes.size), stretch,
+                   fit_window, max_lag, envelope, segment, tuple(float(e) for e in edges))
+
+    @property
+    def stretch_s(self) -> float:
+        return self.stretch * self.dt
+
+    def to_dict(self) -> dict:
+        return {**asdict(self), "stretch_s": self.stretch_s}
+
+    def describe(self) -> str:
+        """One line: ``slowest mode 4.2 s; stretches of 42 s, fit windows of 500 samples, ...``."""
+        return (f"the nominal model's slowest mode decays in {duration(self.slowest_s)}"
+                + (f" (oscillates with a period of {duration(self.period_s)})" if self.period_s else "")
+                + (", and it integrates" if self.integrating else "")
+                + f"; scored on free runs of {duration(self.stretch_s)}, fitted on windows of "
+                f"{duration(self.fit_window * self.dt)}")
+
+
+def duration(value: float) -> str:
+    """A duration [s] rounded to 3 digits in the unit that reads best: ms, s, min or h."""
+    if value >= 3600:
+        return f"{value / 3600:.3g} h"
+    if value >= 120:
+        return f"{value / 60:.3g} min"
+    return f"{value:.3g} s" if value >= 1 else f"{1e3 * value:.3g} ms"
