@@ -61,19 +61,47 @@ def run(seconds: float | None = None, cache_dir: Path | None = None, hold: str =
     train, val = dm.records("train"), dm.records("val")
     spec = parse_model_spec(yaml.safe_load(NOMINAL.read_text()))
     problem = Problem(dm, VehicleParameters().as_dict(), hold=hold, horizon=dm.window)
-    marks: list[float] = []  # the engine reports after the nominal score and after each named cause
+    marks: list[tuple[str, float]] = []  # the engine reports after the nominal score and after each named cause
     started = time.perf_counter()
     search = name_causes(spec, problem, max_causes=MAX_CAUSES if seconds is None else QUICK_MAX_CAUSES,
-                         progress=lambda _: marks.append(time.perf_counter()))
+                         progress=lambda text: marks.append((text, time.perf_counter())))
     engine_s = time.perf_counter() - started
-    ends = [m - started for m in marks[1 : 1 + len(search.named)]]
+    ends = [t - started for text, t in marks if text.startswith("named ")][: len(search.named)]
     if len(search.rounds) > len(ends):  # the last round named nothing: it ends with the search
         ends.append(engine_s)
-    setup_s = (marks[0] - started) if marks else engine_s
+    setup_s = next((t - started for text, t in marks if text.startswith("nominal model")), engine_s)
     round_s = [b - a for a, b in zip([setup_s, *ends], ends)]
     return {"train_records": len(train), "val_records": len(val),
             "train_samples": sum(len(r) for r in train), "val_samples": sum(len(r) for r in val),
             "dt": dm.dt, "search": search, "engine_s": engine_s, "setup_s": setup_s, "round_s": round_s}
+
+
+REAL = ("racecar", "silverbox", "emps")  # the bundled real data sets (../shared/data), each with its nominal model
+REAL_GOAL_S = 30.0  # [s] the naming on each of them, 2 cores
+
+
+def run_dataset(name: str) -> dict[str, Any]:
+    """Time the naming on a bundled real data set with its own nominal model, as
+    ``python -m hypa.diagnose dataset=NAME`` runs it (reading the data is not timed)."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from hypa.diagnosis.engine import Problem, name_causes
+    from hypa.entry import datamodule, vehicle_from_config
+    from hypa.models.spec import parse_model_spec
+
+    with initialize_config_dir(config_dir=str(NOMINAL.parents[1]), version_base=None):
+        cfg = compose("diagnose", overrides=[f"dataset={name}"])
+    if not Path(str(cfg.data.dir)).is_dir():
+        return {"missing": str(cfg.data.dir)}
+    dm = datamodule(cfg)
+    dm.setup()
+    spec = parse_model_spec(OmegaConf.to_container(cfg.model, resolve=True))
+    values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.get("vehicle") else {}
+    problem = Problem(dm, values, hold=str(cfg.physics.hold), horizon=int(cfg.data.window))
+    started = time.perf_counter()
+    search = name_causes(spec, problem, max_causes=int(cfg.diagnosis.max_causes))
+    return {"search": search, "engine_s": time.perf_counter() - started}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -81,6 +109,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=None,
                         help="shorten every record to this many seconds and time the first round only "
                              "(default: the full default test bench, every round)")
+    parser.add_argument("--real", action=argparse.BooleanOptionalAction, default=True,
+                        help="also time the naming on each bundled real data set found in ../shared/data "
+                             "(default: on; --no-real skips them)")
     parser.add_argument("--cache-dir", type=Path, default=None,
                         help="test-bench cache (default: $HYPA_CACHE_DIR/testbench or ~/.cache/hypa/testbench)")
     args = parser.parse_args(argv)
@@ -117,6 +148,16 @@ def main(argv: list[str] | None = None) -> int:
     else:
         print(f"quick check (first round only; goal <= {ENGINE_GOAL_S:g} s on 2 cores judged only on the default "
               "data: run without --seconds)")
+    if args.real and args.seconds is None:
+        for name in REAL:
+            d = run_dataset(name)
+            if "missing" in d:
+                print(f"{name}: no data in {d['missing']}, skipped")
+                continue
+            named = ", ".join(f.cause for f in d["search"].named) or "none"
+            met = d["engine_s"] <= REAL_GOAL_S
+            print(f"{name} (python -m hypa.diagnose dataset={name}): named {named} in {d['engine_s']:.1f} s; "
+                  f"goal <= {REAL_GOAL_S:g} s on 2 cores: {'met' if met else 'NOT met'}", flush=True)
     return 0
 
 

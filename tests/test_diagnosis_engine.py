@@ -9,10 +9,12 @@ the effect, estimate it within tolerance, and name nothing on clean data.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from scipy import signal
 
 from hypa.data import datamodule_from_config
@@ -279,3 +281,34 @@ def test_a_change_near_all_or_nothing_keeps_a_decimal() -> None:
     from hypa.diagnosis.problem import format_change
 
     assert [format_change(x) for x in (-0.996, -0.93, -0.004, 0.25)] == ["-99.6 %", "-93 %", "-0.4 %", "+25 %"]
+
+
+@pytest.mark.parametrize("failure", ["overflow", "runaway"])
+def test_a_diverging_candidate_is_reported_and_never_ends_the_diagnosis(tmp_path: Path, monkeypatch, failure: str
+                                                                        ) -> None:
+    """A stiffness refit whose physics overflows (the OverflowError of a matrix exponential of a
+    huge delay) or whose knob runs away (to 1e+242, as a flat direction can send an LM step): the
+    search goes on, names the real cause (a dead time) and shows the refit as not converged with
+    its last sane value, never the runaway one."""
+    from hypa.diagnosis import fitting
+
+    step = fitting.GradientFit._step
+
+    def broken(self, *args):
+        if "stiffness" not in self.candidate.knobs:
+            return step(self, *args)
+        if self.done >= 2:
+            if failure == "overflow":
+                raise OverflowError("int too big to convert")
+            with torch.no_grad():
+                self.model.parameters_.raw["stiffness"].fill_(558.0)  # exp(558) = 2e+242 N/m
+            return None
+        return step(self, *args)
+
+    monkeypatch.setattr(fitting.GradientFit, "_step", broken)
+    search = diagnose(tmp_path, delay_s=0.06)
+    assert search.named and search.named[0].cause == "input_delay", [f.describe() for f in search.rounds[0][:3]]
+    refit = next(f for f in search.rounds[0] if f.key == "parameter_mismatch:stiffness")
+    assert refit.error.startswith("did not converge: ") and refit.gain == -math.inf, refit.error
+    assert ("OverflowError" if failure == "overflow" else "left its physical range") in refit.error
+    assert "e+242" not in refit.describe() and 50.0 < refit.values["stiffness"] < 5000.0, refit.describe()

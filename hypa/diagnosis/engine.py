@@ -34,6 +34,8 @@ import torch
 from hypa.diagnosis.catalogue import Entry, catalogue_candidates, load_catalogue
 from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, frozen
 from hypa.diagnosis.fitting import GradientFit, fit_affine, fit_gradient, fit_offsets
+from hypa.diagnosis.generic import MARGIN as GENERIC_MARGIN
+from hypa.diagnosis.generic import GenericFit, fit_generic
 from hypa.diagnosis.problem import Problem, Stretches, TooLittleData, format_value
 from hypa.diagnosis.scales import duration
 from hypa.diagnosis.workers import Workers, can_fork
@@ -41,7 +43,8 @@ from hypa.models.spec import ModelSpec, ModelSpecError
 from hypa.physics import SchedulingError, UnstablePhysicsError
 
 
-ALTERNATIVE = 0.95  # a candidate explaining this share of the named one's gain is reported beside it
+ALTERNATIVE = 0.95  # a candidate explaining this share of the named one's gain is reported beside it ...
+SIMPLER = 0.75  # ... and one with fewer numbers from this share on (the data cannot prefer the richer claim)
 OFFSET_Z = 5.0  # an offset below min_gain is still named this many standard errors away from zero, when it
 # lowers the validation error at all (a small sensor bias: significant on the training records, and it generalizes)
 OFFSET_GAIN = 0.01  # an offset whose standard error the data cannot judge is reported from this gain on
@@ -67,6 +70,7 @@ class Finding:
     z: float | None = None  # offsets: |estimate| / its standard error (clustered by training stretch)
     small: bool = False  # named below min_gain: an offset far from zero by its standard error
     too_short: str = ""  # why the data are too short: to fit it (then not fitted) or to judge its standard error
+    generic: float | None = None  # named: the gain of the generic linear filter it had to beat (generic.py)
 
     @property
     def key(self) -> str:
@@ -86,7 +90,7 @@ class Finding:
                 "score": self.score, "gain": self.gain, "seconds": self.seconds, "error": self.error,
                 "alternatives": self.alternatives, "refined": self.refined,
                 "steps": list(self.steps) if self.steps else None, "z": self.z, "small": self.small,
-                "too_short": self.too_short, "text": self.describe()}
+                "too_short": self.too_short, "generic": self.generic, "text": self.describe()}
 
 
 _FIT_ERRORS = (UnstablePhysicsError, SchedulingError, ModelSpecError, ValueError, ArithmeticError,
@@ -257,6 +261,8 @@ class Search:
     seconds: float
     dropped: list[Finding] = field(default_factory=list)  # named, then dropped by the joint fit of the offsets
     too_short: list[str] = field(default_factory=list)  # what the data were too short to fit or judge, and why
+    generic: list[GenericFit] = field(default_factory=list)  # per round: the generic filter every cause must beat
+    standin: str = ""  # why the search stopped at a cause no better than the generic filter ("" if it did not)
 
 
 def name_causes(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | None = None,
@@ -305,20 +311,33 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
     progress(f"time scales: {problem.time_scales.describe()}")
     progress(f"nominal model: validation error {100 * base_score:.3g} % of the output variance (the search's "
              f"score: free runs restarted from the data every {duration(problem.time_scales.stretch_s)})")
-    rounds, named, refine, findings = [], [], [], []
+    rounds, named, refine, findings, generic, standin = [], [], [], [], [], ""
     while len(named) < max_causes and base_score > floor:
         done = {f.key for f in named}
         findings = evaluate_round([c for c in candidates(base) if c.key not in done], problem, windows, base_score,
                                   refine)
         rounds.append(findings)
+        generic.append(fit_generic(problem, problem.build(base), base_score))
         if not findings or findings[0].gain < min_gain:
             break
-        best = findings[0]
-        best.alternatives = [f.describe() for f in findings[1:] if f.gain >= ALTERNATIVE * best.gain]
+        best, bar = findings[0], generic[-1]
+        simpler = best.candidate is not None and len(best.candidate.knobs) < bar.numbers
+        if not (best.score < (1.0 - GENERIC_MARGIN) * bar.score or (simpler and best.gain >= SIMPLER * bar.gain)):
+            standin = (f"{best.describe()} would lower the validation error by {100 * best.gain:.2g} %, but "
+                       f"{bar.describe()}: not named (a cause must beat it by {100 * GENERIC_MARGIN:.0f} % of its "
+                       f"error, or explain {100 * SIMPLER:.0f} % as much with fewer numbers); what is left may be "
+                       "dynamics the catalogue cannot express")
+            progress(standin)
+            findings = [f for f in findings if f.candidate is not None and f.candidate.fit == AFFINE]
+            break
+        best.alternatives, best.generic = alternatives(best, findings[1:]), bar.gain
+        if bar.gain >= SIMPLER * best.gain:  # the generic filter explains most of it too: a possible stand-in
+            best.alternatives.append(f"{bar.describe()}")
         named.append(best)
         base, base_score = applied(best.candidate, {**best.refined, **best.values}), best.score
         refine += [k for k in best.candidate.knobs if best.candidate.fit == GRADIENT and k not in refine]
-        progress(f"named {best.describe()} (validation error {100 * best.gain:.0f} % lower)"
+        progress(f"named {best.describe()} (validation error {100 * best.gain:.0f} % lower; a generic linear filter: "
+                 f"{100 * generic[-1].gain:.0f} %)"
                  + (f"; the data cannot tell it from {' or '.join(best.alternatives)}" if best.alternatives else ""))
         findings = []
     # below min_gain: offsets (one number each, exact least squares) that sit far from zero by their
@@ -328,7 +347,7 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
     while findings and len(named) < max_causes:
         best = findings[0]
         best.small = True
-        best.alternatives = [f.describe() for f in findings[1:] if f.gain >= ALTERNATIVE * best.gain]
+        best.alternatives = alternatives(best, findings[1:])
         named.append(best)
         base, base_score = applied(best.candidate, best.values), best.score
         progress(f"named {best.describe()} (validation error {100 * best.gain:.2g} % lower: small, but "
@@ -345,7 +364,18 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
         for later in named[k + 1 :]:
             f.values.update({name: v for name, v in later.refined.items() if name in f.values})
     return Search(nominal_score, rounds, named, base, base_score, time.perf_counter() - started, dropped,
-                  too_short)
+                  too_short, generic, standin)
+
+
+def alternatives(best: Finding, others: Sequence[Finding]) -> list[str]:
+    """What the data cannot tell ``best`` from, each with its gain: a candidate explaining almost
+    as much (``ALTERNATIVE``), or one with fewer numbers explaining most of it (``SIMPLER``: a
+    rear-steering path of four numbers beside a refit of one stiffness)."""
+    def numbers(f: Finding) -> int:
+        return len(f.candidate.knobs) if f.candidate is not None else 0
+
+    return [f"{f.describe()} ({100 * f.gain:.2g} % lower)" for f in others if f.error is None
+            and (f.gain >= ALTERNATIVE * best.gain or (numbers(f) < numbers(best) and f.gain >= SIMPLER * best.gain))]
 
 
 def _not_fitted(rounds: Sequence[Sequence[Finding]]) -> list[str]:

@@ -87,9 +87,12 @@ class GradientFit:
             value, storage = float(raw.detach()), params.specs[name].storage
             far = (abs(value - self._start[name]) > SANE_DECADES * math.log(10.0) if storage == LOG
                    else storage == SIGNED and abs(value) > SANE_SIGNED)
-            if not math.isfinite(value) or far:
-                shown = float(params.value(name).detach()) if math.isfinite(value) else value
-                return f"{name} left its physical range ({shown:.3g})"
+            if not math.isfinite(value):
+                return f"{name} is no longer a finite number"
+            if far:
+                return (f"{name} left its physical range (more than {SANE_DECADES:g} decades from its start)"
+                        if storage == LOG else f"{name} left its physical range (beyond {SANE_SIGNED:g} times "
+                        "its nominal size)")
         return ""
 
     def advance(self, share: float) -> None:

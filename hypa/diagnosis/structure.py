@@ -21,13 +21,13 @@ as the nearest catalogue entry.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
 from scipy import signal
 
-from hypa.diagnosis.scales import Scales
+from hypa.diagnosis.scales import Scales, duration
 
 SIGNIFICANT = 0.002  # error share of the output variance above which a remainder is worth explaining
 AMPLITUDE_RATIO = 2.0  # top/bottom quartile error RMS beyond which the error depends on amplitude
@@ -68,9 +68,12 @@ def correlation_peak(error: np.ndarray, channel: np.ndarray, max_lag: int) -> tu
 
 
 def analyze_output(name: str, unit: str, measured: Sequence[np.ndarray], predicted: Sequence[np.ndarray],
-                   channels: Mapping[str, Sequence[np.ndarray]], scales: Scales) -> OutputStructure:
+                   channels: Mapping[str, Sequence[np.ndarray]], scales: Scales,
+                   unused: Collection[str] = ()) -> OutputStructure:
     """The four tests for one output over several records (each record's arrays aligned), at the
-    model's and the data's time scales (``scales``: lags, envelope, Welch segments and bands)."""
+    model's and the data's time scales (``scales``: lags, envelope, Welch segments and bands).
+    ``unused``: the channels the model does not read (a correlation with one is an effect of a
+    signal the model lacks, reported as unexplained, not absorbed into a bias)."""
     dt, max_lag, envelope = scales.dt, scales.max_lag, scales.envelope
     y = np.concatenate(measured)
     err = y - np.concatenate(predicted)
@@ -121,7 +124,9 @@ def analyze_output(name: str, unit: str, measured: Sequence[np.ndarray], predict
                      f"of the output's power there (overall {100 * share:.2g} %)")
     for channel, c in correlated.items():
         if abs(c["rho"]) > max(0.2, 3 * c["bound"]):
-            where.append(f"correlated with {channel}: ρ = {c['rho']:.2f} at {1e3 * c['lag_s']:.0f} ms")
+            what = f"{channel}, a measured channel the model does not use" if channel in unused else channel
+            lag = ("-" if c["lag_s"] < 0 else "") + duration(abs(c["lag_s"]))
+            where.append(f"correlated with {what}: ρ = {c['rho']:.2f} at {lag}")
     unexplained = share > SIGNIFICANT and bool(where)
     return OutputStructure(name, unit, share, [float(e) for e in edges], rmse, float(ratio), bands, band_share,
                            worst, correlated, unexplained, where)

@@ -138,11 +138,16 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     progress(f"          named: {', '.join(f.cause for f in search.named) or 'none'} ({search.seconds:.0f} s)")
     progress("step 3/4: what remains (amplitude, band, correlation with the inputs)")
     before, after = _runs(problem, frozen(nominal)), _runs(problem, search.spec)
-    channels = (*dm.input_names, *dm.scheduling_names)
+    # every measured channel but the outputs; those the extended model does not read are named as such
+    used = {s for b in search.spec.blocks for s in (*b.inputs, *b.scheduling.values())}
+    held = {r.name: r for r in dm.records("val")}
+    channels = [c for c in dm.channels if c not in dm.output_names
+                and all(c in r.inputs or c in held[r.record].channels for r in after)]
     structure = [analyze_output(o, dm.channels[o].unit, [r.measured[o][r.first:] for r in after],
                                 [r.predicted[o][r.first:] for r in after],
                                 {c: [r.inputs[c][r.first:] if c in r.inputs else _record(dm, r, c) for r in after]
-                                 for c in channels}, problem.time_scales) for o in dm.output_names]
+                                 for c in channels}, problem.time_scales, unused=set(channels) - used)
+                 for o in dm.output_names]
     unexplained = [s for s in structure if s.unexplained]
     progress("step 4/4: the extended model as a hypa model, and its gain")
     conf = out / "conf" / "model"
@@ -201,6 +206,8 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
         "metrics": metrics,
         "gain": {"all": change},
         "too_short": list(search.too_short),
+        "generic": [{"score": g.score, "gain": g.gain, "numbers": g.numbers} for g in search.generic],
+        "standin": search.standin,
         "coverage": [c.to_dict() for c in covered],
         "not_covered": short_lines(dm, covered),
         "unexplained": [s.to_dict() for s in unexplained],
@@ -375,10 +382,14 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
                      + f". Validation error {100 * f.gain:.2g} % lower than before it; "
                      f"{100 * share:.2g} % of the nominal error."
                      + (f" Small (below the {100 * min_gain:.0f} % floor), but {f.z:.0f} standard errors from zero."
-                        if f.small else ""))
+                        if f.small else "")
+                     + (f" A generic linear filter from the inputs in its place: {100 * f.generic:.2g} % lower."
+                        if f.generic is not None else ""))
         if f.alternatives:
             lines.append(f"   The data cannot tell it from: {'; '.join(f.alternatives)}.")
         previous = f.score
+    if search.standin:
+        lines.append(f"- Not named: {search.standin}.")
     for f in search.dropped:
         lines.append(f"- Named, then dropped: **{f.cause}** on `{f.target}`; {f.note}.")
     if search.too_short:
