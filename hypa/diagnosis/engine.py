@@ -45,9 +45,8 @@ from hypa.physics import SchedulingError, UnstablePhysicsError
 
 ALTERNATIVE = 0.95  # a candidate explaining this share of the named one's gain is reported beside it ...
 SIMPLER = 0.75  # ... and one with fewer numbers from this share on (the data cannot prefer the richer claim)
-OFFSET_Z = 5.0  # an offset below min_gain is still named this many standard errors away from zero, when it
-# lowers the validation error at all (a small sensor bias: significant on the training records, and it generalizes)
-OFFSET_GAIN = 0.01  # an offset whose standard error the data cannot judge is reported from this gain on
+OFFSET_Z = 5.0  # an offset below min_gain is still named this many standard errors away from zero ...
+OFFSET_GAIN = 0.005  # ... when it lowers the validation error by at least this share (a small sensor bias)
 
 
 @dataclass
@@ -443,4 +442,4 @@ def _joint_offsets(named: list[Finding], spec: ModelSpec, score: float, problem:
 
 def _significant(f: Finding) -> bool:
     """An offset fitted, far from zero by its standard error, and lowering the validation error."""
-    return f.error is None and f.z is not None and f.z >= OFFSET_Z and f.gain > 0
+    return f.error is None and f.z is not None and f.z >= OFFSET_Z and f.gain >= OFFSET_GAIN
