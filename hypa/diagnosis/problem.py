@@ -27,7 +27,6 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
-import numpy as np
 import torch
 
 from hypa.data import HypaDataModule
@@ -199,17 +198,11 @@ def format_value(value: float, unit: str) -> str:
 
 def _cut_windows(dm: HypaDataModule, length: int, stride: int) -> dict[str, torch.Tensor]:
     """Every training record cut into windows of ``length`` samples every ``stride`` (u, y, s)."""
-    norm, windows = dm.normalization, []
-    for record in dm.records("train"):
-        arrays = {"u": norm.normalize(record.stack(dm.input_names), dm.input_names),
-                  "y": norm.normalize(record.stack(dm.output_names), dm.output_names),
-                  "s": record.stack(dm.scheduling_names)}
-        windows += [{k: a[start : start + length] for k, a in arrays.items()}
-                    for start in range(0, len(record) - length + 1, stride)]
-    if not windows:
+    cut = Stretches.cut(dm, dm.records("train"), length - dm.past - 1, step=stride)
+    full = next((b for b in cut.batches if b["u"].shape[1] == length), None)
+    if full is None:
         raise TooShortError(f"no training record holds a fit window of {length} samples")
-    out = {k: torch.as_tensor(np.stack([w[k] for w in windows]), dtype=torch.float32) for k in windows[0]}
-    return out if out["s"].shape[-1] else {k: v for k, v in out.items() if k != "s"}
+    return full if full["s"].shape[-1] else {k: v for k, v in full.items() if k != "s"}
 
 
 def training_windows(dm: HypaDataModule) -> dict[str, torch.Tensor]:

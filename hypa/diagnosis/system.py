@@ -223,14 +223,8 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
         if plot else {}
     result["figures"] = figures
     (out / "diagnosis.json").write_text(json.dumps(result, indent=2, default=float))
-    (out / "diagnosis.md").write_text(markdown(result, search, structure, dm, min_gain))
+    (out / "diagnosis.md").write_text(markdown(result, search, structure, dm, min_gain, problem.time_scales))
     return result
-
-
-def problem_scales(result: Mapping) -> Scales:
-    """The time scales a diagnosis ran at, from its result (``data.scales``)."""
-    fields = {k: v for k, v in result["data"]["scales"].items() if k != "stretch_s"}
-    return Scales(**{**fields, "band_edges_hz": tuple(fields["band_edges_hz"])})
 
 
 def _record(dm, run: Prediction, channel: str) -> np.ndarray:
@@ -341,8 +335,9 @@ def _figures(out: Path, before: Sequence[Prediction], after: Sequence[Prediction
     return names
 
 
-def markdown(result: dict, search: Search, structure: Sequence[OutputStructure], dm, min_gain: float = 0.15) -> str:
-    """diagnosis.md: the engineer's report."""
+def markdown(result: dict, search: Search, structure: Sequence[OutputStructure], dm, min_gain: float,
+             scales: Scales) -> str:
+    """diagnosis.md: the engineer's report (``scales``: the time scales the search ran at)."""
     lines = [f"# Diagnosis of `{result['system']['model']}`", ""]
     lines += [f"Inputs {', '.join(result['system']['inputs'])}; outputs {', '.join(result['system']['outputs'])}"
               + (f"; scheduling {', '.join(result['system']['scheduling'])}" if result["system"]["scheduling"] else "")
@@ -370,7 +365,7 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
               ("The gains below are the search's own score: free runs over the validation records restarted from "
                f"the data every {duration(result['data']['stretch_s'])} (on longer records a little different from "
                "the figures above). Time scales from the nominal model and the data: "
-               f"{problem_scales(result).describe()}."), ""]
+               f"{scales.describe()}."), ""]
     if not search.named:
         lines.append(f"None: no catalogue cause lowers the validation error by {100 * min_gain:.0f} % or more"
                      + (" among those the data could support (see \"Too little data\")." if search.too_short else "."))

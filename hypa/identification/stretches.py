@@ -48,14 +48,16 @@ class Stretches:
                          self.positions)
 
     @classmethod
-    def cut(cls, dm: HypaDataModule, records: Sequence[Record], samples: int) -> Stretches:
+    def cut(cls, dm: HypaDataModule, records: Sequence[Record], samples: int, step: int | None = None) -> Stretches:
+        """Each record cut into stretches predicting ``samples`` each, started every ``step``
+        samples (default: ``samples``, tiling the record), the last one ending at the record's end."""
         first, groups, positions = dm.past + 1, {}, {}
         norm = dm.normalization
         for index, record in enumerate(records):
             length = min(len(record), first + samples)
             if length <= first:
                 continue
-            starts = list(range(0, len(record) - length + 1, samples))
+            starts = list(range(0, len(record) - length + 1, step or samples))
             if starts[-1] != len(record) - length:
                 starts.append(len(record) - length)
             arrays = {"u": norm.normalize(record.stack(dm.input_names), dm.input_names),
