@@ -126,12 +126,13 @@ def main(argv: list[str] | None = None) -> int:
           f"({r['train_samples'] * r['dt'] / 60:.1f} min); {r['val_records']} validation records, "
           f"{r['val_samples']} samples ({r['val_samples'] * r['dt'] / 60:.1f} min); at {1.0 / r['dt']:g} Hz "
           "after decimation")
-    print(f"the engine's naming (hypa.diagnose model=vehicle_nominal): validation error "
+    error = "cross-validated error" if search.folds > 1 else "validation error"
+    print(f"the engine's naming (hypa.diagnose model=vehicle_nominal): {error} "
           f"{100 * search.nominal_score:.3g} % of the output variance (nominal) -> {100 * search.final_score:.3g} % "
           "(named causes applied)")
     print(f"named causes ({len(search.named)}):")
     for k, finding in enumerate(search.named, 1):
-        print(f"  {k}. {finding.describe()}   (validation error {100 * finding.gain:.0f} % lower)")
+        print(f"  {k}. {finding.describe()}   ({error} {100 * finding.gain:.0f} % lower)")
     if not search.named:
         print("  none")
     print("wall time of the naming (hypa.diagnosis.engine.name_causes):")

@@ -85,3 +85,25 @@ def applied(candidate: Candidate, values: Mapping[str, float]) -> ModelSpec:
     blocks = tuple(dataclasses.replace(b, parameters={**b.parameters, **own[b.name]}) if b.name in own else b
                    for b in spec.blocks)
     return dataclasses.replace(spec, blocks=blocks, parameters=shared)
+
+
+def averaged(specs: Sequence[ModelSpec]) -> ModelSpec:
+    """One model fitted on different data (the cross-validation folds: the same structure, other
+    values) with each fitted number the mean over them: the parameters (shared and the blocks'
+    own) and the sensor offsets."""
+    first = specs[0]
+    if len(specs) == 1:
+        return first
+
+    def mean(values: Sequence[Mapping[str, object]]) -> dict[str, object]:
+        out = dict(values[0])
+        for name, value in values[0].items():
+            numbers = [v.get(name) for v in values]
+            if all(isinstance(n, (int, float)) and not isinstance(n, bool) for n in numbers):
+                out[name] = sum(float(n) for n in numbers) / len(numbers)
+        return out
+
+    blocks = tuple(dataclasses.replace(b, parameters=mean([s.blocks[i].parameters for s in specs]))
+                   for i, b in enumerate(first.blocks))
+    return dataclasses.replace(first, blocks=blocks, parameters=mean([s.parameters for s in specs]),
+                               sensor_offsets=mean([s.sensor_offsets for s in specs]))

@@ -21,6 +21,7 @@ REFINE_LR = 0.2  # the learning rate of the earlier causes' knobs, relative to t
 LM_ITERATIONS = 8  # Levenberg-Marquardt steps of a nonlinear fit (the knobs are few: 1 to 7)
 LM_WINDOWS_PER_BATCH = 2  # its fixed windows: this many batches' worth (256 by default)
 LM_PROBE = 1e-5  # the finite-difference step on a raw knob (a relative 1e-5 for positive parameters)
+LM_TOLERANCE = 1e-3  # converged: a step lowered the error by less than this share
 LM_DAMPING = 1e-2  # the starting damping (relative to the normal matrix's diagonal)
 LM_MAX_STEP = 1.0  # the largest move of a raw knob per Levenberg-Marquardt step (a factor e for a positive one)
 SANE_DECADES = 3.0  # a positive knob more than this many decades from where its fit started has diverged
@@ -60,6 +61,8 @@ class GradientFit:
                                          for b in self.model.blocks.values())
         self.total, self.done = LM_ITERATIONS if nonlinear else problem.steps, 0
         self.batch, self.damping = problem.batch, LM_DAMPING
+        self.converged = False  # Levenberg-Marquardt: a step lowered the error by less than LM_TOLERANCE
+        self._last: torch.Tensor | None = None  # the residual at the knobs now, where known (Levenberg-Marquardt)
         if nonlinear:  # Levenberg-Marquardt: a fixed set of windows, in double precision (finite differences)
             count = windows["u"].shape[0]
             index = torch.randperm(count, generator=self.generator)[: LM_WINDOWS_PER_BATCH * problem.batch]
@@ -76,7 +79,7 @@ class GradientFit:
     @property
     def finished(self) -> bool:
         """Every step done, or stopped for good: diverged, or at the problem's time limit per fit."""
-        return self.done >= self.total or bool(self.diverged) or self.timed_out
+        return self.done >= self.total or bool(self.diverged) or self.timed_out or self.converged
 
     def _check(self) -> str:
         """Why the knobs left their physical range (not finite, a positive one more than
@@ -138,7 +141,7 @@ class GradientFit:
     def _least_squares_step(self) -> None:
         """One Levenberg-Marquardt step on the raw knobs (relative for positive parameters, so one
         finite-difference step fits all); the damping grows until the step lowers the error."""
-        r0 = self._residual()
+        r0 = self._last if self._last is not None else self._residual()  # the previous step's accepted run
         cost = float(r0 @ r0)
         if not math.isfinite(cost):
             raise ValueError("the model's error is not finite at the start of a step")
@@ -156,7 +159,8 @@ class GradientFit:
                 knob += delta
             trial = self._residual()
             if bool(torch.isfinite(trial).all()) and float(trial @ trial) < cost:
-                self.damping = max(self.damping / 3.0, 1e-6)
+                self.damping, self._last = max(self.damping / 3.0, 1e-6), trial
+                self.converged = float(trial @ trial) > (1.0 - LM_TOLERANCE) * cost
                 return
             for knob, delta in zip(self.knobs, step):
                 knob -= delta
@@ -179,7 +183,7 @@ def fit_affine(candidate: Candidate, problem: Problem) -> tuple[dict[str, float]
     (``None`` where the training stretches are too few to judge it, see :func:`fit_offsets`)."""
     channel = candidate.target
     values, z = fit_offsets(candidate.spec, [channel], problem)
-    span = max(float(np.ptp(r[channel])) for r in problem.dm.records("train"))
+    span = max(float(np.ptp(r[channel])) for r in problem.records("train"))
     if not abs(values[channel]) <= span:  # e.g. a position offset the initial-state estimate absorbs
         unit = problem.dm.channels[channel].unit
         raise ValueError(f"offset {format_value(values[channel], unit)} beyond the channel's whole range "

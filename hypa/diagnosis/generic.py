@@ -49,7 +49,7 @@ class GenericFit:
 
     def describe(self) -> str:
         return (f"a generic linear filter from the inputs to the residual ({self.numbers} numbers): "
-                f"validation error {100 * self.gain:.2g} % lower")
+                f"error {100 * self.gain:.2g} % lower")
 
 
 def time_constants(problem: Problem) -> list[float]:

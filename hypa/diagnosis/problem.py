@@ -29,13 +29,16 @@ from dataclasses import dataclass, field
 
 import torch
 
-from hypa.data import HypaDataModule
+from hypa.data import HypaDataModule, Record
 from hypa.diagnosis.scales import Scales
 from hypa.diagnosis.workers import default_workers
 from hypa.identification.stretches import Stretches
 from hypa.errors import UserError
 from hypa.models import ComposedModel
 from hypa.models.spec import ModelSpec
+
+
+FOLDS = 2  # cross-validation folds: each candidate is fitted twice (once per fold)
 
 
 @dataclass(frozen=True)
@@ -54,6 +57,7 @@ class Problem:
     stretch_s: float | None = None  # [s] the scoring free runs' length; None: from the model's scales
     workers: int = field(default_factory=default_workers)  # processes fitting a round's candidates at once
     scales: Scales | None = None  # the time scales (:meth:`scaled`: from the nominal model and the data)
+    fold: int | None = None  # cross-validation (:meth:`folds`): these blocks are held out, the others fitted
 
     def scaled(self, nominal: ModelSpec) -> Problem:
         """This problem with its time scales read from the (frozen) ``nominal`` model and the data
@@ -74,11 +78,60 @@ class Problem:
             raise RuntimeError("the problem's time scales are not set: use problem.scaled(nominal_spec)")
         return self.scales
 
+    def records(self, split: str) -> list[Record]:
+        """The records a split means here: the data module's, or in a fold (:meth:`folds`) its
+        held-out blocks (``"val"``) and the blocks it is fitted on (``"train"``)."""
+        if self.fold is None:
+            return self.dm.records(split)
+        return [b for i, b in enumerate(self.blocks()) if (i % FOLDS == self.fold) == (split == "val")]
+
+    def blocks(self) -> list[Record]:
+        """Every record, training and validation, cut into blocks of one scoring stretch each (a
+        remainder shorter than half a stretch joins the block before it), in record order."""
+        cache = self.__dict__
+        if "_blocks" not in cache:
+            first, stretch = self.dm.past + 1, self.time_scales.stretch
+            size, blocks = first + stretch, []
+            for record in [*self.dm.records("train"), *self.dm.records("val")]:
+                starts = list(range(0, max(1, len(record) - size // 2), size))
+                blocks += [record.piece(a, b) for a, b in zip(starts, [*starts[1:], len(record)])
+                           if b - a > first]
+            cache["_blocks"] = blocks
+        return cache["_blocks"]
+
+    def folds(self) -> list[Problem]:
+        """The cross-validation folds (made once): fold ``k`` holds out every ``FOLDS``-th block
+        from the ``k``-th on and is fitted on the others, so each candidate is judged on every
+        record (training and validation) by a fit that never saw the block it is scored on, and
+        the folds' scores add up to the error over all blocks. ``[self]`` (the data module's
+        train/validation split) when there are fewer blocks than folds."""
+        cache = self.__dict__
+        if "_folds" not in cache:
+            count = len(self.blocks()) if self.fold is None else 0
+            cache["_folds"] = [dataclasses.replace(self, fold=k) for k in range(FOLDS)] if count >= FOLDS else [self]
+        return cache["_folds"]
+
+    @property
+    def held_out(self) -> float:
+        """This problem's share of the samples scored over its folds (1 outside cross-validation)."""
+        return 1.0 if self.fold is None else self.stretches("val").samples / self._whole().samples
+
+    def _whole(self) -> Stretches:
+        cache = self.__dict__
+        if "_all_stretches" not in cache:
+            cache["_all_stretches"] = Stretches.cut(self.dm, self.blocks(), self.time_scales.stretch)
+        return cache["_all_stretches"]
+
     def stretches(self, split: str) -> Stretches:
-        """The ``split``'s records cut into scoring stretches (made once, then cached)."""
+        """The ``split``'s records cut into scoring stretches (made once, then cached). A fold's
+        held-out stretches weigh each output by its variance over all blocks, so the folds'
+        scores, weighted by :attr:`held_out`, are the score over all blocks."""
         cache = self.__dict__.setdefault("_stretches", {})
         if split not in cache:
-            cache[split] = Stretches.cut(self.dm, self.dm.records(split), self.time_scales.stretch)
+            cut = Stretches.cut(self.dm, self.records(split), self.time_scales.stretch)
+            if self.fold is not None and split == "val":
+                cut = dataclasses.replace(cut, scale=self._whole().weights())
+            cache[split] = cut
         return cache[split]
 
     def windows(self) -> dict[str, torch.Tensor]:
@@ -89,11 +142,11 @@ class Problem:
         cache = self.__dict__
         if "_windows" not in cache:
             dm, length = self.dm, self.time_scales.fit_window
-            if length == dm.window:
+            if length == dm.window and self.fold is None:
                 cache["_windows"] = training_windows(dm)
             else:
                 stride = max(1, round(length * dm.stride / dm.window))
-                cache["_windows"] = _cut_windows(dm, dm.past + 1 + length, stride)
+                cache["_windows"] = _cut_windows(dm, self.records("train"), dm.past + 1 + length, stride)
         return cache["_windows"]
 
     def evidence(self) -> Evidence:
@@ -102,7 +155,7 @@ class Problem:
         if "_evidence" not in cache:
             dm = self.dm
             span = dm.past + self.time_scales.fit_window + 1
-            records = dm.records("train")
+            records = self.records("train")
             cache["_evidence"] = Evidence(
                 seconds=sum(len(r) for r in records) * dm.dt, records=len(records),
                 windows=sum(len(r) // span for r in records), window_samples=span, dt=dm.dt,
@@ -196,9 +249,9 @@ def format_value(value: float, unit: str) -> str:
     return f"{value * factor:.3g} {'' if unit == '-' else unit}".rstrip()
 
 
-def _cut_windows(dm: HypaDataModule, length: int, stride: int) -> dict[str, torch.Tensor]:
-    """Every training record cut into windows of ``length`` samples every ``stride`` (u, y, s)."""
-    cut = Stretches.cut(dm, dm.records("train"), length - dm.past - 1, step=stride)
+def _cut_windows(dm: HypaDataModule, records: Sequence[Record], length: int, stride: int) -> dict[str, torch.Tensor]:
+    """Every record cut into windows of ``length`` samples every ``stride`` (u, y, s)."""
+    cut = Stretches.cut(dm, records, length - dm.past - 1, step=stride)
     full = next((b for b in cut.batches if b["u"].shape[1] == length), None)
     if full is None:
         raise TooShortError(f"no training record holds a fit window of {length} samples")

@@ -128,11 +128,15 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     dm, started = problem.dm, time.perf_counter()
     progress(f"step 1/4: the nominal model {nominal.name!r} free-running on {len(dm.records('val'))} "
              "validation record(s)")
-    covered = coverage(dm)
+    covered, crossed = coverage(dm), len(problem.folds()) > 1
     for line in short_lines(dm, covered):
-        progress(f"          validation data: {line}: candidates are judged on a part of the operating range")
-    progress(f"step 2/4: naming the causes (each candidate fitted on {len(dm.records('train'))} training "
-             "record(s); seconds to a minute)")
+        progress(f"          validation data: {line}: "
+                 + ("the validation figures cover a part of the operating range" if crossed else
+                    "candidates are judged on a part of the operating range"))
+    progress("step 2/4: naming the causes (" + (
+        f"each candidate fitted on every other block of all records and scored on the rest, {len(problem.folds())} "
+        "folds" if crossed else f"each candidate fitted on {len(dm.records('train'))} training record(s)")
+        + "; seconds to a minute)")
     search = name_causes(nominal, problem, catalogue=catalogue, max_causes=max_causes, min_gain=min_gain,
                          progress=lambda text: progress("          " + text))
     progress(f"          named: {', '.join(f.cause for f in search.named) or 'none'} ({search.seconds:.0f} s)")
@@ -215,6 +219,7 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
         "extended": {"config": {k: str(v) for k, v in written.items()}, "train_command": commands,
                      "signals": signal_agreement(after), **({"trained": trained} if trained else {})},
         "data": {"dt": dm.dt, "train_records": len(dm.records("train")), "val_records": len(dm.records("val")),
+                 "folds": search.folds, "blocks": search.blocks,
                  "train_s": evidence.seconds, "train_windows": evidence.windows, "train_stretches": evidence.stretches,
                  "stretch_s": problem.time_scales.stretch_s, "scales": problem.time_scales.to_dict()},
         "seconds": time.perf_counter() - started,
@@ -354,27 +359,40 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
     if "trained" in figures:
         lines.append(f"- the trained extension: **{figures['trained']}** ({per_output('trained')})")
     lines.append(f"- change with the named causes: **{figures['change']}**")
+    crossed = search.folds > 1
+    error = "cross-validated error" if crossed else "validation error"
     if result.get("not_covered"):
         lines += ["", "## Validation data", "",
-                  "Every candidate is judged on the validation records, and they do not cover the operating range "
-                  "of the training records (1st–99th percentile; amplitude as RMS about the training mean). A cause "
-                  "that matters outside what they cover can look useless here, and a stand-in can look right; "
-                  "other validation records are chosen with `data.splits`.", ""]
+                  ("The figures above are free runs on the validation records, and they do not cover the operating "
+                   "range of the training records (1st–99th percentile; amplitude as RMS about the training mean). "
+                   "The causes were judged on all records (cross-validation); the figures above show their effect "
+                   "on a part of the range only; other validation records are chosen with `data.splits`."
+                   if crossed else
+                   "Every candidate is judged on the validation records, and they do not cover the operating range "
+                   "of the training records (1st–99th percentile; amplitude as RMS about the training mean). A cause "
+                   "that matters outside what they cover can look useless here, and a stand-in can look right; "
+                   "other validation records are chosen with `data.splits`."), ""]
         lines += [f"- {line}." for line in result["not_covered"]]
+    stretch = duration(result["data"]["stretch_s"])
     lines += ["", "## Named causes", "",
-              ("The gains below are the search's own score: free runs over the validation records restarted from "
-               f"the data every {duration(result['data']['stretch_s'])} (on longer records a little different from "
-               "the figures above). Time scales from the nominal model and the data: "
-               f"{scales.describe()}."), ""]
+              (f"The gains below are cross-validated: every record, training and validation, cut into "
+               f"{search.blocks} blocks of {stretch}; each candidate fitted on every other block and scored on the "
+               f"others (free runs started from the data at each block), then the other way round, the "
+               f"{search.folds} halves' errors pooled. Its values are the mean of the {search.folds} fits (each "
+               "fit's in `diagnosis.json`, `named[].folds`), so the validation figures above are not held out. "
+               if crossed else
+               "The gains below are the search's own score: free runs over the validation records restarted from "
+               f"the data every {stretch} (on longer records a little different from the figures above). ")
+              + f"Time scales from the nominal model and the data: {scales.describe()}.", ""]
     if not search.named:
-        lines.append(f"None: no catalogue cause lowers the validation error by {100 * min_gain:.0f} % or more"
+        lines.append(f"None: no catalogue cause lowers the {error} by {100 * min_gain:.0f} % or more"
                      + (" among those the data could support (see \"Too little data\")." if search.too_short else "."))
     previous = search.nominal_score
     for k, f in enumerate(search.named, 1):
         share = (previous - f.score) / search.nominal_score if search.nominal_score > 0 else 0.0
         lines.append(f"{k}. **{f.cause}** on `{f.target}`: "
                      + (f.describe().split(": ", 1)[1] if ": " in f.describe() else "no value")
-                     + f". Validation error {100 * f.gain:.2g} % lower than before it; "
+                     + f". {error.capitalize()} {100 * f.gain:.2g} % lower than before it; "
                      f"{100 * share:.2g} % of the nominal error."
                      + (f" Small (below the {100 * min_gain:.0f} % floor), but {f.z:.0f} standard errors from zero."
                         if f.small else "")
@@ -438,6 +456,8 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
             fitted += f" (stopped after {f.steps[0]} of {f.steps[1]} steps, behind others: gain at least this)"
         if f.too_short and not f.error:
             fitted += " (standard error not judged: too few training stretches)"
+        if f.screened:
+            fitted += " (first fold only: far behind that fold's best)"
         gain = "–" if f.too_short and f.error else f"{100 * f.gain:+.1f} %"
         lines.append(f"| {f.cause} | {f.target} | {fitted} | {gain} |")
     for name in [*result.get("figures", {}).get("time_series", []), *result.get("figures", {}).get("signals", [])]:

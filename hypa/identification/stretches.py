@@ -36,6 +36,12 @@ class Stretches:
     batches: tuple[dict[str, torch.Tensor], ...]
     first: int
     positions: tuple[tuple[tuple[int, int], ...], ...] = ()  # per batch, per stretch: (record index, first sample)
+    scale: torch.Tensor | None = None  # the outputs' weights in :meth:`score` when not their own (:meth:`weights`)
+
+    @property
+    def samples(self) -> int:
+        """How many predicted samples (what :meth:`score` averages over)."""
+        return sum(int(b["y"].shape[0]) * (int(b["y"].shape[1]) - self.first) for b in self.batches)
 
     @property
     def count(self) -> int:
@@ -45,7 +51,7 @@ class Stretches:
     def to(self, dtype: torch.dtype) -> Stretches:
         """The same stretches with inputs and outputs in ``dtype`` (float64 for finite differences)."""
         return Stretches(tuple({k: v.to(dtype) for k, v in b.items()} for b in self.batches), self.first,
-                         self.positions)
+                         self.positions, self.scale)
 
     @classmethod
     def cut(cls, dm: HypaDataModule, records: Sequence[Record], samples: int, step: int | None = None) -> Stretches:
@@ -92,7 +98,10 @@ class Stretches:
         return out
 
     def weights(self) -> torch.Tensor:
-        """1 / the variance of each (normalized) output over the predicted samples."""
+        """1 / the variance of each (normalized) output over the predicted samples (or ``scale``
+        where given: the variance over a larger set, so that scores of its parts add up)."""
+        if self.scale is not None:
+            return self.scale
         y = torch.cat([b["y"][:, self.first :].reshape(-1, b["y"].shape[-1]) for b in self.batches]).double()
         return 1.0 / torch.clamp(y.var(0, unbiased=False), min=1e-300)
 
