@@ -85,11 +85,11 @@ def test_no_standard_error_from_fewer_stretches_than_offsets(folders, tmp_path: 
     line = next(line for line in result.stdout.splitlines() if line.startswith("too little data: output_offset on "
                                                                                  "side_slip"))
     assert why in line and "not named as a small bias" in line
-    assert "## Too little data" in report and "output_offset on side_slip lowers the validation error" in report
+    assert "## Too little data" in report and "output_offset on side_slip lowers the cross-validated error" in report
     assert why in report
     # a candidate of 4 numbers (the rear steering) is not fitted from 2 windows; 1-number fits are
-    assert any(line.startswith("too little data: unmodeled_input on single_track not fitted: 4 numbers to fit "
-                               "from 2 training windows") for line in result.stdout.splitlines()), result.stdout
+    assert any(re.match(r"too little data: unmodeled_input on single_track not fitted: 4 numbers to fit from [2-4] "
+                        "training windows", line) for line in result.stdout.splitlines()), result.stdout
     first = {f["cause"] + ":" + f["target"]: f for f in diagnosis["rounds"][0]}
     assert first["unmodeled_input:single_track"]["error"].startswith("too little data")
     assert first["parameter_mismatch:cf"]["error"] is None

@@ -288,8 +288,9 @@ def _pooled(fits: Sequence[Finding], folds: Sequence[Problem], base_score: float
     return dataclasses.replace(
         fits[0], values=_mean([f.values for f in fits]), refined=_mean([f.refined for f in fits]), score=score,
         gain=1.0 - score / base_score if base_score > 0 else 0.0, seconds=sum(f.seconds for f in fits),
-        z=None if any(f.z is None for f in fits) else min(f.z for f in fits),
-        too_short=next((f.too_short for f in fits if f.too_short), ""), folds=list(fits))
+        z=min((f.z for f in fits if f.z is not None), default=None),  # judged where a fold's stretches can
+        too_short="" if any(f.z is not None for f in fits) else next((f.too_short for f in fits if f.too_short), ""),
+        folds=list(fits))
 
 
 def _mean(values: Sequence[Mapping[str, float]]) -> dict[str, float]:
@@ -439,7 +440,7 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
     # below min_gain: offsets (one number each, exact least squares) that sit far from zero by their
     # standard error, a small sensor bias, one at a time (the best first, the others fitted again on top)
     unjudged: dict[str, str] = {}
-    findings = _small_offsets(findings, unjudged)
+    findings = _small_offsets(findings, unjudged, error)
     while findings and len(named) < max_causes:
         best = findings[0]
         best.small = True
@@ -450,7 +451,7 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
         findings = round_of({f.key for f in findings[1:]})
         if findings:
             rounds.append(findings)
-        findings = _small_offsets(findings, unjudged)
+        findings = _small_offsets(findings, unjudged, error)
     too_short = _not_fitted(rounds) + list(unjudged.values())
     named, dropped, bases, scores = _joint_offsets(named, bases, scores, folds, progress, too_short)
     for k, f in enumerate(named):  # the final values: re-fitted jointly with every later cause
@@ -491,12 +492,12 @@ def _not_fitted(rounds: Sequence[Sequence[Finding]]) -> list[str]:
     return list(lines.values())
 
 
-def _small_offsets(findings: Sequence[Finding], unjudged: dict[str, str]) -> list[Finding]:
+def _small_offsets(findings: Sequence[Finding], unjudged: dict[str, str], error: str) -> list[Finding]:
     """The findings below min_gain that are named as small offsets (:func:`_significant`); an offset
     that would be weighed as one but whose standard error the data cannot judge goes to ``unjudged``."""
     for f in findings:
         if f.error is None and f.too_short and f.gain >= OFFSET_GAIN:
-            unjudged[f.key] = (f"{f.cause} on {f.target} lowers the validation error by {100 * f.gain:.2g} %, "
+            unjudged[f.key] = (f"{f.cause} on {f.target} lowers the {error} by {100 * f.gain:.2g} %, "
                                f"but {f.too_short}, so it is not named as a small bias")
     return [f for f in findings if _significant(f)]
 
@@ -514,13 +515,15 @@ def _joint_offsets(named: list[Finding], bases: list[ModelSpec], scores: list[fl
     dropped: list[Finding] = []
     if len(offsets) < 2:
         return named, dropped, bases, scores
-    shortfall = next((s for s in (p.evidence().error_shortfall(len(offsets)) for p in folds) if s), None)
-    if shortfall:
+    shortfalls = [p.evidence().error_shortfall(len(offsets)) for p in folds]
+    judged = [k for k, short in enumerate(shortfalls) if not short]  # the folds whose stretches can judge them
+    if not judged:
+        shortfall = shortfalls[0]
         too_short.append(f"the {len(offsets)} named offsets are not weighed against each other: {shortfall}")
         return named, dropped, bases, scores
     while True:
         fitted = [fit_offsets(b, [f.target for f in offsets], p) for b, p in zip(bases, folds)]
-        z = {f.target: min(zs[f.target] for _, zs in fitted) for f in offsets}
+        z = {f.target: min(fitted[k][1][f.target] for k in judged) for f in offsets}
         weakest = min(offsets, key=lambda f: z[f.target])
         if z[weakest.target] >= OFFSET_Z or len(offsets) == 1:
             break
