@@ -116,7 +116,10 @@ def test_rear_steering_and_saturating_tires_at_once_are_both_named(tmp_path: Pat
                       f"testbench.rear_steering.strength={strength:.3f}", f"testbench.tires.mu={mu:.3f}")
     found = {n["cause"]: n for n in result["named"]}
     assert {"unmodeled_input", "tire_saturation"} <= set(found), result["named"]
-    assert found["tire_saturation"]["values"]["mu"] == pytest.approx(mu, rel=0.15)
+    # judged on all records, a cornering-stiffness refit after the saturation can lower the error
+    # further (hypa's saturation curve is not the bench's tire): μ, fitted with it, trades against it
+    refits = [n for n in result["named"] if n["cause"] == "parameter_mismatch" and n["target"] in ("cf", "cr")]
+    assert found["tire_saturation"]["values"]["mu"] == pytest.approx(mu, rel=0.25 if refits else 0.15)
 
 
 @pytest.mark.slow

@@ -34,13 +34,13 @@ MODEL = {
 
 
 def truth(seconds: float, seed: int, delay_s: float = 0.0, stiffness: float = 400.0, offset: float = 0.0,
-          actuator_gain: float = 1.0, actuator_tau_s: float = 0.0, force_limit: float = 0.0
-          ) -> dict[str, np.ndarray]:
+          actuator_gain: float = 1.0, actuator_tau_s: float = 0.0, force_limit: float = 0.0,
+          force_scale: float = 1.0) -> dict[str, np.ndarray]:
     """Position of the true system (scipy's lsim, linear between samples) for a smoothed random force."""
     rng = np.random.default_rng(seed)
     n = int(seconds * RATE)
     b, a = signal.butter(2, 8.0 / (RATE / 2))
-    force = signal.lfilter(b, a, rng.standard_normal(n + 200))[200:] * 400.0  # [N], up to ~8 Hz
+    force = signal.lfilter(b, a, rng.standard_normal(n + 200))[200:] * 400.0 * force_scale  # [N], up to ~8 Hz
     t = np.arange(n) / RATE
     applied_force = np.interp(t - delay_s, t, force, left=force[0])
     if actuator_tau_s > 0:  # τ ḟ = k u - f, started in equilibrium
@@ -312,3 +312,39 @@ def test_a_diverging_candidate_is_reported_and_never_ends_the_diagnosis(tmp_path
     assert refit.error.startswith("did not converge: ") and refit.gain == -math.inf, refit.error
     assert ("OverflowError" if failure == "overflow" else "left its physical range") in refit.error
     assert "e+242" not in refit.describe() and 50.0 < refit.values["stiffness"] < 5000.0, refit.describe()
+
+
+def unrepresentative(folder: Path, level: float, seed: int):
+    """Training data that drive the force into a hard limit at ``level``; a validation record
+    driven at 30 % of the amplitude, where the limit never acts (a slow lap into the pits)."""
+    for split, seconds, s, scale in (("train", 40.0, seed, 1.0), ("val", 20.0, seed + 1, 0.3)):
+        columns = truth(seconds, s, force_limit=level, force_scale=scale)
+        np.savetxt(folder / f"{split}.csv", np.column_stack(list(columns.values())), delimiter=",",
+                   header=",".join(columns), comments="", fmt="%.10g")
+    data = {"source": "files", "dir": str(folder), "time": {"column": "time", "unit": "s"},
+            "sample_rate_hz": RATE, "rate_hz": None,
+            "channels": {"force": {"role": "input", "unit": "N"}, "position": {"role": "output", "unit": "m"}},
+            "splits": None, "select": [], "window": 100, "past": 10, "stride": 10, "eval_stride": 50,
+            "batch_size": 32, "num_workers": 0, "seed": 0}
+    dm = datamodule_from_config(data, folder)
+    dm.setup()
+    return dm
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_validation_record_unlike_the_training_does_not_decide(tmp_path: Path, seed: int, monkeypatch) -> None:
+    """Cross-validation over blocks of all records: an actuator limit (45-65 % of the peak force,
+    random per seed) that acts only in the training records is named; judged on the validation
+    record alone (no folds), where it never acts, nothing would be."""
+    peak = float(np.max(np.abs(truth(40.0, seed)["force"])))
+    level = np.random.default_rng(seed).uniform(0.45, 0.65) * peak
+    dm = unrepresentative(tmp_path, level, seed)
+    search = name_causes(parse_model_spec(MODEL), Problem(dm, NOMINAL, hold="foh", horizon=100), max_causes=1)
+    assert search.folds == 2 and search.blocks >= 3
+    first = search.named[0] if search.named else None
+    assert first is not None and first.cause == "input_saturation", [f.describe() for f in search.rounds[0][:3]]
+    assert first.values["diagnosed_limit_force/limit"] == pytest.approx(level, rel=0.25)
+    assert len(first.folds) == 2 and first.gain > 0.5
+    monkeypatch.setattr(Problem, "folds", lambda self: [self])  # the old way: the validation record decides
+    alone = name_causes(parse_model_spec(MODEL), Problem(dm, NOMINAL, hold="foh", horizon=100), max_causes=1)
+    assert alone.folds == 1 and not any(f.cause == "input_saturation" for f in alone.named)

@@ -288,9 +288,22 @@ def _pooled(fits: Sequence[Finding], folds: Sequence[Problem], base_score: float
     return dataclasses.replace(
         fits[0], values=_mean([f.values for f in fits]), refined=_mean([f.refined for f in fits]), score=score,
         gain=1.0 - score / base_score if base_score > 0 else 0.0, seconds=sum(f.seconds for f in fits),
-        z=min((f.z for f in fits if f.z is not None), default=None),  # judged where a fold's stretches can
+        z=pooled_z([next(iter(f.values.values()), 0.0) for f in fits], [f.z for f in fits]),
         too_short="" if any(f.z is not None for f in fits) else next((f.too_short for f in fits if f.too_short), ""),
         folds=list(fits))
+
+
+def pooled_z(values: Sequence[float], zs: Sequence[float | None]) -> float | None:
+    """|mean| / its standard error for one offset estimated independently in each fold (its
+    ``values`` with their ``zs`` = |value| / standard error), from the folds whose stretches
+    could judge it (``None``: none could)."""
+    judged = [(v, z) for v, z in zip(values, zs) if z is not None]
+    if not judged:
+        return None
+    errors = [abs(v) / z if z > 0 else math.inf for v, z in judged]
+    spread = math.sqrt(sum(e * e for e in errors)) / len(judged)
+    mean = abs(sum(v for v, _ in judged)) / len(judged)
+    return mean / spread if spread > 0 else math.inf
 
 
 def _mean(values: Sequence[Mapping[str, float]]) -> dict[str, float]:
@@ -523,7 +536,8 @@ def _joint_offsets(named: list[Finding], bases: list[ModelSpec], scores: list[fl
         return named, dropped, bases, scores
     while True:
         fitted = [fit_offsets(b, [f.target for f in offsets], p) for b, p in zip(bases, folds)]
-        z = {f.target: min(fitted[k][1][f.target] for k in judged) for f in offsets}
+        z = {f.target: pooled_z([fitted[k][0][f.target] for k in judged], [fitted[k][1][f.target] for k in judged])
+             for f in offsets}
         weakest = min(offsets, key=lambda f: z[f.target])
         if z[weakest.target] >= OFFSET_Z or len(offsets) == 1:
             break
