@@ -5,9 +5,13 @@ candidate cause (:mod:`hypa.diagnosis.edits`) is an edit of it; the edited model
 :class:`~hypa.models.ComposedModel` (the class ``hypa.train`` trains), its knobs are fitted on
 the training windows (:mod:`hypa.diagnosis.fitting`: gradient fits of the physical parameters,
 least squares for an offset; on worker processes, :mod:`hypa.diagnosis.workers`), and it is
-scored free-running over the validation records (:mod:`hypa.diagnosis.problem`). A greedy search names the
-candidate with the largest gain, writes its fitted values into the model and searches again
-from there, until no candidate improves the validation error by ``min_gain``. What remains is
+scored free-running over held-out data (:mod:`hypa.diagnosis.problem`). Judged by
+cross-validation over blocked stretches of all records, training and validation
+(:meth:`Problem.folds`, :func:`evaluate_folds`): each fold fits on every other block and scores
+on the rest, and the folds' errors pool into the error over all blocks, so one validation record
+unlike the training does not decide. A greedy search names the
+candidate with the largest gain, writes its fitted values (each fold's) into the model and searches again
+from there, until no candidate improves the cross-validated error by ``min_gain``. What remains is
 then tested for structure (:func:`residual_structure`): where significant error is left that
 no catalogue entry explains, the diagnosis says where it lives instead of naming a proxy.
 
@@ -234,9 +238,10 @@ def _append(findings: list[Finding], evaluate_one: Callable[..., Finding], *args
 def evaluate_folds(candidates: Callable[[ModelSpec], list[Candidate]], folds: Sequence[Problem],
                    bases: Sequence[ModelSpec], scores: Sequence[float], windows: Sequence[Mapping[str, torch.Tensor]],
                    base_score: float, min_gain: float, refine: Sequence[str] = (),
-                   keys: set[str] | None = None, side: Sequence[Callable[[], None]] = ()) -> list[Finding]:
+                   keep: Callable[[Candidate], bool] = lambda _: True, side: Sequence[Callable[[], None]] = ()
+                   ) -> list[Finding]:
     """A round cross-validated (:meth:`Problem.folds`): the candidates of each fold's base model
-    (``keys``: only those) fitted on the fold's blocks and scored on its held-out ones
+    that ``keep`` keeps, fitted on the fold's blocks and scored on its held-out ones
     (:func:`evaluate_round`), their scores pooled over the folds (the error over all blocks, each
     scored by a fit that never saw it), their values the folds' mean (each fold's in ``folds``).
 
@@ -247,7 +252,7 @@ def evaluate_folds(candidates: Callable[[ModelSpec], list[Candidate]], folds: Se
     structural candidates (cheap) run every fold.
     """
     def listed(k: int) -> list[Candidate]:
-        return [c for c in candidates(bases[k]) if keys is None or c.key in keys]
+        return [c for c in candidates(bases[k]) if keep(c)]
 
     first = evaluate_round(listed(0), folds[0], windows[0], scores[0], refine, side=side)
     if len(folds) == 1:
@@ -410,9 +415,9 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
     progress(f"nominal model: {error} {100 * base_score:.3g} % of the output variance (the search's "
              f"score: free runs restarted from the data every {duration(problem.time_scales.stretch_s)})")
 
-    def round_of(keys: set[str] | None = None, refine: Sequence[str] = (),
+    def round_of(keep: Callable[[Candidate], bool], refine: Sequence[str] = (),
                  side: Sequence[Callable[[], None]] = ()) -> list[Finding]:
-        return evaluate_folds(candidates, folds, bases, scores, windows, base_score, min_gain, refine, keys, side)
+        return evaluate_folds(candidates, folds, bases, scores, windows, base_score, min_gain, refine, keep, side)
 
     def adopt(best: Finding) -> None:
         nonlocal bases, scores, base_score
@@ -425,7 +430,7 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
     while len(named) < max_causes and base_score > floor:
         done = {f.key for f in named}
         bar: list[GenericFit] = []  # fitted by this process while the workers fit the candidates
-        findings = round_of({c.key for c in candidates(bases[0]) if c.key not in done}, refine,
+        findings = round_of(lambda c: c.key not in done, refine,
                             side=[partial(_append, bar, _generic, folds, bases, scores, base_score)])
         rounds.append(findings)
         generic.append(bar[0] if bar else _generic(folds, bases, scores, base_score))
@@ -461,7 +466,7 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
         adopt(best)
         progress(f"named {best.describe()} ({error} {100 * best.gain:.2g} % lower: small, but "
                  f"{best.z:.0f} standard errors from zero)")
-        findings = round_of({f.key for f in findings[1:]})
+        findings = round_of(lambda c, keys={f.key for f in findings[1:]}: c.key in keys)
         if findings:
             rounds.append(findings)
         findings = _small_offsets(findings, unjudged, error)

@@ -1,6 +1,7 @@
 """The diagnosis' data and fixed settings (:class:`Problem`), the long windows (stretches)
-that score a candidate on the validation records and fit an offset on the training records,
-and what the data can support (:class:`Evidence`).
+that score a candidate on held-out records and fit an offset on the others, the
+cross-validation folds over blocks of all records (:meth:`Problem.folds`: what is held out and
+what is fitted in each), and what the data can support (:class:`Evidence`).
 
 **How much data a fit needs** (the rule comes from the data and the model, no length is
 assumed). The errors of one free run are correlated: they all follow from its start and the
