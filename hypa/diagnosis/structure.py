@@ -120,8 +120,8 @@ def analyze_output(name: str, unit: str, measured: Sequence[np.ndarray], predict
         where.append(f"largest at small amplitude ({name} RMS < {edges[1]:.3g} {unit}): error RMS "
                      f"{1 / ratio:.1f}× the large-amplitude one")
     if judged and max(judged) > 2 * share:
-        where.append(f"in {worst[0]:.3g}–{worst[1]:.3g} Hz the model misses {100 * max(judged):.2g} % "
-                     f"of the output's power there (overall {100 * share:.2g} %)")
+        where.append(f"in {worst[0]:.3g}–{worst[1]:.3g} Hz the model misses {100 * max(judged):.3g} % "
+                     f"of the output's power there (overall {100 * share:.3g} %)")
     for channel, c in correlated.items():
         if abs(c["rho"]) > max(0.2, 3 * c["bound"]):
             what = f"{channel}, a measured channel the model does not use" if channel in unused else channel
