@@ -56,9 +56,10 @@ def truth(seconds: float, seed: int, delay_s: float = 0.0, stiffness: float = 40
     return {"time": t, "force": force, "position": position}
 
 
-def datamodule(folder: Path, **effect: float):
-    for split, seconds, seed in (("train", 40.0, 0), ("val", 20.0, 1)):
-        columns = truth(seconds, seed, **effect)
+def datamodule(folder: Path, seed: int = 0, val_scale: float = 1.0, **effect: float):
+    """Training (40 s) and validation (20 s, its force at ``val_scale`` of the amplitude) records."""
+    for split, seconds, s, scale in (("train", 40.0, seed, 1.0), ("val", 20.0, seed + 1, val_scale)):
+        columns = truth(seconds, s, force_scale=scale, **effect)
         np.savetxt(folder / f"{split}.csv", np.column_stack(list(columns.values())), delimiter=",",
                    header=",".join(columns), comments="", fmt="%.10g")
     data = {"source": "files", "dir": str(folder), "time": {"column": "time", "unit": "s"},
@@ -317,18 +318,7 @@ def test_a_diverging_candidate_is_reported_and_never_ends_the_diagnosis(tmp_path
 def unrepresentative(folder: Path, level: float, seed: int):
     """Training data that drive the force into a hard limit at ``level``; a validation record
     driven at 30 % of the amplitude, where the limit never acts (a slow lap into the pits)."""
-    for split, seconds, s, scale in (("train", 40.0, seed, 1.0), ("val", 20.0, seed + 1, 0.3)):
-        columns = truth(seconds, s, force_limit=level, force_scale=scale)
-        np.savetxt(folder / f"{split}.csv", np.column_stack(list(columns.values())), delimiter=",",
-                   header=",".join(columns), comments="", fmt="%.10g")
-    data = {"source": "files", "dir": str(folder), "time": {"column": "time", "unit": "s"},
-            "sample_rate_hz": RATE, "rate_hz": None,
-            "channels": {"force": {"role": "input", "unit": "N"}, "position": {"role": "output", "unit": "m"}},
-            "splits": None, "select": [], "window": 100, "past": 10, "stride": 10, "eval_stride": 50,
-            "batch_size": 32, "num_workers": 0, "seed": 0}
-    dm = datamodule_from_config(data, folder)
-    dm.setup()
-    return dm
+    return datamodule(folder, seed=seed, val_scale=0.3, force_limit=level)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
