@@ -109,8 +109,14 @@ class Problem:
         cache = self.__dict__
         if "_folds" not in cache:
             count = len(self.blocks()) if self.fold is None else 0
-            cache["_folds"] = [dataclasses.replace(self, fold=k) for k in range(FOLDS)] if count >= FOLDS else [self]
+            cache["_folds"] = [self._fold(k) for k in range(FOLDS)] if count >= FOLDS else [self]
         return cache["_folds"]
+
+    def _fold(self, k: int) -> Problem:
+        """Fold ``k``, sharing this problem's blocks and their stretches (cut once for all folds)."""
+        fold = dataclasses.replace(self, fold=k)
+        fold.__dict__.update(_blocks=self.blocks(), _all_stretches=self._whole())
+        return fold
 
     @property
     def held_out(self) -> float:
