@@ -8,9 +8,9 @@ depend on the machine; the ratios are what the lifted form is for). Goals at N =
 frozen physics >= 30x faster than the recursion and <= 2x a bare matmul of the same shape;
 trainable physics (lifted matrices rebuilt every step) >= 5x faster than the recursion.
 
-Then the velocity-scheduled single track at N = 100 (matrices per sample: one vmap of the
-system, one batched hold exponential of the n x n A dt, a parallel-prefix scan with a hand-
-written adjoint), forward and forward+backward, against the python recursion over the same
+Then the velocity-scheduled single track at N = 100 (matrices per sample: one batched call of
+the system's batch-safe code, verified once against vmap; one batched hold exponential of the
+n x n A dt; a parallel-prefix scan with a hand-written adjoint), forward and forward+backward, against the python recursion over the same
 per-sample matrices and against the constant-matrix lifted block (trainable cf, cr in all
 three). Goals: scheduled <= 10x the lifted block's forward (which, without gradients, is its
 cached window matrices times the inputs) and <= 3x its forward+backward. A quick run of this

@@ -61,7 +61,11 @@ class LTIModel(ABC):
                 return StateSpace(a, b, c, d)               # (n, n), (n, m), (p, n), (p, m)
 
     ``matrices`` is written for scalar values and must be differentiable in them (torch ops
-    only); a scheduled parameter is handled by the engine, not by the system.
+    only); a scheduled parameter is handled by the engine, not by the system: it evaluates
+    ``matrices`` at every sample with ``torch.func.vmap``, or with one plain call where the code
+    is also batch-safe (every entry computed elementwise and the matrices built with
+    ``torch.stack``, no ``reshape`` or matmul of entries; checked once against vmap, see
+    ``hypa.physics.scheduled.batch_layout``), several times faster.
     ``hypa.physics.systems.check_system`` says what a class gets wrong.
 
     **Nonlinear physics** (Lur'e form): a system that also defines ``feedback`` and

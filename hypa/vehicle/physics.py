@@ -107,15 +107,16 @@ class SingleTrack(LTIModel):
         The axle's lateral force is c_k (δ_k - α_k) with slip angle α_k = β + l_k ψ̇ / v
         (signed lever arms l = [lf, -lr]); it turns the car through l_k / Izz and bends its path
         through 1 / (v m). So B = diag(1/Izz, 1/(v m)) [[c_k l_k], [c_k]] and, because the
-        forces from the states are -B α, A = -B [l / v, 1] - [[0, 0], [1, 0]].
+        forces from the states are -B α, A = -B [l / v, 1] - [[0, 0], [1, 0]]: its ψ̇ column is
+        -(B l + [0, v]) / v, its β column -B 1. Batch-safe (``scheduled.batch_layout``): with
+        each parameter a (K,) tensor the same code gives A, B (2, 2, K), so a scheduled
+        velocity costs one call, not a vmap.
         """
         m, izz, lf, lr, cf, cr, v = (p[k] for k in ("mass", "izz", "lf", "lr", "cf", "cr", "velocity"))
         stiffness, arm = torch.stack([cf, cr]), torch.stack([lf, -lr])  # (2,) per axle
-        moments = torch.stack([stiffness * arm, stiffness])  # (2, 2): rows yaw, lateral
-        b = moments / torch.stack([izz, v * m])[:, None]
-        slip = torch.stack([arm / v, torch.ones_like(arm)], dim=1)  # (2, 2): α_k per unit (ψ̇, β)
-        path = torch.tensor([[0.0, 0.0], [-1.0, 0.0]], dtype=b.dtype, device=b.device)  # β̇ = ... - ψ̇
-        a = torch.addmm(path, b, slip, alpha=-1.0)
+        b = torch.stack([stiffness * arm, stiffness]) / torch.stack([izz, v * m])[:, None]  # (2, 2): rows yaw, lateral
+        turn = (b * arm).sum(1) + torch.stack([torch.zeros_like(v), v])  # B l + [0, v]
+        a = -torch.stack([turn / v, b.sum(1)], 1)
         eye = torch.eye(2, dtype=a.dtype, device=a.device)
         return StateSpace(a, b if self.rear_steering else b[:, :1], eye, a.new_zeros(2, 1 + self.rear_steering))
 
