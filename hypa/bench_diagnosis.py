@@ -53,10 +53,11 @@ def run(seconds: float | None = None, cache_dir: Path | None = None, hold: str =
     from hypa.diagnosis.engine import Problem, name_causes
     from hypa.models.spec import parse_model_spec
     from hypa.testbench import ensure_dataset
+    from hypa.testbench.sensors import TESTBENCH_CHANNELS
     from hypa.vehicle import VehicleParameters
 
     folder = ensure_dataset(testbench_config(seconds), cache_dir)
-    dm = HypaDataModule(folder)  # window 100, 32 Hz: the defaults of conf/dataset/testbench.yaml
+    dm = HypaDataModule(folder, TESTBENCH_CHANNELS)  # window 100, 32 Hz: the defaults of conf/dataset/testbench.yaml
     dm.setup()
     train, val = dm.records("train"), dm.records("val")
     spec = parse_model_spec(yaml.safe_load(NOMINAL.read_text()))

@@ -37,23 +37,23 @@ class UserError(ValueError):
 
 
 def user_error_types() -> tuple[type[BaseException], ...]:
-    """Exceptions that describe the user's input, never a bug: reported in one line."""
+    """Exceptions that describe the user's input, never a bug: reported in one line.
+
+    hypa's own are all a :class:`UserError` (the data's ``DataError``, the model
+    configuration's ``ModelSpecError``, a user's system's ``SystemContractError``, physics that
+    cannot run: ``UnstablePhysicsError``, ``SchedulingError``, ...), so this module imports none
+    of them.
+    """
     from hydra.errors import CompactHydraException, ConfigCompositionException, MissingConfigException
     from hydra.errors import OverrideParseException, SearchPathException
     from omegaconf.errors import MissingMandatoryValue
 
-    from hypa.data.errors import DataError
-    from hypa.models.spec import ModelSpecError
-    from hypa.physics import SchedulingError, UnstablePhysicsError
-    from hypa.physics.contract import SystemContractError
-
     # The OSErrors about a path the user gave (a missing run folder, a folder that cannot be
     # written), a required setting (``???``) left out, e.g. hypa.evaluate without run=, and a
     # configuration Hydra cannot compose (a misspelt key or group).
-    return (UserError, DataError, ModelSpecError, SystemContractError, UnstablePhysicsError, SchedulingError,
-            FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError, MissingMandatoryValue,
-            CompactHydraException, ConfigCompositionException, MissingConfigException, OverrideParseException,
-            SearchPathException)
+    return (UserError, FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError,
+            MissingMandatoryValue, CompactHydraException, ConfigCompositionException, MissingConfigException,
+            OverrideParseException, SearchPathException)
 
 
 # What the machine says about the user's folders rather than about hypa: a disk or quota that is

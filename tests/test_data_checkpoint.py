@@ -6,6 +6,7 @@ import lightning as L
 import torch
 from data_helpers import make_data_dir
 
+from hypa.testbench.sensors import TESTBENCH_CHANNELS
 from hypa.data import HypaDataModule
 
 
@@ -36,7 +37,7 @@ def _trainer(tmp_path) -> L.Trainer:
 def test_checkpoint_restores_the_normalization_into_a_new_datamodule(tmp_path):
     options = dict(window=20, stride=5, eval_stride=10, batch_size=4)
     train_dir = make_data_dir(tmp_path / "a", duration_s=4.0, train_offset=2.0)
-    dm = HypaDataModule(train_dir, **options)
+    dm = HypaDataModule(train_dir, TESTBENCH_CHANNELS, **options)
     model = _Linear()
     trainer = _trainer(tmp_path)
     trainer.fit(model, datamodule=dm)
@@ -46,7 +47,7 @@ def test_checkpoint_restores_the_normalization_into_a_new_datamodule(tmp_path):
     assert stored["normalization"] == dm.normalization.state_dict()
 
     new_dir = make_data_dir(tmp_path / "b", duration_s=4.0, train_offset=-5.0)
-    fresh = HypaDataModule(new_dir, **options)
+    fresh = HypaDataModule(new_dir, TESTBENCH_CHANNELS, **options)
     _trainer(tmp_path).validate(model, datamodule=fresh, ckpt_path=checkpoint, verbose=False)
     assert fresh.normalization == dm.normalization
     window = fresh.dataset("val")[0]["u"]

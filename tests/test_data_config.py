@@ -16,6 +16,7 @@ import hypa  # noqa: F401  (registers the schema, as every entry point does)
 from hypa.data import DataError, HypaDataModule, datamodule_from_config, decimate
 from hypa.data.from_config import validated
 from hypa.entry import data_dir_from_config
+from hypa.testbench.sensors import TESTBENCH_CHANNELS
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 DATASETS = ("testbench", "files", "silverbox", "emps", "racecar")
@@ -143,7 +144,7 @@ def test_testbench_dataset_loads_as_before(hypa_cache):
     folder = data_dir_from_config(cfg)
     dm = datamodule_from_config(cfg.data, folder)
     dm.setup()
-    default = HypaDataModule(folder)  # the constructor's defaults are the test bench's too
+    default = HypaDataModule(folder, TESTBENCH_CHANNELS)  # the constructor's other defaults are the test bench's
     default.setup()
     assert dm.normalization == default.normalization
     names = ("steering_wheel_angle", "yaw_rate", "side_slip")
@@ -166,14 +167,14 @@ def test_testbench_dataset_loads_as_before(hypa_cache):
             assert all(torch.equal(dataset[item][k], other[item][k]) for k in dataset[item])
 
 
-def test_the_readme_example_dataset_loads(tmp_path):
-    """The `my_rig` declaration of README.md ("Your measured data"), on generated files."""
+def test_the_docs_example_dataset_loads(tmp_path):
+    """The `my_rig` declaration of docs/data.md ("Your measured data"), on generated files."""
     import re
     import shutil
 
-    readme = (CONF.parent / "README.md").read_text()
+    page = (CONF.parent / "docs" / "data.md").read_text()
     pattern = r"```yaml\n(# @package _global_\n# conf/dataset/my_rig\.yaml.*?)```"
-    block = re.search(pattern, readme, re.S).group(1)
+    block = re.search(pattern, page, re.S).group(1)
     conf = tmp_path / "conf"
     shutil.copytree(CONF, conf)
     (conf / "dataset" / "my_rig.yaml").write_text(block.replace("/path/to/my_rig", str(tmp_path / "rig")))

@@ -26,7 +26,7 @@ CONF = Path(__file__).resolve().parents[1] / "conf" / "dataset"
 def _module(data_dir: Path, **kwargs) -> HypaDataModule:
     options = dict(window=WINDOW, stride=STRIDE, eval_stride=EVAL_STRIDE, batch_size=4)
     options.update(kwargs)
-    dm = HypaDataModule(data_dir, **options)
+    dm = HypaDataModule(data_dir, TESTBENCH_CHANNELS, **options)
     dm.setup("fit")
     return dm
 
@@ -196,7 +196,7 @@ def test_state_dict_round_trip_keeps_the_training_scaling(data_dir, tmp_path):
 def test_given_normalization_must_cover_the_channels(data_dir):
     partial = Normalization(["steering_wheel_angle"], [0.0], [1.0])
     with pytest.raises(DataError, match=r"no statistics for \['yaw_rate', 'side_slip'\]"):
-        HypaDataModule(data_dir, normalization=partial)
+        HypaDataModule(data_dir, TESTBENCH_CHANNELS, normalization=partial)
 
 
 def test_state_names_alias_and_checkpoint_state(data_dir):

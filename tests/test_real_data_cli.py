@@ -70,7 +70,7 @@ def test_silverbox_state_estimated_from_the_past_starts_the_nominal_physics_righ
     from omegaconf import OmegaConf
 
     from hypa.data import datamodule_from_config
-    from hypa.evaluation.runs import free_run
+    from hypa.models.rollout import free_run
     from hypa.models import ComposedModel, parse_model_spec
 
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):

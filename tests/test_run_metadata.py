@@ -113,11 +113,12 @@ def test_evaluate_warns_when_the_files_are_others(run: Path, tmp_path: Path, cap
 
 def test_data_module_lists_every_file_it_read(tmp_path: Path) -> None:
     from hypa.data import HypaDataModule
+    from hypa.testbench.sensors import TESTBENCH_CHANNELS
 
     data = make_data_dir(tmp_path / "data", duration_s=8.0)
     (data / "dataset.json").write_text("{}")
     (data / "notes.txt").write_text("not data")
-    dm = HypaDataModule(data, window=50)
+    dm = HypaDataModule(data, TESTBENCH_CHANNELS, window=50)
     dm.setup()
     assert sorted(p.name for p in dm.files) == ["dataset.json", "train_00.csv", "train_01.csv", "val_00.csv"]
 

@@ -10,9 +10,10 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
+from hypa.testbench.sensors import TESTBENCH_CHANNELS
 from hypa.data import HypaDataModule
 from hypa.evaluation.nominal import channel_metrics, nominal_module
-from hypa.evaluation.runs import free_run
+from hypa.models.rollout import free_run
 from hypa.testbench import TestbenchConfig, ensure_dataset
 from hypa.vehicle import VehicleParameters
 
@@ -29,7 +30,7 @@ FRONT_ONLY = OmegaConf.to_container(OmegaConf.load(ROOT / "conf" / "model" / "ve
 def clean_data(tmp_path_factory) -> HypaDataModule:
     """Truth = the linear single-track model with fixed front steering and no rear steering."""
     config = TestbenchConfig.linear(noise=False).merged(SHORT)
-    dm = HypaDataModule(ensure_dataset(config, tmp_path_factory.mktemp("cache")), batch_size=64)
+    dm = HypaDataModule(ensure_dataset(config, tmp_path_factory.mktemp("cache")), TESTBENCH_CHANNELS, batch_size=64)
     dm.setup()
     return dm
 

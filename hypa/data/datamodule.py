@@ -33,8 +33,8 @@ class HypaDataModule(L.LightningDataModule):
     Args:
         data_dir: folder of the files (``train*``, ``val*``, ``test*`` unless ``splits`` names
             them; .csv, .parquet, .mat) and an optional ``dataset.json``.
-        channels: the declared channels (:class:`ChannelSpec`), in order; default: the test
-            bench's (``hypa.testbench.sensors.TESTBENCH_CHANNELS``).
+        channels: the declared channels (:class:`ChannelSpec`), in order (the test bench's:
+            ``hypa.testbench.sensors.TESTBENCH_CHANNELS``).
         time_column: the files' time column (its offset removed), or ``None``: sample ``i``
             lies at ``i / sample_rate_hz``.
         time_unit: unit of the time column.
@@ -58,7 +58,7 @@ class HypaDataModule(L.LightningDataModule):
     def __init__(
         self,
         data_dir: Path | str,
-        channels: Iterable[ChannelSpec] | Mapping[str, ChannelSpec] | None = None,
+        channels: Iterable[ChannelSpec] | Mapping[str, ChannelSpec],
         time_column: str | None = "time",
         time_unit: str = "s",
         sample_rate_hz: float = 1024.0,
@@ -75,8 +75,6 @@ class HypaDataModule(L.LightningDataModule):
         seed: int = 0,
     ) -> None:
         super().__init__()
-        if channels is None:  # the default data set's channels, declared where its files are written
-            from hypa.testbench.sensors import TESTBENCH_CHANNELS as channels
         declared = channels
         if isinstance(declared, Mapping):
             declared = declared.values()

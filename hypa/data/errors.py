@@ -1,9 +1,11 @@
 """The one exception type of the data pipeline."""
 
+from hypa.errors import UserError
 
-class DataError(ValueError):
+
+class DataError(UserError):
     """Measured data or the data configuration is unusable.
 
     The message names the file, the column and the row where that applies, and says what
-    was expected. A ``ValueError`` so that callers unaware of hypa still catch it sensibly.
+    was expected. A ``UserError`` (so a ``ValueError``) so that callers unaware of hypa still catch it sensibly.
     """

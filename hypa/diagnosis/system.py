@@ -29,10 +29,9 @@ from hypa.diagnosis.problem import format_change
 from hypa.diagnosis.scales import Scales, duration
 from hypa.diagnosis.structure import OutputStructure, analyze_output
 from hypa.diagnosis.trained import TrainedExtension
-from hypa.evaluation.runs import Prediction, free_run, free_run_metrics
-from hypa.models.spec import ModelSpec, spec_config
+from hypa.models.rollout import Prediction, free_run, free_run_metrics
+from hypa.models.spec import DIAGNOSED, ModelSpec, spec_config
 
-DIAGNOSED = "diagnosed_"  # the prefix of what the catalogue's edits add (blocks, signals)
 
 
 def with_correction(spec: ModelSpec, inputs: Sequence[str]) -> ModelSpec:

@@ -19,7 +19,10 @@ from pathlib import Path
 
 from hypa.data import HypaDataModule
 from hypa.errors import UserError
-from hypa.evaluation.runs import Prediction
+from hypa.evaluation.evaluation import run_datamodule
+from hypa.evaluation.runs import load_run
+from hypa.explain.run import Settings, ann_blocks, explain_run
+from hypa.models.rollout import Prediction, free_run
 
 
 class ExtensionTrainingError(UserError):
@@ -43,8 +46,6 @@ def train_extension(arguments: Sequence[str], run_dir: Path, dm: HypaDataModule,
     """Run ``python -m hypa.train ARGUMENTS`` into ``run_dir``, free-run its best checkpoint over
     ``dm``'s validation records and (``explain``) explain its networks. ``extra_overrides``: more
     ``hypa.train`` overrides (e.g. a shorter training: ``trainer.max_epochs=5``)."""
-    from hypa.evaluation.runs import free_run, load_run
-
     argv = [sys.executable, "-m", "hypa.train", *arguments, f"hydra.run.dir={run_dir}", *extra_overrides]
     completed = subprocess.run(argv, check=False)  # its output goes to the console: progress
     if completed.returncode != 0:
@@ -53,8 +54,6 @@ def train_extension(arguments: Sequence[str], run_dir: Path, dm: HypaDataModule,
     run = load_run(run_dir)
     model = run.module.model
     if run.config.data.past != dm.past:  # raised for the extension (hypa.diagnosis.system.with_past)
-        from hypa.evaluation.evaluation import run_datamodule
-
         dm = run_datamodule(run)
     trained = TrainedExtension(run_dir, [free_run(model, dm, record) for record in dm.records("val")])
     if explain:
@@ -66,8 +65,6 @@ def explain_networks(run, dm: HypaDataModule, out: Path, plot: bool = True,
                      progress: Callable[[str], None] = lambda text: None) -> list[dict]:
     """What each network of a trained run learned (:func:`hypa.explain.explain_run`), one entry per
     explained signal: block, signal, the chosen form in words, its validation R² and the report."""
-    from hypa.explain.run import Settings, ann_blocks, explain_run
-
     if not ann_blocks(run.module.model.spec):
         return []
     results = explain_run(run, dm, out, settings=Settings(plot=plot), progress=progress)

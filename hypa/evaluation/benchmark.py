@@ -18,7 +18,8 @@ import numpy as np
 
 from hypa.data import HypaDataModule
 from hypa.evaluation.metrics import regression_metrics
-from hypa.evaluation.runs import TrainedRun, free_run
+from hypa.evaluation.runs import TrainedRun
+from hypa.models.rollout import free_run
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,8 @@ from hypa.data import HypaDataModule
 from hypa.errors import UserError
 from hypa.evaluation.metrics import state_metrics
 from hypa.evaluation.plots import bode
-from hypa.evaluation.runs import Prediction, TrainedRun, free_run, windowed
+from hypa.evaluation.runs import TrainedRun, windowed
+from hypa.models.rollout import Prediction, free_run
 from hypa.evaluation.transfer import TransferEstimate, h1_estimate
 from hypa.plots import time_series
 

@@ -22,7 +22,8 @@ import numpy as np
 
 from hypa.data import HypaDataModule
 from hypa.errors import UserError
-from hypa.evaluation.runs import free_run, windowed
+from hypa.evaluation.runs import windowed
+from hypa.models.rollout import free_run
 from hypa.models import parse_model_spec
 from hypa.training.module import HybridModule
 

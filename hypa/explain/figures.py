@@ -12,13 +12,13 @@ import numpy as np
 
 from hypa.evaluation.transfer import TransferEstimate, h1_estimate
 from hypa.explain.forms import frequency_response, predict
+from hypa.explain.problem import BlockExplanation, gain_unit
 from hypa.explain.signals import Recording
 from hypa.plots import plt
 
 if TYPE_CHECKING:
     from hypa.data import HypaDataModule
-    from hypa.evaluation.runs import Prediction
-    from hypa.explain.run import BlockExplanation
+    from hypa.models.rollout import Prediction
 
 SEGMENT_S = 16.0  # [s] H1's Welch segments (shorter where the records are short)
 
@@ -89,7 +89,6 @@ def frequency_figure(result: BlockExplanation, records: Sequence[Recording], dt:
     """Bode plot: the learned block's H1 (dashed black, with γ²) and the chosen form's response
     from the block's first input; (None, why) where the records are too short or the input constant."""
     from hypa.evaluation.plots import bode
-    from hypa.explain.run import gain_unit
 
     p = result.problem
     try:

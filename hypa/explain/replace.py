@@ -18,7 +18,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from hypa.data import HypaDataModule
-from hypa.evaluation.runs import Prediction, TrainedRun, free_run, free_run_metrics
+from hypa.evaluation.runs import TrainedRun
+from hypa.models.rollout import Prediction, free_run, free_run_metrics
 from hypa.explain.forms import FittedForm
 from hypa.models import ComposedModel
 from hypa.models.spec import BlockSpec, ModelSpec, spec_config
@@ -107,7 +108,7 @@ def build_like(run: TrainedRun, spec: ModelSpec) -> ComposedModel:
 
 
 def validation_errors(predictions: Sequence[Prediction], outputs: Sequence[str]) -> dict[str, dict[str, float]]:
-    """Per output over the free runs: ``rms`` [SI] and ``r2`` (:func:`hypa.evaluation.runs.free_run_metrics`)."""
+    """Per output over the free runs: ``rms`` [SI] and ``r2`` (:func:`hypa.models.rollout.free_run_metrics`)."""
     return {n: {"rms": m["rmse"], "r2": m["r2"]} for n, m in free_run_metrics(predictions, outputs).items()}
 
 

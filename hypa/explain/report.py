@@ -1,5 +1,5 @@
 """What ``python -m hypa.explain`` writes: ``explanation.json`` (:func:`to_dict`, documented in the
-README) and ``explanation.md``, an engineer's report with rounded numbers and units, and the
+docs/explain.md) and ``explanation.md``, an engineer's report with rounded numbers and units, and the
 one-line summary of a replacement."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from hypa.evaluation.runs import TrainedRun
-from hypa.explain.run import FIT_SPLIT, SCORE_SPLIT, BlockExplanation, rounded
+from hypa.explain.problem import FIT_SPLIT, SCORE_SPLIT, BlockExplanation, rounded
 
 
 def replacement_line(rp: dict) -> str:

@@ -1,6 +1,6 @@
 """Explain the learned blocks of a trained run: ``python -m hypa.explain run=RUN [block=NAME]``.
 
-The trained model is driven (free run, :func:`hypa.evaluation.runs.free_run`) over the run's
+The trained model is driven (free run, :func:`hypa.models.rollout.free_run`) over the run's
 training and validation records; each output of an ANN block is the explained signal, the
 block's inputs the regressors, and by default the other measured outputs and the scheduling
 channels the extra signals (as the model itself simulates them). The ladder of forms
@@ -15,88 +15,34 @@ signal over time, the frequency response, the static curve) into ``out``.
 
 from __future__ import annotations
 
-import math
 import time
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from hypa.data import HypaDataModule
 from hypa.errors import UserError
-from hypa.evaluation.runs import Prediction, TrainedRun, free_run
-from hypa.explain.forms import Explanation, explain, frequency_response, predict
-from hypa.explain.signals import Recording, unit_ratio
+from hypa.evaluation.runs import TrainedRun
+from hypa.models.rollout import Prediction, free_run
+from hypa.explain.figures import write_figures
+from hypa.explain.forms import explain, frequency_response, predict
+from hypa.explain.problem import (
+    FIT_SPLIT,
+    PAIRS,
+    SCORE_SPLIT,
+    BlockExplanation,
+    Problem,
+    Settings,
+    gain_unit,
+    rounded,
+)
+from hypa.explain.replace import replace_and_score, validation_errors, writable_form
+from hypa.explain.report import write_json, write_report
+from hypa.explain.signals import Recording
 from hypa.models import ComposedModel
-from hypa.models.spec import BlockSpec, ModelSpec
-
-FIT_SPLIT, SCORE_SPLIT = "train", "val"
-PAIRS = {"learned_vs_measured": ("measured", "learned"), "explained_vs_measured": ("measured", "explained"),
-         "explained_vs_learned": ("learned", "explained")}
-
-
-@dataclass(frozen=True)
-class Settings:
-    """How the ladder is fitted (see :func:`hypa.explain.explain`); ``extra`` None: the default extras."""
-
-    extra: tuple[str, ...] | None = None
-    penalty: float = 0.002
-    margin: float = 0.005
-    max_lag: float = 2.0  # [s]
-    max_delay: float = 0.25  # [s]
-    plot: bool = True
-
-
-@dataclass(frozen=True)
-class Problem:
-    """One explained signal: an output of an ANN block, its regressors and extra signals, their units.
-
-    A correction network (``residual_of``) adds its output to a physics signal: what it learned
-    is the difference, so ``output`` is then ``<output>_correction`` and ``corrects`` holds the
-    (total, physics) pair it is computed from. ``measured``: the channel of the records that
-    measures the output, where one does (:func:`measuring_channel`)."""
-
-    block: str
-    output: str
-    inputs: tuple[str, ...]
-    extra: tuple[str, ...]
-    units: Mapping[str, str]
-    corrects: tuple[str, str] | None = None
-    measured: str | None = None
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return (self.output, *self.inputs, *self.extra)
-
-    @property
-    def key(self) -> str:
-        """A file-name stem: the block, and the output where the block has several."""
-        return self.block if self.output == self.block else f"{self.block}_{self.output}"
-
-
-@dataclass
-class BlockExplanation:
-    """The ladder fitted to one problem, compared with the measurement where one exists."""
-
-    problem: Problem
-    explanation: Explanation
-    comparison: dict[str, dict[str, float]] | None  # PAIRS -> corr, rms, share (validation)
-    figures: dict[str, Path] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-    replacement: dict | None = None  # the block replaced by its form: config, validation errors (hypa.explain.replace)
-    seconds: float = 0.0  # [s] fitting the ladder (the free runs, the replacement and the figures not counted)
-
-    def summary(self) -> str:
-        """One line: the block, the chosen form, and the comparison with the measurement."""
-        line = f"{self.problem.block}: {self.explanation.describe()}"
-        if self.comparison:
-            unit = self.problem.units[self.problem.output]
-            lm, em = self.comparison["learned_vs_measured"], self.comparison["explained_vs_measured"]
-            line += (f"; vs measured {self.problem.measured}: learned r {lm['corr']:.2f} (RMS {rounded(lm['rms'])} {unit}), "
-                     f"explained r {em['corr']:.2f} (RMS {rounded(em['rms'])} {unit})")
-        return line
-
+from hypa.models.spec import DIAGNOSED, BlockSpec, ModelSpec
 
 # --- which blocks, which signals --------------------------------------------------------------
 
@@ -168,8 +114,6 @@ def problems(spec: ModelSpec, dm: HypaDataModule, blocks: Sequence[BlockSpec],
 def measuring_channel(signal: str, dm: HypaDataModule) -> str | None:
     """The channel that measures a model's signal: its own name, or for what a diagnosis inserted
     (``diagnosed_<channel>``, e.g. ``diagnosed_rear_wheel_angle``) that channel; None if neither."""
-    from hypa.diagnosis.system import DIAGNOSED
-
     for name in (signal, signal.removeprefix(DIAGNOSED)):
         if name in dm.channels:
             return name
@@ -276,13 +220,9 @@ def explain_run(run: TrainedRun, dm: HypaDataModule, out: Path, block: str | Non
         result.notes += hold_note(model, problem.block, dm.dt)
         replace_block(result, run, dm, val, out, progress, baseline)
         if settings.plot:
-            from hypa.explain.figures import write_figures
-
             result.figures, notes = write_figures(result, rec_train, rec_val, val, dm, out)
             result.notes += notes
         results.append(result)
-    from hypa.explain.report import write_json, write_report
-
     write_json(run, results, out / "explanation.json")
     write_report(run, results, out / "explanation.md")
     return results
@@ -308,8 +248,6 @@ def replace_block(result: BlockExplanation, run: TrainedRun, dm: HypaDataModule,
                   baseline: TrainedRun | None = None) -> None:
     """The network replaced by its explanation (:mod:`hypa.explain.replace`): the model YAML and
     the validation errors beside the trained model's, into ``result.replacement`` (or a note why not)."""
-    from hypa.explain.replace import replace_and_score, writable_form
-
     p, e = result.problem, result.explanation
     block = next(b for b in run.module.model.spec.blocks if b.name == p.block)
     fitted, note = writable_form(e.forms, e.chosen, block, p.inputs, p.corrects)
@@ -320,8 +258,6 @@ def replace_block(result: BlockExplanation, run: TrainedRun, dm: HypaDataModule,
     progress(f"replacing {p.block} by its {fitted.form.name} and free-running the validation records")
     result.replacement = replace_and_score(run, dm, p.block, fitted, val, out)
     if baseline is not None:
-        from hypa.explain.replace import validation_errors
-
         runs = [free_run(baseline.module.model, dm, record) for record in dm.records(SCORE_SPLIT)]
         result.replacement["baseline"] = {"run": str(baseline.folder), "label": baseline.label,
                                           **validation_errors(runs, dm.output_names)}
@@ -331,17 +267,5 @@ def _signal_names(spec: ModelSpec) -> set[str]:
     return {n for b in spec.blocks for n in (*b.inputs, *b.outputs)}
 
 
-def rounded(x: float) -> str:
-    """Two to three significant digits, as an engineer reads them."""
-    if not math.isfinite(x):
-        return "-"
-    return f"{x:.3g}"
-
-
-def gain_unit(problem: Problem) -> str:
-    """Unit of the gain from the block's first input to its output."""
-    return unit_ratio(problem.units[problem.output], problem.units[problem.inputs[0]])
-
-
-__all__ = ["BlockExplanation", "Problem", "Settings", "ann_blocks", "compare", "explain_problem", "explain_run",
+__all__ = ["FIT_SPLIT", "PAIRS", "SCORE_SPLIT", "BlockExplanation", "Problem", "Settings", "gain_unit", "rounded", "ann_blocks", "compare", "explain_problem", "explain_run",
            "free_runs", "frequency_response", "problems", "recordings", "select_blocks", "signal_unit"]

@@ -40,7 +40,7 @@ class Recording:
 
     @classmethod
     def from_prediction(cls, prediction: Any, names: list[str] | tuple[str, ...]) -> Recording:
-        """The signals ``names`` of a free run (a :class:`hypa.evaluation.runs.Prediction`),
+        """The signals ``names`` of a free run (a :class:`hypa.models.rollout.Prediction`),
         cropped to the samples where all of them have values.
 
         Internal signals (``prediction.signals``) start later than the measured inputs, so the

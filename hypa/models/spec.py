@@ -13,6 +13,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from hypa.errors import UserError
 from hypa.physics.systems import PHYSICS_SYSTEMS, is_import_path
 
 BLOCK_KINDS = ("physics", "ann", "delay", "saturation")
@@ -22,9 +23,10 @@ STEADY = "steady"  # initial_state of a block that starts in equilibrium with it
 ESTIMATE = "estimate"  # initial_state estimated by least squares from the past samples
 ENCODER = "encoder"  # the least-squares estimate corrected by a network over the past samples
 HOLDS = ("zoh", "foh")
+DIAGNOSED = "diagnosed_"  # the prefix of the blocks and signals a diagnosis adds to a model (hypa.diagnosis)
 
 
-class ModelSpecError(ValueError):
+class ModelSpecError(UserError):
     """A model configuration that cannot be built; the message lists what exists."""
 
 

@@ -11,11 +11,12 @@ from collections.abc import Sequence
 
 import torch
 
+from hypa.errors import UserError
 from hypa.physics.lti import LTIModel, StateSpace
 from hypa.physics.parameters import ParameterSpec
 
 
-class SystemContractError(ValueError):
+class SystemContractError(UserError):
     """A system that cannot be used: unknown, not importable, or breaking the ``LTIModel`` contract."""
 
 

@@ -38,16 +38,15 @@ import math
 import weakref
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor
 
-if TYPE_CHECKING:
-    from hypa.physics.lti import LTIModel, StateSpace
+from hypa.errors import UserError
+from hypa.physics.statespace import LTIModel, StateSpace
 
 
-class SchedulingError(ValueError):
+class SchedulingError(UserError):
     """Scheduling signals that do not fit a block, or matrices that cannot be evaluated per sample."""
 
 
@@ -66,8 +65,6 @@ def per_sample_matrices(model: LTIModel, fixed: Mapping[str, Tensor], scheduled:
     - ``torch.func.vmap`` of the scalar code otherwise (any code torch.func can batch), and for
       K < 2 or a K equal to a matrix dimension, where a batch layout could be misread.
     """
-    from hypa.physics.lti import StateSpace
-
     lead, flat = rho.shape[:-1], rho.reshape(-1, rho.shape[-1])  # (K, q)
     samples = flat.shape[0]
     layout = batch_layout(model, fixed, scheduled, flat) if samples >= 2 else None

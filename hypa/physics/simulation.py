@@ -29,7 +29,7 @@ from hypa.physics.normalized import NormalizedLTI
 from hypa.physics.scheduled import SchedulingError, forced_terms, per_sample_matrices, simulate_scheduled
 
 if TYPE_CHECKING:
-    from hypa.physics.lti import LTIModel, StateSpace
+    from hypa.physics.statespace import LTIModel, StateSpace
 
 Output = tuple[Tensor, Tensor, Tensor]  # Ĉ, D̂, Ĝ: (p, n), (p, m), (p,) or per sample (B, S, p, ...)
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import lightning as L
 from lightning.pytorch.callbacks import Callback
 
+from hypa.models.rollout import free_run
 from hypa.plots import time_series
 
 
@@ -17,8 +18,6 @@ class ValidationFigures(Callback):
         self.seconds, self.start_s, self.every_n_epochs = seconds, start_s, every_n_epochs
 
     def on_validation_epoch_end(self, trainer: L.Trainer, module: L.LightningModule) -> None:
-        from hypa.evaluation.runs import free_run  # evaluation builds on training, not the reverse
-
         if trainer.sanity_checking or trainer.current_epoch % self.every_n_epochs:
             return
         experiment = getattr(trainer.logger, "experiment", None)
