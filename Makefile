@@ -3,9 +3,11 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
+# mkdocs-material's banner about MkDocs 2.0 on every build (make docs, make test)
+export NO_MKDOCS_2_WARNING := 1
 
 .DEFAULT_GOAL := help
-.PHONY: help install train evaluate reproduce simulate testbench tensorboard test test-slow test-all bench benchmark clean
+.PHONY: help install train evaluate reproduce simulate testbench tensorboard test test-slow test-all bench benchmark docs serve-docs lint clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-12s %s\n", $$1, $$2}'
@@ -38,8 +40,13 @@ tensorboard: $(STAMP) ## open TensorBoard over all runs (outputs/ and multirun/)
 	mkdir -p outputs multirun
 	$(BIN)/tensorboard --logdir_spec runs:outputs,sweeps:multirun $(ARGS)
 
-test: $(STAMP) ## the test suite without the slow checks (what CI runs)
+test: $(STAMP) ## ruff, the strict docs build, then the test suite without the slow checks (what CI runs)
+	$(BIN)/ruff check --select F hypa tests
+	$(BIN)/mkdocs build --strict --quiet
 	$(BIN)/python -m pytest -q $(ARGS)
+
+lint: $(STAMP) ## ruff over hypa/ and tests/ (the pyflakes rules, F: the code passes them)
+	$(BIN)/ruff check --select F hypa tests
 
 test-slow: $(STAMP) ## only the checks marked slow
 	$(BIN)/python -m pytest -q -m slow $(ARGS)
@@ -53,6 +60,12 @@ bench: $(STAMP) ## lifted physics vs recursion vs bare matmul (ratios); time to 
 
 benchmark: $(STAMP) ## real data (../shared/data): make benchmark ARGS="dataset=silverbox budget=full"
 	$(BIN)/python -m hypa.benchmark $(ARGS)
+
+docs: $(STAMP) ## the documentation site from docs/ and the docstrings: mkdocs build --strict -> site/
+	$(BIN)/mkdocs build --strict
+
+serve-docs: $(STAMP) ## serve the documentation at http://127.0.0.1:8000, rebuilt on every change
+	$(BIN)/mkdocs serve
 
 clean: ## remove run outputs (not the environment, not the data cache)
 	rm -rf outputs multirun lightning_logs .pytest_cache
