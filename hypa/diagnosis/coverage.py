@@ -23,6 +23,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from hypa.data import HypaDataModule
+from hypa.metrics import rms
 
 COVERED = 0.7  # share of the training's 1-99 % span the validation's must overlap
 AMPLITUDE = 0.5  # the validation's RMS about the training mean, at least this share of the training's
@@ -69,8 +70,8 @@ def coverage(dm: HypaDataModule) -> list[ChannelCoverage]:
         width = t_hi - t_lo
         covered = max(0.0, min(t_hi, v_hi) - max(t_lo, v_lo)) / width if width > 0 else 1.0
         mean = float(train.mean())
-        spread = float(np.sqrt(np.mean((train - mean) ** 2)))
-        amplitude = float(np.sqrt(np.mean((val - mean) ** 2))) / spread if spread > 0 else 1.0
+        spread = rms(train - mean)
+        amplitude = rms(val - mean) / spread if spread > 0 else 1.0
         out.append(ChannelCoverage(name, role, (t_lo, t_hi), (v_lo, v_hi), covered, amplitude))
     return out
 

@@ -28,6 +28,7 @@ import numpy as np
 from scipy import signal
 
 from hypa.diagnosis.scales import Scales, duration
+from hypa.metrics import rms
 
 SIGNIFICANT = 0.002  # error share of the output variance above which a remainder is worth explaining
 AMPLITUDE_RATIO = 2.0  # top/bottom quartile error RMS beyond which the error depends on amplitude
@@ -82,7 +83,7 @@ def analyze_output(name: str, unit: str, measured: Sequence[np.ndarray], predict
     distance = np.concatenate([np.sqrt(np.convolve((m - y.mean()) ** 2, kernel, mode="same")) for m in measured])
     edges = np.quantile(distance, [0.0, 0.25, 0.5, 0.75, 1.0])
     bins = np.clip(np.searchsorted(edges, distance, side="right") - 1, 0, 3)
-    rmse = [float(np.sqrt(np.mean(err[bins == k] ** 2))) if np.any(bins == k) else 0.0 for k in range(4)]
+    rmse = [rms(err[bins == k]) if np.any(bins == k) else 0.0 for k in range(4)]
     ratio = rmse[3] / rmse[0] if rmse[0] > 0 else float("inf")
     nyquist = 0.5 / dt
     bands = list(zip(scales.band_edges_hz[:-1], scales.band_edges_hz[1:]))

@@ -29,6 +29,7 @@ from hypa.diagnosis.problem import format_change
 from hypa.diagnosis.scales import Scales, duration
 from hypa.diagnosis.structure import OutputStructure, analyze_output
 from hypa.diagnosis.trained import TrainedExtension
+from hypa.metrics import correlation, errors, rms
 from hypa.models.rollout import Prediction, free_run, free_run_metrics
 from hypa.models.spec import DIAGNOSED, ModelSpec, spec_config
 
@@ -301,8 +302,7 @@ def signal_agreement(runs: Sequence[Prediction]) -> dict[str, dict[str, float]]:
         if ok.sum() < 3 or np.std(measured[ok]) == 0 or np.std(recovered[ok]) == 0:
             continue
         m, r = measured[ok], recovered[ok]
-        out[channel] = {"correlation": float(np.corrcoef(m, r)[0, 1]), "rmse": float(np.sqrt(np.mean((r - m) ** 2))),
-                        "measured_rms": float(np.sqrt(np.mean(m**2)))}
+        out[channel] = {"correlation": correlation(m, r), "rmse": errors(r, m)["rmse"], "measured_rms": rms(m)}
     return out
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from hypa.data import HypaDataModule
-from hypa.evaluation.metrics import regression_metrics
+from hypa.metrics import regression_metrics
 from hypa.evaluation.runs import TrainedRun
 from hypa.models.rollout import free_run
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from hypa.data import HypaDataModule
 from hypa.errors import UserError
-from hypa.evaluation.metrics import state_metrics
+from hypa.metrics import correlation, errors, state_metrics
 from hypa.evaluation.plots import bode
 from hypa.evaluation.runs import TrainedRun, windowed
 from hypa.models.rollout import Prediction, free_run
@@ -138,10 +138,9 @@ def evaluate_split(run: TrainedRun, dm: HypaDataModule, split: str, subset: Sequ
         with_it = [p for p in predictions if name in p.signals and name in p.measured]
         learned = np.concatenate([p.signal_on_grid(name) for p in with_it])
         measured = np.concatenate([p.measured[name] for p in with_it])
-        ok = np.isfinite(learned)
-        result.setdefault("signals", {})[name] = {
-            "corr": float(np.corrcoef(learned[ok], measured[ok])[0, 1]),
-            "rmse": float(np.sqrt(np.mean((learned[ok] - measured[ok]) ** 2)))}
+        ok = np.isfinite(learned)  # the model's signal where it has one
+        result.setdefault("signals", {})[name] = {"corr": correlation(learned[ok], measured[ok]),
+                                                  "rmse": errors(learned[ok], measured[ok])["rmse"]}
     return result, predictions
 
 

@@ -23,6 +23,7 @@ import numpy as np
 from hypa.data import HypaDataModule
 from hypa.errors import UserError
 from hypa.evaluation.runs import windowed
+from hypa.metrics import errors
 from hypa.models.rollout import free_run
 from hypa.models import parse_model_spec
 from hypa.training.module import HybridModule
@@ -52,12 +53,10 @@ def nominal_module(model_config: Mapping[str, Any], physical_values: Mapping[str
 
 
 def channel_metrics(measured: np.ndarray, simulated: np.ndarray) -> dict[str, float]:
-    """RMSE, mean error (SI), R² = 1 - SSE/SST and NRMSE = RMSE / σ(measured) of one channel."""
-    error = simulated - measured
-    rmse = float(np.sqrt(np.mean(error**2)))
-    spread = float(measured.std())
-    return {"rmse": rmse, "mean_error": float(error.mean()), "r2": 1.0 - rmse**2 / spread**2,
-            "nrmse": rmse / spread}
+    """RMSE, mean error (SI), R² = 1 - SSE/SST and NRMSE = RMSE / σ(measured) of one channel
+    (``hypa.metrics.errors``)."""
+    e = errors(simulated, measured)
+    return {k: e[k] for k in ("rmse", "mean_error", "r2", "nrmse")}
 
 
 def simulate_nominal(module: HybridModule, dm: HypaDataModule, out: Path, plot: bool = True) -> dict:

@@ -20,6 +20,7 @@ from hypa.explain.signals import (
     second_order_filters,
     unit_ratio,
 )
+from hypa.metrics import errors
 
 NONLINEAR = {"static": (), "lag": ("lag",), "lag_delay": ("lag", "delay"),
              "second_order": ("natural_frequency", "damping", "delay")}
@@ -215,7 +216,7 @@ class Fitter:
         """Scores on validation and the values with their uncertainties."""
         X_val = np.concatenate(self.regressors(form, theta, self.val))
         y_val = self.val.y_all
-        r2_val = 1.0 - np.sum((y_val - X_val @ gains) ** 2) / np.sum((y_val - y_val.mean()) ** 2)
+        r2_val = errors(X_val @ gains, y_val)["r2"]
         n = len(theta) + len(gains)
         values = self._values(form, theta, gains)
         return FittedForm(form, values, n, 1.0 - sse / self.sst, float(r2_val),

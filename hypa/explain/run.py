@@ -25,6 +25,7 @@ import numpy as np
 from hypa.data import HypaDataModule
 from hypa.errors import UserError
 from hypa.evaluation.runs import TrainedRun
+from hypa.metrics import correlation, errors, rms
 from hypa.models.rollout import Prediction, free_run
 from hypa.explain.figures import write_figures
 from hypa.explain.forms import explain, frequency_response, predict
@@ -159,12 +160,9 @@ def recordings(predictions: Sequence[Prediction], problem: Problem) -> list[Reco
 def compare(reference: np.ndarray, other: np.ndarray) -> dict[str, float]:
     """Correlation, RMS of the difference [signal unit] and the share of the reference's variance
     that ``other`` explains (1 - Σ(ref - other)² / Σ(ref - mean)², R²)."""
-    ok = np.isfinite(reference) & np.isfinite(other)
-    a, b = reference[ok], other[ok]
-    spread = float(np.sum((a - a.mean()) ** 2))
-    corr = float(np.corrcoef(a, b)[0, 1]) if np.std(a) > 0 and np.std(b) > 0 else float("nan")
-    return {"corr": corr, "rms": float(np.sqrt(np.mean((a - b) ** 2))),
-            "share": float(1.0 - np.sum((a - b) ** 2) / spread) if spread > 0 else float("nan"),
+    ok = np.isfinite(reference) & np.isfinite(other)  # each signal where the model has it
+    e = errors(other[ok], reference[ok])
+    return {"corr": correlation(reference[ok], other[ok]), "rms": e["rmse"], "share": e["r2"],
             "samples": int(ok.sum())}
 
 
@@ -188,7 +186,7 @@ def explain_problem(problem: Problem, train: Sequence[Prediction], val: Sequence
                   "learned": np.concatenate([r[problem.output] for r in rec_val]),
                   "explained": np.concatenate(explained)}
         comparison = {pair: compare(series[a], series[b]) for pair, (a, b) in PAIRS.items()}
-        comparison["measured_rms"] = {"rms": float(np.sqrt(np.mean(series["measured"] ** 2)))}
+        comparison["measured_rms"] = {"rms": rms(series["measured"])}
     return BlockExplanation(problem, explanation, comparison), rec_train, rec_val
 
 

@@ -20,6 +20,7 @@ import numpy as np
 from scipy import signal
 
 from hypa.errors import UserError
+from hypa.metrics import rms
 
 MIN_SAMPLES = 16  # a record shorter than this holds no dynamics worth fitting
 
@@ -262,7 +263,7 @@ def remainder(y: list[np.ndarray], predicted: list[np.ndarray], u: list[np.ndarr
     which = np.clip(np.searchsorted(quartiles, magnitude, side="right") - 1, 0, 3)
     total = max(float(np.sum(r_all**2)), 1e-300)
     amplitudes = tuple(AmplitudeBin(float(quartiles[i]), float(quartiles[i + 1]),
-                                    float(np.sqrt(np.mean(r_all[which == i] ** 2))) if np.any(which == i) else 0.0,
+                                    rms(r_all[which == i]) if np.any(which == i) else 0.0,
                                     float(np.sum(r_all[which == i] ** 2) / total)) for i in range(4))
     return Remainder(share, tuple(bands), name, unit, amplitudes)
 

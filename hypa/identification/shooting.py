@@ -40,6 +40,7 @@ import torch
 from scipy import sparse
 
 from hypa.identification.stretches import Stretches
+from hypa.metrics import rms
 from hypa.models import ComposedModel
 from hypa.physics import SchedulingError, UnstablePhysicsError
 
@@ -219,7 +220,7 @@ class Shooting:
         """RMS of the continuity defects, in state standard deviations (0 in single shooting)."""
         if not self.junctions:
             return 0.0
-        return float(np.sqrt(np.mean(self.defects(v, self.simulate(v)[1]) ** 2)))
+        return rms(self.defects(v, self.simulate(v)[1]))
 
     def jacobian(self, v: np.ndarray, base: np.ndarray, upper: Sequence[float]):
         """dr/dv at v (``base`` = r(v)): dense, or sparse CSR for a large multiple-shooting problem."""

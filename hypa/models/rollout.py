@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
+from hypa.metrics import errors
+
 if TYPE_CHECKING:
     from hypa.data import HypaDataModule, Record
     from hypa.models.composed import ComposedModel
@@ -86,6 +88,6 @@ def free_run_metrics(runs: Sequence[Prediction], outputs: Sequence[str]) -> dict
     for name in outputs:
         y = np.concatenate([r.measured[name][r.first:] for r in runs])
         p = np.concatenate([r.predicted[name][r.first:] for r in runs])
-        mse = float(np.mean((p - y) ** 2))
-        out[name] = {"rmse": mse**0.5, "mse": mse, "r2": 1.0 - mse / float(np.var(y))}
+        e = errors(p, y)
+        out[name] = {"rmse": e["rmse"], "mse": e["mse"], "r2": e["r2"]}
     return out

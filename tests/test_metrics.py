@@ -1,11 +1,12 @@
-"""Table 1 metrics against hand-computed values, and the floored MAPE near zero crossings."""
+"""hypa.metrics: the errors every report uses; the Table 1 metrics against hand-computed values and
+the floored MAPE near zero crossings."""
 
 import numpy as np
 import pytest
 import torch
 from torchmetrics.functional import mean_absolute_percentage_error
 
-from hypa.evaluation.metrics import METRICS, floored_mape, regression_metrics, state_metrics
+from hypa.metrics import METRICS, floored_mape, regression_metrics, state_metrics
 
 
 def test_regression_metrics_hand_computed():
@@ -87,3 +88,50 @@ def test_state_metrics_rejects_bad_names():
         state_metrics(x, x, ["yaw_rate", "overall"])
     with pytest.raises(ValueError, match="2-D"):
         state_metrics(x[:, 0], x[:, 0], ["yaw_rate"])
+
+
+def test_errors_are_the_hand_computed_rmse_r2_and_nrmse():
+    """hypa.metrics.errors: the one RMSE / R² / NRMSE every report uses, against the definitions."""
+    from hypa.metrics import errors
+
+    rng = np.random.default_rng(3)
+    y = rng.normal(2.0, 0.5, 400)
+    p = y + rng.normal(0.1, 0.2, 400)
+    e = errors(p, y)
+    rmse = np.sqrt(np.mean((p - y) ** 2))
+    assert e["rmse"] == pytest.approx(rmse, rel=1e-12)
+    assert e["mse"] == pytest.approx(rmse**2, rel=1e-12)
+    assert e["mean_error"] == pytest.approx(np.mean(p - y), rel=1e-12)
+    assert e["r2"] == pytest.approx(1 - np.sum((p - y) ** 2) / np.sum((y - y.mean()) ** 2), rel=1e-12)
+    assert e["r2"] == pytest.approx(1 - e["nrmse"] ** 2, rel=1e-12)
+    assert e["r2"] == pytest.approx(regression_metrics(p, y)["r2"], rel=1e-9)  # the same R² as Table 1's
+
+
+def test_errors_never_drop_a_bad_prediction():
+    """A non-finite prediction makes the figures NaN (never a score over the finite rest); a
+    constant target has no R²; mismatched or empty arrays are refused."""
+    from hypa.metrics import errors
+
+    y = np.linspace(0.0, 1.0, 50)
+    p = y.copy()
+    p[7] = np.nan
+    assert all(np.isnan(errors(p, y)[k]) for k in ("rmse", "r2", "nrmse"))
+    flat = errors(np.ones(5), np.full(5, 2.0))
+    assert flat["rmse"] == pytest.approx(1.0) and np.isnan(flat["r2"]) and np.isnan(flat["nrmse"])
+    with pytest.raises(ValueError, match="same, non-zero size"):
+        errors(np.ones(3), np.ones(4))
+    with pytest.raises(ValueError, match="same, non-zero size"):
+        errors(np.ones(0), np.ones(0))
+
+
+def test_rms_and_correlation():
+    from hypa.metrics import correlation, rms
+
+    assert rms(np.array([3.0, -4.0])) == pytest.approx(np.sqrt(12.5))
+    assert np.isnan(rms(np.array([])))
+    t = np.linspace(0, 6, 200)
+    a, b = np.sin(t), 3 * np.sin(t) + 1
+    b[5] = np.nan  # left out, with its partner
+    assert correlation(a, b) == pytest.approx(1.0)
+    assert correlation(a, -a) == pytest.approx(-1.0)
+    assert np.isnan(correlation(a, np.ones_like(a)))

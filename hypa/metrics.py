@@ -1,6 +1,18 @@
-"""Regression metrics of the paper's Table 1: MAE, MSE, MAPE and R², per state and overall.
+"""Metrics, once for all of hypa: the errors of a prediction against a measurement, and the paper's
+Table 1 metrics.
 
-All inputs are numpy arrays in SI units (rad/s for the yaw rate, rad for the side slip); the
+Every command scores through these functions (the free runs, the benchmark, the simulation of a
+physics model, the explanation, the diagnosis's recovered signals), so an R² or an RMSE means
+the same thing in every report:
+
+    RMSE = sqrt(mean (ŷ - y)²)                       [unit of y]
+    R²   = 1 - Σ(ŷ - y)² / Σ(y - ȳ)²                 [-]  (1: perfect; 0: as good as ȳ)
+    NRMSE = RMSE / σ(y)                              [-]  (so R² = 1 - NRMSE²)
+
+``errors`` gives them (with the mean error) for one channel; ``rms`` and ``correlation`` are the
+two plain statistics the reports also print. The arrays are in the channel's SI unit.
+
+The Table 1 metrics (``regression_metrics``, ``state_metrics``): all inputs are numpy arrays in SI units (rad/s for the yaw rate, rad for the side slip); the
 numbers are computed with torchmetrics' functional API in float64 so they match a hand
 calculation to ~1e-12.
 
@@ -46,6 +58,39 @@ def _checked(pred: np.ndarray, target: np.ndarray, ndim: int) -> tuple[torch.Ten
             bad = int(np.size(array) - np.count_nonzero(np.isfinite(array)))
             raise ValueError(f"{name} has {bad} non-finite values (NaN or inf)")
     return torch.from_numpy(pred), torch.from_numpy(target)
+
+
+def rms(x: np.ndarray) -> float:
+    """Root mean square of ``x`` (any shape) [unit of x]; NaN for an empty array."""
+    x = np.asarray(x, dtype=np.float64)
+    return float(np.sqrt(np.mean(np.square(x)))) if x.size else float("nan")
+
+
+def errors(pred: np.ndarray, target: np.ndarray) -> dict[str, float]:
+    """``rmse``, ``mse``, ``mean_error`` (ŷ - y, mean) [SI], ``r2`` and ``nrmse`` of one channel.
+
+    Over every sample: a non-finite prediction makes them NaN (a caller that scores a signal
+    defined on part of the record masks it first, and says so). R² and NRMSE are NaN for a
+    target without spread.
+    """
+    p, y = np.asarray(pred, dtype=np.float64).ravel(), np.asarray(target, dtype=np.float64).ravel()
+    if p.shape != y.shape or not p.size:
+        raise ValueError(f"pred and target need the same, non-zero size: {p.size} vs {y.size}")
+    error = p - y
+    mse, spread = float(np.mean(error**2)), float(np.var(y))
+    return {"rmse": mse**0.5, "mse": mse, "mean_error": float(error.mean()),
+            "r2": 1.0 - mse / spread if spread > 0 else float("nan"),
+            "nrmse": (mse / spread) ** 0.5 if spread > 0 else float("nan")}
+
+
+def correlation(a: np.ndarray, b: np.ndarray) -> float:
+    """Pearson's r of two signals over the samples where both are finite; NaN where either is constant."""
+    a, b = np.asarray(a, dtype=np.float64).ravel(), np.asarray(b, dtype=np.float64).ravel()
+    ok = np.isfinite(a) & np.isfinite(b)
+    a, b = a[ok], b[ok]
+    if a.size < 2 or np.std(a) == 0 or np.std(b) == 0:
+        return float("nan")
+    return float(np.corrcoef(a, b)[0, 1])
 
 
 def floored_mape(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
