@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed-stamp
 export NO_MKDOCS_2_WARNING := 1
 
 .DEFAULT_GOAL := help
-.PHONY: help install train evaluate reproduce simulate testbench tensorboard test test-slow test-all bench benchmark docs serve-docs lint clean
+.PHONY: help install train evaluate reproduce simulate testbench tensorboard test test-slow test-all speed bench benchmark docs serve-docs lint clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-12s %s\n", $$1, $$2}'
@@ -54,9 +54,10 @@ test-slow: $(STAMP) ## only the checks marked slow
 test-all: $(STAMP) ## every test
 	$(BIN)/python -m pytest -q -m "slow or not slow" $(ARGS)
 
-bench: $(STAMP) ## lifted physics vs recursion vs bare matmul (ratios); time to name the cause (diagnose)
-	$(BIN)/python -m hypa.bench $(ARGS)
-	$(BIN)/python -m hypa.bench_diagnosis
+speed: $(STAMP) ## how fast: the physics blocks (ratios) and the time to name causes; one part: ARGS="physics --min-time 0.1"
+	$(BIN)/python -m hypa.speed $(ARGS)
+
+bench: speed ## the former name of make speed
 
 benchmark: $(STAMP) ## real data (../shared/data): make benchmark ARGS="dataset=silverbox budget=full"
 	$(BIN)/python -m hypa.benchmark $(ARGS)

@@ -1,8 +1,8 @@
-"""python -m hypa.bench_diagnosis runs the engine's naming and reports it (no timing is asserted: CI machines are noisy)."""
+"""python -m hypa.speed diagnosis runs the engine's naming and reports it (no timing is asserted: CI machines are noisy)."""
 
 from pathlib import Path
 
-from hypa.bench_diagnosis import main
+from hypa.speed.diagnosis import main
 
 
 def test_benchmark_runs_on_short_records(tmp_path: Path, capsys) -> None:
@@ -14,3 +14,22 @@ def test_benchmark_runs_on_short_records(tmp_path: Path, capsys) -> None:
     assert "round 1 (" in out and "round 2" not in out and "total:" in out  # a quick check: the first round only
     assert "judged only on the default data" in out
     assert "analyze_residuals" not in out and "step 1" not in out
+
+
+def test_speed_command_and_the_former_names():
+    """``python -m hypa.speed`` picks its part; a misspelt part is one line and exit status 2; the
+    former ``python -m hypa.bench`` still runs the physics part, saying it is deprecated."""
+    import subprocess
+    import sys
+
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, timeout=300)
+
+    bad = run("hypa.speed", "physic")
+    assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "physics, diagnosis" in bad.stderr
+    helped = run("hypa.speed", "physics", "--help")
+    assert helped.returncode == 0 and "--scheduled-only" in helped.stdout
+    old = run("hypa.bench", "--help")
+    assert old.returncode == 0 and "--scheduled-only" in old.stdout
+    old = run("hypa.bench_diagnosis", "--help")
+    assert old.returncode == 0 and "--seconds" in old.stdout
