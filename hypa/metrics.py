@@ -12,6 +12,9 @@ the same thing in every report:
 ``errors`` gives them (with the mean error) for one channel; ``rms`` and ``correlation`` are the
 two plain statistics the reports also print. The arrays are in the channel's SI unit.
 
+A figure over several seeds (the benchmark, the paper's Table 1) or logs (a fleet diagnosis) is
+reported as ``mean_std``: mean ± the *sample* standard deviation (ddof = 1), the same everywhere.
+
 The Table 1 metrics (``regression_metrics``, ``state_metrics``): all inputs are numpy arrays in SI units (rad/s for the yaw rate, rad for the side slip); the
 numbers are computed with torchmetrics' functional API in float64 so they match a hand
 calculation to ~1e-12.
@@ -31,7 +34,8 @@ the target only, so every model on a record is divided by the same numbers.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -91,6 +95,41 @@ def correlation(a: np.ndarray, b: np.ndarray) -> float:
     if a.size < 2 or np.std(a) == 0 or np.std(b) == 0:
         return float("nan")
     return float(np.corrcoef(a, b)[0, 1])
+
+
+@dataclass(frozen=True)
+class MeanStd:
+    """One figure over ``count`` seeds (or logs, runs), in the figure's unit."""
+
+    count: int
+    mean: float
+    std: float  # sample standard deviation (ddof = 1); 0.0 for one value
+    min: float
+    max: float
+
+
+def mean_std(values: Iterable[float]) -> MeanStd:
+    """Mean, sample standard deviation and range of one figure over seeds or logs.
+
+        mean = Σ x_i / n        std = sqrt(Σ (x_i - mean)² / (n - 1))   (0.0 for n = 1)
+
+    The sample standard deviation (ddof = 1) estimates the spread of the figure from seed to
+    seed; the population one (ddof = 0) would understate it for the few seeds a report has
+    (by sqrt((n-1)/n): 18 % for 3 seeds). A caller that reports something else for one value
+    (``None``: no spread known) checks ``count``.
+
+    A NaN (or inf) among the values is kept, never dropped: it makes mean, std, min and max NaN
+    (``count`` still counts it), so a seed that failed shows in the report instead of vanishing
+    from it. A value that is missing (``None``) is the caller's to drop, saying so; ``None`` here,
+    or no values at all, raises (TypeError, ValueError).
+    """
+    x = np.array([float(v) for v in values], dtype=np.float64)
+    if not x.size:
+        raise ValueError("mean_std needs at least one value")
+    if not np.all(np.isfinite(x)):
+        return MeanStd(int(x.size), *[float("nan")] * 4)
+    return MeanStd(int(x.size), float(x.mean()), float(x.std(ddof=1)) if x.size > 1 else 0.0,
+                   float(x.min()), float(x.max()))
 
 
 def floored_mape(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

@@ -1,15 +1,25 @@
-"""Figures. Plot functions take arrays and return matplotlib figures; they compute nothing."""
+"""Figures. Plot functions take arrays and return matplotlib figures; they compute nothing.
+
+Every figure of hypa is made by :func:`subplots`: a ``matplotlib.figure.Figure`` outside
+pyplot, so importing hypa chooses no matplotlib backend (a notebook keeps its own), a figure
+needs no ``plt.close`` (it is freed with its last reference) and saving it (``savefig``,
+TensorBoard's ``add_figure``) works on a machine without a screen.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import Any
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")  # headless: figures go to files and TensorBoard, never to a screen
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
+
+def subplots(nrows: int = 1, ncols: int = 1, figsize: tuple[float, float] | None = None,
+             **kwargs: Any) -> tuple[Figure, Any]:
+    """A figure and its axes, as ``pyplot.subplots`` gives them, without pyplot."""
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(nrows, ncols, **kwargs)
 
 
 
@@ -29,7 +39,7 @@ def time_series(
     """
     units, scale = units or {}, scale or {}
     channels = list(measured)
-    fig, axes = plt.subplots(len(channels), 1, sharex=True, figsize=(11, 2.6 * len(channels)), squeeze=False)
+    fig, axes = subplots(len(channels), 1, sharex=True, figsize=(11, 2.6 * len(channels)), squeeze=False)
     for ax, channel in zip(axes[:, 0], channels):
         k = scale.get(channel, 1.0)
         for name, series in predicted.items():

@@ -20,15 +20,15 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-import matplotlib.pyplot as plt
-import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
+from hypa import markdown as md
 from hypa.errors import UserError, hydra_command, setting
 from hypa.evaluate import Evaluation, evaluate_run
 from hypa.evaluation.plots import bode, rear_steer
 from hypa.evaluation.runs import load_run
 from hypa.evaluation.table1 import comparison_markdown
+from hypa.metrics import mean_std
 
 log = logging.getLogger(__name__)
 ROOT = Path(__file__).resolve().parents[1]
@@ -49,7 +49,8 @@ def train_rows(rows: list[str], seeds: list[int], sweep_dir: Path, n_jobs: int, 
 
 
 def aggregate(evaluations: dict[str, list[Evaluation]]) -> list[dict[str, Any]]:
-    """Mean and std over seeds of each Table 1 metric, per row (validation split)."""
+    """Mean and std over seeds of each Table 1 metric, per row (validation split): ``(mean, std)``,
+    the sample std (``hypa.metrics.mean_std``; 0 for one seed), over the seeds that have the metric."""
     table = []
     for label, evals in evaluations.items():
         row: dict[str, Any] = {"model": label, "seeds": len(evals)}
@@ -59,11 +60,13 @@ def aggregate(evaluations: dict[str, list[Evaluation]]) -> list[dict[str, Any]]:
                           for e in evals]
                 values = [v for v in values if v is not None]
                 if values:
-                    row[f"{mode}/{segment}/{metric}"] = (float(np.mean(values)), float(np.std(values)))
+                    s = mean_std(values)
+                    row[f"{mode}/{segment}/{metric}"] = (s.mean, s.std)
         rear = [e.metrics["splits"]["val"]["signals"]["rear_wheel_angle"]["corr"] for e in evals
                 if "rear_wheel_angle" in e.metrics["splits"]["val"].get("signals", {})]
         if rear:
-            row["rear_wheel_angle/corr"] = (float(np.mean(rear)), float(np.std(rear)))
+            s = mean_std(rear)
+            row["rear_wheel_angle/corr"] = (s.mean, s.std)
         table.append(row)
     return table
 
@@ -79,17 +82,15 @@ def table_markdown(table: list[dict[str, Any]]) -> str:
     parts = []
     for mode, segment in COLUMNS:
         parts += [f"### {mode.replace('_', '-')}, {segment}", "",
-                  "| model | MAE [rad, rad/s] | MSE | MAPE [%] | R² |", "|---|---|---|---|---|"]
-        for row in table:
-            cells = [_cell(row.get(f"{mode}/{segment}/{m}"), m) for m in METRICS]
-            parts.append(f"| {row['model']} | " + " | ".join(cells) + " |")
-        parts.append("")
+                  *md.table(["model", "MAE [rad, rad/s]", "MSE", "MAPE [%]", "R²"],
+                            [[row["model"], *(_cell(row.get(f"{mode}/{segment}/{m}"), m) for m in METRICS)]
+                             for row in table]), ""]
     rear = [row for row in table if "rear_wheel_angle/corr" in row]
     if rear:
         parts += ["### rear-wheel angle of the model vs the measured one (free run, correlation)", "",
                   "Learned implicitly by V1 and V2; a fixed ratio of the steering angle for physical and V3.", "",
-                  "| model | correlation |", "|---|---|"]
-        parts += [f"| {r['model']} | {_cell(r['rear_wheel_angle/corr'], 'corr')} |" for r in rear] + [""]
+                  *md.table(["model", "correlation"], [[r["model"], _cell(r["rear_wheel_angle/corr"], "corr")]
+                                                       for r in rear]), ""]
     return "\n".join(parts)
 
 
@@ -174,7 +175,6 @@ def main(cfg: DictConfig) -> None:
         fig = bode({"measured": measured, **{label: t["model"] for label, t in with_transfer.items()}},
                    reference="measured", gain_unit="1/s")
         fig.savefig(out / "yaw_transfer.png", dpi=120)
-        plt.close(fig)
     learned = {label: e.signals["rear_wheel_angle"] for label, e in first.items()
                if "rear_wheel_angle" in e.signals and any(b.kind == "ann" and "rear_wheel_angle" in b.outputs
                                              for b in e.model_blocks)}
@@ -185,7 +185,6 @@ def main(cfg: DictConfig) -> None:
                          {label: r[2][window] for label, r in learned.items()},
                          title="rear-wheel angle: measured vs implicitly learned")
         fig.savefig(out / "rear_steer.png", dpi=120)
-        plt.close(fig)
     wall = time.time() - start
     (out / "REPORT.md").write_text(report(table, cfg, wall, len(folders)))
     print(table_markdown(table))

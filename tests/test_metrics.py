@@ -6,7 +6,7 @@ import pytest
 import torch
 from torchmetrics.functional import mean_absolute_percentage_error
 
-from hypa.metrics import METRICS, floored_mape, regression_metrics, state_metrics
+from hypa.metrics import METRICS, MeanStd, floored_mape, mean_std, regression_metrics, state_metrics
 
 
 def test_regression_metrics_hand_computed():
@@ -135,3 +135,32 @@ def test_rms_and_correlation():
     assert correlation(a, b) == pytest.approx(1.0)
     assert correlation(a, -a) == pytest.approx(-1.0)
     assert np.isnan(correlation(a, np.ones_like(a)))
+
+
+def test_mean_std_is_the_hand_computed_sample_std():
+    # values 1, 2, 4: mean 7/3; deviations -4/3, -1/3, 5/3; Σ squares = (16 + 1 + 25) / 9 = 42/9
+    # sample std = sqrt(42/9 / (3 - 1)) = sqrt(7/3) = 1.5275...; the population std would be sqrt(14/9) = 1.247...
+    s = mean_std([1.0, 2.0, 4.0])
+    assert s == MeanStd(count=3, mean=pytest.approx(7 / 3, abs=1e-15), std=pytest.approx((7 / 3) ** 0.5, abs=1e-15),
+                        min=1.0, max=4.0)
+    assert mean_std(iter([3.0, 5.0])).std == pytest.approx(2**0.5, abs=1e-15)  # any iterable: (1 + 1) / 1
+
+
+def test_mean_std_of_one_value_has_no_spread():
+    assert mean_std([0.25]) == MeanStd(count=1, mean=0.25, std=0.0, min=0.25, max=0.25)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_mean_std_keeps_a_failed_seed(bad):
+    # a NaN (or inf) among the seeds is not dropped: every figure becomes NaN, the count still counts it
+    s = mean_std([0.9, bad, 0.8])
+    assert s.count == 3
+    assert all(np.isnan(v) for v in (s.mean, s.std, s.min, s.max))
+    assert np.isnan(mean_std([bad]).std)
+
+
+def test_mean_std_refuses_nothing_and_missing_values():
+    with pytest.raises(ValueError, match="at least one value"):
+        mean_std([])
+    with pytest.raises(TypeError):
+        mean_std([1.0, None])

@@ -38,7 +38,9 @@ import yaml
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
+from hypa import markdown as md
 from hypa.errors import UserError, full_error_requested, is_user_error, one_line, user_errors
+from hypa.metrics import mean_std
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -87,9 +89,9 @@ class Spread:
         return np.array([v for v in self.values if v is not None], dtype=float)
 
     def stats(self) -> dict[str, float | int | None]:
-        x = self.present
-        return {"logs": int(x.size), "mean": float(x.mean()), "std": float(x.std(ddof=1)) if x.size > 1 else None,
-                "min": float(x.min()), "max": float(x.max())}
+        """``hypa.metrics.mean_std`` over the logs that name the cause; ``std`` None for one log."""
+        s = mean_std(self.present)
+        return {"logs": s.count, "mean": s.mean, "std": s.std if s.count > 1 else None, "min": s.min, "max": s.max}
 
 
 @dataclass(frozen=True)
@@ -253,8 +255,10 @@ def percent(change: float | None) -> str:
     return "" if change is None else f"{100 * change:+.1f} %"
 
 
-def _cell(text: str) -> str:
-    return text.replace("|", "\\|").replace("\n", " ")
+def _spread_row(key: str, spread: Spread) -> list[str | int]:
+    s = spread.stats()
+    relative = "" if s["std"] is None or s["mean"] == 0 else f"{100 * s['std'] / abs(s['mean']):.1f} %"
+    return [key, spread.unit, s["logs"], *(number(s[k]) for k in ("mean", "std", "min", "max")), relative]
 
 
 def markdown(fleet: Fleet) -> str:
@@ -271,34 +275,31 @@ def markdown(fleet: Fleet) -> str:
              "", "## Per log", ""]
     head = ["job", "log", "named causes", "MSE change", *(["trained"] if trained else []),
             *(f"{k} [{s.unit}]" for k, s in spreads.items())]
-    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    rows = []
     for log in fleet.logs:
-        cells = [_relative(log.folder, fleet.sweep_dir), _cell(log.label)]
+        cells = [_relative(log.folder, fleet.sweep_dir), log.label]  # md.cell escapes a | in them
         if log.failed:
-            cells += [f"**failed**: {_cell(log.error or '')}", "", *([""] if trained else []), *[""] * len(spreads)]
+            cells += [f"**failed**: {log.error or ''}", "", *([""] if trained else []), *[""] * len(spreads)]
         else:
             cells += [", ".join(log.causes) or "none", percent(log.mse_change.get("all")),
                       *([percent(log.mse_change.get("trained"))] if trained else []),
                       *(number(log.estimates[k].value) if k in log.estimates else "" for k in spreads)]
-        lines.append("| " + " | ".join(cells) + " |")
-    lines += ["", "## Across logs", ""]
+        rows.append(cells)
+    lines += [*md.table(head, rows), "", "## Across logs", ""]
     if not diagnosed:
         return "\n".join(lines + ["No log was diagnosed.", ""])
-    lines += ["| cause | named in | share |", "|---|---|---|"]
-    lines += [f"| {c} | {n} / {diagnosed} | {100 * n / diagnosed:.0f} % |" for c, n in counts.items()]
+    lines += md.table(["cause", "named in", "share"],
+                      [[c, f"{n} / {diagnosed}", f"{100 * n / diagnosed:.0f} %"] for c, n in counts.items()])
     if spreads:
         lines += ["", ("Spread of each estimate over the logs that name its cause (std: sample standard deviation; "
                        "a large relative spread is a parameter that changes from log to log):"), "",
-                  "| estimate | unit | logs | mean | std | min | max | std / \\|mean\\| |", "|---|---|---|---|---|---|---|---|"]
-        for key, spread in spreads.items():
-            s = spread.stats()
-            relative = "" if s["std"] is None or s["mean"] == 0 else f"{100 * s['std'] / abs(s['mean']):.1f} %"
-            lines.append(f"| {key} | {spread.unit} | {s['logs']} | {number(s['mean'])} | {number(s['std'])} | "
-                         f"{number(s['min'])} | {number(s['max'])} | {relative} |")
+                  *md.table(["estimate", "unit", "logs", "mean", "std", "min", "max", "std / |mean|"],
+                            [_spread_row(key, spread) for key, spread in spreads.items()])]
     changes = [log.mse_change["all"] for log in fleet.diagnosed if log.mse_change.get("all") is not None]
     if changes:
-        lines += ["", (f"Validation MSE change with the named causes applied: mean {percent(float(np.mean(changes)))}, "
-                       f"from {percent(min(changes))} to {percent(max(changes))}.")]
+        change = mean_std(changes)
+        lines += ["", (f"Validation MSE change with the named causes applied: mean {percent(change.mean)}, "
+                       f"from {percent(change.min)} to {percent(change.max)}.")]
     return "\n".join(lines) + "\n"
 
 

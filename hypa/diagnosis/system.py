@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from hypa import markdown as md
 from hypa.diagnosis.catalogue import Entry
 from hypa.diagnosis.coverage import coverage, short_lines
 from hypa.diagnosis.edits import frozen, set_free
@@ -32,6 +33,7 @@ from hypa.diagnosis.trained import TrainedExtension
 from hypa.metrics import correlation, errors, rms
 from hypa.models.rollout import Prediction, free_run, free_run_metrics
 from hypa.models.spec import DIAGNOSED, ModelSpec, spec_config
+from hypa.plots import time_series
 
 
 
@@ -310,13 +312,8 @@ def _figures(out: Path, before: Sequence[Prediction], after: Sequence[Prediction
              trained: Sequence[Prediction] = (), signals: Sequence[str] = ()) -> dict:
     """Per validation record: measured vs the free runs (nominal, extended, trained); per
     recovered signal that the data measure: the two over the first record."""
-    import matplotlib.pyplot as plt
-
-    from hypa.plots import time_series
-
     def save(fig, name: str) -> str:
         fig.savefig(out / name, dpi=100)
-        plt.close(fig)
         return name
 
     units = {n: dm.channels[n].display_unit for n in (*dm.output_names, *signals)}
@@ -411,14 +408,14 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
                    "stretches than the offsets fitted with it):"), ""]
         lines += [f"- {line}." for line in search.too_short]
     models = [m for m in ("nominal", "extended", "trained") if m in result["metrics"]]
-    lines += ["", "## Per output (validation, free run)", "",
-              "| output | " + " | ".join(f"{m} RMS" for m in models) + " | " + " | ".join(f"{m} R²" for m in models)
-              + " |", "|---|" + "---|" * (2 * len(models))]
+    output_rows = []
     for o in dm.output_names:
         ch = dm.channels[o]
-        rows = [result["metrics"][m][o] for m in models]
-        lines.append(f"| {o} | " + " | ".join(f"{r['rmse'] * ch.display_factor:.3g} {ch.display_unit}" for r in rows)
-                     + " | " + " | ".join(f"{r['r2']:.4f}" for r in rows) + " |")
+        scores = [result["metrics"][m][o] for m in models]
+        output_rows.append([o, *(f"{r['rmse'] * ch.display_factor:.3g} {ch.display_unit}" for r in scores),
+                            *(f"{r['r2']:.4f}" for r in scores)])
+    lines += ["", "## Per output (validation, free run)", "",
+              *md.table(["output", *(f"{m} RMS" for m in models), *(f"{m} R²" for m in models)], output_rows)]
     trained = result["extended"].get("trained")
     if trained:
         lines += ["", f"The trained extension is `{trained['model']}` trained by hypa.train (run `{trained['run']}`): "
@@ -428,13 +425,15 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
                       f"validation records; report `{trained['explained'][0]['report']}`):", ""]
             lines += [f"- `{e['block']}`, {e['signal']}: {e['description']}" for e in trained["explained"]]
     if result["extended"]["signals"]:
-        lines += ["", "## Recovered signals against their measurement", "",
-                  "What a diagnosed block recovers, compared with a channel the data measure but that was "
-                  "never trained on:", "", "| signal | correlation | RMS error | measured RMS |", "|---|---|---|---|"]
+        recovered = []
         for channel, a in result["extended"]["signals"].items():
             ch = dm.channels[channel]
-            lines.append(f"| {channel} | {a['correlation']:.3f} | {a['rmse'] * ch.display_factor:.3g} "
-                         f"{ch.display_unit} | {a['measured_rms'] * ch.display_factor:.3g} {ch.display_unit} |")
+            recovered.append([channel, f"{a['correlation']:.3f}",
+                              f"{a['rmse'] * ch.display_factor:.3g} {ch.display_unit}",
+                              f"{a['measured_rms'] * ch.display_factor:.3g} {ch.display_unit}"])
+        lines += ["", "## Recovered signals against their measurement", "",
+                  "What a diagnosed block recovers, compared with a channel the data measure but that was "
+                  "never trained on:", "", *md.table(["signal", "correlation", "RMS error", "measured RMS"], recovered)]
     lines += ["", "## What remains", ""]
     for s in structure:
         if s.unexplained:
@@ -448,7 +447,7 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
     for name, path in result["extended"]["config"].items():
         lines.append(f"- `{path}` ({WRITTEN.get(name, name)}): train it with "
                      f"`{result['extended']['train_command'][name]}`")
-    lines += ["", "## Every candidate of the first round", "", "| cause | on | fitted | gain |", "|---|---|---|---|"]
+    candidates = []
     for f in search.rounds[0] if search.rounds else []:
         fitted = (f.describe().split(": ", 1)[1] if ": " in f.describe() else "") or (f.error or "–")
         if f.steps and f.steps[0] < f.steps[1]:
@@ -458,7 +457,8 @@ def markdown(result: dict, search: Search, structure: Sequence[OutputStructure],
         if f.screened:
             fitted += " (first fold only: far behind that fold's best)"
         gain = "–" if f.too_short and f.error else f"{100 * f.gain:+.1f} %"
-        lines.append(f"| {f.cause} | {f.target} | {fitted} | {gain} |")
+        candidates.append([f.cause, f.target, fitted, gain])
+    lines += ["", "## Every candidate of the first round", "", *md.table(["cause", "on", "fitted", "gain"], candidates)]
     for name in [*result.get("figures", {}).get("time_series", []), *result.get("figures", {}).get("signals", [])]:
         lines += ["", f"![{name}]({name})"]
     return "\n".join(lines) + "\n"

@@ -16,8 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+from hypa import markdown as md
 from hypa.data import HypaDataModule
-from hypa.metrics import regression_metrics
+from hypa.metrics import mean_std, regression_metrics
 from hypa.evaluation.runs import TrainedRun
 from hypa.models.rollout import free_run
 
@@ -54,10 +55,8 @@ def summarize(scores: Sequence[Score]) -> dict[tuple[str, str, str], Summary]:
         groups.setdefault((s.model, s.test_set, s.output), []).append(s)
     out = {}
     for key, group in groups.items():
-        rms, r2 = np.array([s.rms for s in group]), np.array([s.r2 for s in group])
-        std = (lambda a: float(a.std(ddof=1)) if a.size > 1 else 0.0)
-        out[key] = Summary(float(rms.mean()), std(rms), float(r2.mean()), std(r2), group[0].samples,
-                           {s.seed: (s.rms, s.r2) for s in group})
+        rms, r2 = mean_std(s.rms for s in group), mean_std(s.r2 for s in group)  # std 0 for one seed
+        out[key] = Summary(rms.mean, rms.std, r2.mean, r2.std, group[0].samples, {s.seed: (s.rms, s.r2) for s in group})
     return out
 
 
@@ -87,8 +86,7 @@ def benchmark_table(scores: Sequence[Score], training_time_s: Mapping[str, float
     shown = list(dict.fromkeys(k for outputs in published.values() for figures in outputs.values() for k in figures))
     head = ["test set", "output", *[f"{m} RMS" for m in models], *[f"{m} R²" for m in models],
             *[f"published {k}" for k in shown]]
-    lines = [f"### {dataset}: free-run test error", "", "| " + " | ".join(head) + " |",
-             "|" + "---|" * len(head)]
+    rows = []
     for test_set, output in dict.fromkeys((s.test_set, s.output) for s in scores):
         unit, factor = units.get(output, ("", 1.0))
         rms = [summary.get((m, test_set, output)) for m in models]
@@ -96,7 +94,8 @@ def benchmark_table(scores: Sequence[Score], training_time_s: Mapping[str, float
                  *[_r2_cell(s) for s in rms]]
         figures = published.get(test_set, {}).get(output, {})
         cells += [f"{figures[k]:g} {unit}" if k in figures else "–" for k in shown]
-        lines.append("| " + " | ".join(cells) + " |")
+        rows.append(cells)
+    lines = [f"### {dataset}: free-run test error", "", *md.table(head, rows)]
     lines += ["", "training time: " + ", ".join(f"{m} {training_time_s.get(m, float('nan')):.0f} s" for m in models)]
     seeds = {m: sorted(next(s for k, s in summary.items() if k[0] == m).seeds) for m in models}
     if any(len(v) > 1 for v in seeds.values()):

@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import matplotlib.pyplot as plt
 import numpy as np
 
+from hypa import markdown as md
 from hypa.data import HypaDataModule
 from hypa.errors import UserError
 from hypa.metrics import correlation, errors, state_metrics
@@ -227,8 +227,6 @@ def evaluate_run(run: TrainedRun, out_dir: Path, tensorboard: bool = True) -> Ev
     _write_csv(metrics, out_dir / "metrics.csv")
     for name, fig in figures.items():
         fig.savefig(out_dir / f"{name}.png", dpi=110)
-        if not tensorboard:
-            plt.close(fig)
     report = summary(metrics, [f"{n}.png" for n in figures], units, scale)
     identified = run.folder / "identification.md"  # how the run's physics were identified (hypa.identification)
     if identified.is_file():
@@ -273,14 +271,15 @@ def summary(metrics: dict[str, Any], figures: Sequence[str], units: dict[str, st
              "MAPE is floored: |error| / max(|y|, 10 % of the channel's RMS), so zero crossings do not explode it.",
              "`overall` is the mean over the outputs of MAPE and R² (MAE and MSE mix units there: SI).", ""]
     for split, modes in metrics["splits"].items():
-        lines += [f"## {split}", "", "| mode | segment | output | MAE | RMSE | MAPE [%] | R² |",
-                  "|---|---|---|---|---|---|---|"]
+        rows = []
         for mode in ("windowed", "free_run"):
             for segment, channels in modes.get(mode, {}).items():
                 for channel, m in channels.items():
                     k, unit = scale.get(channel, 1.0), units.get(channel, "SI")
-                    lines.append(f"| {mode} | {segment} | {channel} | {m['mae'] * k:.3g} {unit} | "
-                                 f"{np.sqrt(m['mse']) * k:.3g} {unit} | {m['mape']:.3g} | {m['r2']:.4f} |")
+                    rows.append([mode, segment, channel, f"{m['mae'] * k:.3g} {unit}",
+                                 f"{np.sqrt(m['mse']) * k:.3g} {unit}", f"{m['mape']:.3g}", f"{m['r2']:.4f}"])
+        lines += [f"## {split}", "",
+                  *md.table(["mode", "segment", "output", "MAE", "RMSE", "MAPE [%]", "R²"], rows)]
         for name, r in modes.get("signals", {}).items():
             k, unit = scale.get(name, 1.0), units.get(name, "SI")
             lines += ["", f"Model vs measured {name} (free run; never trained on): correlation {r['corr']:.3f}, "

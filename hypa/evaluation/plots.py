@@ -7,15 +7,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.ticker import NullFormatter
 
-matplotlib.use("Agg")  # headless: figures go to files and TensorBoard, never to a screen
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-from matplotlib.ticker import NullFormatter  # noqa: E402
-
-from hypa.evaluation.transfer import TransferEstimate  # noqa: E402
+from hypa.evaluation.transfer import TransferEstimate
+from hypa.plots import subplots
 
 
 def _masked(values: np.ndarray, coherence: np.ndarray, coherence_min: float | None) -> np.ndarray:
@@ -45,7 +42,7 @@ def bode(
         raise KeyError(f"reference {reference!r} not among the estimates {list(estimates)}")
     n_panels = 2 if reference is None else 3
     ratios = [3, 2] if reference is None else [3, 2, 1]
-    fig, axes = plt.subplots(n_panels, 1, sharex=True, figsize=(7, 2.2 * n_panels + 0.6),
+    fig, axes = subplots(n_panels, 1, sharex=True, figsize=(7, 2.2 * n_panels + 0.6),
                              gridspec_kw={"height_ratios": ratios})
     gain_ax, phase_ax = axes[0], axes[1]
     models = [name for name in estimates if name != reference]
@@ -92,7 +89,7 @@ def rear_steer(
     ``measured`` (None when the record has no rear-wheel sensor) is dashed black on top; each
     learned or modelled angle is solid.
     """
-    fig, ax = plt.subplots(figsize=(9, 3))
+    fig, ax = subplots(figsize=(9, 3))
     for name, angle in learned.items():
         ax.plot(time, np.degrees(angle), lw=1.0, label=name)
     if measured is not None:

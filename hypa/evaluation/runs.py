@@ -19,6 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 from hypa.data import HypaDataModule
 from hypa.errors import UserError, one_line
 from hypa.metadata import sha256
+from hypa.models.rollout import Prediction, free_run, free_run_metrics, model_inputs  # their former home
 from hypa.training import HybridModule
 from hypa.training.checkpoints import load_module
 from hypa.training.run_folder import CONFIG_FILE, RECORD_FILE, read_record
@@ -126,3 +127,7 @@ def windowed(module: HybridModule, dm: HypaDataModule, split: str) -> dict[str, 
         out["record"].append(batch["record"])
         out["start"].append(batch["start"])
     return {k: torch.cat(v).double().numpy() for k, v in out.items()}
+
+
+__all__ = ["Prediction", "TrainedRun", "free_run", "free_run_metrics", "load_run", "model_inputs", "recorded_checkpoint",
+           "run_config", "windowed"]

@@ -21,6 +21,8 @@ from typing import Any
 
 import yaml
 
+from hypa import markdown as md
+
 PAPER_TABLE = Path(__file__).with_name("paper_table1.yaml")
 R2 = "free_run/all/r2"
 R2_WINDOWED = "windowed/all/r2"
@@ -279,18 +281,17 @@ def comparison_rows(table: list[dict[str, Any]], paper: PaperTable) -> list[str]
     common = [label for label in paper.paper if label in r2]
     paper_rank = ranks({label: paper.paper[label]["r2"] for label in common})
     our_rank = ranks({label: r2[label][0] for label in common})
-    header = ("| row | paper R² | hypa R² (free run) | hypa R² (windowed) | paper MSE | hypa MSE (free run) "
-              "| rank paper | rank hypa | remark |")
-    lines = [header, "|---|---|---|---|---|---|---|---|---|"]
+    header = ["row", "paper R²", "hypa R² (free run)", "hypa R² (windowed)", "paper MSE", "hypa MSE (free run)",
+              "rank paper", "rank hypa", "remark"]
+    rows = []
     labels = list(dict.fromkeys([*(row["model"] for row in table), *paper.paper]))
     for label in labels:
         theirs = paper.paper.get(label, {})
-        cells = [f"{theirs['r2']:.3f}" if "r2" in theirs else "–", _pm(r2.get(label), ".4f"),
-                 _pm(windowed.get(label), ".4f"), f"{theirs['mse']:.1e}" if "mse" in theirs else "–",
-                 _pm(mse.get(label), ".2e"), str(paper_rank.get(label, "–")), str(our_rank.get(label, "–")),
-                 _remark(label, r2, paper) if label in r2 else "not run"]
-        lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    return lines
+        rows.append([label, f"{theirs['r2']:.3f}" if "r2" in theirs else "–", _pm(r2.get(label), ".4f"),
+                     _pm(windowed.get(label), ".4f"), f"{theirs['mse']:.1e}" if "mse" in theirs else "–",
+                     _pm(mse.get(label), ".2e"), paper_rank.get(label, "–"), our_rank.get(label, "–"),
+                     _remark(label, r2, paper) if label in r2 else "not run"])
+    return md.table(header, rows)
 
 
 def pair_line(higher: str, lower: str, table: list[dict[str, Any]], paper: PaperTable) -> str:
@@ -382,8 +383,8 @@ def comparison_markdown(table: list[dict[str, Any]], paper: PaperTable | None = 
     extra = [label for label in r2 if label not in paper.paper]
     if extra:
         parts.append(f"- hypa, every row run (free run): {ranking_line({k: v[0] for k, v in r2.items()})}")
-    parts += ["", "### Checks", "", "| | check | figures (hypa) |", "|---|---|---|"]
-    parts += [f"| {_mark(c.passed)} | {c.claim} | {c.figures} |" for c in checks]
+    parts += ["", "### Checks", "",
+              *md.table(["", "check", "figures (hypa)"], [[_mark(c.passed), c.claim, c.figures] for c in checks])]
     differences = difference_lines(table, paper, checks)
     parts += ["", "### Where they differ", "", *differences, ""]
     used = [r for r in paper.reasons if any(f"*{r.id}*" in line for line in differences)]

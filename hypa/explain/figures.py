@@ -14,7 +14,7 @@ from hypa.evaluation.transfer import TransferEstimate, h1_estimate
 from hypa.explain.forms import frequency_response, predict
 from hypa.explain.problem import BlockExplanation, gain_unit
 from hypa.explain.signals import Recording
-from hypa.plots import plt
+from hypa.plots import subplots
 
 if TYPE_CHECKING:
     from hypa.data import HypaDataModule
@@ -43,7 +43,6 @@ def write_figures(result: BlockExplanation, train: Sequence[Recording], val: Seq
 
 def _save(fig, path: Path) -> Path:
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 
@@ -60,7 +59,7 @@ def time_figure(result: BlockExplanation, record: Recording, time: np.ndarray, d
     p = result.problem
     k, unit = _display(p.output, p.units[p.output], dm)
     explained = predict(result.explanation, [record])[0]
-    fig, ax = plt.subplots(figsize=(10, 3.2))
+    fig, ax = subplots(figsize=(10, 3.2))
     ax.plot(time, k * record[p.output], lw=1.0, label="learned block")
     ax.plot(time, k * explained, lw=1.0, label=f"explained ({result.explanation.best.form.name})")
     truth = f"measured:{p.output}"
@@ -113,7 +112,7 @@ def static_figure(result: BlockExplanation, records: Sequence[Recording], dm: Hy
     ky, uy = _display(p.output, p.units[p.output], dm)
     u = np.concatenate([r[x_name] for r in records])
     y = np.concatenate([r[p.output] for r in records])
-    fig, ax = plt.subplots(figsize=(5.5, 4.2))
+    fig, ax = subplots(figsize=(5.5, 4.2))
     ax.scatter(kx * u, ky * y, s=2, alpha=0.3, label="learned block (validation)")
     if "measured:" + p.output in records[0].signals:
         truth = np.concatenate([r["measured:" + p.output] for r in records])

@@ -9,6 +9,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
+from hypa import markdown as md
 from hypa.evaluation.runs import TrainedRun
 from hypa.explain.problem import FIT_SPLIT, SCORE_SPLIT, BlockExplanation, rounded
 
@@ -77,56 +78,57 @@ def _report_block(r: BlockExplanation) -> list[str]:
               + ", ".join(f"{n} [{u[n]}]" for n in p.inputs)
               + (f"; extra {', '.join(f'{n} [{u[n]}]' for n in p.extra)}" if p.extra else "; no extra signals")
               + f". Sample time {1000 * e.dt:.3g} ms; validation std of the output {rounded(e.output_std)} {u[p.output]}.",
-              "", "| rung | form | parameters | R² train | R² validation | score | |", "|---:|---|---:|---:|---:|---:|---|"]
-    for i, f in enumerate(e.forms):
-        mark = "**chosen**" if i == e.chosen else ""
-        lines.append(f"| {f.form.rung} | {f.form.name} | {f.n_parameters} | {f.r2_train:.3f} | {f.r2_val:.3f} | "
-                     f"{f.score:.3f} | {mark} |")
+              "", *md.table(["rung", "form", "parameters", "R² train", "R² validation", "score", ""],
+                            [[f.form.rung, f.form.name, f.n_parameters, f"{f.r2_train:.3f}", f"{f.r2_val:.3f}",
+                              f"{f.score:.3f}", "**chosen**" if i == e.chosen else ""]
+                             for i, f in enumerate(e.forms)], align="rlrrrrl")]
     unresolved = e.unresolved()
     lines += ["", f"Chosen: {e.best.form.name} (penalty {e.penalty:g} per parameter, margin {e.margin:g})."
               + (f" {unresolved[0].upper()}{unresolved[1:]}." if unresolved else ""), "",
-              "| value | signal | estimate | 1σ | unit |", "|---|---|---:|---:|---|"]
-    for v in e.best.values:
-        lines.append(f"| {v.kind} | {v.signal or ''} | {rounded(v.value)} | {rounded(v.std)} | {v.unit} |")
+              *md.table(["value", "signal", "estimate", "1σ", "unit"],
+                        [[v.kind, v.signal or "", rounded(v.value), rounded(v.std), v.unit] for v in e.best.values],
+                        align="llrrl")]
     rest = e.remainder
     lines += ["", f"What remains: {rest.describe()}.", "",
-              "| band [Hz] | share of the remainder | unexplained share of the output there |",
-              "|---|---:|---:|"]
-    for band in rest.bands:
-        lines.append(f"| {band.low:.3g}-{band.high:.3g} | {100 * band.share:.0f} % | "
-                     f"{'-' if not math.isfinite(band.unexplained) else f'{100 * band.unexplained:.0f} %'} |")
+              *md.table(["band [Hz]", "share of the remainder", "unexplained share of the output there"],
+                        [[f"{band.low:.3g}-{band.high:.3g}", f"{100 * band.share:.0f} %",
+                          "-" if not math.isfinite(band.unexplained) else f"{100 * band.unexplained:.0f} %"]
+                         for band in rest.bands], align="lrr")]
     unit = "" if rest.amplitude_unit == "-" else f" {rest.amplitude_unit}"
-    lines += ["", f"| abs({rest.amplitude_signal}){unit} | RMS error [{u[p.output]}] | share of the remainder |",
-              "|---|---:|---:|"]
-    for a in rest.amplitudes:
-        lines.append(f"| {rounded(a.low)}-{rounded(a.high)} | {rounded(a.rms_error)} | {100 * a.share:.0f} % |")
+    lines += ["", *md.table([f"abs({rest.amplitude_signal}){unit}", f"RMS error [{u[p.output]}]",
+                             "share of the remainder"],
+                            [[f"{rounded(a.low)}-{rounded(a.high)}", rounded(a.rms_error), f"{100 * a.share:.0f} %"]
+                             for a in rest.amplitudes], align="lrr")]
     if r.comparison:
         c, unit = r.comparison, u[p.output]
+        pairs = (("learned_vs_measured", "learned block vs measured"),
+                 ("explained_vs_measured", "explained form vs measured"),
+                 ("explained_vs_learned", "explained form vs learned block"))
         lines += ["", (f"Against the measured {p.measured} (validation records; never seen in training; "
                       f"RMS of the measurement {rounded(c['measured_rms']['rms'])} {unit}):"), "",
-                  f"| | correlation | RMS difference [{unit}] | share of the variance explained |",
-                  "|---|---:|---:|---:|"]
-        for pair, label in (("learned_vs_measured", "learned block vs measured"),
-                            ("explained_vs_measured", "explained form vs measured"),
-                            ("explained_vs_learned", "explained form vs learned block")):
-            lines.append(f"| {label} | {c[pair]['corr']:.3f} | {rounded(c[pair]['rms'])} | "
-                         f"{100 * c[pair]['share']:.0f} % |")
+                  *md.table(["", "correlation", f"RMS difference [{unit}]", "share of the variance explained"],
+                            [[label, f"{c[pair]['corr']:.3f}", rounded(c[pair]['rms']),
+                              f"{100 * c[pair]['share']:.0f} %"] for pair, label in pairs], align="lrrr")]
     else:
         lines += ["", f"The records hold no measurement of {p.output}: no comparison with the truth."
                   if not p.corrects else "A correction has no measurement to compare with."]
     if r.replacement:
         rp = r.replacement
-        lines += ["", f"Replaced by its {rp['form']} (`{rp['config']}`: physics blocks with the fitted values; "
-                  "the rest of the model as trained), free-running over the validation records:", "",
-                  "| output | trained model RMS | R² | with the explanation RMS | R² |"
-                  + (f" {rp['baseline']['label']} (baseline) RMS | R² |" if "baseline" in rp else ""),
-                  "|---|---:|---:|---:|---:|" + ("---:|---:|" if "baseline" in rp else "")]
+        header = ["output", "trained model RMS", "R²", "with the explanation RMS", "R²"]
+        if "baseline" in rp:
+            header += [f"{rp['baseline']['label']} (baseline) RMS", "R²"]
+        rows = []
         for name, learned in rp["learned"].items():
             explained, unit = rp["explained"][name], rp["units"][name]
-            base = rp.get("baseline", {}).get(name)
-            lines.append(f"| {name} | {rounded(learned['rms'])} {unit} | {learned['r2']:.4f} | "
-                         f"{rounded(explained['rms'])} {unit} | {explained['r2']:.4f} |"
-                         + (f" {rounded(base['rms'])} {unit} | {base['r2']:.4f} |" if base else ""))
+            cells = [name, f"{rounded(learned['rms'])} {unit}", f"{learned['r2']:.4f}",
+                     f"{rounded(explained['rms'])} {unit}", f"{explained['r2']:.4f}"]
+            if "baseline" in rp:  # the baseline ran on the same outputs; "-" where one is missing
+                base = rp["baseline"].get(name)
+                cells += [f"{rounded(base['rms'])} {unit}", f"{base['r2']:.4f}"] if base else ["-", "-"]
+            rows.append(cells)
+        lines += ["", f"Replaced by its {rp['form']} (`{rp['config']}`: physics blocks with the fitted values; "
+                  "the rest of the model as trained), free-running over the validation records:", "",
+                  *md.table(header, rows, align="l" + "r" * (len(header) - 1))]
     captions = {"time": "learned vs explained over time (first validation record)",
                 "frequency": "frequency response: the learned block (H1) and the chosen form",
                 "static": f"static curve: {p.output} against {p.inputs[0]}"}

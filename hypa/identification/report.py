@@ -6,6 +6,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from hypa import markdown as md
+
 
 @dataclass(frozen=True)
 class Estimate:
@@ -66,23 +68,24 @@ class Identification:
                 f"{state} after {self.iterations} iteration(s), {self.seconds:.1f} s"
                 + (f"; {len(self.warnings)} warning(s)" if self.warnings else ""))
 
+    def _tau(self, name: str) -> str:
+        tau = self.correlation_times.get(name)
+        return "–" if tau is None else f"{tau:.3g}"
+
     def markdown(self) -> str:
         """The report: the estimates with ± 1σ, the correlations, convergence and warnings."""
         lines = ["## Identification", "", self.summary() + f" ({self.message}; last step {self.final_step:.2g}).", "",
                  "± 1σ counts the output errors as correlated over τ samples (the errors weighted by each "
                  "parameter's sensitivity), not as independent.", "",
-                 "| parameter | start | identified | ± 1σ | unit | τ [samples] |", "|---|---|---|---|---|---|"]
-        for e in self.estimates:
-            std = "undetermined" if e.std is None else f"{e.std:.3g}"
-            tau = self.correlation_times.get(e.name)
-            lines.append(f"| {e.name} | {e.initial:.4g} | {e.value:.4g} | {std} | {e.unit} | "
-                         f"{'–' if tau is None else f'{tau:.3g}'} |")
+                 *md.table(["parameter", "start", "identified", "± 1σ", "unit", "τ [samples]"],
+                           [[e.name, f"{e.initial:.4g}", f"{e.value:.4g}",
+                             "undetermined" if e.std is None else f"{e.std:.3g}", e.unit, self._tau(e.name)]
+                            for e in self.estimates])]
         if len(self.estimates) > 1:
             names = [e.name for e in self.estimates]
-            lines += ["", "Correlations of the estimates:", "", "| | " + " | ".join(names) + " |",
-                      "|---" * (len(names) + 1) + "|"]
-            for name, row in zip(names, self.correlation):
-                lines.append(f"| {name} | " + " | ".join("–" if math.isnan(v) else f"{v:+.2f}" for v in row) + " |")
+            lines += ["", "Correlations of the estimates:", "",
+                      *md.table(["", *names], [[name, *("–" if math.isnan(v) else f"{v:+.2f}" for v in row)]
+                                               for name, row in zip(names, self.correlation)])]
         if self.warnings:
             lines += ["", "Warnings:", ""] + [f"- {w}" for w in self.warnings]
         return "\n".join(lines) + "\n"

@@ -30,7 +30,7 @@ from collections.abc import Sequence
 from typing import Any, Literal
 
 import lightning as L
-from lightning.pytorch.loggers import TensorBoardLogger
+from lightning.pytorch.loggers import Logger
 
 from hypa.data import HypaDataModule
 from hypa.identification import Identification, IdentificationError, IdentificationSettings, identify_records
@@ -64,7 +64,7 @@ def plan(module: HybridModule, stages: Sequence[StageSpec]) -> Plan | None:
 
 def identify_physics(module: HybridModule, how: Plan, stages: Sequence[StageSpec], dm: HypaDataModule,
                      folder: RunFolder, settings: IdentificationSettings,
-                     logger: TensorBoardLogger) -> Identification:
+                     logger: Logger) -> Identification:
     """Identify a hybrid's physics (``how``: ``stage`` or ``first``) and report it; the networks then
     train on it. ``stage`` leaves the first stage's settings (the trainer's stage callback sets the
     next); ``first`` restores every block to training with nothing bypassed."""
@@ -81,7 +81,7 @@ def identify_physics(module: HybridModule, how: Plan, stages: Sequence[StageSpec
 
 
 def _identify(module: HybridModule, dm: HypaDataModule, folder: RunFolder, settings: IdentificationSettings,
-              logger: TensorBoardLogger) -> Identification:
+              logger: Logger) -> Identification:
     result = identify_records(module.model, dm, dm.records("train"), settings,
                               progress=lambda text: log.info("%s", text))
     print(result.summary(), flush=True)
@@ -89,15 +89,15 @@ def _identify(module: HybridModule, dm: HypaDataModule, folder: RunFolder, setti
         print(f"  warning: {warning}", flush=True)
     write_text_atomic(folder.path / "identification.md", result.markdown())
     folder.update_record(identification=result.to_dict())
-    experiment = logger.experiment
-    experiment.add_text("identification", result.markdown().replace("\n", "  \n"), 0)
-    for name, value in result.values().items():
-        experiment.add_scalar(f"physics/{name}", value, 0)
+    experiment = getattr(logger, "experiment", None)
+    if hasattr(experiment, "add_text"):  # TensorBoard: the report beside the scalars
+        experiment.add_text("identification", result.markdown().replace("\n", "  \n"), 0)
+    logger.log_metrics({f"physics/{name}": value for name, value in result.values().items()}, step=0)
     return result
 
 
 def fit_by_identification(trainer: L.Trainer, module: HybridModule, dm: HypaDataModule, folder: RunFolder,
-                          settings: IdentificationSettings, logger: TensorBoardLogger) -> dict[str, Any]:
+                          settings: IdentificationSettings, logger: Logger) -> dict[str, Any]:
     """Identify, validate once, save the checkpoint and record it; returns the run's result fields."""
     result = _identify(module, dm, folder, settings, logger)
     module.model.parameters_.set_trainable(None, False)  # the identified values are the run's

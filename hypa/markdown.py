@@ -1,0 +1,46 @@
+"""Markdown for the reports every command writes (``REPORT.md``, ``summary.md``, ``diagnosis.md``,
+``benchmark.md``, ``explanation.md``, ``fleet.md``): one way to write a table.
+
+    table(["parameter", "value", "unit"], [["mass", "92.6", "kg"]], align="lrl")
+
+gives the header row, the alignment row and one row per entry. A cell is written with ``str``;
+a ``|`` inside a cell is escaped (``\\|``) unless it already is, so a cell never splits a row.
+Numbers are rounded by the caller, which knows their unit.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable, Sequence
+
+_ALIGN = {"l": "---", "r": "---:", "c": ":---:"}
+_PIPE = re.compile(r"(?<!\\)\|")
+
+
+def cell(value: object) -> str:
+    """One cell: ``str(value)`` on one line, its bare ``|`` escaped."""
+    return _PIPE.sub(r"\\|", str(value).replace("\n", " "))
+
+
+def row(cells: Iterable[object]) -> str:
+    """``| a | b | c |``."""
+    return "| " + " | ".join(cell(c) for c in cells) + " |"
+
+
+def table(header: Sequence[object], rows: Iterable[Sequence[object]], align: str | None = None) -> list[str]:
+    """The lines of a markdown table: the header, the alignment row, the rows.
+
+    ``align``: one letter per column, ``l`` (left, the default), ``r`` (right, for numbers) or
+    ``c``; a row with another number of cells than the header is refused (ValueError): it would
+    shift every column after it.
+    """
+    align = align or "l" * len(header)
+    if len(align) != len(header) or set(align) - set(_ALIGN):
+        raise ValueError(f"align needs one of l, r, c per column ({len(header)}), got {align!r}")
+    lines = [row(header), "|" + "|".join(_ALIGN[a] for a in align) + "|"]
+    for i, cells in enumerate(rows):
+        cells = list(cells)
+        if len(cells) != len(header):
+            raise ValueError(f"row {i} has {len(cells)} cells for {len(header)} columns: {cells}")
+        lines.append(row(cells))
+    return lines
