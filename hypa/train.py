@@ -22,8 +22,7 @@ from typing import TYPE_CHECKING, Any
 import lightning as L
 import torch
 from hydra.core.hydra_config import HydraConfig
-from lightning.pytorch.callbacks import EarlyStopping
-from lightning.pytorch.loggers import TensorBoardLogger
+from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from hypa.errors import UserError, hydra_command, setting, settings
@@ -58,6 +57,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     from hypa.models import parse_model_spec
     from hypa.physics import HOLDS
     from hypa.training import HybridModule, StagedTraining, ValidationFigures
+    from hypa.training.baseline import network_defaults
     from hypa.training.checkpoints import AtomicCheckpointIO, RecordedCheckpoint, load_module
     from hypa.training.divergence import DivergedError, StopOnNonFiniteLoss
     from hypa.training.identified import fit_by_identification, identify_physics, plan
@@ -65,20 +65,21 @@ def train(cfg: DictConfig) -> dict[str, Any]:
 
     # every plain value first, so a bad override fails before any data are read or generated
     seed, threads = setting(cfg, "seed", int), setting(cfg, "torch_threads", int, minimum=1)
-    epochs = setting(cfg, "trainer.max_epochs", int, minimum=1)
+    epochs = setting(cfg, "trainer.max_epochs", int, optional=True, minimum=1)  # None: see network_defaults
     hold = setting(cfg, "physics.hold", str, choices=HOLDS)
     horizon = setting(cfg, "physics.horizon", int, optional=True) or setting(cfg, "data.window", int)
     lr, physics_lr = (setting(cfg, f"optimizer.{k}", float, positive=True) for k in ("lr", "physics_lr"))
-    weight_decay = setting(cfg, "optimizer.weight_decay", float, minimum=0.0)
-    patience = setting(cfg, "early_stopping.patience", int, minimum=0)
+    weight_decay = setting(cfg, "optimizer.weight_decay", float, optional=True, minimum=0.0)
+    patience = setting(cfg, "early_stopping.patience", int, optional=True, minimum=0)
     min_delta = setting(cfg, "early_stopping.min_delta", float, minimum=0.0)
     model_config = OmegaConf.to_container(cfg.model, resolve=True)
     ann = OmegaConf.to_container(cfg.ann, resolve=True)
-    ann_name = str(ann.pop("name"))
+    ann_name = network_name(str(ann.pop("name")), ann.pop("_target_", None))
     check_ann_settings(ann_name, ann)
     with settings("vehicle"):
         physical_values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.vehicle else {}
     identification = identification_settings(cfg)
+    extra_callbacks = user_callbacks(cfg)  # built before any data are read: a bad one fails first
 
     out, ckpt_path = Path(HydraConfig.get().runtime.output_dir), None
     if cfg.ckpt_path:
@@ -94,6 +95,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
                             f"resume with model={resumed}")
         if ckpt_path.parent.name == "checkpoints":  # resume in the interrupted run's own folder
             out = ckpt_path.parent.parent
+    with settings("logger"):
+        logger = instantiate(cfg.logger, save_dir=str(out))
     with RunFolder.claim(out, resume=ckpt_path) as folder:  # one run, one folder: refused before any data are read
         if ckpt_path is not None:
             log.info("resuming %s in %s", ckpt_path.name, out)
@@ -103,6 +106,13 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             data_dir = data_dir_from_config(cfg)
         dm = datamodule_from_config(cfg.data, data_dir)
         dm.setup()
+        # the settings left null: an end-to-end network's from its training data, the fixed defaults otherwise;
+        # written into the run's configuration (what was trained, for hypa.evaluate and TensorBoard)
+        ann, weight_decay, epochs, patience = network_defaults(model_config, ann_name, ann, dm, lr, weight_decay,
+                                                               epochs, patience, cfg.trainer.limit_train_batches)
+        for key, value in (("optimizer.weight_decay", weight_decay), ("trainer.max_epochs", epochs),
+                           ("early_stopping.patience", patience), *((f"ann.{k}", v) for k, v in ann.items())):
+            OmegaConf.update(cfg, key, value)
         # where the data were, resolved, so hypa.evaluate finds them from any working directory; what
         # the run was made from (code, packages, data checksums), so hypa.evaluate notices other data
         folder.update_record(data_dir=str(data_dir.resolve()), **run_metadata(dm.files, data_dir))
@@ -120,7 +130,6 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             lr=lr, physics_lr=physics_lr, weight_decay=weight_decay,
         )
         stages = parse_model_spec(model_config).stages
-        logger = TensorBoardLogger(save_dir=str(out), name="tensorboard", version="", default_hp_metric=False)
         started = time.perf_counter()
         how = plan(module, stages) if identification is not None and ckpt_path is None else None
         if how in ("stage", "first"):  # a hybrid: its physics identified, then its networks train on it
@@ -129,8 +138,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         checkpoint = RecordedCheckpoint(folder)
         callbacks: list[L.Callback] = [
             StopOnNonFiniteLoss(hint=f"lower optimizer.lr={lr:g} or optimizer.physics_lr={physics_lr:g}"),
-            EarlyStopping(monitor="val/loss", mode="min", patience=patience, min_delta=min_delta,
-                          check_on_train_epoch_end=False),
+            instantiate(cfg.early_stopping, patience=patience, min_delta=min_delta),
+            *extra_callbacks,
         ]
         if stages:
             callbacks.append(StagedTraining(stages, max_epochs=epochs))
@@ -195,6 +204,30 @@ def identification_settings(cfg: DictConfig) -> IdentificationSettings | None:
             max_seconds=setting(cfg, key + "max_seconds", float, optional=True, positive=True))
 
 
+def network_name(name: str, target: Any) -> str:
+    """The network of ``ann``: its config name where ``_target_`` is that name's block (``lstm``), else
+    the ``_target_`` itself, the import path of a network of the user's own (``mypkg.nets.MyBlock``)."""
+    from hypa.ann import ANN_BLOCKS, network_class
+
+    if target is None:
+        return name
+    with settings(f"ann._target_={target}"):
+        cls = network_class(str(target))
+    return name if ANN_BLOCKS.get(name) is cls else str(target)
+
+
+def user_callbacks(cfg: DictConfig) -> list[L.Callback]:
+    """The Lightning callbacks of ``callbacks`` (name -> ``_target_`` config), built by ``instantiate``."""
+    built = []
+    for name, node in (cfg.get("callbacks") or {}).items():
+        with settings(f"callbacks.{name}"):
+            callback = instantiate(node)
+        if not isinstance(callback, L.Callback):
+            raise UserError(f"callbacks.{name}: {type(callback).__name__} is not a lightning Callback")
+        built.append(callback)
+    return built
+
+
 def check_ann_settings(name: str, hparams: dict[str, Any]) -> None:
     """Check the network settings ``ann=name``: a number where the network's default is one,
     then the network built alone from them (tiny sizes in and out), so that its own checks (a
@@ -207,9 +240,9 @@ def check_ann_settings(name: str, hparams: dict[str, Any]) -> None:
     node = OmegaConf.create({"ann": hparams})
     for key, default in defaults.items():
         if key in hparams and isinstance(default, (int, float)) and not isinstance(default, bool):
-            hparams[key] = setting(node, f"ann.{key}", type(default))
+            hparams[key] = setting(node, f"ann.{key}", type(default), optional=True)  # null: see network_defaults
     with settings(f"ann={name}"):
-        build_ann(name, 1, 1, **hparams)
+        build_ann(name, 1, 1, **{k: v for k, v in hparams.items() if v is not None})
 
 
 def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:

@@ -13,7 +13,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from hypa.ann import (
-    ANN_BLOCKS, S4DKernel, SequenceBlock, ann_hyperparameters, build_ann, selective_scan,
+    ANN_BLOCKS, S4DKernel, SequenceBlock, ann_hyperparameters, build_ann, selective_scan, target,
 )
 from hypa.ann.s4 import causal_convolution
 
@@ -318,8 +318,10 @@ def test_every_block_has_a_config_with_its_defaults() -> None:
         for name in NAMES:
             cfg = OmegaConf.to_container(compose(overrides=[f"+ann={name}"]).ann)
             assert cfg.pop("name") == name
+            assert cfg.pop("_target_") == target(name)  # the block instantiate builds
             defaults = ann_hyperparameters(name)
             defaults.pop("zero_init")
+            cfg = {k: defaults.get(k) if v is None else v for k, v in cfg.items()}  # null: the block's (see hypa.train)
             assert cfg == defaults, f"conf/ann/{name}.yaml differs from the code defaults"
             block = build_ann(name, 2, 1, **cfg)
             assert block(torch.zeros(1, 3, 2))[0].shape == (1, 3, 1)

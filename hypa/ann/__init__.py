@@ -14,6 +14,7 @@ import importlib
 import inspect
 from typing import Any
 
+from hydra.errors import InstantiationException
 from hydra.utils import instantiate
 
 from hypa.ann.base import SequenceBlock
@@ -89,7 +90,12 @@ def build_ann(name: str, d_in: int, d_out: int, **hparams: Any) -> SequenceBlock
             f"ANN block {name!r} got unknown hyperparameter(s) {', '.join(unknown)}; "
             f"accepted: {', '.join(accepted)}"
         )
-    return instantiate({"_target_": target(name), "_convert_": "all", **hparams}, d_in, d_out)
+    try:
+        return instantiate({"_target_": target(name), "_convert_": "all", **hparams}, d_in, d_out)
+    except InstantiationException as error:  # the block's own check (a size < 1), as the block raised it
+        if isinstance(error.__cause__, (ValueError, TypeError)):
+            raise error.__cause__ from None
+        raise
 
 
 __all__ = [

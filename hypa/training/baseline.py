@@ -1,0 +1,113 @@
+"""Defaults of an end-to-end network (a model of network blocks only: ``model=blackbox``) from its data.
+
+A baseline is only honest if it is trained as well as its data allow, so its width, weight decay,
+epoch budget and patience are not constants (which suit one data set and starve another) but follow
+from the training data and the optimizer. ``hypa.train`` fills in each one the configuration leaves
+``null`` (a value given is kept):
+
+- width (``ann=lstm``): the width whose weights equal the training values (samples x outputs), about
+  as many unknowns as data, rounded to the nearest power of two and at most the LSTM's default width.
+- weight decay: ``1 / V`` for ``V`` training values: a unit Gaussian prior on the weights, worth one
+  training value (the loss is the mean squared error over the values, in the normalized scale).
+- epoch budget: ``5 / lr`` optimizer steps, in epochs of ``B`` batches: ``ceil(5 / (lr B))``. NAdam
+  moves a weight by about ``lr`` per step, so ``1 / lr`` steps move it by one unit of the normalized
+  scale: the budget is five such units however many batches an epoch has (a short record has few,
+  and 50 epochs of them are a few thousand steps; a long one has many, and needs fewer epochs).
+- patience: ``2 / lr`` steps, ``ceil(2 / (lr B))`` epochs: the windows' validation loss jumps from
+  epoch to epoch, and a patience of a few short epochs stops training after a few hundred steps.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from hypa.ann import ann_hyperparameters
+from hypa.models import parse_model_spec
+
+BUDGET_UNITS = 5    # the epoch budget, in units of 1 / lr optimizer steps
+PATIENCE_UNITS = 2  # the patience, likewise
+
+
+@dataclass(frozen=True)
+class TrainingDefaults:
+    """What :func:`training_defaults` derives."""
+
+    weight_decay: float
+    max_epochs: int
+    patience: int
+
+
+def lstm_weights(hidden_size: int, d_in: int, d_out: int, num_layers: int = 1) -> int:
+    """Weights of ``hypa.ann.LSTMBlock`` (``d_in`` its LSTM's inputs): ``4 h (d_in + h + 2)`` in the
+    first layer (two bias vectors), ``4 h (2 h + 2)`` in each further one, ``d_out (h + 1)`` in the head."""
+    h = hidden_size
+    return 4 * h * (d_in + h + 2) + (num_layers - 1) * 4 * h * (2 * h + 2) + d_out * (h + 1)
+
+
+def matching_width(values: int, d_in: int, d_out: int, num_layers: int = 1) -> float:
+    """The (real) width ``h`` whose :func:`lstm_weights` equal ``values``: the positive root of
+    ``a h^2 + b h + d_out = values``, ``a = 4 + 8 (L - 1)``, ``b = 4 (d_in + 2) + d_out + 8 (L - 1)``."""
+    a = 4 + 8 * (num_layers - 1)
+    b = 4 * (d_in + 2) + d_out + 8 * (num_layers - 1)
+    c = d_out - values
+    return (-b + math.sqrt(b * b - 4 * a * c)) / (2 * a)
+
+
+def lstm_width(values: int, d_in: int, d_out: int, widest: int, num_layers: int = 1) -> int:
+    """The power of two nearest (on a log scale) the :func:`matching_width` for ``values`` training
+    values (samples x outputs), at most ``widest``; 1 where the values do not pay for one unit."""
+    if min(values, d_in, d_out, widest, num_layers) < 1:
+        raise ValueError(f"values, d_in, d_out, widest and num_layers must be >= 1, "
+                         f"got {values}, {d_in}, {d_out}, {widest}, {num_layers}")
+    matching = matching_width(values, d_in, d_out, num_layers)
+    if matching <= 1:
+        return 1
+    width = 2 ** round(math.log2(matching))
+    while width > widest:
+        width //= 2
+    return max(width, 1)
+
+
+def training_defaults(values: int, batches: int, lr: float) -> TrainingDefaults:
+    """Weight decay, epoch budget and patience for ``values`` training values (samples x outputs),
+    ``batches`` optimizer steps per epoch and the learning rate ``lr``."""
+    if values < 1 or batches < 1:
+        raise ValueError(f"values and batches per epoch must be >= 1, got {values}, {batches}")
+    if not lr > 0:
+        raise ValueError(f"lr must be > 0, got {lr}")
+    unit = 1.0 / (lr * batches)  # epochs of 1 / lr optimizer steps
+    return TrainingDefaults(weight_decay=1.0 / values, max_epochs=max(1, math.ceil(BUDGET_UNITS * unit)),
+                            patience=max(1, math.ceil(PATIENCE_UNITS * unit)))
+
+
+FIXED_DEFAULTS = {"weight_decay": 0.0, "max_epochs": 50, "patience": 5}  # null means these for a model with physics
+
+
+def network_defaults(model_config: dict[str, Any], ann_name: str, ann: dict[str, Any], dm: Any, lr: float,
+                     weight_decay: float | None, epochs: int | None, patience: int | None,
+                     limit_train_batches: float) -> tuple[dict[str, Any], float, int, int]:
+    """The network settings, weight decay, epoch budget and patience, each ``None`` (null) one filled in.
+
+    An end-to-end network (every block of the model a network: ``model=blackbox``) takes what
+    :mod:`hypa.training.baseline` derives from its training data (an LSTM's width too); any other
+    model takes :data:`FIXED_DEFAULTS` and the network's own defaults. A value set is kept."""
+    accepted = ann_hyperparameters(ann_name)
+    blocks = parse_model_spec(model_config).blocks
+    if blocks and all(b.kind == "ann" for b in blocks):
+        windows = len(dm.dataset("train"))
+        batches = math.ceil(windows / dm.batch_size)
+        limit = limit_train_batches  # Lightning's: a fraction of the batches (float) or a number of them (int)
+        batches = max(1, min(batches, limit) if isinstance(limit, int) else int(batches * float(limit)))
+        values = sum(len(r) for r in dm.records("train")) * len(dm.output_names)
+        fixed = training_defaults(values, batches, lr).__dict__
+        if ann_name == "lstm" and ann.get("hidden_size") is None:
+            layers = ann.get("num_layers") or accepted["num_layers"]
+            ann["hidden_size"] = min(lstm_width(values, ann.get("input_proj") or len(b.inputs) + len(b.initial_state),
+                                                len(b.outputs), accepted["hidden_size"], layers) for b in blocks)
+    else:
+        fixed = FIXED_DEFAULTS
+    ann = {k: accepted[k] if v is None else v for k, v in ann.items()}  # the network's own default
+    return (ann, fixed["weight_decay"] if weight_decay is None else weight_decay,
+            fixed["max_epochs"] if epochs is None else epochs, fixed["patience"] if patience is None else patience)
