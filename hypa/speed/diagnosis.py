@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 ENGINE_GOAL_S = 10.0  # [s] the engine's naming (hypa.diagnose model=vehicle_nominal) on the default data, 2 cores
-NOMINAL = Path(__file__).resolve().parents[1] / "conf" / "model" / "vehicle_nominal.yaml"
+NOMINAL = Path(__file__).resolve().parents[2] / "conf" / "model" / "vehicle_nominal.yaml"
 MAX_CAUSES = 8  # as conf/diagnose.yaml's diagnosis.max_causes
 QUICK_MAX_CAUSES = 1  # --seconds: the first round only
 
