@@ -73,6 +73,7 @@ def test_parameters_started_30_percent_off_are_recovered_deterministically(data:
     assert model.parameters_.as_floats()["torque_constant"] == pytest.approx(found["torque_constant"])
 
 
+@pytest.mark.slow  # about 20 s on 2 cores; the Jacobian and the divergence tests below cover multiple shooting fast
 def test_multiple_shooting_recovers_the_parameters_and_joins_the_stretches(data: Path) -> None:
     """Records cut into stretches with their own estimated initial states: the same truth within
     2 %, the same optimum as single shooting, continuity reached, deterministic."""

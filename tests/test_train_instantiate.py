@@ -9,6 +9,7 @@ import sys
 import textwrap
 from pathlib import Path
 
+import pytest
 from data_helpers import make_dc_motor_data
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -74,10 +75,14 @@ def test_a_users_network_and_callback_plug_in_by_target(tmp_path):
     assert (tmp_path / "run" / "tensorboard").is_dir()  # the instantiated logger writes into the run folder
 
 
-def test_a_bad_target_is_one_line(tmp_path):
-    for override in ("ann._target_=mynets.NoSuchNet", "ann=tiny_gru ann.widht=3", "+callbacks.x={_target_:builtins.dict}",
-                     "logger._target_=nope.Logger"):
-        result = _train(tmp_path / override.split("=")[0].strip("+~"), *override.split())
-        lines = [line for line in result.stderr.strip().splitlines() if line.strip()]
-        assert result.returncode == 1, (override, result.stderr[-2000:])
-        assert len(lines) == 1 and lines[0].startswith("hypa.train: error:"), (override, result.stderr[-2000:])
+@pytest.mark.parametrize("overrides", [
+    ("ann._target_=mynets.NoSuchNet",),
+    pytest.param(("ann=tiny_gru", "ann.widht=3"), marks=pytest.mark.slow),
+    pytest.param(("+callbacks.x={_target_:builtins.dict}",), marks=pytest.mark.slow),
+    pytest.param(("logger._target_=nope.Logger",), marks=pytest.mark.slow),
+], ids=["network", "hyperparameter", "callback", "logger"])
+def test_a_bad_target_is_one_line(tmp_path, overrides):
+    result = _train(tmp_path, *overrides)
+    lines = [line for line in result.stderr.strip().splitlines() if line.strip()]
+    assert result.returncode == 1, (overrides, result.stderr[-2000:])
+    assert len(lines) == 1 and lines[0].startswith("hypa.train: error:"), (overrides, result.stderr[-2000:])
