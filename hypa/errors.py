@@ -9,8 +9,10 @@ status 1, wherever they happen: in hypa's code or in Hydra's own set-up of the r
 Anything else is a bug and keeps its traceback; ``HYDRA_FULL_ERROR=1`` (or ``HYPA_FULL_ERROR=1``)
 keeps the traceback for user errors too.
 
-A bad value of an override is reported where the value is used: :func:`setting` reads one
-typed value of the configuration, :func:`settings` turns the plain ``ValueError`` /
+A bad value of an override is reported in the words of the setting to fix: a value of the wrong
+type, or a misspelt key, while Hydra composes the typed configuration (:mod:`hypa.commands.config`;
+:func:`one_line` words OmegaConf's error), a value out of its range when the command reads that
+configuration (:func:`checked`, in the schemas' ``__post_init__``); :func:`settings` turns the plain ``ValueError`` /
 ``TypeError`` that a library (Lightning, a network's constructor, the test bench) raises for the
 user's values into a :class:`UserError` named after the settings. Plain ``ValueError``s
 elsewhere stay bugs.
@@ -24,6 +26,7 @@ import math
 import os
 import sys
 import traceback
+from pathlib import Path
 from collections.abc import Callable, Collection, Iterator
 from contextlib import contextmanager
 from typing import Any, TypeVar
@@ -85,9 +88,50 @@ def one_line(error: BaseException) -> str:
 
     if isinstance(error, MissingMandatoryValue) and getattr(error, "full_key", None):
         return f"{error.full_key} is required: give {error.full_key}=..."
+    composing = _schema_message(error)
+    if composing is not None:
+        return composing
     lines = [line.strip() for line in str(error).splitlines() if line.strip()]
     return "".join(line + ("" if i == len(lines) - 1 else " " if line.endswith(":") else "; ")
                    for i, line in enumerate(lines)) or type(error).__name__
+
+
+_CONVERSIONS = {"Integer": "an integer", "Float": "a number", "String": "a string", "Boolean": "true or false",
+                "bool": "true or false"}
+
+
+def _schema_message(error: BaseException) -> str | None:
+    """What a typed configuration (:mod:`hypa.commands.config`) refused while Hydra composed, in the
+    words of a setting checked later (``trainer.max_epochs=abc is not an integer``), or a misspelt key
+    with the keys there are; ``None`` for any other error."""
+    import dataclasses
+    import re
+
+    from hydra.errors import ConfigCompositionException
+    from omegaconf.errors import ConfigAttributeError, ConfigKeyError, ValidationError
+
+    cause = (error.__cause__ or error.__context__) if isinstance(error, ConfigCompositionException) else error
+    key = getattr(cause, "full_key", None)
+    if not key:
+        return None
+    source = re.match(r"In '([^']+)': ", str(error))  # a config file of the defaults list, e.g. a user's model
+    where = f" (in {source.group(1)}.yaml)" if source else ""
+    if isinstance(cause, ValidationError):
+        match = re.match(r"Value '(.*?)'(?: of type '\w+')? (?:could not be converted to (\w+)|is not a valid (bool))",
+                         str(getattr(cause, "msg", "")))
+        if match is None:
+            return None
+        expected = _CONVERSIONS.get(match.group(2) or match.group(3), "of its type")
+        give = "" if expected == "true or false" else f"; give {key}=<{expected.split()[-1]}>"
+        return f"{key}={match.group(1)} is not {expected}{give}{where}"
+    if isinstance(cause, (ConfigAttributeError, ConfigKeyError)) and "not in" in str(getattr(cause, "msg", "")):
+        schema = getattr(cause, "object_type", None)
+        node = key.rpartition(".")[0]
+        if not dataclasses.is_dataclass(schema):
+            return None
+        known = ", ".join(f.name for f in dataclasses.fields(schema))
+        return f"{key}: no such setting; {node or 'the configuration'} has {known}{where}"
+    return None
 
 
 def user_errors(command: str) -> Callable[[F], F]:
@@ -130,15 +174,19 @@ def _hint(error: BaseException) -> str:
     return ""
 
 
-def hydra_command(command: str, config_name: str, config_path: str = "../conf") -> Callable[[F], F]:
+CONF = Path(__file__).resolve().parents[1] / "conf"  # the configuration tree beside the package
+
+
+def hydra_command(command: str, config_name: str, config_path: str | Path = CONF) -> Callable[[F], F]:
     """``@hydra_command("hypa.train", "train")`` on a command's ``main(cfg)``: ``@hydra.main`` with
     one-line user errors both inside the job (hypa's code: Hydra never sees them) and around it
     (Hydra's own work: composing the configuration, creating and writing the run folder).
-    ``config_path`` is relative to the decorated function's file, as for ``@hydra.main``."""
+    ``config_path``: the repository's ``conf/`` (absolute, so a command runs the same whether it is
+    imported or run as ``python -m``)."""
     import hydra
 
     def decorate(main: F) -> F:
-        job = hydra.main(config_path=config_path, config_name=config_name, version_base="1.3")(user_errors(command)(main))
+        job = hydra.main(config_path=str(config_path), config_name=config_name, version_base="1.3")(user_errors(command)(main))
         return user_errors(command)(job)
 
     return decorate
@@ -147,18 +195,16 @@ def hydra_command(command: str, config_name: str, config_path: str = "../conf") 
 _KIND_NAMES = {int: "an integer", float: "a number", str: "a string"}
 
 
-def setting(cfg: Any, key: str, kind: Callable[[Any], T], choices: Collection[T] | None = None,
+def checked(key: str, value: Any, kind: Callable[[Any], T], choices: Collection[T] | None = None,
             optional: bool = False, minimum: float | None = None, positive: bool = False) -> T:
-    """The value at ``key`` (dotted, e.g. ``trainer.max_epochs``) of the configuration as ``kind``.
+    """``value``, the setting ``key`` (dotted, e.g. ``trainer.max_epochs``), as ``kind``: what the typed
+    configurations (:mod:`hypa.commands.config`) check their values with.
 
     A value that is not one (``trainer.max_epochs=abc``), a number that is not finite
     (``optimizer.lr=nan``), one below ``minimum`` or, with ``positive``, not above zero
     (``optimizer.lr=-1``), or one not among ``choices`` is the user's error and names the override
     to fix. ``optional``: ``None`` (``null``) is allowed and returned as is.
     """
-    from omegaconf import OmegaConf
-
-    value = OmegaConf.select(cfg, key, throw_on_missing=True)  # `???` left out: MissingMandatoryValue
     if value is None and optional:
         return None  # type: ignore[return-value]
     try:
@@ -171,14 +217,19 @@ def setting(cfg: Any, key: str, kind: Callable[[Any], T], choices: Collection[T]
         expected = _KIND_NAMES.get(kind, getattr(kind, "__name__", str(kind)))  # type: ignore[call-overload]
         raise UserError(f"{key}={value} is not {expected}; give {key}=<{expected.split()[-1]}>") from None
     if isinstance(converted, float) and not math.isfinite(converted):
-        raise UserError(f"{key}={value} is not a finite number")
+        raise UserError(f"{key}={_shown(value)} is not a finite number")
     if positive and not converted > 0:  # type: ignore[operator]
-        raise UserError(f"{key}={value} must be > 0")
+        raise UserError(f"{key}={_shown(value)} must be > 0")
     if minimum is not None and converted < minimum:  # type: ignore[operator]
-        raise UserError(f"{key}={value} must be >= {minimum:g}")
+        raise UserError(f"{key}={_shown(value)} must be >= {minimum:g}")
     if choices is not None and converted not in choices:
-        raise UserError(f"{key}={value} is not one of {', '.join(map(str, choices))}")
+        raise UserError(f"{key}={_shown(value)} is not one of {', '.join(map(str, choices))}")
     return converted
+
+
+def _shown(value: Any) -> str:
+    """A value as the user wrote it: a float field holds ``-1`` as ``-1.0``, shown ``-1``."""
+    return f"{value:g}" if isinstance(value, float) else str(value)
 
 
 @contextmanager

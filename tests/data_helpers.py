@@ -9,7 +9,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from scipy.io import savemat
 
-from hypa.testbench.sensors import CHANNELS
+from hypa.paper.testbench.sensors import CHANNELS
 
 SAMPLE_RATE_HZ = 1024.0
 ALL_CHANNELS = CHANNELS  # every channel the test bench measures

@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from hypa.speed.diagnosis import main
+from hypa.commands.speed.diagnosis import main
 
 
 def test_benchmark_runs_on_short_records(tmp_path: Path, capsys) -> None:

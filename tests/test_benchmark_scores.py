@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from hypa.evaluation.benchmark import Score, benchmark_table, summarize, write_benchmark_json
+from hypa.evaluation.benchmark import Score, benchmark, summarize
+from hypa.evaluation.benchmark_result import Benchmark, read_benchmarks
 
 UNITS = {"position": ("mm", 1000.0)}
 PUBLISHED = {"test": {"position": {"linear": 5.53}}}
@@ -28,25 +29,51 @@ def test_seeds_are_summarized_by_mean_and_sample_std() -> None:
 
 
 def test_the_table_shows_mean_and_spread_in_display_units() -> None:
-    table = benchmark_table(scores(), {"physical": 80.0, "hybrid": 300.0}, PUBLISHED, UNITS, "emps")
+    table = benchmark("emps", scores(), {"physical": 80.0, "hybrid": 300.0}, PUBLISHED, UNITS).markdown()
     row = next(line for line in table.splitlines() if line.startswith("| test | position |"))
     assert "| 5 ± 1.4 mm | 3 mm | 0.9850 ± 0.0071 | 0.9950 |" in row and "| 5.53 mm |" in row
     tiny = [Score("m", "t", "position", 0.004, 0.99001, 100, 0), Score("m", "t", "position", 0.004, 0.99002, 100, 1)]
-    assert "0.9900 ± 7e-06" in benchmark_table(tiny, {}, {}, UNITS, "emps")  # not "± 0.0000"
+    assert "0.9900 ± 7e-06" in benchmark("emps", tiny, {}, {}, UNITS).markdown()  # not "± 0.0000"
     assert "mean ± standard deviation over seeds physical [0, 1], hybrid [0]" in table
     assert "training time: physical 80 s, hybrid 300 s" in table
 
 
 def test_one_seed_keeps_the_plain_table() -> None:
-    table = benchmark_table(scores()[2:], {"hybrid": 300.0}, PUBLISHED, UNITS, "emps")
+    table = benchmark("emps", scores()[2:], {"hybrid": 300.0}, PUBLISHED, UNITS).markdown()
     assert "| 3 mm |" in table and "±" not in table
 
 
 def test_the_json_holds_means_in_si_units_and_every_seed(tmp_path: Path) -> None:
     path = tmp_path / "benchmark.json"
-    write_benchmark_json(path, "emps", scores(), {"physical": 80.0}, PUBLISHED, UNITS)
+    benchmark("emps", scores(), {"physical": 80.0}, PUBLISHED, UNITS).to_json(path)
     content = json.loads(path.read_text())["emps"]
     entry = content["models"]["physical"]["test_sets"]["test"]["position"]
     assert entry["rms"] == pytest.approx(0.005) and entry["samples"] == 100
     assert entry["seeds"] == {"0": {"rms": 0.004, "r2": 0.99}, "1": {"rms": 0.006, "r2": 0.98}}
     assert content["published"] == PUBLISHED and content["display_units"]["position"]["unit"] == "mm"
+
+
+def test_the_json_reads_back_and_keeps_other_data_sets(tmp_path: Path) -> None:
+    path = tmp_path / "benchmark.json"
+    emps = benchmark("emps", scores(), {"physical": 80.0, "hybrid": 300.0}, PUBLISHED, UNITS)
+    other = benchmark("silverbox", scores()[2:], {"hybrid": 10.0}, {}, {})
+    emps.to_json(path)
+    other.to_json(path)
+    assert read_benchmarks(path) == {"emps": emps, "silverbox": other}
+    assert Benchmark.from_json(path, "emps") == emps
+    assert Benchmark.from_json(path, "emps").markdown() == emps.markdown()
+    with pytest.raises(ValueError, match="2 data sets"):
+        Benchmark.from_json(path)
+
+
+def test_a_file_written_before_the_typed_result_reads_back(tmp_path: Path) -> None:
+    path = tmp_path / "benchmark.json"
+    path.write_text(json.dumps({"emps": {
+        "models": {"physical": {"training_time_s": 80.0, "test_sets": {"test": {"position": {
+            "rms": 0.005, "rms_std": 0.0014, "r2": 0.985, "r2_std": 0.007, "samples": 100,
+            "seeds": {"0": {"rms": 0.004, "r2": 0.99}, "1": {"rms": 0.006, "r2": 0.98}}}}}}},
+        "published": PUBLISHED, "display_units": {"position": {"unit": "mm", "factor": 1000.0}}}}))
+    result = Benchmark.from_json(path)
+    row = result.rows[("physical", "test", "position")]
+    assert row.seeds == {0: (0.004, 0.99), 1: (0.006, 0.98)} and result.units == UNITS
+    assert "| test | position | 5 ± 1.4 mm | 0.9850 ± 0.0070 | 5.53 mm |" in result.markdown()

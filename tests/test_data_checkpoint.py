@@ -6,7 +6,7 @@ import lightning as L
 import torch
 from data_helpers import make_data_dir
 
-from hypa.testbench.sensors import TESTBENCH_CHANNELS
+from hypa.paper.testbench.sensors import TESTBENCH_CHANNELS
 from hypa.data import HypaDataModule
 
 

@@ -12,11 +12,11 @@ from hydra import compose, initialize_config_dir
 from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
-import hypa  # noqa: F401  (registers the schema, as every entry point does)
+import hypa.commands  # noqa: F401  (registers the schemas, as every command does)
 from hypa.data import DataError, HypaDataModule, datamodule_from_config, decimate
 from hypa.data.from_config import validated
-from hypa.entry import data_dir_from_config
-from hypa.testbench.sensors import TESTBENCH_CHANNELS
+from hypa.data.from_config import data_dir_from_config
+from hypa.paper.testbench.sensors import TESTBENCH_CHANNELS
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 DATASETS = ("testbench", "files", "silverbox", "emps", "racecar")

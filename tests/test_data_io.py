@@ -24,7 +24,7 @@ from hypa.data import (
     read_columns,
     unit_factor,
 )
-from hypa.testbench.sensors import TESTBENCH_CHANNELS
+from hypa.paper.testbench.sensors import TESTBENCH_CHANNELS
 
 BENCH = {c.name: c for c in TESTBENCH_CHANNELS}
 MODEL = ["steering_wheel_angle", "yaw_rate", "side_slip"]

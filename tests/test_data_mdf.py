@@ -272,6 +272,7 @@ def test_dataset_files_reads_an_mdf_folder_in_si_at_the_model_rate(tmp_path: Pat
     32 Hz) on MDF files in deg and °/s at 200 and 100 Hz: read in SI, resampled, decimated."""
     from hydra import compose, initialize_config_dir
 
+    import hypa.commands  # noqa: F401  (registers the schemas conf/train.yaml extends)
     from hypa.data import datamodule_from_config
 
     folder = _vehicle_folder(tmp_path / "mdf")

@@ -17,7 +17,7 @@ from hypa.data import (
     decimate,
     load_record,
 )
-from hypa.testbench.sensors import TESTBENCH_CHANNELS
+from hypa.paper.testbench.sensors import TESTBENCH_CHANNELS
 
 WINDOW, STRIDE, EVAL_STRIDE = 20, 3, 7
 CONF = Path(__file__).resolve().parents[1] / "conf" / "dataset"

@@ -14,7 +14,7 @@ from hydra import compose, initialize_config_dir
 
 import hypa  # noqa: F401  (registers the schema, as every entry point does)
 from hypa.data import HypaDataModule, datamodule_from_config, read_columns
-from hypa.entry import data_dir_from_config
+from hypa.data.from_config import data_dir_from_config
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"

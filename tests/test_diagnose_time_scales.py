@@ -23,7 +23,8 @@ import pytest
 from scipy import signal
 
 from hypa.data import datamodule_from_config
-from hypa.diagnosis.engine import Problem, name_causes
+from hypa.diagnosis.problem import Problem
+from hypa.diagnosis.search import name_causes
 from hypa.diagnosis.scales import Scales
 from hypa.models.spec import parse_model_spec
 

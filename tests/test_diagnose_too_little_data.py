@@ -25,9 +25,9 @@ from pathlib import Path
 
 import pytest
 
-from hypa.testbench import TestbenchConfig
-from hypa.testbench.config import RecordConfig
-from hypa.testbench.dataset import generate_dataset
+from hypa.paper.testbench import TestbenchConfig
+from hypa.paper.testbench.config import RecordConfig
+from hypa.paper.testbench.dataset import generate_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 EFFECTS_OFF = {"tires": {"enabled": False}, "relaxation": {"enabled": False},

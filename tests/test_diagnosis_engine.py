@@ -1,4 +1,4 @@
-"""The generic diagnosis engine (hypa.diagnosis.engine): effects hidden in a system's data are named.
+"""The generic diagnosis engine (hypa.diagnosis.search): effects hidden in a system's data are named.
 
 The truth is a mass-spring-damper simulated by scipy (not by hypa), driven by a random force,
 with one hidden effect at a random magnitude per seed: a dead time of the force, a stiffness
@@ -20,7 +20,8 @@ from scipy import signal
 from hypa.data import datamodule_from_config
 from hypa.diagnosis.catalogue import CatalogueError, catalogue_candidates, load_catalogue
 from hypa.diagnosis.edits import applied
-from hypa.diagnosis.engine import Problem, format_value, name_causes
+from hypa.diagnosis.problem import Problem, format_value
+from hypa.diagnosis.search import name_causes
 from hypa.models.spec import parse_model_spec
 
 RATE = 100.0  # [Hz]

@@ -85,6 +85,15 @@ def test_free_runs_improve_from_nominal_to_identified_to_hybrid(page: dict) -> N
     assert rms["hybrid"] < 0.85 * rms["identified physics"]  # the page: 4.74 mm
 
 
+def test_the_models_are_built_from_what_the_data_module_knows(page: dict) -> None:
+    """No statistics, names or sample times copied by hand: ``from_data`` takes them from ``dm``."""
+    assert "state_dict()" not in PAGE.read_text()
+    dm, module = page["dm"], page["module"]
+    assert module.hparams.normalization == dm.normalization.state_dict()
+    assert (module.hparams.horizon, module.hparams.past, module.hparams.hold) == (dm.window, dm.past, "foh")
+    assert page["model"].hold == "foh" and page["model"].input_names == dm.input_names
+
+
 @pytest.mark.slow
 def test_diagnosis_names_the_hidden_stiffening_spring(diagnosed: dict) -> None:
     search = diagnosed["search"]

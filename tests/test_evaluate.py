@@ -44,7 +44,7 @@ def _write_config(folder: Path, overrides: list[str]) -> None:
 def test_free_run_of_physical_model_equals_the_physics_recursion(trained, hypa_cache) -> None:
     from hypa.evaluation.runs import load_run
     from hypa.models.rollout import free_run
-    from hypa.evaluate import run_datamodule
+    from hypa.commands.evaluate import run_datamodule
     from hypa.vehicle import VehicleParameters
     from vehicle_reference import simulate_vehicle
 

@@ -17,7 +17,8 @@ from scipy import signal
 
 from hypa.errors import UserError
 from hypa.explain import Recording, explain
-from hypa.explain.signals import delayed, filtered, lag_filter, unit_ratio
+from hypa.data.units import unit_ratio
+from hypa.explain.signals import delayed, filtered, lag_filter, second_order_filters
 
 DT = 0.01  # [s] the records' sample time
 FINE = 10  # the truth is simulated on DT / FINE
@@ -208,9 +209,22 @@ def test_the_lag_filter_is_exact_for_an_input_linear_between_samples():
     np.testing.assert_allclose(filtered(u, lag_filter(0.07, DT)), expected, atol=1e-9)
 
 
+@pytest.mark.parametrize(("frequency", "damping"), [(1.5, 0.3), (4.0, 1.0), (0.5, 3.0)])
+def test_the_second_order_filters_are_exact_for_an_input_linear_between_samples(frequency, damping):
+    rng = np.random.default_rng(1)
+    u = np.concatenate([[0.0], rng.standard_normal(300)])
+    t = np.arange(len(u)) * DT
+    omega = 2 * np.pi * frequency
+    den = [1 / omega**2, 2 * damping / omega, 1.0]
+    lowpassed, rate = second_order_filters(frequency, damping, DT)
+    np.testing.assert_allclose(filtered(u, lowpassed), signal.lsim(([1.0], den), u, t)[1], atol=1e-9)
+    np.testing.assert_allclose(filtered(u, rate), signal.lsim(([1.0, 0.0], den), u, t)[1], atol=1e-8)
+
+
 def test_a_fractional_delay_interpolates_and_holds_the_first_sample():
     u = np.arange(6.0) + 1.0
     np.testing.assert_allclose(delayed(u, 0.025, DT), [1.0, 1.0, 1.0, 1.5, 2.5, 3.5])
+    np.testing.assert_allclose(delayed(np.column_stack([u, -u]), 0.025, DT)[:, 1], -delayed(u, 0.025, DT))
 
 
 @pytest.mark.parametrize(("numerator", "denominator", "unit"), [

@@ -25,11 +25,13 @@ import pytest
 import yaml
 from hydra.core.override_parser.overrides_parser import OverridesParser
 
+from hypa.commands import fleet as fleet_command
 from hypa.diagnosis import fleet
+from hypa.diagnosis.result import FindingRow
 from hypa.diagnosis.trained import ExtensionTrainingError
 from hypa.errors import UserError
-from hypa.testbench import TestbenchConfig
-from hypa.testbench.dataset import generate_dataset
+from hypa.paper.testbench import TestbenchConfig
+from hypa.paper.testbench.dataset import generate_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 WORN_CR = (180_000.0, 160_000.0, 140_000.0)  # [N/rad] the truth's rear axle, log by log
@@ -127,7 +129,7 @@ def test_summary_command_rebuilds_the_same_summary(sweep, capsys) -> None:
     written = (folder / "fleet.json").read_text(), (folder / "fleet.md").read_text()
     (folder / "fleet.json").unlink()
     (folder / "fleet.md").unlink()
-    assert fleet.main(["summary", str(folder)]) == 0
+    assert fleet_command.main(["summary", str(folder)]) == 0
     assert ((folder / "fleet.json").read_text(), (folder / "fleet.md").read_text()) == written
     assert "fleet of 4 logs (1 failed" in capsys.readouterr().out
 
@@ -142,7 +144,7 @@ def test_run_command_expands_a_glob_into_the_sweep(tmp_path: Path, capfd, monkey
     missing = tmp_path / "missing.yaml"
     monkeypatch.chdir(ROOT)
     monkeypatch.setenv("HYDRA_FULL_ERROR", "0")
-    code = fleet.main(["run", str(tmp_path / "logs" / "*"), f"diagnosis.catalogue=['{missing}']",
+    code = fleet_command.main(["run", str(tmp_path / "logs" / "*"), f"diagnosis.catalogue=['{missing}']",
                        f"hydra.sweep.dir={tmp_path / 'sweep'}"])
     out, err = capfd.readouterr()
     assert code == 1, err[-3000:]
@@ -156,7 +158,7 @@ def test_run_command_expands_a_glob_into_the_sweep(tmp_path: Path, capfd, monkey
 
 def test_run_command_without_a_match_is_a_one_line_error(tmp_path: Path, capsys) -> None:
     with pytest.raises(SystemExit) as exit_:
-        fleet.main(["run", str(tmp_path / "nothing*")])
+        fleet_command.main(["run", str(tmp_path / "nothing*")])
     assert exit_.value.code == 1
     assert "hypa.diagnosis.fleet: error: no log folder matches" in capsys.readouterr().err
 
@@ -164,7 +166,7 @@ def test_run_command_without_a_match_is_a_one_line_error(tmp_path: Path, capsys)
 @pytest.mark.parametrize("path", ["/logs/plain", "/logs/a b,c", "/logs/it's", "C:\\logs\\x", "/logs/q$r", "/t\\"])
 def test_paths_survive_hydra_sweep_quoting(path: str) -> None:
     """What the sweeper hands each job (its override string, re-parsed) is the folder itself."""
-    override = OverridesParser.create().parse_overrides([f"data.dir={fleet.hydra_quoted(path)},other"])[0]
+    override = OverridesParser.create().parse_overrides([f"data.dir={fleet_command.hydra_quoted(path)},other"])[0]
     jobs = list(override.sweep_string_iterator())
     assert OverridesParser.create().parse_override(f"data.dir={jobs[0]}").value() == path
 
@@ -183,9 +185,14 @@ def _job(root: Path, name: str, overrides: list[str], diagnosis: dict | None = N
 
 
 def _named(cause: str, target: str, values: dict[str, float], units: dict[str, str]) -> dict:
-    """A ``named`` row of diagnosis.json (:meth:`hypa.diagnosis.engine.Finding.to_dict`, the keys read here)."""
+    """A ``named`` row of diagnosis.json (:meth:`hypa.diagnosis.finding.Finding.to_dict`, the keys read here)."""
     return {"cause": cause, "target": target, "values": values, "units": units, "score": 0.01, "gain": 0.5,
             "text": f"{cause} on {target}"}
+
+
+def _row(*args) -> FindingRow:
+    """The same row as diagnosis.json reads back."""
+    return FindingRow.from_dict(_named(*args))
 
 
 def _diagnosis(named: list[dict], change: float, trained: float | None = None) -> dict:
@@ -263,12 +270,12 @@ def test_summary_builder_on_synthetic_jobs(tmp_path: Path) -> None:
 def test_estimates_of_any_system_in_display_units() -> None:
     """Units from the row itself: a plant parameter in kg stays kg, an angle offset goes to deg;
     a cause named on two targets in one log keeps both, told apart by the target."""
-    mass = fleet.estimates(_named("parameter_mismatch", "cart/mass", {"cart/mass": 2.5}, {"cart/mass": "kg"}))
+    mass = fleet.estimates(_row("parameter_mismatch", "cart/mass", {"cart/mass": 2.5}, {"cart/mass": "kg"}))
     assert mass == {"parameter_mismatch: cart/mass": fleet.Estimate(2.5, "kg")}
-    angle = fleet.estimates(_named("input_offset", "theta", {"theta": 0.01}, {"theta": "rad"}))
+    angle = fleet.estimates(_row("input_offset", "theta", {"theta": 0.01}, {"theta": "rad"}))
     assert angle["input_offset: theta"].unit == "deg"
     assert angle["input_offset: theta"].value == pytest.approx(0.5730, rel=1e-3)
-    assert fleet.estimates(_named("discretization", "plant", {}, {})) == {}  # a cause without a quantity
+    assert fleet.estimates(_row("discretization", "plant", {}, {})) == {}  # a cause without a quantity
 
 
 def test_same_cause_on_two_targets_and_an_unreadable_report(tmp_path: Path) -> None:

@@ -131,12 +131,13 @@ def test_scheduling_and_estimation_errors_name_what_exists() -> None:
 
 
 def test_training_refuses_a_past_too_short_to_estimate_the_state() -> None:
-    from hypa.data import Normalization
+    from hypa.data import DataSignature, Normalization
     from hypa.training import HybridModule
 
     config = {"name": "oscillator", "outputs": ["y"], "parameters": MSD, "blocks": {
         "oscillator": {"kind": "physics", "system": "mass_spring_damper", "inputs": ["u"], "outputs": ["y"]}}}
-    norm = Normalization(["u", "y"], [0.0, 0.0], [1.0, 1.0]).state_dict()
+    data = lambda past: DataSignature(["u"], ["y"], Normalization(["u", "y"], [0.0, 0.0], [1.0, 1.0]), DT,  # noqa: E731
+                                      window=100, past=past)
     with pytest.raises(ValueError, match="estimates its 2 states from 1 measured value.*at least 1"):
-        HybridModule(config, {}, norm, ["u"], ["y"], dt=DT, past=0)
-    HybridModule(config, {}, norm, ["u"], ["y"], dt=DT, past=1)  # two samples of the position: enough
+        HybridModule.from_data(data(0), config)
+    HybridModule.from_data(data(1), config)  # two samples of the position: enough

@@ -13,7 +13,7 @@ from data_helpers import make_data_dir
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-import hypa.train  # noqa: F401  (registers the ${channels:...} resolver the models use)
+import hypa.commands.train  # noqa: F401  (registers the ${channels:...} resolver the models use)
 from hypa.ann import build_ann
 from hypa.data import datamodule_from_config
 from hypa.training.baseline import (

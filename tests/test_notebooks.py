@@ -11,6 +11,33 @@ from nbclient import NotebookClient
 from conftest import SHORT_OVERRIDES
 
 ROOT = Path(__file__).resolve().parents[1]
+NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
+
+
+def cleared(path: Path) -> nbformat.NotebookNode:
+    """The notebook as stored, without its stored outputs (they must not pass for the run's)."""
+    notebook = nbformat.read(path, as_version=4)
+    for cell in notebook.cells:
+        if cell.cell_type == "code":
+            cell.outputs, cell.execution_count = [], None
+    return notebook
+
+
+def test_the_stored_notebooks_show_their_outputs() -> None:
+    """A reader on GitHub sees each notebook's printed lines, tables and figures: stored from one
+    run top to bottom, without errors, small, and without the paths of the machine that ran it."""
+    assert [p.name for p in NOTEBOOKS] == ["01_reproduce_paper.ipynb", "02_diagnose.ipynb"]
+    for path in NOTEBOOKS:
+        notebook = nbformat.read(path, as_version=4)
+        code = [cell for cell in notebook.cells if cell.cell_type == "code"]
+        assert [cell.execution_count for cell in code] == list(range(1, len(code) + 1)), path.name
+        outputs = [o for cell in code for o in cell.outputs]
+        assert sum(bool(cell.outputs) for cell in code) >= len(code) - 1, path.name  # the imports print nothing
+        assert not [o for o in outputs if o.output_type == "error"], path.name
+        assert any("image/png" in o.get("data", {}) for o in outputs), path.name
+        text = nbformat.writes(notebook)
+        assert str(ROOT) not in text and "/tmp/" not in text, path.name
+        assert path.stat().st_size < 1_000_000, path.name
 
 
 def test_reproduce_notebook_runs_on_a_tiny_reproduction(tmp_path: Path, hypa_cache: Path) -> None:
@@ -27,7 +54,7 @@ def test_reproduce_notebook_runs_on_a_tiny_reproduction(tmp_path: Path, hypa_cac
         assert (tmp_path / "results" / name).is_file(), name
     assert "V1 LSTM" in (tmp_path / "results" / "table1.md").read_text()
 
-    notebook = nbformat.read(ROOT / "notebooks" / "01_reproduce_paper.ipynb", as_version=4)
+    notebook = cleared(ROOT / "notebooks" / "01_reproduce_paper.ipynb")
     os.environ["HYPA_RESULTS"] = str(tmp_path / "results")
     try:
         NotebookClient(notebook, timeout=120, kernel_name="python3",
@@ -46,7 +73,7 @@ def test_diagnose_notebook_names_the_rear_steering_and_the_relaxation(tmp_path: 
     monkeypatch.setenv("HYPA_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.setenv("HYPA_DIAGNOSE_SECONDS", "40")
     monkeypatch.setenv("HYPA_DIAGNOSE_MAX_CAUSES", "3")
-    notebook = nbformat.read(ROOT / "notebooks" / "02_diagnose.ipynb", as_version=4)
+    notebook = cleared(ROOT / "notebooks" / "02_diagnose.ipynb")
     NotebookClient(notebook, timeout=300, kernel_name="python3",
                    resources={"metadata": {"path": str(ROOT / "notebooks")}}).execute()
     outputs = [o for cell in notebook.cells if cell.cell_type == "code" for o in cell.get("outputs", [])]

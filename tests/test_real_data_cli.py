@@ -71,17 +71,13 @@ def test_silverbox_state_estimated_from_the_past_starts_the_nominal_physics_righ
 
     from hypa.data import datamodule_from_config
     from hypa.models.rollout import free_run
-    from hypa.models import ComposedModel, parse_model_spec
+    from hypa.models import ComposedModel
 
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         cfg = compose(config_name="train", overrides=["dataset=silverbox", "model=silverbox_physical"])
     dm = datamodule_from_config(cfg.data, SHARED / "silverbox")
     dm.setup()
-    norm = dm.normalization
-    scale = lambda names: {n: (float(norm.subset([n]).mean[0]), float(norm.subset([n]).std[0])) for n in names}  # noqa: E731
-    model = ComposedModel(parse_model_spec(OmegaConf.to_container(cfg.model, resolve=True)), {}, dm.input_names,
-                          dm.output_names, scale(dm.input_names), scale(dm.output_names), dm.dt, horizon=100,
-                          hold="zoh").double()
+    model = ComposedModel.from_data(dm, OmegaConf.to_container(cfg.model, resolve=True), horizon=100).double()
     record = dm.test_sets()["multisine"][0]
     prediction = free_run(model, dm, record)
     error = prediction.predicted["y"][prediction.first :] - prediction.measured["y"][prediction.first :]

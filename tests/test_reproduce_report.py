@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
-from hypa.evaluation.table1 import (
+from hypa.paper.table1 import (
     CHECKS,
     PAPER_TABLE,
     Ours,
@@ -24,7 +24,7 @@ PASSING = {"physical": 0.960, "LSTM": 0.998, "Transformer": 0.997, "S4": 0.995, 
 
 
 def synthetic_table(r2: dict[str, float], std: float = 0.0005, rear_corr: float = 0.93) -> list[dict]:
-    """Rows as hypa.reproduce.aggregate returns them, MSE falling as R² rises."""
+    """Rows as hypa.commands.reproduce.aggregate returns them, MSE falling as R² rises."""
     table = [{"model": label, "seeds": 3, "free_run/all/r2": (value, std),
               "windowed/all/r2": (min(value + 0.001, 1.0), std), "free_run/all/mse": ((1 - value) * 5e-4, 1e-7)}
              for label, value in r2.items()]
@@ -46,7 +46,7 @@ def section(markdown: str, title: str) -> str:
 
 def test_the_paper_table_is_packaged_and_names_our_rows() -> None:
     paper = load_paper_table()
-    assert PAPER_TABLE.parent == ROOT / "hypa" / "evaluation"  # package data: "*.yaml" in pyproject
+    assert PAPER_TABLE.parent == ROOT / "hypa" / "paper"  # package data: "*.yaml" in pyproject
     ours = {str(OmegaConf.load(p).table1_row) for p in (ROOT / "conf" / "row").glob("*.yaml")}
     assert set(paper.paper) == ours - {"S4", "V1 S4"}
     assert paper.paper["physical"] == {"mae": 2.45e-3, "mse": 2.1e-5, "mape": 3.44, "r2": 0.962}
@@ -141,7 +141,7 @@ def test_a_new_reproduction_moves_the_earlier_runs_aside(tmp_path, monkeypatch) 
 
     from hydra import compose, initialize_config_dir
 
-    import hypa.reproduce as reproduce
+    import hypa.commands.reproduce as reproduce
 
     earlier = tmp_path / "results" / "runs" / "0_physical-seed0"
     (earlier / ".hydra").mkdir(parents=True)

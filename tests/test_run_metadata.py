@@ -74,7 +74,7 @@ def test_config_yaml_is_the_resolved_configuration(run: Path) -> None:
 
 
 def test_evaluate_is_silent_on_the_training_data(run: Path, caplog) -> None:
-    from hypa.evaluate import run_datamodule
+    from hypa.commands.evaluate import run_datamodule
     from hypa.evaluation.runs import load_run
 
     with caplog.at_level(logging.WARNING):
@@ -100,7 +100,7 @@ def test_evaluate_warns_when_a_data_file_changed(run: Path, tmp_path: Path) -> N
 
 
 def test_evaluate_warns_when_the_files_are_others(run: Path, tmp_path: Path, caplog) -> None:
-    from hypa.evaluate import run_datamodule
+    from hypa.commands.evaluate import run_datamodule
     from hypa.evaluation.runs import load_run
 
     folder = copied(run, tmp_path)
@@ -113,7 +113,7 @@ def test_evaluate_warns_when_the_files_are_others(run: Path, tmp_path: Path, cap
 
 def test_data_module_lists_every_file_it_read(tmp_path: Path) -> None:
     from hypa.data import HypaDataModule
-    from hypa.testbench.sensors import TESTBENCH_CHANNELS
+    from hypa.paper.testbench.sensors import TESTBENCH_CHANNELS
 
     data = make_data_dir(tmp_path / "data", duration_s=8.0)
     (data / "dataset.json").write_text("{}")

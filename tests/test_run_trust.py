@@ -221,7 +221,7 @@ def test_a_diverging_loss_stops_the_run_naming_the_epoch(data: Path, tmp_path: P
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import open_dict
 
-    from hypa.train import train
+    from hypa.commands.train import train
     from hypa.training import HybridModule
     from hypa.training.divergence import DivergedError
 
@@ -263,7 +263,7 @@ def test_bad_training_values_stop_before_training(override: str, message: str, d
     from omegaconf import open_dict
 
     from hypa.errors import UserError
-    from hypa.train import train
+    from hypa.commands.train import train
 
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         cfg = compose(config_name="train", overrides=[*FAST, f"data.dir={data}", override], return_hydra_config=True)

@@ -10,11 +10,11 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
-from hypa.testbench.sensors import TESTBENCH_CHANNELS
+from hypa.paper.testbench.sensors import TESTBENCH_CHANNELS
 from hypa.data import HypaDataModule
 from hypa.evaluation.nominal import channel_metrics, nominal_module
 from hypa.models.rollout import free_run
-from hypa.testbench import TestbenchConfig, ensure_dataset
+from hypa.paper.testbench import TestbenchConfig, ensure_dataset
 from hypa.vehicle import VehicleParameters
 
 ROOT = Path(__file__).resolve().parents[1]

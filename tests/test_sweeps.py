@@ -17,7 +17,7 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import ChoiceSweep, IntervalSweep
 from omegaconf import OmegaConf
 
-import hypa.train  # registers the data schema and the resolvers the configs use
+import hypa.commands.train  # registers the data schema and the resolvers the configs use
 from hypa.ann import ann_hyperparameters
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -90,10 +90,10 @@ def test_optuna_sweep_two_trials(tmp_path: Path, hypa_cache: Path) -> None:
 
 def test_main_returns_inf_when_no_finite_val_loss(monkeypatch) -> None:
     """Optuna's sweeper aborts the study on a NaN objective; a diverged trial must rank last instead."""
-    monkeypatch.setattr(hypa.train, "train", lambda cfg: {"best_val_loss": float("nan")})
-    assert hypa.train.main(OmegaConf.create({})) == math.inf
-    monkeypatch.setattr(hypa.train, "train", lambda cfg: {"best_val_loss": 0.25})
-    assert hypa.train.main(OmegaConf.create({})) == 0.25
+    monkeypatch.setattr(hypa.commands.train, "train", lambda cfg: {"best_val_loss": float("nan")})
+    assert hypa.commands.train.main(OmegaConf.create({})) == math.inf
+    monkeypatch.setattr(hypa.commands.train, "train", lambda cfg: {"best_val_loss": 0.25})
+    assert hypa.commands.train.main(OmegaConf.create({})) == 0.25
 
 
 def test_submitit_local_two_job_sweep(tmp_path: Path, hypa_cache: Path) -> None:

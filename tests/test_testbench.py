@@ -15,7 +15,7 @@ from omegaconf.errors import ConfigKeyError
 from scipy.signal import lsim, welch
 
 from hypa.vehicle import VehicleParameters
-from hypa.testbench import (
+from hypa.paper.testbench import (
     TestbenchConfig,
     ensure_dataset,
     generate_dataset,
@@ -23,11 +23,11 @@ from hypa.testbench import (
     read_record,
     simulate_record,
 )
-from hypa.testbench import dataset as dataset_module
-from hypa.testbench.config import RecordConfig, SteeringConfig, StochasticConfig
-from hypa.testbench.excitation import stochastic_steering
-from hypa.testbench.records import COLUMNS
-from hypa.testbench.truth import (
+from hypa.paper.testbench import dataset as dataset_module
+from hypa.paper.testbench.config import RecordConfig, SteeringConfig, StochasticConfig
+from hypa.paper.testbench.excitation import stochastic_steering
+from hypa.paper.testbench.records import COLUMNS
+from hypa.paper.testbench.truth import (
     axle_characteristic,
     front_wheel_angle,
     rear_steering_command,

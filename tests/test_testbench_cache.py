@@ -16,17 +16,17 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 
-from hypa.entry import data_dir_from_config
+from hypa.data.from_config import data_dir_from_config
 from hypa.metadata import sha256
-from hypa.testbench import TestbenchConfig, ensure_dataset, load_description
-from hypa.testbench import dataset as dataset_module
+from hypa.paper.testbench import TestbenchConfig, ensure_dataset, load_description
+from hypa.paper.testbench import dataset as dataset_module
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
 RECORDS = ("train_1", "train_2", "val")
 TINY = [*(f"testbench.records.{name}.stochastic_duration_s=5" for name in RECORDS),
         "testbench.records.val.maneuvers=[]"]
-LOGGER = "hypa.testbench.dataset"
+LOGGER = "hypa.paper.testbench.dataset"
 
 
 def _compose(config: str, *overrides: str):

@@ -96,6 +96,26 @@ class S4DKernel(nn.Module):
             x_last = x_last + a_pow_len * x0
         return y, x_last
 
+    def step(self, u: Tensor, x: Tensor) -> tuple[Tensor, Tensor]:
+        """One sample of ``forward`` in real arithmetic: u (B, H), state x (B, H, N/2, 2) as (Re, Im) pairs.
+
+            y = 2 Re(C B̄) u + D u + 2 Re(C Ā x),        x' = Ā x + B̄ u
+
+        (``forward`` with L = 1: the kernel's first tap and the free response's first sample),
+        for an exported one-step model (``hypa.export``): ONNX has no complex numbers.
+        """
+        dt, rate, angle = self.log_dt.exp()[:, None], self.decay_rate(), self.log_dt.exp()[:, None] * self.a_im
+        magnitude = torch.exp(-rate)
+        a_re, a_im = magnitude * torch.cos(angle), magnitude * torch.sin(angle)  # Ā (H, N/2)
+        norm = rate * rate + angle * angle  # |Δ A|², Δ A = -r + i Δ Im A
+        b_re = dt * ((a_re - 1) * -rate + a_im * angle) / norm  # B̄ = Δ (Ā - 1) / (Δ A)
+        b_im = dt * (a_im * -rate - (a_re - 1) * angle) / norm
+        c_re, c_im = self.c[..., 0], self.c[..., 1]
+        x_re, x_im = x[..., 0], x[..., 1]  # (B, H, N/2)
+        ax_re, ax_im = a_re * x_re - a_im * x_im, a_re * x_im + a_im * x_re
+        y = 2 * (c_re * b_re - c_im * b_im).sum(-1) * u + self.d * u + 2 * (c_re * ax_re - c_im * ax_im).sum(-1)
+        return y, torch.stack([ax_re + b_re * u[..., None], ax_im + b_im * u[..., None]], -1)
+
     def decay_rate(self) -> Tensor:
         """r = -Δ Re A (H, N/2): each mode's decay per step, at least 1/τ_max; |Ā| = exp(-r)."""
         return self.log_dt.exp()[:, None] * self.a_re_log.exp() + self.min_rate
@@ -205,6 +225,20 @@ class S4Block(SequenceBlock):
             h = h + self.drop(z)  # (B, L, H)
             new_state.append(x_last)
         return self.head(h), new_state  # (B, L, d_out)
+
+    def step_state(self, state: S4State) -> list[Tensor]:
+        """The layers' states as ``step`` holds them: (Re, Im) pairs (B, H, N/2, 2)."""
+        return [torch.view_as_real(s) for s in state]
+
+    def step(self, x: Tensor, state: list[Tensor]) -> tuple[Tensor, list[Tensor]]:
+        """``forward`` of one sample in real arithmetic: x (B, d_in), the layers' states as (B, H, N/2, 2)
+        (Re, Im) pairs (``torch.view_as_real`` of ``forward``'s) -> y (B, d_out) and the next states."""
+        h, new_state = self.embed(x), []  # (B, H)
+        for norm, ssm, mixer, x0 in zip(self.norms, self.ssms, self.mixers, state):
+            z, x_next = ssm.step(norm(h), x0)  # (B, H), (B, H, N/2, 2)
+            h = h + self.drop(F.glu(mixer(F.gelu(z)), dim=-1))
+            new_state.append(x_next)
+        return self.head(h), new_state
 
     def default_state(self, batch: int, device: torch.device | str | None, dtype: torch.dtype
                       ) -> S4State:

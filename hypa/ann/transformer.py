@@ -167,6 +167,28 @@ class TransformerBlock(SequenceBlock):
             outputs.append(self.head(h))  # (B, Lq, d_out)
         return torch.cat(outputs, dim=1), cache  # (B, L, d_out)
 
+    def step_state(self, cache: KVCache) -> list[Tensor]:
+        """A cache as ``step`` holds it, of a fixed size: per layer the keys and values of the last
+        ``context - 1`` steps (B, nh, context - 1, dh), zeros before a record's first step, then the
+        number of steps they hold (B, 1)."""
+        keep, (k0, _) = self.context - 1, cache[0]
+        pad = lambda t: torch.cat([t.new_zeros(*t.shape[:2], keep - t.shape[2], t.shape[3]), t], 2)  # noqa: E731
+        return [*(pad(t) for kv in cache for t in kv), k0.new_full((k0.shape[0], 1), float(k0.shape[2]))]
+
+    def step(self, x: Tensor, state: list[Tensor]) -> tuple[Tensor, list[Tensor]]:
+        """``forward`` of one sample, batch of one, on the fixed-size cache of ``step_state``: x (1, d_in)
+        -> y (1, d_out) and the next cache. Slots before the record's first step are masked out of
+        the attention (-inf), so the step equals ``forward`` from the first sample on."""
+        keep, (*kv, held) = self.context - 1, state
+        distance = torch.arange(keep, -1, -1, device=x.device)  # the cache's steps, oldest first, then this one
+        valid = torch.cat([distance[:-1] <= held.reshape(-1)[0], distance.new_ones(1, dtype=torch.bool)])
+        bias = self.rel_bias[:, distance].masked_fill(~valid, float("-inf"))[:, None].to(x.dtype)  # (nh, 1, context)
+        h, new = self.embed(x)[:, None], []  # (1, 1, D)
+        for layer, k_past, v_past in zip(self.layers, kv[0::2], kv[1::2]):
+            h, k, v = layer(h, k_past, v_past, bias)  # (1, 1, D), 2 x (1, nh, context, dh)
+            new += [k[:, :, 1:], v[:, :, 1:]]
+        return self.head(h)[:, 0], [*new, torch.clamp(held + 1, max=keep)]
+
     def default_state(self, batch: int, device: torch.device | str | None, dtype: torch.dtype
                       ) -> KVCache:
         # No past at the start of a record: an empty cache, not zeros (zeros would be attended).

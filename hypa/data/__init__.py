@@ -5,7 +5,8 @@ One module per step: :mod:`units`, :mod:`expressions` and :mod:`channels` (what 
 :mod:`files` (reading files as they are), :mod:`io` (one file -> an SI record), :mod:`splits`,
 :mod:`decimation`, :mod:`selection`, :mod:`dataset` (the steps in order), :mod:`records`,
 :mod:`normalization`, :mod:`windows` and :mod:`datamodule` (the Lightning DataModule that ties
-them together); :mod:`schema` and :mod:`from_config` meet the configuration.
+them together and gives a model its :mod:`signature`); :mod:`schema` and :mod:`from_config` meet
+the configuration.
 
 Names are imported lazily (PEP 562), so ``import hypa`` can register the config schema without
 importing Lightning.
@@ -28,6 +29,7 @@ _EXPORTS: dict[str, str] = {
     "Expression": "expressions",
     "HypaDataModule": "datamodule",
     "Normalization": "normalization",
+    "DataSignature": "signature",
     "Piece": "splits",
     "SplitSpec": "splits",
     "Condition": "selection",
@@ -44,7 +46,6 @@ _EXPORTS: dict[str, str] = {
     "load_record": "io",
     "load_dataset": "dataset",
     "KNOWN_UNITS": "units",
-    "UNITS": "units",
     "unit": "units",
     "unit_factor": "units",
 }

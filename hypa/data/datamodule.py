@@ -22,6 +22,7 @@ from hypa.data.errors import DataError
 from hypa.data.normalization import Normalization
 from hypa.data.records import DataSet, Record
 from hypa.data.selection import Condition
+from hypa.data.signature import DataSignature
 from hypa.data.splits import SplitSpec
 from hypa.data.units import unit
 from hypa.data.windows import WindowDataset
@@ -34,7 +35,7 @@ class HypaDataModule(L.LightningDataModule):
         data_dir: folder of the files (``train*``, ``val*``, ``test*`` unless ``splits`` names
             them; .csv, .parquet, .mat) and an optional ``dataset.json``.
         channels: the declared channels (:class:`ChannelSpec`), in order (the test bench's:
-            ``hypa.testbench.sensors.TESTBENCH_CHANNELS``).
+            ``hypa.paper.testbench.sensors.TESTBENCH_CHANNELS``).
         time_column: the files' time column (its offset removed), or ``None``: sample ``i``
             lies at ``i / sample_rate_hz``.
         time_unit: unit of the time column.
@@ -133,6 +134,13 @@ class HypaDataModule(L.LightningDataModule):
         if self._normalization is None:
             raise RuntimeError("normalization is fitted in setup(); call setup() first")
         return self._normalization
+
+    @property
+    def signature(self) -> DataSignature:
+        """What a model needs to know of these data (names, normalization, dt, window, past), after
+        ``setup()``: ``HybridModule.from_data`` and ``ComposedModel.from_data`` take it."""
+        return DataSignature(self.input_names, self.output_names, self.normalization, self.dt, self.window,
+                             self.past, self.eval_names, self.scheduling_names)
 
     @property
     def eval_names(self) -> tuple[str, ...]:

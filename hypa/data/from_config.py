@@ -11,6 +11,8 @@ the user's folder into ``data_dir``) and are not read here.
 from __future__ import annotations
 
 import dataclasses
+import importlib
+import logging
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -24,6 +26,13 @@ from hypa.data.normalization import Normalization
 from hypa.data.schema import ChannelConfig, DataConfig, PieceConfig
 from hypa.data.splits import Piece, SplitSpec
 from hypa.data.units import define_units
+from hypa.errors import UserError
+
+log = logging.getLogger(__name__)
+
+# data sources that make their files from the configuration: data.source -> "module:function(cfg) -> folder",
+# imported when used (the paper's test bench is an instance above the library, as the vehicle's systems are)
+DATA_SOURCES = {"testbench": "hypa.paper.testbench.dataset:folder_from_config"}
 
 
 def datamodule_from_config(
@@ -134,3 +143,40 @@ def _typed(schema: type, node: Any, where: str):
 
 def _keys(schema: type) -> str:
     return ", ".join(f.name for f in dataclasses.fields(schema))
+
+
+def data_dir_from_config(cfg: DictConfig) -> Path:
+    """The folder of measured-data files: the test bench's cache, or ``data.dir`` (a relative
+    folder is taken from where the command was run, also when Hydra changed the directory)."""
+    source = cfg.data.source
+    if source in DATA_SOURCES and cfg.data.get("dir") is not None:
+        raise UserError(f"data.dir={cfg.data.dir} is read only for measured files: add dataset=files (data.source="
+                        f"{source} makes its own data)")
+    if source in DATA_SOURCES:  # a simulated source: its folder made (or found cached) from the configuration
+        module, _, function = DATA_SOURCES[source].partition(":")
+        return getattr(importlib.import_module(module), function)(cfg)
+    if source == "files":
+        if OmegaConf.is_missing(cfg.data, "dir") or cfg.data.dir is None:
+            from hydra.core.hydra_config import HydraConfig
+
+            choice = HydraConfig.get().runtime.choices.get("dataset", "files") if HydraConfig.initialized() else "files"
+            raise UserError(f"dataset={choice} needs the folder of your files: data.dir=PATH")
+        folder = Path(str(cfg.data.dir)).expanduser()
+        if not folder.is_absolute():
+            folder = _original_cwd() / folder
+        return folder
+    raise UserError(
+        f"unknown data.source {source!r}; use {' or '.join(['files', *DATA_SOURCES])} (dataset=testbench, "
+        f"dataset=files data.dir=PATH, or a conf/dataset/*.yaml)"
+    )
+
+
+def _original_cwd() -> Path:
+    """Where the command was run: Hydra's original working directory inside a Hydra app."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if HydraConfig.initialized():
+        from hydra.utils import get_original_cwd
+
+        return Path(get_original_cwd())
+    return Path.cwd()

@@ -7,8 +7,9 @@ A channel declaration and a test piece are checked against :class:`ChannelConfig
 Hydra cannot add a typed dict entry from the command line (``+data.channels.x={...}``), so the
 schema keeps ``channels`` and ``test`` open and the check happens one step later.
 
-This module imports only dataclasses and OmegaConf: ``hypa/__init__.py`` registers the schema
-before any entry point composes its configuration.
+This module imports only dataclasses and OmegaConf. The commands' schemas type their ``data`` node
+with :class:`DataConfig` too (:mod:`hypa.commands.config`, which registers this one beside them when
+:mod:`hypa.commands` is imported, before any command composes its configuration).
 """
 
 from __future__ import annotations

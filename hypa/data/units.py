@@ -20,11 +20,17 @@ dimensionless; ``g`` is the standard gravity (an accelerometer's unit, not the g
 ``1/min`` is revolutions per minute; ``°``, ``°/s``, ``Nm``, ``kmph``, ``m/s2`` as logging tools
 write them. A display unit with an offset (``degC``) is refused: shown values are scaled only,
 so a temperature is shown in ``K`` (its errors are the same in ``delta_degC``).
+
+A value that is no channel (a fitted parameter, a diagnosis's estimate) is shown by
+:func:`readable`: in the unit an engineer reads (:data:`READABLE`: angles in deg, times in ms),
+with the factor from pint. The unit of a ratio of two units (a fitted gain) is written by
+:func:`unit_ratio`.
 """
 
 from __future__ import annotations
 
 import functools
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -150,3 +156,56 @@ KNOWN_UNITS: tuple[str, ...] = COMMON  # examples for messages; pint reads many 
 def units_of(dimension: str) -> tuple[str, ...]:
     """The common units of a kind (e.g. ``"angle"`` -> rad, mrad, deg)."""
     return tuple(name for name in COMMON if (u := _parse(name)) is not None and u.dimension == dimension)
+
+
+# --- how values are shown, and the unit of a ratio --------------------------------------------
+
+#: The unit an engineer reads a value in, by its SI unit (others are shown in SI); a channel's own
+#: ``display_unit`` takes precedence for the channel's values.
+READABLE: dict[str, str] = {"s": "ms", "rad": "deg", "rad/s": "deg/s"}
+
+
+def readable(si: str) -> tuple[str, float]:
+    """(unit, factor from SI) to show a value in SI unit ``si`` (:data:`READABLE`; others: ``si``, 1)."""
+    shown = READABLE.get(si)
+    return (si, 1.0) if shown is None else (shown, display_factor(si, shown))
+
+
+_SUPERSCRIPT = str.maketrans("⁻⁰¹²³⁴⁵⁶⁷⁸⁹", "-0123456789")
+_TO_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
+
+
+def parse_unit(unit: str) -> dict[str, int]:
+    """``"m/s^2"`` -> ``{"m": 1, "s": -2}``; ``"-"``, ``"1"`` and ``""`` are dimensionless."""
+    powers: dict[str, int] = {}
+    numerator, *denominators = unit.replace(" ", "").split("/")
+    for sign, part in [(1, numerator), *((-1, d) for d in denominators)]:
+        for token in re.split(r"[·*.]", part):
+            if token in ("", "-", "1"):
+                continue
+            match = re.fullmatch(r"([^\d^⁻⁰¹²³⁴⁵⁶⁷⁸⁹-]+)\^?(-?\d+)?", token.translate(_SUPERSCRIPT))
+            if match is None:
+                raise DataError(f"cannot read unit {unit!r} (write e.g. 'rad', 'rad/s', 'm/s^2')")
+            base, power = match.group(1), int(match.group(2) or 1)
+            powers[base] = powers.get(base, 0) + sign * power
+    return {base: power for base, power in powers.items() if power != 0}
+
+
+def format_unit(powers: Mapping[str, int]) -> str:
+    """``{"m": 1, "s": -2}`` -> ``"m/s²"``; dimensionless -> ``"-"``."""
+    def product(items: list[tuple[str, int]]) -> str:
+        return "·".join(b + (str(p).translate(_TO_SUPERSCRIPT) if p != 1 else "") for b, p in items)
+
+    above = [(b, p) for b, p in powers.items() if p > 0]
+    below = [(b, -p) for b, p in powers.items() if p < 0]
+    if not above and not below:
+        return "-"
+    return (product(above) or "1") + (f"/{product(below)}" if below else "")
+
+
+def unit_ratio(numerator: str, denominator: str, power: int = 1) -> str:
+    """The unit of a coefficient from ``denominator**power`` to ``numerator`` (rad / (rad/s) = s)."""
+    powers = dict(parse_unit(numerator))
+    for base, p in parse_unit(denominator).items():
+        powers[base] = powers.get(base, 0) - power * p
+    return format_unit({b: p for b, p in powers.items() if p != 0})

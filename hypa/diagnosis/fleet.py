@@ -17,18 +17,13 @@ the exit status is 1 if any failed.
 
 from __future__ import annotations
 
-import argparse
 import functools
-import glob
 import json
 import math
-import os
 import re
-import shlex
-import subprocess
 import sys
 import traceback
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
@@ -39,7 +34,9 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from hypa import markdown as md
-from hypa.errors import UserError, full_error_requested, is_user_error, one_line, user_errors
+from hypa.data.units import readable
+from hypa.diagnosis.result import Diagnosis, FindingRow
+from hypa.errors import UserError, full_error_requested, is_user_error, one_line
 from hypa.metrics import mean_std
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -47,8 +44,6 @@ F = TypeVar("F", bound=Callable[..., Any])
 DIAGNOSIS_FILE = "diagnosis.json"
 ERROR_FILE = "error.json"
 JOB_NAME = "diagnose"  # hydra.job.name of python -m hypa.diagnose
-# SI unit of a fitted value -> (unit an engineer reads, factor from SI); other units are shown as they are
-DISPLAY = {"s": ("ms", 1e3), "rad": ("deg", 180.0 / math.pi), "rad/s": ("deg/s", 180.0 / math.pi)}
 
 
 @dataclass(frozen=True)
@@ -148,20 +143,20 @@ def _relative(path: Path, root: Path) -> str:
         return str(path)
 
 
-def estimates(named: Mapping[str, Any]) -> dict[str, Estimate]:
+def estimates(named: FindingRow) -> dict[str, Estimate]:
     """A named cause's fitted values (a ``named`` row of diagnosis.json, SI) for the summary,
     keyed ``"cause: what"``: a value that is its target by the target (``parameter_mismatch: cr``,
     ``output_offset: position``), the knobs of an inserted block by their own name
     (``unmodeled_input: gain``, ``unmodeled_input: tau`` from ``.../tau_s``); in the units an
-    engineer reads (:data:`DISPLAY`: times in ms, angles in deg)."""
-    cause, target, units = named["cause"], named.get("target", ""), named.get("units") or {}
+    engineer reads (:func:`hypa.data.units.readable`: times in ms, angles in deg)."""
+    cause, target, units = named.cause, named.target, named.units or {}
     out = {}
-    for knob, value in (named.get("values") or {}).items():
+    for knob, value in (named.values or {}).items():
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             continue
         unit, name = units.get(knob) or "-", knob.rsplit("/", 1)[-1]
         name = target if knob == target else name.removesuffix("_s") if unit == "s" else name
-        shown, factor = DISPLAY.get(unit, (unit, 1.0))
+        shown, factor = readable(unit)
         out[f"{cause}: {name}"] = Estimate(float(value) * factor, shown)
     return out
 
@@ -173,17 +168,16 @@ def read_log(folder: Path) -> LogDiagnosis:
     overrides = tuple(str(o) for o in (_yaml(folder / ".hydra" / "overrides.yaml") or []))
     if (folder / DIAGNOSIS_FILE).is_file():
         try:
-            result = json.loads((folder / DIAGNOSIS_FILE).read_text())
+            result = Diagnosis.from_json(folder / DIAGNOSIS_FILE)
             values: dict[str, Estimate] = {}
-            for row in result.get("named") or []:
+            for row in result.named:
                 found = estimates(row)
                 if values.keys() & found.keys():  # the same cause on two targets: told apart by the target
-                    found = {f"{row['cause']} on {row['target']}: {k.split(': ', 1)[1]}": e for k, e in found.items()}
+                    found = {f"{row.cause} on {row.target}: {k.split(': ', 1)[1]}": e for k, e in found.items()}
                 values.update(found)
-            trained = (result.get("extended") or {}).get("trained")
-            change = {"all": ((result.get("gain") or {}).get("all") or {}).get("overall"),
-                      "trained": trained["gain"]["all"].get("overall") if trained else None}
-            causes = tuple(str(c) for c in result["causes"])
+            trained = result.extended.trained
+            change = {"all": result.change, "trained": trained.change if trained else None}
+            causes = tuple(result.causes)
         except (ValueError, KeyError, TypeError, AttributeError) as error:
             return LogDiagnosis(folder, overrides, error=f"{folder / DIAGNOSIS_FILE} cannot be read "
                                                          f"({type(error).__name__}: {error})")
@@ -373,60 +367,7 @@ def record_failures(command: str) -> Callable[[F], F]:
     return decorate
 
 
-def expand_logs(patterns: Sequence[str]) -> list[Path]:
-    """The log folders that the glob ``patterns`` match (``**`` recurses), sorted, each once."""
-    folders: dict[Path, None] = {}
-    for pattern in patterns:
-        for match in sorted(glob.glob(os.path.expanduser(pattern), recursive=True)):
-            if Path(match).is_dir():
-                folders[Path(match)] = None
-    if not folders:
-        raise UserError(f"no log folder matches {' '.join(patterns)}; give folders or a glob such as 'logs/*/'")
-    return list(folders)
+if __name__ == "__main__":  # python -m hypa.diagnosis.fleet, its documented spelling: the command is hypa.commands.fleet
+    from hypa.commands.fleet import main as command
 
-
-def hydra_quoted(text: str) -> str:
-    """``text`` as a quoted Hydra override value (spaces, commas and quotes in a path survive the sweep)."""
-    quoted = re.sub(r"(\\*)'", lambda m: 2 * m.group(1) + "\\'", text)
-    quoted = re.sub(r"(\\+)$", lambda m: 2 * m.group(1), quoted).replace("${", "\\${")
-    return f"'{quoted}'"
-
-
-def diagnose_command(folders: Sequence[Path], overrides: Sequence[str]) -> list[str]:
-    """``python -m hypa.diagnose -m`` over ``folders`` (``dataset=files`` unless a dataset is chosen)."""
-    dataset = [] if any(o.lstrip("+~").startswith("dataset=") for o in overrides) else ["dataset=files"]
-    return [sys.executable, "-m", "hypa.diagnose", "-m", *dataset,
-            "data.dir=" + ",".join(hydra_quoted(str(f)) for f in folders), *overrides]
-
-
-def _shell_word(word: str) -> str:
-    """``word`` as a shell reads it back, in double quotes where it holds Hydra's single quotes."""
-    if "'" in word and not re.search(r'["$`\\!]', word):
-        return f'"{word}"'
-    return shlex.quote(word)
-
-
-@user_errors("hypa.diagnosis.fleet")
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m hypa.diagnosis.fleet", description=__doc__.split("\n\n")[0])
-    commands = parser.add_subparsers(dest="command", required=True)
-    run = commands.add_parser("run", help="diagnose every log folder that the globs match, then summarize")
-    run.add_argument("logs", nargs="+", metavar="LOG_OR_GLOB|KEY=VALUE",
-                     help="log folders or globs (quoted: 'logs/*/'); arguments with = go to hypa.diagnose")
-    summary = commands.add_parser("summary", help="(re)build fleet.md and fleet.json of an existing sweep folder")
-    summary.add_argument("sweep_dir", type=Path)
-    args = parser.parse_args(argv)
-    if args.command == "summary":
-        print(report(write_summary(args.sweep_dir)), flush=True)
-        return 0
-    overrides = [a for a in args.logs if "=" in a]
-    patterns = [a for a in args.logs if "=" not in a]
-    if not patterns:
-        raise UserError("no log folder given; e.g. python -m hypa.diagnosis.fleet run 'logs/*/'")
-    command = diagnose_command(expand_logs(patterns), overrides)
-    print("python " + " ".join(_shell_word(word) for word in command[1:]), flush=True)
-    return subprocess.run(command, check=False).returncode
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(command())

@@ -12,7 +12,7 @@ decay time of :class:`~hypa.diagnosis.scales.Scales`, a factor ``RATIO`` apart, 
 started at rest at the channel's first value). Each output's residual is a linear combination of the bank's signals,
 fitted by exact least squares on the training stretches (the residual is affine in the
 weights, as an offset's is) and scored, like every candidate, on the validation stretches. Its
-score is the bar (:func:`hypa.diagnosis.engine.name_causes`): a cause is named only when its
+score is the bar (:func:`hypa.diagnosis.search.name_causes`): a cause is named only when its
 validation error is below ``1 - MARGIN`` times the filter's, or when it fits fewer numbers than
 the filter and explains at least ``SIMPLER`` (75 %) as much (a fixed operating point replaced by
 the measured speed fits none); where the filter explains that much of a named cause's gain, it

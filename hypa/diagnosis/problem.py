@@ -24,13 +24,13 @@ Data with fewer than two windows without overlap cannot support a fit of even on
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import torch
 
 from hypa.data import HypaDataModule, Record
+from hypa.data.units import readable
 from hypa.diagnosis.scales import Scales
 from hypa.diagnosis.workers import default_workers
 from hypa.identification.stretches import Stretches
@@ -44,12 +44,19 @@ FOLDS = 2  # cross-validation folds: each candidate is fitted twice (once per fo
 
 @dataclass(frozen=True)
 class Problem:
-    """The data and the fixed settings every candidate model is built with."""
+    """The data and the fixed settings every candidate model is built with.
+
+    ``physical_values``: nominal physical parameters [SI] (``None``: the systems' own);
+    ``hold``: ``zoh`` | ``foh`` for a model whose spec fixes none (``None``: the spec's, else
+    ``zoh``; give ``foh`` for smooth inputs: with ``zoh`` a real dead time comes out dt/2 short;
+    a different one than the spec's is a ``ModelSpecError``); ``horizon``: lifted steps N per
+    matrix product (``None``: the data module's window).
+    """
 
     dm: HypaDataModule
-    physical_values: Mapping[str, float]
-    hold: str = "foh"
-    horizon: int = 100
+    physical_values: Mapping[str, float] | None = None
+    hold: str | None = None
+    horizon: int | None = None
     steps: int = 60  # Adam steps per linear candidate fit (nonlinear physics: LM_ITERATIONS Levenberg-Marquardt steps)
     batch: int = 128  # training windows per step
     lr: float = 0.05  # on the raw (relative) parameters: about 5 % of a value per step
@@ -59,6 +66,11 @@ class Problem:
     workers: int = field(default_factory=default_workers)  # processes fitting a round's candidates at once
     scales: Scales | None = None  # the time scales (:meth:`scaled`: from the nominal model and the data)
     fold: int | None = None  # cross-validation (:meth:`folds`): these blocks are held out, the others fitted
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "physical_values", dict(self.physical_values or {}))
+        if self.horizon is None:
+            object.__setattr__(self, "horizon", self.dm.window)
 
     def scaled(self, nominal: ModelSpec) -> Problem:
         """This problem with its time scales read from the (frozen) ``nominal`` model and the data
@@ -238,9 +250,6 @@ class Evidence:
                 "or a shorter data.window")
 
 
-READABLE = {"rad": ("deg", 180.0 / math.pi), "rad/s": ("deg/s", 180.0 / math.pi)}  # SI unit -> (shown, factor)
-
-
 def format_change(change: float) -> str:
     """A relative change in percent, signed: whole percent, one decimal near ±100 % and below 1 %
     (a 99.6 % drop reads -99.6 %, not -100 %)."""
@@ -249,10 +258,12 @@ def format_change(change: float) -> str:
 
 
 def format_value(value: float, unit: str) -> str:
-    """Rounded to 3 significant digits with its unit (seconds below 1 s as ms, angles in degrees)."""
-    if unit == "s" and abs(value) < 1.0:
-        return f"{value * 1e3:.3g} ms"
-    unit, factor = READABLE.get(unit, (unit, 1.0))
+    """Rounded to 3 significant digits with its unit (seconds below 1 s as ms, angles in degrees:
+    :func:`hypa.data.units.readable`)."""
+    if unit != "s" or abs(value) < 1.0:
+        unit, factor = readable(unit)
+    else:
+        factor = 1.0
     return f"{value * factor:.3g} {'' if unit == '-' else unit}".rstrip()
 
 

@@ -16,19 +16,20 @@ For each output, over the validation free runs of the extended model, four tests
   correlated error is a dynamic effect of that input the model lacks.
 
 A significant remainder is reported as **unexplained**, with where it lives, rather than named
-as the nearest catalogue entry.
+as the nearest catalogue entry. The measures are hypa's one residual analysis
+(:mod:`hypa.explain.residual`, which also tells what an explained form leaves of a learned block).
 """
 
 from __future__ import annotations
 
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import asdict, dataclass
+from itertools import pairwise
 
 import numpy as np
-from scipy import signal
 
 from hypa.diagnosis.scales import Scales, duration
-from hypa.metrics import rms
+from hypa.explain.residual import band_power, correlation_peak, quartiles, spectra, unexplained_share
 
 SIGNIFICANT = 0.002  # error share of the output variance above which a remainder is worth explaining
 AMPLITUDE_RATIO = 2.0  # top/bottom quartile error RMS beyond which the error depends on amplitude
@@ -55,19 +56,6 @@ class OutputStructure:
         return asdict(self)
 
 
-def correlation_peak(error: np.ndarray, channel: np.ndarray, max_lag: int) -> tuple[float, int]:
-    """Peak |ρ| of the normalized cross-correlation over lags -max_lag..max_lag (channel leading > 0)."""
-    e = (error - error.mean()) / (error.std() or 1.0)
-    c = (channel - channel.mean()) / (channel.std() or 1.0)
-    n = len(e)
-    best, at = 0.0, 0
-    for lag in range(-max_lag, max_lag + 1):
-        rho = float(np.dot(e[lag:], c[: n - lag]) / n) if lag >= 0 else float(np.dot(e[:lag], c[-lag:]) / n)
-        if abs(rho) > abs(best):
-            best, at = rho, lag
-    return best, at
-
-
 def analyze_output(name: str, unit: str, measured: Sequence[np.ndarray], predicted: Sequence[np.ndarray],
                    channels: Mapping[str, Sequence[np.ndarray]], scales: Scales,
                    unused: Collection[str] = ()) -> OutputStructure:
@@ -78,30 +66,19 @@ def analyze_output(name: str, unit: str, measured: Sequence[np.ndarray], predict
     dt, max_lag, envelope = scales.dt, scales.max_lag, scales.envelope
     y = np.concatenate(measured)
     err = y - np.concatenate(predicted)
-    share = float(np.sum(err**2) / max(np.sum((y - y.mean()) ** 2), 1e-300))
+    share = unexplained_share(y, err)
     kernel = np.ones(envelope) / envelope
     distance = np.concatenate([np.sqrt(np.convolve((m - y.mean()) ** 2, kernel, mode="same")) for m in measured])
-    edges = np.quantile(distance, [0.0, 0.25, 0.5, 0.75, 1.0])
-    bins = np.clip(np.searchsorted(edges, distance, side="right") - 1, 0, 3)
-    rmse = [rms(err[bins == k]) if np.any(bins == k) else 0.0 for k in range(4)]
+    edges, rmse, _ = quartiles(distance, err)
     ratio = rmse[3] / rmse[0] if rmse[0] > 0 else float("inf")
-    nyquist = 0.5 / dt
-    bands = list(zip(scales.band_edges_hz[:-1], scales.band_edges_hz[1:]))
-    band_share, band_power = [], []
+    bands = list(pairwise(scales.band_edges_hz))
     errors = [m - p for m, p in zip(measured, predicted)]
     per_record = [(e, m) for e, m in zip(errors, measured) if len(m) >= 16]
-    for lo, hi in bands:
-        e_pow = y_pow = 0.0
-        for e_r, y_r in per_record:
-            f, pe = signal.welch(e_r, fs=1 / dt, nperseg=min(len(e_r), scales.segment))
-            _, py = signal.welch(y_r - y_r.mean(), fs=1 / dt, nperseg=min(len(y_r), scales.segment))
-            inside = (f >= lo) & (f < hi) if hi < nyquist else (f >= lo)
-            e_pow += float(pe[inside].sum())
-            y_pow += float(py[inside].sum())
-        band_share.append(e_pow / y_pow if y_pow > 0 else 0.0)
-        band_power.append(y_pow)
+    e_pow = band_power(spectra([e for e, _ in per_record], dt, scales.segment), scales.band_edges_hz)
+    y_pow = band_power(spectra([m - m.mean() for _, m in per_record], dt, scales.segment), scales.band_edges_hz)
+    band_share = [e / p if p > 0 else 0.0 for e, p in zip(e_pow, y_pow)]
     # a band where the output has (almost) no power says nothing about the model: sensor noise
-    carries = [p >= 0.01 * sum(band_power) for p in band_power]
+    carries = [p >= 0.01 * sum(y_pow) for p in y_pow]
     judged = [share_ if ok else 0.0 for share_, ok in zip(band_share, carries)]
     worst = bands[int(np.argmax(judged))]
     correlated = {}

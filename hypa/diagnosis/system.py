@@ -1,7 +1,7 @@
 """``hypa.diagnose model=M``: the diagnosis of any system, from its nominal hypa model.
 
 Steps: (1) the nominal model free-running on the validation records; (2) the named causes
-(:func:`hypa.diagnosis.engine.name_causes`); (3) what remains and where it lives
+(:func:`hypa.diagnosis.search.name_causes`); (3) what remains and where it lives
 (:mod:`hypa.diagnosis.structure`); (4) the extended model written as a hypa model config,
 ``conf/model/diagnosed.yaml`` (the named causes, fitted) and ``diagnosed_hybrid.yaml`` (the
 same with a correction network, HyPA-Net style: the one to train when structure remains
@@ -12,7 +12,6 @@ unexplained), with the commands that train them; the gain on the validation reco
 from __future__ import annotations
 
 import dataclasses
-import json
 import shlex
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -21,14 +20,15 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from hypa import markdown as md
 from hypa.diagnosis.catalogue import Entry
 from hypa.diagnosis.coverage import coverage, short_lines
 from hypa.diagnosis.edits import frozen, set_free
-from hypa.diagnosis.engine import Finding, Problem, Search, name_causes
-from hypa.diagnosis.problem import format_change
-from hypa.diagnosis.scales import Scales, duration
-from hypa.diagnosis.structure import OutputStructure, analyze_output
+from hypa.diagnosis.finding import Finding
+from hypa.diagnosis.problem import Problem
+from hypa.diagnosis.result import (CandidateRow, DataSummary, Diagnosis, ErrorShares, Extension, FindingRow,
+                                   FreeRunMetrics, SearchScore, SignalAgreement, SystemSummary, TrainedSummary)
+from hypa.diagnosis.search import name_causes
+from hypa.diagnosis.structure import analyze_output
 from hypa.diagnosis.trained import TrainedExtension
 from hypa.metrics import correlation, errors, rms
 from hypa.models.rollout import Prediction, free_run, free_run_metrics
@@ -86,38 +86,36 @@ def _runs(problem: Problem, spec: ModelSpec) -> list[Prediction]:
     return [free_run(model, problem.dm, r) for r in problem.dm.records("val")]
 
 
-def _change(before: Mapping[str, dict], after: Mapping[str, dict], outputs: Sequence[str]) -> dict[str, float]:
+def _metrics(runs: Sequence[Prediction], outputs: Sequence[str]) -> dict[str, FreeRunMetrics]:
+    """Per output, over the predicted samples of all free runs (:func:`hypa.models.rollout.free_run_metrics`)."""
+    return {o: FreeRunMetrics(m["rmse"], m["mse"], m["r2"]) for o, m in free_run_metrics(runs, outputs).items()}
+
+
+def _change(before: Mapping[str, FreeRunMetrics], after: Mapping[str, FreeRunMetrics],
+            outputs: Sequence[str]) -> dict[str, float]:
     """Relative change of each output's validation MSE."""
-    return {o: after[o]["mse"] / before[o]["mse"] - 1.0 if before[o]["mse"] > 0 else 0.0 for o in outputs}
+    return {o: after[o].mse / before[o].mse - 1.0 if before[o].mse > 0 else 0.0 for o in outputs}
 
 
-def validation_error(metrics: Mapping[str, dict], outputs: Sequence[str]) -> float:
+def validation_error(metrics: Mapping[str, FreeRunMetrics], outputs: Sequence[str]) -> float:
     """The mean over outputs of 1 - R² of free-run metrics: the report's headline figure."""
-    return float(np.mean([1.0 - metrics[o]["r2"] for o in outputs]))
+    return float(np.mean([1.0 - metrics[o].r2 for o in outputs]))
 
 
-def _overall(before: Mapping[str, dict], after: Mapping[str, dict], outputs: Sequence[str]) -> float:
+def _overall(before: Mapping[str, FreeRunMetrics], after: Mapping[str, FreeRunMetrics],
+             outputs: Sequence[str]) -> float:
     """Relative change of the mean over outputs of 1 - R² (:func:`validation_error`)."""
     b = validation_error(before, outputs)
     return validation_error(after, outputs) / b - 1.0 if b > 0 else 0.0
-
-
-def headline(result: Mapping) -> dict[str, str]:
-    """The headline figures as printed, for diagnosis.md and the command's last line alike (one
-    place, so the two cannot disagree): ``nominal``, ``extended`` (``trained``) as shares of the
-    output variance, and ``change``, extended against nominal."""
-    error = result["error"]
-    out = {m: f"{100 * error[m]:.3g} %" for m in ("nominal", "extended", "trained") if m in error}
-    out["change"] = format_change(error["change"])
-    return out
 
 
 def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overrides: Sequence[str] = (),
                     plot: bool = True, max_causes: int = 8, min_gain: float = 0.15,
                     progress: Callable[[str], None] = print, config_dir: Path | None = None,
                     catalogue: Sequence[Entry] | None = None,
-                    train_extension: Callable[[Sequence[str]], TrainedExtension] | None = None) -> dict:
-    """Steps 1-4 for the nominal model on the problem's data; returns diagnosis.json's content.
+                    train_extension: Callable[[Sequence[str]], TrainedExtension] | None = None) -> Diagnosis:
+    """Steps 1-4 for the nominal model on the problem's data; returns the :class:`Diagnosis`
+    (written to ``out`` as ``diagnosis.json`` and ``diagnosis.md``).
 
     ``train_overrides`` select the same data for ``hypa.train``; ``config_dir``: the user's own
     config folder (``--config-dir``) that the train command needs too (their dataset YAML).
@@ -173,8 +171,7 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     train_overrides = with_past(train_overrides, problem, extended)
     commands = {name: train_command(out / "conf", name, train_overrides, name != "diagnosed", config_dir)
                 for name in written}
-    metrics = {"nominal": free_run_metrics(before, dm.output_names),
-               "extended": free_run_metrics(after, dm.output_names)}
+    metrics = {"nominal": _metrics(before, dm.output_names), "extended": _metrics(after, dm.output_names)}
     change = _change(metrics["nominal"], metrics["extended"], dm.output_names)
     # the headline's change: of the table's free runs, as the trained extension's below (the search's
     # own score restarts its free runs every stretch_s: on long records a slightly different figure)
@@ -187,50 +184,42 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
         extension = train_extension(train_arguments(out / "conf", name, train_overrides, name != "diagnosed",
                                                     config_dir))
         runs = list(extension.predictions)
-        metrics["trained"] = free_run_metrics(runs, dm.output_names)
-        trained = {"model": name, "run": str(extension.run), "metrics": metrics["trained"],
-                   "gain": {"all": {**_change(metrics["nominal"], metrics["trained"], dm.output_names),
-                                    "overall": _overall(metrics["nominal"], metrics["trained"], dm.output_names)}},
-                   "explained": extension.explanations}
+        metrics["trained"] = _metrics(runs, dm.output_names)
+        gain = {**_change(metrics["nominal"], metrics["trained"], dm.output_names),
+                "overall": _overall(metrics["nominal"], metrics["trained"], dm.output_names)}
+        trained = TrainedSummary(name, str(extension.run), metrics["trained"], {"all": gain},
+                                 list(extension.explanations))
         error["trained"] = validation_error(metrics["trained"], dm.output_names)
-    error["change"] = change["overall"]
     evidence = problem.evidence()
-    result = {
-        "cause": search.named[0].cause if search.named else "none",  # the first named (the schema of old reports)
-        "estimate": dict(search.named[0].values) if search.named else {},
-        "system": {"model": nominal.name, "inputs": list(dm.input_names), "outputs": list(dm.output_names),
-                   "scheduling": list(dm.scheduling_names)},
-        "causes": [f.cause for f in search.named],
-        "named": [f.to_dict() for f in search.named],
-        "dropped": [f.to_dict() for f in search.dropped],
-        "candidates": [_candidate(f, search.nominal_score) for f in search.named]
-        + [_candidate(f, search.nominal_score) for f in (search.rounds[0] if search.rounds else [])
-           if f.key not in {n.key for n in search.named}],
-        "rounds": [[f.to_dict() for f in r] for r in search.rounds],
-        "score": {"nominal": search.nominal_score, "extended": search.final_score},
-        "error": error,
-        "metrics": metrics,
-        "gain": {"all": change},
-        "too_short": list(search.too_short),
-        "generic": [{"score": g.score, "gain": g.gain, "numbers": g.numbers} for g in search.generic],
-        "standin": search.standin,
-        "coverage": [c.to_dict() for c in covered],
-        "not_covered": short_lines(dm, covered),
-        "unexplained": [s.to_dict() for s in unexplained],
-        "structure": {s.output: s.to_dict() for s in structure},
-        "extended": {"config": {k: str(v) for k, v in written.items()}, "train_command": commands,
-                     "signals": signal_agreement(after), **({"trained": trained} if trained else {})},
-        "data": {"dt": dm.dt, "train_records": len(dm.records("train")), "val_records": len(dm.records("val")),
-                 "folds": search.folds, "blocks": search.blocks,
-                 "train_s": evidence.seconds, "train_windows": evidence.windows, "train_stretches": evidence.stretches,
-                 "stretch_s": problem.time_scales.stretch_s, "scales": problem.time_scales.to_dict()},
-        "seconds": time.perf_counter() - started,
-    }
-    figures = _figures(out, before, after, dm, runs if trained else (), list(result["extended"]["signals"])) \
-        if plot else {}
-    result["figures"] = figures
-    (out / "diagnosis.json").write_text(json.dumps(result, indent=2, default=float))
-    (out / "diagnosis.md").write_text(markdown(result, search, structure, dm, min_gain, problem.time_scales))
+    named = {f.key for f in search.named}
+    first_round = search.rounds[0] if search.rounds else []
+    signals = signal_agreement(after)
+    result = Diagnosis(
+        causes=[f.cause for f in search.named],
+        cause=search.named[0].cause if search.named else "none",  # the first named (the schema of old reports)
+        estimate=dict(search.named[0].values) if search.named else {},
+        system=SystemSummary(nominal.name, list(dm.input_names), list(dm.output_names), list(dm.scheduling_names)),
+        named=[FindingRow.from_dict(f.to_dict()) for f in search.named],
+        dropped=[FindingRow.from_dict(f.to_dict()) for f in search.dropped],
+        candidates=[_candidate(f, search.nominal_score) for f in search.named]
+        + [_candidate(f, search.nominal_score) for f in first_round if f.key not in named],
+        rounds=[[FindingRow.from_dict(f.to_dict()) for f in r] for r in search.rounds],
+        score=SearchScore(search.nominal_score, search.final_score),
+        error=ErrorShares(error["nominal"], error["extended"], change["overall"], error.get("trained")),
+        metrics=metrics, gain={"all": change}, too_short=list(search.too_short), generic=list(search.generic),
+        standin=search.standin, coverage=list(covered), not_covered=short_lines(dm, covered), unexplained=unexplained,
+        structure={s.output: s for s in structure},
+        extended=Extension({k: str(v) for k, v in written.items()}, commands, signals, trained),
+        data=DataSummary(dm.dt, len(dm.records("train")), len(dm.records("val")), search.folds, search.blocks,
+                         evidence.seconds, evidence.windows, evidence.stretches, problem.time_scales.stretch_s,
+                         problem.time_scales.to_dict()),
+        seconds=time.perf_counter() - started,
+    )
+    if plot:
+        result.figures = _figures(out, before, after, dm, runs if trained else (), list(signals))
+    result.to_json(out / "diagnosis.json")
+    units = {n: (c.display_unit, c.display_factor) for n, c in dm.channels.items()}
+    (out / "diagnosis.md").write_text(result.markdown(units, min_gain))
     return result
 
 
@@ -239,11 +228,10 @@ def _record(dm, run: Prediction, channel: str) -> np.ndarray:
     return record[channel][run.first:]
 
 
-def _candidate(f: Finding, nominal_score: float) -> dict:
-    """A row of ``candidates`` (the schema the fleet summary reads): cause, score = share of the
-    nominal error it explains, estimate (fitted values [SI]), evidence (one line in units)."""
-    return {"cause": f.cause, "target": f.target, "score": f.gain, "estimate": f.values, "evidence": f.describe(),
-            "alternatives": f.alternatives}
+def _candidate(f: Finding, nominal_score: float) -> CandidateRow:
+    """A row of ``candidates``: cause, score = share of the nominal error it explains, estimate
+    (fitted values [SI]), evidence (one line in units)."""
+    return CandidateRow(f.cause, f.target, f.gain, f.values, f.describe(), f.alternatives)
 
 
 def _write(path: Path, spec: ModelSpec, named: Sequence[Finding]) -> Path:
@@ -253,10 +241,6 @@ def _write(path: Path, spec: ModelSpec, named: Sequence[Finding]) -> Path:
     return path
 
 
-WRITTEN = {"diagnosed": "the named causes at their fitted values, the uncertain ones trainable",
-           "diagnosed_hybrid": "the same with a correction network on the outputs",
-           "diagnosed_learned": ("the subsystems the named causes stand in for learned by networks in the frozen "
-                                 "physics; then `python -m hypa.explain run=<its run>` says what they learned")}
 PAST_MARGIN = 4  # an estimated start sees this many times as many measured values as the block has states
 
 
@@ -287,7 +271,7 @@ def train_command(written: Path, model: str, overrides: Sequence[str], with_ann:
                      *(shlex.quote(w) for w in train_arguments(written, model, overrides, with_ann, config_dir))])
 
 
-def signal_agreement(runs: Sequence[Prediction]) -> dict[str, dict[str, float]]:
+def signal_agreement(runs: Sequence[Prediction]) -> dict[str, SignalAgreement]:
     """Where the data measure what a diagnosed block recovers (its internal signal
     ``diagnosed_<channel>`` and a measured ``<channel>``, e.g. the rear-wheel angle on the test
     bench, evaluation only): correlation, RMS error and the measured RMS [SI] over the records."""
@@ -304,7 +288,7 @@ def signal_agreement(runs: Sequence[Prediction]) -> dict[str, dict[str, float]]:
         if ok.sum() < 3 or np.std(measured[ok]) == 0 or np.std(recovered[ok]) == 0:
             continue
         m, r = measured[ok], recovered[ok]
-        out[channel] = {"correlation": correlation(m, r), "rmse": errors(r, m)["rmse"], "measured_rms": rms(m)}
+        out[channel] = SignalAgreement(correlation(m, r), errors(r, m)["rmse"], rms(m))
     return out
 
 
@@ -335,130 +319,3 @@ def _figures(out: Path, before: Sequence[Prediction], after: Sequence[Prediction
         names["signals"].append(save(fig, f"signal_{channel}.png"))
     return names
 
-
-def markdown(result: dict, search: Search, structure: Sequence[OutputStructure], dm, min_gain: float,
-             scales: Scales) -> str:
-    """diagnosis.md: the engineer's report (``scales``: the time scales the search ran at)."""
-    lines = [f"# Diagnosis of `{result['system']['model']}`", ""]
-    lines += [f"Inputs {', '.join(result['system']['inputs'])}; outputs {', '.join(result['system']['outputs'])}"
-              + (f"; scheduling {', '.join(result['system']['scheduling'])}" if result["system"]["scheduling"] else "")
-              + f". {result['data']['train_records']} training and {result['data']['val_records']} validation "
-              f"record(s) at {1 / dm.dt:.4g} Hz. Free-run error on the validation records, as a share of each "
-              "output's variance (1 − R², the table \"Per output\"), averaged over the outputs:", ""]
-    figures = headline(result)
-
-    def per_output(model: str) -> str:
-        return ", ".join(f"{o} {100 * (1 - result['metrics'][model][o]['r2']):.3g} %" for o in dm.output_names)
-
-    lines.append(f"- nominal model: **{figures['nominal']}** ({per_output('nominal')})")
-    lines.append(f"- with the named causes: **{figures['extended']}** ({per_output('extended')})")
-    if "trained" in figures:
-        lines.append(f"- the trained extension: **{figures['trained']}** ({per_output('trained')})")
-    lines.append(f"- change with the named causes: **{figures['change']}**")
-    crossed = search.folds > 1
-    error = "cross-validated error" if crossed else "validation error"
-    if result.get("not_covered"):
-        lines += ["", "## Validation data", "",
-                  ("The figures above are free runs on the validation records, and they do not cover the operating "
-                   "range of the training records (1st–99th percentile; amplitude as RMS about the training mean). "
-                   "The causes were judged on all records (cross-validation); the figures above show their effect "
-                   "on a part of the range only; other validation records are chosen with `data.splits`."
-                   if crossed else
-                   "Every candidate is judged on the validation records, and they do not cover the operating range "
-                   "of the training records (1st–99th percentile; amplitude as RMS about the training mean). A cause "
-                   "that matters outside what they cover can look useless here, and a stand-in can look right; "
-                   "other validation records are chosen with `data.splits`."), ""]
-        lines += [f"- {line}." for line in result["not_covered"]]
-    stretch = duration(result["data"]["stretch_s"])
-    lines += ["", "## Named causes", "",
-              (f"The gains below are cross-validated: every record, training and validation, cut into "
-               f"{search.blocks} blocks of {stretch}; each candidate fitted on every other block and scored on the "
-               f"others (free runs started from the data at each block), then the other way round, the "
-               f"{search.folds} halves' errors pooled. Its values are the mean of the {search.folds} fits (each "
-               "fit's in `diagnosis.json`, `named[].folds`), so the validation figures above are not held out. "
-               if crossed else
-               "The gains below are the search's own score: free runs over the validation records restarted from "
-               f"the data every {stretch} (on longer records a little different from the figures above). ")
-              + f"Time scales from the nominal model and the data: {scales.describe()}.", ""]
-    if not search.named:
-        lines.append(f"None: no catalogue cause lowers the {error} by {100 * min_gain:.0f} % or more"
-                     + (" among those the data could support (see \"Too little data\")." if search.too_short else "."))
-    previous = search.nominal_score
-    for k, f in enumerate(search.named, 1):
-        share = (previous - f.score) / search.nominal_score if search.nominal_score > 0 else 0.0
-        lines.append(f"{k}. **{f.cause}** on `{f.target}`: "
-                     + (f.describe().split(": ", 1)[1] if ": " in f.describe() else "no value")
-                     + f". {error.capitalize()} {100 * f.gain:.2g} % lower than before it; "
-                     f"{100 * share:.2g} % of the nominal error."
-                     + (f" Small (below the {100 * min_gain:.0f} % floor), but {f.z:.0f} standard errors from zero."
-                        if f.small else "")
-                     + (f" A generic linear filter from the inputs in its place: {100 * f.generic:.2g} % lower."
-                        if f.generic is not None else ""))
-        if f.alternatives:
-            lines.append(f"   The data cannot tell it from: {'; '.join(f.alternatives)}.")
-        previous = f.score
-    if search.standin:
-        lines.append(f"- Not named: {search.standin}.")
-    for f in search.dropped:
-        lines.append(f"- Named, then dropped: **{f.cause}** on `{f.target}`; {f.note}.")
-    if search.too_short:
-        lines += ["", "## Too little data", "",
-                  ("What the training records are too short to fit or to judge (a fit needs more training windows "
-                   "without overlap than the numbers it fits; an offset's standard error needs more training "
-                   "stretches than the offsets fitted with it):"), ""]
-        lines += [f"- {line}." for line in search.too_short]
-    models = [m for m in ("nominal", "extended", "trained") if m in result["metrics"]]
-    output_rows = []
-    for o in dm.output_names:
-        ch = dm.channels[o]
-        scores = [result["metrics"][m][o] for m in models]
-        output_rows.append([o, *(f"{r['rmse'] * ch.display_factor:.3g} {ch.display_unit}" for r in scores),
-                            *(f"{r['r2']:.4f}" for r in scores)])
-    lines += ["", "## Per output (validation, free run)", "",
-              *md.table(["output", *(f"{m} RMS" for m in models), *(f"{m} R²" for m in models)], output_rows)]
-    trained = result["extended"].get("trained")
-    if trained:
-        lines += ["", f"The trained extension is `{trained['model']}` trained by hypa.train (run `{trained['run']}`): "
-                  f"validation error {format_change(trained['gain']['all']['overall'])} against the nominal model."]
-        if trained["explained"]:
-            lines += ["", "What its networks learned (hypa.explain; fitted on the training records, R² on the "
-                      f"validation records; report `{trained['explained'][0]['report']}`):", ""]
-            lines += [f"- `{e['block']}`, {e['signal']}: {e['description']}" for e in trained["explained"]]
-    if result["extended"]["signals"]:
-        recovered = []
-        for channel, a in result["extended"]["signals"].items():
-            ch = dm.channels[channel]
-            recovered.append([channel, f"{a['correlation']:.3f}",
-                              f"{a['rmse'] * ch.display_factor:.3g} {ch.display_unit}",
-                              f"{a['measured_rms'] * ch.display_factor:.3g} {ch.display_unit}"])
-        lines += ["", "## Recovered signals against their measurement", "",
-                  "What a diagnosed block recovers, compared with a channel the data measure but that was "
-                  "never trained on:", "", *md.table(["signal", "correlation", "RMS error", "measured RMS"], recovered)]
-    lines += ["", "## What remains", ""]
-    for s in structure:
-        if s.unexplained:
-            text = "**unexplained structure**: " + "; ".join(s.where)
-        elif s.where:
-            text = "too little to matter (under 0.2 % of the variance); seen: " + "; ".join(s.where)
-        else:
-            text = "no structure: what is left looks like noise"
-        lines.append(f"- `{s.output}`: {100 * s.share:.3g} % of its variance left; {text}.")
-    lines += ["", "## The extended model", ""]
-    for name, path in result["extended"]["config"].items():
-        lines.append(f"- `{path}` ({WRITTEN.get(name, name)}): train it with "
-                     f"`{result['extended']['train_command'][name]}`")
-    candidates = []
-    for f in search.rounds[0] if search.rounds else []:
-        fitted = (f.describe().split(": ", 1)[1] if ": " in f.describe() else "") or (f.error or "–")
-        if f.steps and f.steps[0] < f.steps[1]:
-            fitted += f" (stopped after {f.steps[0]} of {f.steps[1]} steps, behind others: gain at least this)"
-        if f.too_short and not f.error:
-            fitted += " (standard error not judged: too few training stretches)"
-        if f.screened:
-            fitted += " (first fold only: far behind that fold's best)"
-        gain = "–" if f.too_short and f.error else f"{100 * f.gain:+.1f} %"
-        candidates.append([f.cause, f.target, fitted, gain])
-    lines += ["", "## Every candidate of the first round", "", *md.table(["cause", "on", "fitted", "gain"], candidates)]
-    for name in [*result.get("figures", {}).get("time_series", []), *result.get("figures", {}).get("signals", [])]:
-        lines += ["", f"![{name}]({name})"]
-    return "\n".join(lines) + "\n"

@@ -11,14 +11,14 @@ the correction adds, as a form in units), into ``extended_run/explanation``.
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from hypa.data import HypaDataModule
+from hypa.diagnosis.result import NetworkExplanation
 from hypa.errors import UserError
+from hypa.launch import run_hypa
 from hypa.evaluation.evaluation import run_datamodule
 from hypa.evaluation.runs import load_run
 from hypa.explain.run import Settings, ann_blocks, explain_run
@@ -37,7 +37,7 @@ class TrainedExtension:
 
     run: Path
     predictions: list[Prediction]
-    explanations: list[dict] = field(default_factory=list)
+    explanations: list[NetworkExplanation] = field(default_factory=list)
 
 
 def train_extension(arguments: Sequence[str], run_dir: Path, dm: HypaDataModule,
@@ -46,11 +46,8 @@ def train_extension(arguments: Sequence[str], run_dir: Path, dm: HypaDataModule,
     """Run ``python -m hypa.train ARGUMENTS`` into ``run_dir``, free-run its best checkpoint over
     ``dm``'s validation records and (``explain``) explain its networks. ``extra_overrides``: more
     ``hypa.train`` overrides (e.g. a shorter training: ``trainer.max_epochs=5``)."""
-    argv = [sys.executable, "-m", "hypa.train", *arguments, f"hydra.run.dir={run_dir}", *extra_overrides]
-    completed = subprocess.run(argv, check=False)  # its output goes to the console: progress
-    if completed.returncode != 0:
-        raise ExtensionTrainingError(f"hypa.train failed (exit status {completed.returncode}) on the extended "
-                                     f"model: {' '.join(argv[1:])}")
+    run_hypa("train", [*arguments, f"hydra.run.dir={run_dir}", *extra_overrides], "training the extended model",
+             error=ExtensionTrainingError)
     run = load_run(run_dir)
     model = run.module.model
     if run.config.data.past != dm.past:  # raised for the extension (hypa.diagnosis.system.with_past)
@@ -62,12 +59,12 @@ def train_extension(arguments: Sequence[str], run_dir: Path, dm: HypaDataModule,
 
 
 def explain_networks(run, dm: HypaDataModule, out: Path, plot: bool = True,
-                     progress: Callable[[str], None] = lambda text: None) -> list[dict]:
+                     progress: Callable[[str], None] = lambda text: None) -> list[NetworkExplanation]:
     """What each network of a trained run learned (:func:`hypa.explain.explain_run`), one entry per
     explained signal: block, signal, the chosen form in words, its validation R² and the report."""
     if not ann_blocks(run.module.model.spec):
         return []
     results = explain_run(run, dm, out, settings=Settings(plot=plot), progress=progress)
-    return [{"block": r.problem.block, "signal": r.problem.output, "description": r.explanation.describe(),
-             "form": r.explanation.best.form.name, "r2_val": r.explanation.best.r2_val,
-             "report": str(out / "explanation.md")} for r in results]
+    return [NetworkExplanation(r.problem.block, r.problem.output, r.explanation.describe(),
+                               r.explanation.best.form.name, r.explanation.best.r2_val, str(out / "explanation.md"))
+            for r in results]

@@ -7,7 +7,7 @@ for the whole round, advances them when told to and sends back only what the rac
 score, how far the fit got, its values). A fit's result does not depend on where it ran: its
 batches come from its own seeded generator.
 
-Used by :func:`hypa.diagnosis.engine.evaluate_round` when ``Problem.workers`` > 1 and the
+Used by :func:`hypa.diagnosis.race.evaluate_round` when ``Problem.workers`` > 1 and the
 platform can fork; otherwise the round runs in the calling process.
 """
 
@@ -39,7 +39,7 @@ def can_fork() -> bool:
 
 
 class Workers:
-    """Forked processes that advance a round's runners (``engine._Runner``), one task at a time.
+    """Forked processes that advance a round's runners (``race._Runner``), one task at a time.
 
     :meth:`run` hands out the tasks of a rung (advance runner i to ``share`` of its steps and
     score it), the most expensive first, each to the next idle worker; a fit that is not done

@@ -9,15 +9,13 @@ free run of an integrating axis) one seed's figure says little.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 
-from hypa import markdown as md
 from hypa.data import HypaDataModule
+from hypa.evaluation.benchmark_result import Benchmark, Summary
 from hypa.metrics import mean_std, regression_metrics
 from hypa.evaluation.runs import TrainedRun
 from hypa.models.rollout import free_run
@@ -34,18 +32,6 @@ class Score:
     r2: float
     samples: int
     seed: int = 0
-
-
-@dataclass(frozen=True)
-class Summary:
-    """A model's scores on one test set and output over its seeds: mean and (sample) std."""
-
-    rms: float
-    rms_std: float
-    r2: float
-    r2_std: float
-    samples: int
-    seeds: dict[int, tuple[float, float]]  # seed -> (rms, r2)
 
 
 def summarize(scores: Sequence[Score]) -> dict[tuple[str, str, str], Summary]:
@@ -73,72 +59,16 @@ def score_run(run: TrainedRun, dm: HypaDataModule, label: str, seed: int = 0) ->
     return scores
 
 
-def benchmark_table(scores: Sequence[Score], training_time_s: Mapping[str, float], published: Mapping[str, Mapping],
-                    units: Mapping[str, tuple[str, float]], dataset: str) -> str:
-    """A Markdown table: per test set and output, each model's RMS and R², the published RMS figures.
+def benchmark(dataset: str, scores: Sequence[Score], training_time_s: Mapping[str, float],
+              published: Mapping[str, Mapping], units: Mapping[str, tuple[str, float]]) -> Benchmark:
+    """The data set's :class:`~hypa.evaluation.benchmark_result.Benchmark` (written by its
+    ``to_json`` and ``markdown``): per model, test set and output the scores' mean ± std over seeds.
 
     ``units``: output -> (display unit, factor from SI); ``published``: test set -> output ->
-    {label: RMS in the output's display unit}; ``training_time_s``: model -> mean seconds. A
-    model with several seeds shows mean ± std (and its seeds are named under the table).
+    {label: RMS in the output's display unit}; ``training_time_s``: model -> mean seconds per seed.
     """
-    summary = summarize(scores)
-    models = list(dict.fromkeys(s.model for s in scores))
-    shown = list(dict.fromkeys(k for outputs in published.values() for figures in outputs.values() for k in figures))
-    head = ["test set", "output", *[f"{m} RMS" for m in models], *[f"{m} R²" for m in models],
-            *[f"published {k}" for k in shown]]
-    rows = []
-    for test_set, output in dict.fromkeys((s.test_set, s.output) for s in scores):
-        unit, factor = units.get(output, ("", 1.0))
-        rms = [summary.get((m, test_set, output)) for m in models]
-        cells = [test_set, output, *[_rms_cell(s, factor, unit) for s in rms],
-                 *[_r2_cell(s) for s in rms]]
-        figures = published.get(test_set, {}).get(output, {})
-        cells += [f"{figures[k]:g} {unit}" if k in figures else "–" for k in shown]
-        rows.append(cells)
-    lines = [f"### {dataset}: free-run test error", "", *md.table(head, rows)]
-    lines += ["", "training time: " + ", ".join(f"{m} {training_time_s.get(m, float('nan')):.0f} s" for m in models)]
-    seeds = {m: sorted(next(s for k, s in summary.items() if k[0] == m).seeds) for m in models}
-    if any(len(v) > 1 for v in seeds.values()):
-        lines += ["mean ± standard deviation over seeds " + ", ".join(f"{m} {v}" for m, v in seeds.items())
-                  + " (training time: mean per seed); each seed in benchmark.json"]
-    return "\n".join(lines)
-
-
-def _r2_cell(s: Summary | None) -> str:
-    if s is None:
-        return "–"
-    if len(s.seeds) == 1:
-        return f"{s.r2:.4f}"
-    std = _spread(s.r2_std, s.r2)
-    return f"{s.r2:.4f} ± " + (f"{std:.4f}" if std >= 5e-5 or std == 0 else f"{std:.0e}")
-
-
-def _rms_cell(s: Summary | None, factor: float, unit: str) -> str:
-    if s is None:
-        return "–"
-    if len(s.seeds) == 1:
-        return f"{s.rms * factor:.3g} {unit}"
-    return f"{s.rms * factor:.3g} ± {_spread(s.rms_std, s.rms) * factor:.2g} {unit}"
-
-
-def _spread(std: float, mean: float) -> float:
-    """A standard deviation over seeds, 0 where it is round-off (seeds that gave the same model, e.g.
-    identified physics, differ by float summation order only)."""
-    return 0.0 if std <= 1e-9 * max(abs(mean), 1e-300) else std
-
-
-def write_benchmark_json(path: Path, dataset: str, scores: Sequence[Score], training_time_s: Mapping[str, float],
-                         published: Mapping[str, Mapping], units: Mapping[str, tuple[str, float]]) -> None:
-    """``benchmark.json``: {dataset: {model: {"training_time_s", "test_sets": {set: {output: {rms, r2,
-    samples, rms_std, r2_std, seeds: {seed: {rms, r2}}}}}}}, "published"}, RMS in SI units (V, m,
-    rad/s, rad), rms and r2 the means over seeds."""
-    models: dict[str, dict] = {}
-    for (model, test_set, output), s in summarize(scores).items():
-        entry = models.setdefault(model, {"training_time_s": training_time_s.get(model), "test_sets": {}})
-        entry["test_sets"].setdefault(test_set, {})[output] = {
-            **{k: v for k, v in asdict(s).items() if k != "seeds"},
-            "seeds": {str(seed): {"rms": rms, "r2": r2} for seed, (rms, r2) in s.seeds.items()}}
-    content = json.loads(path.read_text()) if path.is_file() else {}
-    content[dataset] = {"models": models, "published": {k: {o: dict(f) for o, f in v.items()} for k, v in published.items()},
-                        "display_units": {k: {"unit": u, "factor": f} for k, (u, f) in units.items()}}
-    path.write_text(json.dumps(content, indent=2))
+    rows = summarize(scores)
+    models = dict.fromkeys(k[0] for k in rows)
+    return Benchmark(dataset, rows, {m: training_time_s.get(m) for m in models},
+                     {k: {o: dict(f) for o, f in v.items()} for k, v in published.items()},
+                     {k: (u, f) for k, (u, f) in units.items()})

@@ -10,21 +10,17 @@ measure for evaluation (an implicitly learned rear-wheel angle) against the meas
 
 from __future__ import annotations
 
-import csv
-import json
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from hypa import markdown as md
 from hypa.data import HypaDataModule
 from hypa.errors import UserError
 from hypa.metrics import correlation, errors, state_metrics
 from hypa.evaluation.plots import bode
+from hypa.evaluation.result import Evaluation, RunMetrics, SignalMetrics, SplitMetrics, segments
 from hypa.evaluation.runs import TrainedRun, windowed
 from hypa.models.rollout import Prediction, free_run
 from hypa.evaluation.transfer import TransferEstimate, h1_estimate
@@ -37,7 +33,7 @@ MANEUVERS = "maneuvers"
 def run_datamodule(run: TrainedRun) -> HypaDataModule:
     """The run's data, scaled with the statistics stored in its checkpoint."""
     from hypa.data import datamodule_from_config
-    from hypa.entry import data_dir_from_config
+    from hypa.data.from_config import data_dir_from_config
 
     data_dir = run.data_dir if run.data_dir is not None and run.data_dir.is_dir() else data_dir_from_config(run.config)
     dm = datamodule_from_config(run.config.data, data_dir, normalization=run.module.hparams.normalization)
@@ -82,11 +78,11 @@ def _segment_masks(time: np.ndarray, segments: Sequence[tuple[str, float, float]
 
 
 def evaluate_split(run: TrainedRun, dm: HypaDataModule, split: str, subset: Sequence[int] | None = None,
-                   w: dict[str, np.ndarray] | None = None) -> tuple[dict[str, Any], list[Prediction]]:
+                   w: dict[str, np.ndarray] | None = None) -> tuple[SplitMetrics, list[Prediction]]:
     """Windowed and free-run metrics of one split (or of the records ``subset`` of it, one test
     set of several), overall and per segment; ``w``: the split's ``windowed`` result if known."""
     names = dm.output_names
-    result: dict[str, Any] = {"windowed": {}, "free_run": {}}
+    result = {"windowed": {}, "free_run": {}}  # mode -> segment -> output -> metric -> value
     w = windowed(run.module, dm, split) if w is None else w
     split_records = dm.records(split)
     chosen = range(len(split_records)) if subset is None else subset
@@ -134,14 +130,15 @@ def evaluate_split(run: TrainedRun, dm: HypaDataModule, split: str, subset: Sequ
     for name, parts in by_segment.items():
         result["free_run"][name] = state_metrics(np.concatenate([a for a, _ in parts]),
                                                  np.concatenate([b for _, b in parts]), names)
+    signals = {}
     for name in compared_signals(predictions):
         with_it = [p for p in predictions if name in p.signals and name in p.measured]
         learned = np.concatenate([p.signal_on_grid(name) for p in with_it])
         measured = np.concatenate([p.measured[name] for p in with_it])
         ok = np.isfinite(learned)  # the model's signal where it has one
-        result.setdefault("signals", {})[name] = {"corr": correlation(learned[ok], measured[ok]),
-                                                  "rmse": errors(learned[ok], measured[ok])["rmse"]}
-    return result, predictions
+        signals[name] = SignalMetrics(correlation(learned[ok], measured[ok]),
+                                      errors(learned[ok], measured[ok])["rmse"])
+    return SplitMetrics(segments(result["windowed"]), segments(result["free_run"]), signals), predictions
 
 
 def compared_signals(predictions: Sequence[Prediction]) -> list[str]:
@@ -161,27 +158,13 @@ def transfer_estimates(prediction: Prediction, input_name: str, output_name: str
             "model": h1_estimate(u, prediction.predicted[output_name][mask], rate_hz, segment_s)}
 
 
-@dataclass
-class Evaluation:
-    """What ``evaluate_run`` found: the metrics, and the curves to overlay across models."""
-
-    metrics: dict[str, Any]
-    transfer: dict[str, TransferEstimate]  # "measured" and "model" of the first input -> output pair (val)
-    signals: dict[str, tuple[np.ndarray, np.ndarray | None, np.ndarray]] = field(default_factory=dict)
-    # learned signal -> (time, measured, model) [SI], first validation record
-    model_blocks: tuple = ()  # the model's BlockSpecs (which signals a network learns)
-    display_units: dict[str, str] = field(default_factory=dict)  # channel -> unit shown
-    display_factors: dict[str, float] = field(default_factory=dict)  # channel -> SI to shown
-
-
 def evaluate_run(run: TrainedRun, out_dir: Path, tensorboard: bool = True) -> Evaluation:
     """Everything above for one run; the metrics, figures and report are written to ``out_dir``."""
     out_dir.mkdir(parents=True, exist_ok=True)
     dm = run_datamodule(run)
     units = {n: c.display_unit for n, c in dm.channels.items()}
     scale = {n: c.display_factor for n, c in dm.channels.items()}
-    metrics: dict[str, Any] = {"model": run.label, "checkpoint": str(run.checkpoint), "splits": {},
-                               "units": {n: c.unit for n, c in dm.channels.items()}}
+    metrics = RunMetrics(run.label, str(run.checkpoint), units={n: c.unit for n, c in dm.channels.items()})
     figures, primary, learned = {}, {}, {}
     for split in ("val", "test"):
         if not dm.records(split):
@@ -191,10 +174,10 @@ def evaluate_run(run: TrainedRun, out_dir: Path, tensorboard: bool = True) -> Ev
             w, first_index = windowed(run.module, dm, split), 0
             for name, records in sets.items():
                 subset = range(first_index, first_index + len(records))
-                metrics["splits"][f"test/{name}"], _ = evaluate_split(run, dm, split, subset, w)
+                metrics.splits[f"test/{name}"], _ = evaluate_split(run, dm, split, subset, w)
                 first_index += len(records)
             continue
-        metrics["splits"][split], predictions = evaluate_split(run, dm, split)
+        metrics.splits[split], predictions = evaluate_split(run, dm, split)
         if split != "val":
             continue
         first = predictions[0]
@@ -223,11 +206,12 @@ def evaluate_run(run: TrainedRun, out_dir: Path, tensorboard: bool = True) -> Ev
             figures[name] = time_series(first.time, {name: first.measured[name]},
                                         {f"{run.label} (learned)": {name: first.signal_on_grid(name)}},
                                         units=units, scale=scale, title=f"implicitly learned {name}")
-    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    _write_csv(metrics, out_dir / "metrics.csv")
+    evaluation = Evaluation(metrics, primary, learned, run.module.model.spec.blocks, units, scale)
+    evaluation.to_json(out_dir / "metrics.json")
+    metrics.write_csv(out_dir / "metrics.csv")
     for name, fig in figures.items():
         fig.savefig(out_dir / f"{name}.png", dpi=110)
-    report = summary(metrics, [f"{n}.png" for n in figures], units, scale)
+    report = evaluation.markdown([f"{n}.png" for n in figures])
     identified = run.folder / "identification.md"  # how the run's physics were identified (hypa.identification)
     if identified.is_file():
         report += "\n" + identified.read_text()
@@ -238,52 +222,5 @@ def evaluate_run(run: TrainedRun, out_dir: Path, tensorboard: bool = True) -> Ev
         with SummaryWriter(str(run.folder / "tensorboard")) as writer:
             for name, fig in figures.items():
                 writer.add_figure(f"evaluation/{name}", fig, close=True)
-    return Evaluation(metrics, primary, learned, run.module.model.spec.blocks, units, scale)
+    return evaluation
 
-
-def _rows(metrics: dict[str, Any]):
-    for split, modes in metrics["splits"].items():
-        for mode, segments in modes.items():
-            if mode == "signals":
-                for name, values in segments.items():
-                    for key, value in values.items():
-                        yield split, "free_run", "all", name, key, value
-                continue
-            for segment, channels in segments.items():
-                for channel, values in channels.items():
-                    for key, value in values.items():
-                        yield split, mode, segment, channel, key, value
-
-
-def _write_csv(metrics: dict[str, Any], path: Path) -> None:
-    with path.open("w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(["model", "split", "mode", "segment", "channel", "metric", "value (SI)"])
-        for row in _rows(metrics):
-            writer.writerow([metrics["model"], *row])
-
-
-def summary(metrics: dict[str, Any], figures: Sequence[str], units: dict[str, str] | None = None,
-            scale: dict[str, float] | None = None) -> str:
-    """A short markdown report of one run, in the channels' display units."""
-    units, scale = units or {}, scale or {}
-    lines = [f"# Evaluation of {metrics['model']}", "", f"checkpoint: `{metrics['checkpoint']}`", "",
-             "MAPE is floored: |error| / max(|y|, 10 % of the channel's RMS), so zero crossings do not explode it.",
-             "`overall` is the mean over the outputs of MAPE and R² (MAE and MSE mix units there: SI).", ""]
-    for split, modes in metrics["splits"].items():
-        rows = []
-        for mode in ("windowed", "free_run"):
-            for segment, channels in modes.get(mode, {}).items():
-                for channel, m in channels.items():
-                    k, unit = scale.get(channel, 1.0), units.get(channel, "SI")
-                    rows.append([mode, segment, channel, f"{m['mae'] * k:.3g} {unit}",
-                                 f"{np.sqrt(m['mse']) * k:.3g} {unit}", f"{m['mape']:.3g}", f"{m['r2']:.4f}"])
-        lines += [f"## {split}", "",
-                  *md.table(["mode", "segment", "output", "MAE", "RMSE", "MAPE [%]", "R²"], rows)]
-        for name, r in modes.get("signals", {}).items():
-            k, unit = scale.get(name, 1.0), units.get(name, "SI")
-            lines += ["", f"Model vs measured {name} (free run; never trained on): correlation {r['corr']:.3f}, "
-                      f"RMSE {r['rmse'] * k:.3g} {unit}"]
-        lines.append("")
-    lines += [f"![{f}]({f})" for f in figures]
-    return "\n".join(lines) + "\n"

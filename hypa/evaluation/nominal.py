@@ -31,10 +31,11 @@ from hypa.training.module import HybridModule
 log = logging.getLogger(__name__)
 
 
-def nominal_module(model_config: Mapping[str, Any], physical_values: Mapping[str, float], dm: HypaDataModule,
-                   hold: str) -> HybridModule:
+def nominal_module(model_config: Mapping[str, Any], physical_values: Mapping[str, float] | None,
+                   dm: HypaDataModule, hold: str | None) -> HybridModule:
     """The model of ``model_config`` built on ``dm``'s channels with its configured parameter
     values (``physical_values`` for the parameter group's names, else the systems' nominal ones).
+    ``hold``: the run's ``physics.hold``, for a model whose spec fixes no ``hold:`` of its own.
 
     Raises ``UserError`` for a model with networks: untrained, they would simulate nothing.
     """
@@ -43,12 +44,8 @@ def nominal_module(model_config: Mapping[str, Any], physical_values: Mapping[str
     if networks:
         raise UserError(f"hypa.simulate runs physics only; model {spec.name} has the network blocks "
                         f"{', '.join(networks)}: train it (python -m hypa.train) and evaluate the run instead")
-    module = HybridModule(
-        model_config=dict(model_config), physical_values=dict(physical_values),
-        normalization=dm.normalization.state_dict(), input_names=dm.input_names, output_names=dm.output_names,
-        eval_names=dm.eval_names, scheduling_names=dm.scheduling_names, past=dm.past, dt=dm.dt,
-        horizon=dm.window, hold=hold,
-    )
+    module = HybridModule.from_data(dm, dict(model_config), physical_values=physical_values,
+                                    hold=None if spec.hold else hold)
     return module.eval()
 
 

@@ -15,7 +15,8 @@ from hypa.explain.forms import (
     frequency_response,
     predict,
 )
-from hypa.explain.signals import AmplitudeBin, Band, Recording, Remainder
+from hypa.explain.residual import AmplitudeBin, Band, Remainder
+from hypa.explain.signals import Recording
 
 __all__ = ["AmplitudeBin", "Band", "Explanation", "FittedForm", "Form", "Recording", "Remainder",
            "Value", "choose", "explain", "frequency_response", "predict"]

@@ -12,14 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize
 
-from hypa.explain.signals import (
-    Recording,
-    delayed,
-    filtered,
-    lag_filter,
-    second_order_filters,
-    unit_ratio,
-)
+from hypa.data.units import unit_ratio
+from hypa.explain.signals import Recording, delayed, filtered, lag_filter, second_order_filters
 from hypa.metrics import errors
 
 NONLINEAR = {"static": (), "lag": ("lag",), "lag_delay": ("lag", "delay"),
@@ -113,19 +107,21 @@ class Fitter:
         """Per record, the columns the gains multiply: offset, per input its response (and the
         response's derivative for a zero, its cubic's response), then the extra signals."""
         delay, filters = self._dynamics(form, theta)
-
-        def response(x: np.ndarray, which: slice = slice(None)) -> list[np.ndarray]:
-            x = delayed(x, delay, self.dt)
-            return [filtered(x, f) for f in filters[which]] if filters else [x]
-
         out = []
         for u, e in zip(data.u, data.e):
-            columns = [np.ones_like(u[0])]
-            for x in u:
-                columns += response(x)
-                columns += response(x**3, slice(0, 1)) if form.cubic else []
+            # every signal that passes the dynamics, through one dead time and each filter at once:
+            # per input u_i (and u_i³), then the extra signals that enter filtered
+            passing = [s for x in u for s in ((x, x**3) if form.cubic else (x,))]
+            passing += list(e) if form.extra == "filtered" else []
+            late = delayed(np.column_stack(passing), delay, self.dt)
+            through = [filtered(late, f) for f in filters] or [late]  # each (T, len(passing))
+            columns, k = [np.ones_like(u[0])], 0
+            for _ in u:
+                columns += [t[:, k] for t in through]  # the response (and its rate for a zero)
+                columns += [through[0][:, k + 1]] if form.cubic else []
+                k += 2 if form.cubic else 1
             if form.extra != "none":
-                columns += [x if form.extra == "direct" else response(x, slice(0, 1))[0] for x in e]
+                columns += [x if form.extra == "direct" else through[0][:, k + j] for j, x in enumerate(e)]
             out.append(np.column_stack(columns))
         return out
 

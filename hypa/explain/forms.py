@@ -40,7 +40,8 @@ import numpy as np
 
 from hypa.errors import UserError
 from hypa.explain.fitting import LADDER, Data, FittedForm, Fitter, Form, Value, to_data
-from hypa.explain.signals import Recording, Remainder, check_recordings, remainder
+from hypa.explain.residual import Remainder, remainder
+from hypa.explain.signals import Recording, check_recordings
 
 DEFAULT_PENALTY = 0.002  # score lost per parameter (share of the output variance)
 DEFAULT_MARGIN = 0.005  # a richer form must beat a simpler one by this much (share of the variance)

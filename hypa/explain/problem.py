@@ -12,8 +12,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from hypa.data.units import unit_ratio
 from hypa.explain.forms import Explanation
-from hypa.explain.signals import unit_ratio
 
 FIT_SPLIT, SCORE_SPLIT = "train", "val"
 PAIRS = {"learned_vs_measured": ("measured", "learned"), "explained_vs_measured": ("measured", "explained"),

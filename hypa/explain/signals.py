@@ -1,26 +1,33 @@
-"""The building blocks of the explanation ladder: recordings, units, and exact discrete filters.
+"""The building blocks of the explanation ladder: recordings, and the physics' filters and dead time.
 
 Every form of the ladder is a sum of gains times *regressors*, signals made from the block's
-inputs by a delay and a filter. The filters here are exact discretizations of continuous
-transfer functions under a **first-order hold** (the input varies linearly between samples),
-as a sampled, band-limited signal does; a zero-order hold would add half a sample of delay
-to every lag. Each record is filtered separately from a steady start (the filter state in
-equilibrium with the record's first sample), so no transient is invented at a record's start.
+inputs by a delay and a filter. The filters are hypa.physics's own elements (the lag
+:class:`~hypa.physics.elements.FirstOrderLag`, the two poles of
+:class:`~hypa.physics.elements.SecondOrder`) discretized exactly by
+:func:`~hypa.physics.discretization.discretize` under a **first-order hold** (the input varies
+linearly between samples), as a sampled, band-limited signal does; a zero-order hold would add
+half a sample of delay to every lag. The delay is the physics's
+:class:`~hypa.physics.elements.DeadTime`. Each record is filtered separately from a steady start
+(the filter state in equilibrium with the record's first sample), so no transient is invented
+at a record's start. What a fit leaves unexplained is :mod:`hypa.explain.residual`.
 """
 
 from __future__ import annotations
 
-import re
+import functools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from itertools import pairwise
 from typing import Any
 
 import numpy as np
+import torch
 from scipy import signal
 
 from hypa.errors import UserError
-from hypa.metrics import rms
+from hypa.physics.discretization import discretize
+from hypa.physics.elements import DeadTime, FirstOrderLag, SecondOrder
+from hypa.physics.lti import LTIModel
+from hypa.physics.parameters import ParameterSpec, PhysicalParameters
 
 MIN_SAMPLES = 16  # a record shorter than this holds no dynamics worth fitting
 
@@ -85,195 +92,88 @@ def check_recordings(records: list[Recording], names: list[str], what: str) -> N
                 raise UserError(f"recording {record.name!r}: signal {name!r} holds NaN or infinite values")
 
 
-# --- units -----------------------------------------------------------------------------------
-
-_SUPERSCRIPT = str.maketrans("⁻⁰¹²³⁴⁵⁶⁷⁸⁹", "-0123456789")
-_TO_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
-
-
-def parse_unit(unit: str) -> dict[str, int]:
-    """``"m/s^2"`` -> ``{"m": 1, "s": -2}``; ``"-"``, ``"1"`` and ``""`` are dimensionless."""
-    powers: dict[str, int] = {}
-    numerator, *denominators = unit.replace(" ", "").split("/")
-    for sign, part in [(1, numerator), *((-1, d) for d in denominators)]:
-        for token in re.split(r"[·*.]", part):
-            if token in ("", "-", "1"):
-                continue
-            match = re.fullmatch(r"([^\d^⁻⁰¹²³⁴⁵⁶⁷⁸⁹-]+)\^?(-?\d+)?", token.translate(_SUPERSCRIPT))
-            if match is None:
-                raise UserError(f"cannot read unit {unit!r} (write e.g. 'rad', 'rad/s', 'm/s^2')")
-            base, power = match.group(1), int(match.group(2) or 1)
-            powers[base] = powers.get(base, 0) + sign * power
-    return {base: power for base, power in powers.items() if power != 0}
-
-
-def format_unit(powers: Mapping[str, int]) -> str:
-    """``{"m": 1, "s": -2}`` -> ``"m/s²"``; dimensionless -> ``"-"``."""
-    def product(items: list[tuple[str, int]]) -> str:
-        return "·".join(b + (str(p).translate(_TO_SUPERSCRIPT) if p != 1 else "") for b, p in items)
-
-    above = [(b, p) for b, p in powers.items() if p > 0]
-    below = [(b, -p) for b, p in powers.items() if p < 0]
-    if not above and not below:
-        return "-"
-    return (product(above) or "1") + (f"/{product(below)}" if below else "")
-
-
-def unit_ratio(numerator: str, denominator: str, power: int = 1) -> str:
-    """The unit of a coefficient from ``denominator**power`` to ``numerator`` (rad / (rad/s) = s)."""
-    powers = dict(parse_unit(numerator))
-    for base, p in parse_unit(denominator).items():
-        powers[base] = powers.get(base, 0) - power * p
-    return format_unit({b: p for b, p in powers.items() if p != 0})
-
-
-# --- exact discrete filters (first-order hold) -------------------------------------------------
+# --- the physics's filters and dead time (first-order hold) ------------------------------------
 
 Filter = tuple[np.ndarray, np.ndarray]  # (b, a) of a discrete transfer function
 
 
+@functools.lru_cache(maxsize=4096)  # the searches' grids come back to the same time constants
 def lag_filter(tau: float, dt: float) -> Filter:
-    """1 / (1 + τ s) [τ in s] discretized exactly for an input linear between samples.
-
-    With a = exp(-dt/τ) and c = (τ/dt)(1 - a):  x[n] = a x[n-1] + (1 - c) u[n] + (c - a) u[n-1].
-    τ = 0 gives the identity, so a lag of zero is exactly the static gain.
+    """1 / (1 + τ s) [τ in s], the physics's :class:`~hypa.physics.elements.FirstOrderLag` under
+    a first-order hold: with a = exp(-dt/τ) and c = (τ/dt)(1 - a),
+    x[n] = a x[n-1] + (1 - c) u[n] + (c - a) u[n-1]. τ = 0 gives the identity, so a lag of zero
+    is exactly the static gain.
     """
     if tau <= 1e-9 * dt:
-        return np.array([1.0, 0.0]), np.array([1.0, 0.0])
-    b, a = _lag_terms(complex(tau), dt)
-    return b.real, a.real
+        identity = np.array([1.0, 0.0])
+        identity.flags.writeable = False  # cached: shared by every caller
+        return identity, identity
+    return _held(FirstOrderLag(), {"tau_s": tau}, dt)[0]
 
 
-def _lag_terms(tau: complex, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`lag_filter` for a complex time constant (one pole of a pair), as (b, a)."""
-    a = np.exp(-dt / tau)
-    c = tau / dt * -np.expm1(-dt / tau)
-    return np.array([1.0 - c, c - a]), np.array([1.0, -a])
-
-
+@functools.lru_cache(maxsize=4096)
 def second_order_filters(frequency: float, damping: float, dt: float) -> tuple[Filter, Filter]:
-    """1 / D(s) and s / D(s) with D(s) = 1 + 2ζ s/ω + s²/ω², ω = 2π ``frequency`` [Hz],
-    discretized exactly for an input linear between samples (first-order hold).
+    """1 / D(s) and s / D(s) with D(s) = 1 + 2ζ s/ω + s²/ω², ω = 2π ``frequency`` [Hz]: the two
+    states of the physics's :class:`~hypa.physics.elements.SecondOrder` (the low-passed input and
+    its rate) under a first-order hold.
 
-    The second lets a fitted zero (1 + T s) / D(s) stay linear in its coefficients. With the
-    poles p1, p2 of D, 1/D = ω²/(p1 - p2) (1/(s - p1) - 1/(s - p2)) and 1/(s - p) is a lag
-    of time constant -1/p and gain -1/p, discretized as :func:`lag_filter` (in complex numbers
-    for a complex pair). A double pole (ζ = 1) is moved apart by 1e-6 in ζ.
+    The second lets a fitted zero (1 + T s) / D(s) stay linear in its coefficients.
     """
-    omega = 2 * np.pi * frequency
-    zeta = damping if abs(damping - 1.0) > 1e-6 else 1.0 + 1e-6
-    p1, p2 = np.roots([1.0 / omega**2, 2.0 * zeta / omega, 1.0]).astype(complex)
-    (b1, a1), (b2, a2) = _lag_terms(-1.0 / p1, dt), _lag_terms(-1.0 / p2, dt)
-    den = np.convolve(a1, a2)
-    filters = []
-    for w1, w2 in ((1.0, -1.0), (p1, -p2)):  # 1/D and s/D
-        scale = omega**2 / (p1 - p2)
-        num = scale * (w1 * -1.0 / p1 * np.convolve(b1, a2) + w2 * -1.0 / p2 * np.convolve(b2, a1))
-        filters.append((num.real, den.real))
-    return filters[0], filters[1]
+    lowpassed, rate = _held(SecondOrder(), {"gain": 1.0, "zero_s": 0.0, "natural_frequency_hz": frequency,
+                                            "damping": damping}, dt)
+    return lowpassed, rate
+
+
+def _held(model: LTIModel, values: Mapping[str, float], dt: float) -> list[Filter]:
+    """One discrete filter from a physics element's input to each of its states, under
+    :func:`~hypa.physics.discretization.discretize`'s first-order hold.
+
+    The hold's x[n+1] = Φ x[n] + Γ0 u[n] + Γ1 u[n+1] is, in w[n] = x[n] - Γ1 u[n], the standard
+    w[n+1] = Φ w[n] + (Γ0 + Φ Γ1) u[n], x[n] = w[n] + Γ1 u[n]: the denominator is det(zI - Φ), the
+    numerators follow from the Markov parameters h_0 = Γ1, h_k = Φ^(k-1) (Γ0 + Φ Γ1).
+    """
+    p = {name: torch.tensor(float(value), dtype=torch.float64) for name, value in values.items()}
+    space = model.matrices(p)
+    held = discretize(space.a, space.b, dt, "foh")
+    phi, (gamma_0, gamma_1) = held.phi.numpy(), (t.numpy()[:, 0] for t in held.taps)
+    den, power = [1.0], np.eye(len(phi))  # det(zI - Φ) by Faddeev-LeVerrier (np.poly's eigenvalues cost more)
+    for k in range(1, len(phi) + 1):
+        power = phi @ power
+        den.append(-np.trace(power) / k)
+        power = power + den[-1] * np.eye(len(phi))
+    den = np.array(den)
+    markov, step = [gamma_1], gamma_0 + phi @ gamma_1
+    for _ in range(len(phi)):
+        markov.append(step)
+        step = phi @ step
+    num = np.array([sum(den[i] * markov[j - i] for i in range(j + 1)) for j in range(len(den))])  # (n + 1, n)
+    num.flags.writeable = den.flags.writeable = False  # cached: shared by every caller
+    return [(num[:, state], den) for state in range(len(phi))]
 
 
 def filtered(u: np.ndarray, filt: Filter) -> np.ndarray:
-    """``u`` through a discrete filter from a steady start (state in equilibrium with u[0])."""
+    """``u`` (T,) or signals (T, m) through a discrete filter from a steady start (state in
+    equilibrium with u[0])."""
     b, a = filt
-    y, _ = signal.lfilter(b, a, u, zi=signal.lfilter_zi(b, a) * u[0])
+    y, _ = signal.lfilter(b, a, u, axis=0, zi=np.multiply.outer(signal.lfilter_zi(b, a), u[0]))
     return y
 
 
 def delayed(u: np.ndarray, delay: float, dt: float) -> np.ndarray:
-    """u(t - delay) by linear interpolation between samples [delay in s], u[0] before the start."""
+    """u(t - delay) [delay in s] of a signal (T,) or signals (T, m): the physics's
+    :class:`~hypa.physics.elements.DeadTime` (linear between samples, u[0] before the start)."""
     if delay <= 0.0:
         return u
-    shift = delay / dt
-    whole, frac = int(np.floor(shift)), shift - np.floor(shift)
-    padded = np.concatenate([np.full(whole + 1, u[0]), u])
-    late = padded[1 : len(u) + 1]  # u[n - whole]
-    later = padded[: len(u)]  # u[n - whole - 1]
-    return (1.0 - frac) * late + frac * later
+    dead_time = _dead_time(dt)
+    dead_time.parameters_.set_values({"delay_s": float(delay)})
+    x = torch.from_numpy(np.ascontiguousarray(u, dtype=float))
+    with torch.no_grad():
+        return dead_time(x.reshape(1, len(x), -1)).reshape(x.shape).numpy()
 
 
-# --- what a fit leaves unexplained -------------------------------------------------------------
-
-@dataclass(frozen=True)
-class Band:
-    """An octave of the frequency axis and the part of the unexplained output that lies in it."""
-
-    low: float  # [Hz]
-    high: float  # [Hz]
-    share: float  # of the residual's power (all bands sum to 1)
-    unexplained: float  # residual power / output power in this band
-
-
-@dataclass(frozen=True)
-class AmplitudeBin:
-    """A quartile of an input's magnitude and the error of the fit where the input is that large."""
-
-    low: float  # |input| [input unit]
-    high: float
-    rms_error: float  # [output unit]
-    share: float  # of the residual's sum of squares (all bins sum to 1)
-
-
-@dataclass(frozen=True)
-class Remainder:
-    """What the chosen form leaves unexplained on the validation records, and where."""
-
-    share: float  # of the output variance (1 - R²)
-    bands: tuple[Band, ...]
-    amplitude_signal: str
-    amplitude_unit: str
-    amplitudes: tuple[AmplitudeBin, ...]
-
-    @property
-    def worst_band(self) -> Band:
-        return max(self.bands, key=lambda b: b.share)
-
-    @property
-    def worst_amplitude(self) -> AmplitudeBin:
-        return max(self.amplitudes, key=lambda b: b.rms_error)
-
-    def describe(self) -> str:
-        """E.g. ``unexplained 7 %: 45 % of it at 2-4 Hz; largest error where |u| is 0.05-0.1 rad``."""
-        band, amp = self.worst_band, self.worst_amplitude
-        unit = "" if self.amplitude_unit == "-" else f" {self.amplitude_unit}"
-        return (f"unexplained {100 * self.share:.0f} %: {100 * band.share:.0f} % of it at "
-                f"{band.low:.3g}-{band.high:.3g} Hz; largest error where |{self.amplitude_signal}| "
-                f"is {amp.low:.3g}-{amp.high:.3g}{unit}")
-
-
-def remainder(y: list[np.ndarray], predicted: list[np.ndarray], u: list[np.ndarray], dt: float,
-              name: str, unit: str, octaves: int = 6) -> Remainder:
-    """The residual ``y - predicted`` of records by octave band (Welch, averaged over records
-    by length) and by quartile of ``|u|``."""
-    residual = [a - b for a, b in zip(y, predicted)]
-    y_all, r_all = np.concatenate(y), np.concatenate(residual)
-    share = float(np.sum(r_all**2) / np.sum((y_all - y_all.mean()) ** 2))
-    freq, p_res = _spectrum(residual, dt)
-    _, p_out = _spectrum([v - y_all.mean() for v in y], dt)
-    edges = [0.0, *(freq[-1] / 2.0 ** np.arange(octaves - 1, -1, -1))]
-    edges = [e for e in edges if e == 0.0 or e > 2 * freq[1]]
-    bands = []
-    for low, high in pairwise(edges):
-        inside = (freq >= low) & ((freq < high) | (high == edges[-1]))
-        res, out = np.sum(p_res[inside]), np.sum(p_out[inside])
-        bands.append(Band(float(low), float(high), float(res / max(np.sum(p_res), 1e-300)),
-                          float(res / out) if out > 0 else float("nan")))
-    magnitude = np.abs(np.concatenate(u))
-    quartiles = np.quantile(magnitude, [0.0, 0.25, 0.5, 0.75, 1.0])
-    which = np.clip(np.searchsorted(quartiles, magnitude, side="right") - 1, 0, 3)
-    total = max(float(np.sum(r_all**2)), 1e-300)
-    amplitudes = tuple(AmplitudeBin(float(quartiles[i]), float(quartiles[i + 1]),
-                                    rms(r_all[which == i]) if np.any(which == i) else 0.0,
-                                    float(np.sum(r_all[which == i] ** 2) / total)) for i in range(4))
-    return Remainder(share, tuple(bands), name, unit, amplitudes)
-
-
-def _spectrum(records: list[np.ndarray], dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Power per frequency bin [unit²], Welch on every record (mean kept), weighted by length."""
-    n = min(256, min(len(r) for r in records))
-    total = None
-    for r in records:
-        freq, psd = signal.welch(r, fs=1.0 / dt, nperseg=n, detrend=False)
-        total = psd * len(r) if total is None else total + psd * len(r)
-    weight = sum(len(r) for r in records)
-    return freq, total / weight * (freq[1] - freq[0])
+@functools.lru_cache(maxsize=8)
+def _dead_time(dt: float) -> DeadTime:
+    """One DeadTime per sample time, its delay set per call: building its parameters costs more
+    than a shift (a fit shifts thousands of times; the fits run one after another, in one thread
+    per process). Signed storage keeps the delay exact."""
+    return DeadTime(PhysicalParameters([ParameterSpec("delay_s", 1.0, "s", positive=False)]), "delay_s", dt)

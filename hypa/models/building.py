@@ -18,7 +18,7 @@ from torch import nn
 
 from hypa.ann import build_ann
 from hypa.models.spec import ELEMENT_PARAMETER, BlockSpec, ModelSpec, ModelSpecError
-from hypa.physics import LTIBlock, LTIModel, ParameterSpec, PhysicalParameters, Scaling, default_state_std
+from hypa.physics import HOLDS, LTIBlock, LTIModel, ParameterSpec, PhysicalParameters, Scaling, default_state_std
 from hypa.physics.elements import DeadTime, Saturation, local_name
 from hypa.physics.systems import build_system
 
@@ -42,6 +42,18 @@ class PhysicsStart:
     observed: tuple[str | None, ...] = ()
     index: tuple[int, ...] = ()  # measured: the outputs' columns; estimate: one per block output (0 if unobserved)
     encoder: bool = False  # estimate: a network over the past corrects the least-squares state
+
+
+def model_hold(spec: ModelSpec, hold: str | None = None) -> str:
+    """The hold of ``spec``'s physics (``zoh`` | ``foh``): the model's own ``hold:``, else ``hold``,
+    else ``zoh``. The hold belongs to the model (its fitted values belong to it), so ``hold`` only
+    fills in for a model that fixes none; both given and different is the user's error."""
+    if hold is not None and hold not in HOLDS:
+        raise ModelSpecError(f"hold must be one of {', '.join(HOLDS)}, got {hold!r}")
+    if hold is not None and spec.hold is not None and hold != spec.hold:
+        raise ModelSpecError(f"model {spec.name!r} fixes hold: {spec.hold}, but hold={hold!r} was given: "
+                             f"drop one of them (the hold is the model's)")
+    return spec.hold or hold or "zoh"
 
 
 def collect_parameters(spec: ModelSpec, values: Mapping[str, float]

@@ -12,13 +12,17 @@ samples all of them cover, so any length works: a training window and a whole re
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
 from torch import Tensor, nn
 
-from hypa.models.building import ESTIMATE, MEASURED, STEADY, BlockBuilder, collect_parameters
-from hypa.models.spec import ELEMENT_PARAMETER, BlockSpec, ModelSpec, ModelSpecError
+from hypa.data.signature import DataSignature
+from hypa.models.building import ESTIMATE, MEASURED, STEADY, BlockBuilder, collect_parameters, model_hold
+from hypa.models.spec import ELEMENT_PARAMETER, BlockSpec, ModelSpec, ModelSpecError, parse_model_spec
+
+if TYPE_CHECKING:
+    from hypa.data import HypaDataModule
 
 Signal = tuple[Tensor, int]  # (B, T, 1) normalized values, index of the first sample
 
@@ -29,12 +33,13 @@ class ComposedModel(nn.Module):
     Args:
         spec: the composition.
         physical_values: nominal values of shared physical parameters (the ``vehicle`` group);
-            a system's own nominal values fill in the rest.
+            a system's own nominal values fill in the rest (all of them: ``None``).
         input_names / output_names: measured inputs and outputs (targets), in data order.
         input_scale / output_scale: (mean, std) per measured signal in SI units (the training
-            set's normalization).
-        dt: sample time [s]; horizon: lifted window length N; hold: ``zoh`` or ``foh`` (unless
-            the spec fixes its own).
+            set's normalization; :meth:`from_data` takes them from the data instead).
+        dt: sample time [s]; horizon: lifted window length N; hold: ``zoh`` or ``foh`` for a spec
+            that fixes none (``None``: the spec's, else ``zoh``; a different one than the spec's
+            is a ``ModelSpecError``, see :func:`~hypa.models.building.model_hold`).
         ann_name / ann_hparams: the network used by every ANN block (``ann`` config group).
         scheduling_names / scheduling_scale: measured scheduling signals and their (mean, std).
     """
@@ -42,14 +47,14 @@ class ComposedModel(nn.Module):
     def __init__(
         self,
         spec: ModelSpec,
-        physical_values: Mapping[str, float],
+        physical_values: Mapping[str, float] | None,
         input_names: Sequence[str],
         output_names: Sequence[str],
         input_scale: Mapping[str, tuple[float, float]],
         output_scale: Mapping[str, tuple[float, float]],
         dt: float,
         horizon: int = 100,
-        hold: str = "zoh",
+        hold: str | None = None,
         ann_name: str = "lstm",
         ann_hparams: Mapping[str, Any] | None = None,
         scheduling_names: Sequence[str] = (),
@@ -60,9 +65,9 @@ class ComposedModel(nn.Module):
         self.scheduling_names = tuple(scheduling_names)
         self.measured_scale = dict(output_scale)
         self.order = self._dependency_order(spec)
-        self.parameters_, self._trainable_of, systems = collect_parameters(spec, physical_values)
+        self.parameters_, self._trainable_of, systems = collect_parameters(spec, physical_values or {})
         self.trainable_physics = tuple(sorted({t for ts in self._trainable_of.values() for t in ts}))
-        self.hold = spec.hold or hold
+        self.hold = model_hold(spec, hold)
         self._register_offsets(spec.sensor_offsets, input_scale)
         scales = {**input_scale, **(scheduling_scale or {})}
         builder = BlockBuilder(self.parameters_, systems, scales, self.measured_scale, self.scheduling_names, dt, horizon,
@@ -85,6 +90,20 @@ class ComposedModel(nn.Module):
                                  f"{list(self.output_names)}, in that order")
         self.bypassed: set[str] = set()
         self.set_stage(None)
+
+    @classmethod
+    def from_data(cls, data: DataSignature | HypaDataModule, spec: ModelSpec | Mapping[str, Any],
+                  physical_values: Mapping[str, float] | None = None, *, horizon: int | None = None,
+                  hold: str | None = None, ann_name: str = "lstm",
+                  ann_hparams: Mapping[str, Any] | None = None) -> ComposedModel:
+        """``spec`` (a :class:`ModelSpec` or its dict) on ``data``'s channels (a data module after
+        ``setup()`` or its :class:`~hypa.data.DataSignature`): names, scales (mean, std) [SI] and dt [s]
+        from the data; ``horizon`` defaults to the data's window N, ``hold`` to the spec's."""
+        data = DataSignature.of(data)
+        spec = spec if isinstance(spec, ModelSpec) else parse_model_spec(dict(spec))
+        return cls(spec, physical_values, data.input_names, data.output_names, data.scale(data.input_names),
+                   data.scale(data.output_names), data.dt, data.window if horizon is None else horizon, hold,
+                   ann_name, ann_hparams, data.scheduling_names, data.scale(data.scheduling_names))
 
     def past_needed(self) -> dict[str, int]:
         """Per physics block started from an estimate: the fewest past samples (``data.past``)

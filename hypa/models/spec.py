@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hypa.errors import UserError
+from hypa.models.schema import BlockConfig, ModelConfig, StageConfig, keys, unknown_keys
 from hypa.physics.systems import PHYSICS_SYSTEMS, is_import_path
 
 BLOCK_KINDS = ("physics", "ann", "delay", "saturation")
@@ -134,11 +135,6 @@ class ModelSpec:
         raise ModelSpecError(f"model {self.name!r} has no block {name!r}; blocks: {', '.join(self.block_names)}")
 
 
-_BLOCK_KEYS = {"kind", "inputs", "outputs", "system", "trainable", "residual_of", "scale_as", "initial_state",
-               "parameters", "scheduling", "observe"}
-_MODEL_KEYS = {"name", "blocks", "outputs", "stages", "hold", "parameters", "sensor_offsets"}
-
-
 def _names(value: Any, where: str) -> tuple[str, ...]:
     if value is None:
         return ()
@@ -180,9 +176,9 @@ def _signal_map(value: Any, where: str) -> dict[str, str]:
 def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
     """Parse and check the ``model`` config (a plain mapping) into a :class:`ModelSpec`."""
     name = str(config.get("name", "model"))
-    unknown = set(config) - _MODEL_KEYS
+    unknown = unknown_keys(config, ModelConfig)  # the keys: hypa.models.schema, also Hydra's schema of `model`
     if unknown:
-        raise ModelSpecError(f"model {name!r}: unknown keys {sorted(unknown)}; known: {sorted(_MODEL_KEYS)}")
+        raise ModelSpecError(f"model {name!r}: unknown keys {unknown}; known: {', '.join(keys(ModelConfig))}")
     hold = config.get("hold")
     if hold is not None and hold not in HOLDS:
         raise ModelSpecError(f"model {name!r}: hold must be one of {HOLDS} or null, got {hold!r}")
@@ -191,9 +187,12 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
         raise ModelSpecError(f"model {name!r} has no blocks")
     blocks = []
     for block_name, b in blocks_cfg.items():
-        unknown = set(b) - _BLOCK_KEYS
+        if not isinstance(b, Mapping):
+            raise ModelSpecError(f"block {block_name!r} must map keys ({', '.join(keys(BlockConfig))}) to values, "
+                                 f"got {b!r}")
+        unknown = unknown_keys(b, BlockConfig)
         if unknown:
-            raise ModelSpecError(f"block {block_name!r}: unknown keys {sorted(unknown)}; known: {sorted(_BLOCK_KEYS)}")
+            raise ModelSpecError(f"block {block_name!r}: unknown keys {unknown}; known: {', '.join(keys(BlockConfig))}")
         kind = b.get("kind")
         if kind not in BLOCK_KINDS:
             raise ModelSpecError(f"block {block_name!r}: kind must be one of {BLOCK_KINDS}, got {kind!r}")
@@ -227,6 +226,9 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
             raise ModelSpecError(f"block {block_name!r}: a {kind} block writes one output per input")
     stages = []
     for s in config.get("stages") or []:
+        if not isinstance(s, Mapping) or unknown_keys(s, StageConfig) or "name" not in s:
+            raise ModelSpecError(f"model {name!r}: a stage has the keys {', '.join(keys(StageConfig))} (name "
+                                 f"required), got {s!r}")
         stages.append(StageSpec(name=str(s["name"]), train=_names(s.get("train"), "stage.train"),
                                 bypass=_names(s.get("bypass"), "stage.bypass")))
     spec = ModelSpec(name=name, blocks=tuple(blocks), outputs=_names(config.get("outputs"), "outputs"),

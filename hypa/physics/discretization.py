@@ -107,6 +107,19 @@ def hold_exponential(generator: Tensor, bottom: Tensor) -> Tensor:
     return _HoldExponential.apply(generator, ramp if bool(ramp.any()) else None)  # N = 0: no φ_2 to compute
 
 
+def hold_exponential_steps(generator: Tensor, bottom: Tensor, squarings: int) -> Tensor:
+    """``hold_exponential`` of a stack (n, k, K) with a given number of squarings, no autograd node.
+
+    The stack's own path reads ‖F‖ on the host to choose the squarings, a value a traced graph
+    (an exported one-step model, ``hypa.export``) would freeze at its example; given, the graph
+    is the same series for every F, accurate to the dtype's epsilon wherever ‖F‖_1 <= θ 2^s
+    (``squarings_for``), and equal to the free run's where s is the one it chose.
+    """
+    n = generator.shape[0]
+    ramp = bottom[:, n:]
+    return _hold_forward(generator, ramp if bool(ramp.any()) else None, squarings)[0]
+
+
 def phi_functions(m: Tensor, order: int) -> tuple[Tensor, ...]:
     """φ_0(M), ..., φ_order(M) (order <= 2) of a square matrix (k, k) or a stack (..., k, k), differentiable.
 
@@ -145,6 +158,11 @@ def expm(m: Tensor) -> Tensor:
 
 
 _THETA = 0.5  # ‖X‖_1 bound after scaling
+
+
+def squarings_for(norm: float) -> int:
+    """The squarings s of ``expm`` (and of the φ-functions) for a 1-norm ``norm``: the fewest with norm / 2^s <= θ."""
+    return max(0, math.ceil(math.log2(norm / _THETA))) if norm > 0 else 0
 
 
 @functools.cache
@@ -208,15 +226,9 @@ class _HoldExponential(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, generator: Tensor, ramp: Tensor | None) -> Tensor:  # type: ignore[override]
-        n = generator.shape[0]
-        f, g = generator[:, :n], generator[:, n:]
-        phis, saved, ctx.steps = _phi_forward(f, 1 if ramp is None else 2)
-        psi = _addmm(None, phis[1], g)
-        ramped = None if ramp is None else _right(g, ramp)  # G N
-        if ramped is not None:
-            psi = _addmm(psi, phis[2], ramped)
+        top, (g, ramped, phis, saved, ctx.steps) = _hold_forward(generator, ramp)
         ctx.save_for_backward(g, ramp, ramped, *phis[1:], *saved)
-        return torch.cat([phis[0], psi], 1)
+        return top
 
     @staticmethod
     @torch.autograd.function.once_differentiable
@@ -233,12 +245,25 @@ class _HoldExponential(torch.autograd.Function):
         return torch.cat([_phi_backward(saved, ctx.steps, grads), grad_g], 1), None
 
 
+def _hold_forward(generator: Tensor, ramp: Tensor | None, squarings: int | None = None) -> tuple[Tensor, tuple]:
+    """``_HoldExponential``'s values [Φ, Ψ] and what its backward needs (G, G N, the φ's, ``_phi_forward``'s)."""
+    n = generator.shape[0]
+    f, g = generator[:, :n], generator[:, n:]
+    phis, saved, steps = _phi_forward(f, 1 if ramp is None else 2, squarings)
+    psi = _addmm(None, phis[1], g)
+    ramped = None if ramp is None else _right(g, ramp)  # G N
+    if ramped is not None:
+        psi = _addmm(psi, phis[2], ramped)
+    return torch.cat([phis[0], psi], 1), (g, ramped, phis, saved, steps)
+
+
 def _right(a: Tensor, b: Tensor) -> Tensor:
     """a b for a (n, r) or a stack (n, r, K) and a constant b (r, s): each matrix of the stack times b."""
     return a @ b if a.dim() == 2 else torch.matmul(b.T, a)  # row i of a stack: (bᵀ a[i]) (s, K)
 
 
-def _phi_forward(m: Tensor, order: int) -> tuple[list[Tensor], list[Tensor], tuple]:
+def _phi_forward(m: Tensor, order: int, squarings: int | None = None
+                 ) -> tuple[list[Tensor], list[Tensor], tuple]:
     """φ_0(M), ..., φ_p(M) (p = ``order``) by scaling, Horner and doubling, and what ``_phi_backward`` needs:
 
         X = M / 2^s;   T_q = I,  T_{j-1} = I + X T_j / (j + p)  (j = q..1),  φ_p(X) = T_0 / p!
@@ -252,10 +277,14 @@ def _phi_forward(m: Tensor, order: int) -> tuple[list[Tensor], list[Tensor], tup
     """
     eye = torch.eye(m.shape[0], dtype=m.dtype, device=m.device)
     eye = eye if m.dim() == 2 else eye[..., None].expand_as(m)
-    norm = float(m.abs().sum(0).max()) if m.numel() else 0.0  # ‖M‖_1, the largest of a stack: a host sync
+    if squarings is not None:  # given (``hold_exponential_steps``): no host sync, nothing read from the values
+        norm = 0.0
+    else:
+        norm = float(m.abs().sum(0).max()) if m.numel() else 0.0  # ‖M‖_1, the largest of a stack: a host sync
     if not math.isfinite(norm):  # no series converges
         return [torch.full_like(m, math.nan) for _ in range(order + 1)], [m], (order, None, 0)
-    squarings = max(0, math.ceil(math.log2(norm / _THETA))) if norm > 0 else 0
+    if squarings is None:
+        squarings = squarings_for(norm)
     x = m / 2**squarings
     horner = [eye]  # T_q, ..., T_0
     for j in range(_taylor_degree(m.dtype, order), 0, -1):

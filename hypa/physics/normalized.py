@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import torch
 from torch import Tensor
 
-from hypa.physics.discretization import DiscreteLTI, discretize, hold_exponential
+from hypa.physics.discretization import DiscreteLTI, discretize, hold_exponential, hold_exponential_steps
 
 if TYPE_CHECKING:
     from hypa.physics.lti import StateSpace
@@ -139,19 +139,22 @@ class NormalizingMaps:
         return NormalizingMaps(torch.diag(dt / s.state_std), right, state_map, bottom, torch.diag(1 / s.output_std),
                                w, rest_out)
 
-    def state_rows(self, a: Tensor, b: Tensor, e: Tensor | None = None) -> Tensor:
+    def state_rows(self, a: Tensor, b: Tensor, e: Tensor | None = None, squarings: int | None = None) -> Tensor:
         """[Â, B̂_0, ..., B̂_{T-1}, Ĥ] (..., n, n + T m + 1) from continuous A, B (and drift e): one exponential.
 
         a (..., n, n), b (..., n, m), e (..., n) or None. A stack is one batched
         ``hold_exponential`` over its samples laid out last, returned as a (..., n, k) view of
         that (n, k, K) layout (so ``scheduled.simulate_scheduled`` reads it without a copy).
+        ``squarings``: a stack's, given (``hold_exponential_steps``: a traced graph holds no value of A).
         """
         parts = (a, b) if e is None else (a, b, e[..., None])
-        j, lead = a.shape[-1] + b.shape[-1] + (e is not None), a.shape[:-2]
+        j, lead = a.shape[-1] + b.shape[-1] + int(e is not None), a.shape[:-2]
         if not lead:  # M[:n] (n, k) by two plain products (cheaper to differentiate than a broadcast scaling)
             return hold_exponential(self.state_left @ (torch.cat(parts, -1) @ self.state_right[:j]), self.state_bottom)
         ab = torch.cat([p.reshape(-1, *p.shape[-2:]).permute(1, 2, 0) for p in parts], 1)  # (n, j, K): samples last
-        rows = hold_exponential(torch.matmul(self.state_map[..., :j], ab), self.state_bottom)  # M[:n] (n, k, K), n products
+        generator = torch.matmul(self.state_map[..., :j], ab)  # M[:n] (n, k, K), n products
+        rows = hold_exponential(generator, self.state_bottom) if squarings is None else \
+            hold_exponential_steps(generator, self.state_bottom, squarings)
         return rows.permute(2, 0, 1).reshape(*lead, *rows.shape[:2])
 
     def output_rows(self, c: Tensor, d: Tensor) -> Tensor:

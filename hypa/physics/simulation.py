@@ -17,19 +17,33 @@ otherwise. Scheduled blocks rebuild their matrices per sample (``scheduled``).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, NamedTuple
 
 import torch
 from torch import Tensor
 
-from hypa.physics.discretization import discretize
+from hypa.physics.discretization import discretize, squarings_for
 from hypa.physics.estimation import estimate_last_state
 from hypa.physics.lifted import simulate_chunked, simulate_from_rows
-from hypa.physics.normalized import NormalizedLTI
+from hypa.physics.normalized import NormalizedLTI, NormalizingMaps
 from hypa.physics.scheduled import SchedulingError, forced_terms, per_sample_matrices, simulate_scheduled
 
 if TYPE_CHECKING:
     from hypa.physics.statespace import LTIModel, StateSpace
+
+class LureParts(NamedTuple):
+    """A nonlinear block's discrete parts [SI]: Φᵀ, the input taps Γ_t and drift γ under its hold,
+    the feedback's first-order-hold taps (Γ^w_0, Γ^w_1, their sum), transposed, and ``prepare``'s values."""
+
+    phi_t: Tensor
+    taps: tuple[Tensor, ...]
+    drift: Tensor | None
+    now_t: Tensor
+    next_t: Tensor
+    held_t: Tensor
+    prepared: Mapping[str, Tensor]
+
 
 Output = tuple[Tensor, Tensor, Tensor]  # Ĉ, D̂, Ĝ: (p, n), (p, m), (p,) or per sample (B, S, p, ...)
 
@@ -166,6 +180,42 @@ class BlockSimulation:
         rho = self._check_scheduling(scheduling, scheduling[..., :0])  # refuses an unscheduled block
         return self._state_rows(self._per_sample(rho), rho.shape[1])
 
+    def sample_matrices(self, rho: Tensor, squarings: int) -> NormalizedLTI:
+        """Â, B̂_t, Ĥ, Ĉ, D̂, Ĝ of a scheduled block at one sample of its scheduling signals ρ (q,) [SI].
+
+        What step j of ``forward`` uses at ρ_j: the system's scalar ``matrices`` (the vmap path of
+        ``per_sample_matrices``) and the free run's batched hold with its number of squarings
+        given (``NormalizingMaps.state_rows``): no value of ρ is read on the host, so a traced
+        one-step model (``hypa.export``) is the same graph for every ρ, accurate where
+        ``sample_squarings(ρ) <= squarings`` and equal to the free run's where that run chose them.
+        """
+        ss, maps = self._sample_system(rho)
+        n, m = ss.b.shape[-2:]
+        out = maps.output_rows(ss.c, ss.d)
+        if n:
+            e = ss.a.new_zeros(n) if ss.e is None else ss.e  # a zero drift adds exact zeros; no traced `+ False`
+            rows = maps.state_rows(ss.a[None], ss.b[None], e[None], squarings)[0]
+        else:
+            rows = rho.new_zeros(0, self.n_taps * m + 1)
+        taps = tuple(rows[:, n + t * m : n + (t + 1) * m] for t in range(self.n_taps))
+        return NormalizedLTI(a=rows[:, :n], b_taps=taps, h=rows[:, -1], c=out[:, :n], d=out[:, n:-1], g=out[:, -1])
+
+    def sample_squarings(self, rho: Tensor) -> int:
+        """The squarings the free run's hold takes for the sample ρ (q,) [SI] alone (a run shares its largest)."""
+        ss, maps = self._sample_system(rho)
+        n = ss.a.shape[-1]
+        if not n:
+            return 0
+        f = maps.state_left @ ss.a @ maps.state_right[:n, :n]  # F = A dt, normalized
+        return squarings_for(float(f.abs().sum(0).max()))
+
+    def _sample_system(self, rho: Tensor) -> tuple[StateSpace, NormalizingMaps]:
+        """A, B, C, D, e at ρ (q,) and the scaling's maps."""
+        rho = self._check_scheduling(rho[None], rho[None, :0])[0]
+        fixed = self.parameters_.values(self._fixed_names, rho.dtype) if self._fixed_names else {}
+        ss = self.model.matrices({**fixed, **dict(zip(self.scheduled, rho.unbind(-1)))})
+        return ss, self._normalizing_maps(rho.dtype, rho.device)
+
     # -- the two engines -------------------------------------------------------------------
     def _simulate(self, x0: Tensor | None, u: Tensor, scheduling: Tensor | None, steps: int
                   ) -> tuple[Tensor, Output | None]:
@@ -211,26 +261,34 @@ class BlockSimulation:
         predictor-corrector, second order in dt.
         """
         dtype = u.dtype
+        lure = self.lure_parts(dtype)
+        mean_x, std_x = self.state_mean.to(dtype), self.state_std.to(dtype)
+        u_phys = u * self.input_std.to(dtype) + self.input_mean.to(dtype)  # (B, S + T - 1, m)
+        forced = sum(u_phys[:, t : t + steps] @ g.T for t, g in enumerate(lure.taps))  # (B, S, n)
+        if lure.drift is not None:
+            forced = forced + lure.drift
+        x, states = x0 * std_x + mean_x, []
+        for k in range(steps):
+            x = self.lure_step(lure, x, u_phys[:, k], u_phys[:, min(k + 1, u_phys.shape[1] - 1)], forced[:, k])
+            states.append(x)
+        return (torch.stack(states, 1) - mean_x) / std_x
+
+    def lure_parts(self, dtype: torch.dtype) -> LureParts:
+        """The discrete Lur'e system of a nonlinear block at the current parameters, in ``dtype``."""
         p = self.parameters_.values(self.model.parameter_names, dtype)
         ss, f = self.model.matrices(p), self.model.feedback(p)
         disc = discretize(ss.a, ss.b, self.dt, self.hold, ss.e)
         w_now, w_next = discretize(ss.a, f, self.dt, "foh").taps
-        w_held = w_now + w_next
-        mean_x, std_x = self.state_mean.to(dtype), self.state_std.to(dtype)
-        u_phys = u * self.input_std.to(dtype) + self.input_mean.to(dtype)  # (B, S + T - 1, m)
-        forced = sum(u_phys[:, t : t + steps] @ g.T for t, g in enumerate(disc.taps))  # (B, S, n)
-        if disc.drift is not None:
-            forced = forced + disc.drift
-        q, phi_t, now_t, next_t, held_t = self.model.prepare(p), disc.phi.T, w_now.T, w_next.T, w_held.T
-        x, states = x0 * std_x + mean_x, []
-        for k in range(steps):
-            w = self.model.nonlinearity(x, u_phys[:, k], q)
-            linear = torch.addmm(forced[:, k], x, phi_t)
-            predicted = torch.addmm(linear, w, held_t)
-            w_after = self.model.nonlinearity(predicted, u_phys[:, min(k + 1, u_phys.shape[1] - 1)], q)
-            x = torch.addmm(torch.addmm(linear, w, now_t), w_after, next_t)
-            states.append(x)
-        return (torch.stack(states, 1) - mean_x) / std_x
+        return LureParts(disc.phi.T, disc.taps, disc.drift, w_now.T, w_next.T, (w_now + w_next).T, self.model.prepare(p))
+
+    def lure_step(self, lure: LureParts, x: Tensor, u_now: Tensor, u_next: Tensor, forced: Tensor) -> Tensor:
+        """x_{k+1} (B, n) [SI] of ``_simulate_nonlinear`` from x_k, u_k, u_{k+1} [SI] and the forced
+        term Σ_t Γ_t u_{k+t} + γ (B, n): Heun's predictor-corrector for the feedback w."""
+        w = self.model.nonlinearity(x, u_now, lure.prepared)
+        linear = torch.addmm(forced, x, lure.phi_t)
+        predicted = torch.addmm(linear, w, lure.held_t)
+        w_after = self.model.nonlinearity(predicted, u_next, lure.prepared)
+        return torch.addmm(torch.addmm(linear, w, lure.now_t), w_after, lure.next_t)
 
     def _steps(self, u: Tensor) -> int:
         steps = u.shape[1] - self.extra_inputs

@@ -10,25 +10,33 @@ import torch
 from torch import Tensor, nn
 from torchmetrics import MeanAbsoluteError, MeanSquaredError, MetricCollection, PearsonCorrCoef, R2Score
 
-from hypa.data import Normalization
-from hypa.models import ComposedModel, ModelSpecError, parse_model_spec
+from hypa.data import DataSignature, HypaDataModule
+from hypa.models import ComposedModel, ModelSpec, ModelSpecError, parse_model_spec, spec_config
+from hypa.models.building import model_hold
 
 
 class HybridModule(L.LightningModule):
     """Trains a :class:`ComposedModel` with MSE on the normalized outputs (paper, Sec. 5).
 
-    Everything needed to rebuild the model is a plain, serializable argument, so
-    ``HybridModule.load_from_checkpoint(path)`` restores the model with its normalization.
+    Build one with :meth:`from_data` (the data module or its :class:`~hypa.data.DataSignature`
+    and a model config). The constructor is the checkpoint's form: everything needed to rebuild
+    the model is a plain, serializable argument, so ``HybridModule.load_from_checkpoint(path)``
+    restores the model with its normalization.
 
     Args:
         model_config: the ``model`` config group (blocks, outputs, stages) as a plain dict.
-        physical_values: nominal physical parameters by name (SI units).
+        physical_values: nominal physical parameters by name (SI units); ``None``: the systems'
+            nominal values.
         normalization: training-set statistics (``Normalization.state_dict()``).
         input_names / output_names: measured inputs and outputs (targets) in data order.
         eval_names: SI evaluation channels present in validation batches (never trained on);
             a model signal of the same name (an implicitly learned rear-wheel angle) is
             compared with them.
-        dt: sample time [s]; horizon: window length N; hold: ``zoh`` | ``foh``.
+        dt: sample time [s]; horizon: lifted steps N per matrix product (the data's window unless
+            ``physics.horizon`` says otherwise).
+        hold: ``zoh`` | ``foh`` of a model whose spec fixes none (``None``: ``zoh``). Checkpoints
+            hold the run's ``physics.hold`` here even for a model with its own ``hold:``, which is
+            what it trained with, so here the spec's wins; :meth:`from_data` refuses a conflict.
         ann_name / ann_hparams: the network of every ANN block.
         lr: NAdam learning rate of the networks; physics_lr: of the physical parameters
             (they live in log space, where a step is relative, so they take a larger one).
@@ -40,14 +48,14 @@ class HybridModule(L.LightningModule):
     def __init__(
         self,
         model_config: Mapping[str, Any],
-        physical_values: Mapping[str, float],
+        physical_values: Mapping[str, float] | None,
         normalization: Mapping[str, Any],
         input_names: Sequence[str],
         output_names: Sequence[str],
         eval_names: Sequence[str] = (),
         dt: float = 1 / 32,
         horizon: int = 100,
-        hold: str = "zoh",
+        hold: str | None = None,
         ann_name: str = "lstm",
         ann_hparams: Mapping[str, Any] | None = None,
         lr: float = 5e-4,
@@ -58,15 +66,13 @@ class HybridModule(L.LightningModule):
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
-        norm = Normalization.from_state_dict(normalization)
-        scale = lambda names: {n: (float(m), float(s)) for n, m, s in zip(  # noqa: E731
-            names, norm.subset(names).mean.tolist(), norm.subset(names).std.tolist())}
-        self.model = ComposedModel(
-            parse_model_spec(model_config), physical_values, input_names, output_names,
-            scale(input_names), scale(output_names), dt, horizon, hold, ann_name, ann_hparams,
-            scheduling_names, scale(scheduling_names),
-        )
-        self.output_names, self.eval_names, self.past = tuple(output_names), tuple(eval_names), int(past)
+        spec = parse_model_spec(model_config)
+        # the checkpoint stores no data window: the horizon stands in (the model takes the horizon only)
+        data = DataSignature(input_names, output_names, normalization, dt, horizon, past, eval_names, scheduling_names)
+        self.model = ComposedModel.from_data(data, spec, physical_values, horizon=horizon,
+                                             hold=None if spec.hold else hold, ann_name=ann_name,
+                                             ann_hparams=ann_hparams)
+        self.output_names, self.eval_names, self.past = data.output_names, data.eval_names, data.past
         self._check_past()
         self.loss = nn.MSELoss()
         per_output = lambda: MetricCollection({"mae": MeanAbsoluteError(), "mse": MeanSquaredError(),  # noqa: E731
@@ -77,6 +83,42 @@ class HybridModule(L.LightningModule):
         self.signal_metrics = nn.ModuleDict({n: MetricCollection({"corr": PearsonCorrCoef(),
                                                                   "rmse": MeanSquaredError(squared=False)})
                                              for n in self.compared})
+
+    @classmethod
+    def from_data(
+        cls,
+        data: DataSignature | HypaDataModule,
+        model_config: Mapping[str, Any] | ModelSpec,
+        *,
+        physical_values: Mapping[str, float] | None = None,
+        horizon: int | None = None,
+        hold: str | None = None,
+        ann_name: str = "lstm",
+        ann_hparams: Mapping[str, Any] | None = None,
+        lr: float = 5e-4,
+        physics_lr: float = 1e-2,
+        weight_decay: float = 0.0,
+    ) -> HybridModule:
+        """The module of ``model_config`` (a ``conf/model`` dict or a :class:`ModelSpec`) on
+        ``data`` (a data module after ``setup()`` or its :class:`~hypa.data.DataSignature`): the
+        channels, normalization, dt [s] and past P come from the data.
+
+        ``physical_values``: nominal physical parameters [SI] (``None``: the systems' own);
+        ``horizon``: lifted steps N (``None``: the data's window); ``hold``: for a model whose
+        spec fixes none (``None``: the spec's, else ``zoh``; a different one than the spec's is a
+        ``ModelSpecError``); the rest as in the class.
+        """
+        data = DataSignature.of(data)
+        config = spec_config(model_config) if isinstance(model_config, ModelSpec) else dict(model_config)
+        return cls(
+            model_config=config, physical_values=None if physical_values is None else dict(physical_values),
+            normalization=data.normalization.state_dict(), input_names=list(data.input_names),
+            output_names=list(data.output_names), eval_names=list(data.eval_names), dt=data.dt,
+            horizon=data.window if horizon is None else int(horizon), hold=model_hold(parse_model_spec(config), hold),
+            ann_name=ann_name, ann_hparams=None if ann_hparams is None else dict(ann_hparams), lr=lr,
+            physics_lr=physics_lr, weight_decay=weight_decay, scheduling_names=list(data.scheduling_names),
+            past=data.past,
+        )
 
     def _check_past(self) -> None:
         """A state estimated from the past needs at least as many measured values as states."""

@@ -1,0 +1,364 @@
+"""The commands' configurations as typed trees: one structured config (dataclasses) per command.
+
+Each ``conf/<command>.yaml`` extends its schema through its defaults list
+(``defaults: [/hypa/<command>_schema, ..., _self_]``, Hydra's "extending a structured config"),
+so a misspelt key (``trainer.max_epoch=3``, ``model.blocks.x.inptus=[u]``, in a file or an
+override) and a value of the wrong type (``trainer.max_epochs=abc``) fail while Hydra composes,
+in one line (:func:`hypa.errors.one_line`). The ranges (``optimizer.lr=-1``, ``physics.hold=xyz``)
+are checked in ``__post_init__``, when a command turns its node into the typed object:
+``config: TrainConfig = OmegaConf.to_object(cfg)``; the messages name the override to fix.
+
+The nodes another schema owns are typed by it: ``data`` (:class:`hypa.data.schema.DataConfig`),
+``model`` (:class:`hypa.models.schema.ModelConfig`). Nodes whose keys belong to someone else stay
+open (``Any``): ``ann`` (each network's own arguments, checked by building it), ``vehicle`` (empty
+for a system without one), ``testbench`` (:class:`hypa.paper.testbench.config.TestbenchConfig`
+checks it when the data are built), and the ``_target_`` nodes ``early_stopping``, ``logger``,
+``callbacks`` (any argument of their class). :func:`register_configs` stores the schemas in Hydra's
+ConfigStore; importing :mod:`hypa.commands` calls it.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Dict, List, Optional, TypeVar
+
+from omegaconf import MISSING, DictConfig, OmegaConf, open_dict
+
+from hypa.data.schema import DataConfig
+from hypa.errors import UserError, checked, settings
+from hypa.models.schema import ModelConfig
+from hypa.models.spec import HOLDS
+
+if TYPE_CHECKING:
+    from hypa.identification import IdentificationSettings
+
+SCHEMA_GROUP = "hypa"  # /hypa/<command>_schema, beside /hypa/data_schema
+C = TypeVar("C")
+
+
+@dataclass
+class HoldConfig:
+    """``physics`` of the commands that simulate a physics model as it is: its hold."""
+
+    hold: str = "zoh"  # zoh (as the paper) | foh
+
+    def __post_init__(self) -> None:
+        checked("physics.hold", self.hold, str, choices=HOLDS)
+
+
+@dataclass
+class PhysicsConfig(HoldConfig):
+    """``physics`` of hypa.train: the hold and the lifted horizon."""
+
+    horizon: Optional[int] = None  # lifted steps per matrix product; None: the window
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        checked("physics.horizon", self.horizon, int, optional=True, minimum=1)
+
+
+@dataclass
+class OptimizerConfig:
+    """``optimizer``: NAdam's learning rates and the networks' weight decay."""
+
+    lr: float = 5.0e-4  # networks
+    physics_lr: float = 1.0e-2  # trainable physical parameters (log space)
+    weight_decay: Optional[float] = None  # None: hypa.training.baseline.network_defaults
+
+    def __post_init__(self) -> None:
+        checked("optimizer.lr", self.lr, float, positive=True)
+        checked("optimizer.physics_lr", self.physics_lr, float, positive=True)
+        checked("optimizer.weight_decay", self.weight_decay, float, optional=True, minimum=0.0)
+
+
+@dataclass
+class IdentificationConfig:
+    """``identification``: physical parameters fitted by their free-run output error."""
+
+    enabled: bool = True
+    stretch_s: Optional[float] = None  # [s] None: single shooting
+    max_evaluations: Optional[int] = None
+    tolerance: float = 1.0e-8
+    max_seconds: Optional[float] = None
+
+    def __post_init__(self) -> None:
+        checked("identification.stretch_s", self.stretch_s, float, optional=True, positive=True)
+        checked("identification.max_evaluations", self.max_evaluations, int, optional=True, minimum=1)
+        checked("identification.tolerance", self.tolerance, float, positive=True)
+        checked("identification.max_seconds", self.max_seconds, float, optional=True, positive=True)
+
+    def settings(self) -> IdentificationSettings | None:
+        """The identification's settings; ``None`` when it is not enabled."""
+        from hypa.identification import IdentificationSettings
+
+        if not self.enabled:
+            return None
+        with settings("identification"):
+            return IdentificationSettings(stretch_s=self.stretch_s, max_evaluations=self.max_evaluations,
+                                          tolerance=self.tolerance, max_seconds=self.max_seconds)
+
+
+@dataclass
+class TrainerConfig:
+    """``trainer``: passed to ``lightning.Trainer`` as given (its own errors name ``trainer``)."""
+
+    max_epochs: Optional[int] = None  # per stage; None: hypa.training.baseline.network_defaults
+    accelerator: str = "auto"
+    strategy: str = "auto"  # ddp, ... (several processes)
+    devices: Any = 1  # a number, a list of devices or auto
+    num_nodes: int = 1
+    precision: Any = "32-true"
+    gradient_clip_val: Optional[float] = 1.0
+    log_every_n_steps: int = 20
+    limit_train_batches: Any = 1.0  # a share (float) or a number of batches (int)
+    limit_val_batches: Any = 1.0
+    enable_progress_bar: bool = True
+    deterministic: Any = False  # true, false or warn
+
+    def __post_init__(self) -> None:
+        checked("trainer.max_epochs", self.max_epochs, int, optional=True, minimum=1)
+        checked("trainer.num_nodes", self.num_nodes, int, minimum=1)
+
+
+@dataclass
+class FiguresConfig:
+    """``figures``: TensorBoard figures each validation epoch."""
+
+    enabled: bool = True
+    seconds: float = 30.0  # [s] validation stretch shown, free-running
+    start_s: float = 10.0  # [s]
+    every_n_epochs: int = 1
+
+    def __post_init__(self) -> None:
+        checked("figures.seconds", self.seconds, float, positive=True)
+        checked("figures.start_s", self.start_s, float, minimum=0.0)
+        checked("figures.every_n_epochs", self.every_n_epochs, int, minimum=1)
+
+
+@dataclass
+class TrainConfig:
+    """``conf/train.yaml``: ``python -m hypa.train``."""
+
+    model: ModelConfig = field(default_factory=ModelConfig)
+    ann: Dict[str, Any] = field(default_factory=dict)  # name, _target_ and the network's own arguments
+    vehicle: Any = None
+    testbench: Any = None
+    data: DataConfig = field(default_factory=DataConfig)
+    seed: int = 0
+    table1_row: Optional[str] = None
+    torch_threads: int = 1
+    ckpt_path: Optional[str] = None
+    physics: PhysicsConfig = field(default_factory=PhysicsConfig)
+    optimizer: OptimizerConfig = field(default_factory=OptimizerConfig)
+    identification: IdentificationConfig = field(default_factory=IdentificationConfig)
+    trainer: TrainerConfig = field(default_factory=TrainerConfig)
+    early_stopping: Dict[str, Any] = field(default_factory=dict)  # _target_: a Lightning EarlyStopping
+    callbacks: Dict[str, Any] = field(default_factory=dict)  # name -> {_target_: ..., its arguments}
+    logger: Dict[str, Any] = field(default_factory=dict)  # _target_: a Lightning logger
+    figures: FiguresConfig = field(default_factory=FiguresConfig)
+
+    def __post_init__(self) -> None:
+        checked("torch_threads", self.torch_threads, int, minimum=1)
+        self.patience: int | None = checked("early_stopping.patience", self.early_stopping.get("patience"), int,
+                                            optional=True, minimum=0)  # None: see network_defaults
+        self.min_delta: float = checked("early_stopping.min_delta", self.early_stopping.get("min_delta", 0.0),
+                                        float, minimum=0.0)
+
+    @property
+    def horizon(self) -> int:
+        """Lifted steps per matrix product: ``physics.horizon``, or the window."""
+        return self.physics.horizon or self.data.window
+
+
+@dataclass
+class DiagnosisConfig:
+    """``diagnosis``: how candidate causes are searched and scored."""
+
+    catalogue: List[str] = field(default_factory=list)  # the user's catalogue files
+    max_causes: int = 8
+    min_gain: float = 0.15
+    workers: Optional[int] = None  # None: one per core (at most 4)
+    stretch_s: Optional[float] = None  # [s] None: from the nominal model's time scales
+    fit_seconds: float = 60.0  # [s]
+
+    def __post_init__(self) -> None:
+        checked("diagnosis.max_causes", self.max_causes, int, minimum=0)
+        checked("diagnosis.min_gain", self.min_gain, float, minimum=0.0)
+        checked("diagnosis.workers", self.workers, int, optional=True, minimum=1)
+        checked("diagnosis.stretch_s", self.stretch_s, float, optional=True, positive=True)
+        checked("diagnosis.fit_seconds", self.fit_seconds, float, positive=True)
+
+
+@dataclass
+class ExtensionConfig:
+    """``extension``: the extended model hypa.diagnose writes, trained now or not."""
+
+    train: bool = False
+    train_overrides: List[str] = field(default_factory=list)
+
+
+@dataclass
+class DiagnoseConfig:
+    """``conf/diagnose.yaml``: ``python -m hypa.diagnose``."""
+
+    vehicle: Any = None
+    testbench: Any = None
+    data: DataConfig = field(default_factory=DataConfig)
+    model: Optional[ModelConfig] = None  # the nominal model; None: none given
+    physics: HoldConfig = field(default_factory=lambda: HoldConfig(hold="foh"))
+    diagnosis: DiagnosisConfig = field(default_factory=DiagnosisConfig)
+    extension: ExtensionConfig = field(default_factory=ExtensionConfig)
+    plot: bool = True
+
+
+@dataclass
+class SimulateConfig:
+    """``conf/simulate.yaml``: ``python -m hypa.simulate``."""
+
+    vehicle: Any = None
+    testbench: Any = None
+    data: DataConfig = field(default_factory=DataConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    physics: HoldConfig = field(default_factory=HoldConfig)
+    plot: bool = True
+
+
+@dataclass
+class EvaluateConfig:
+    """``conf/evaluate.yaml``: ``python -m hypa.evaluate``."""
+
+    run: str = MISSING  # a hypa.train run folder or one of its checkpoints
+    out: Optional[str] = None  # None: <run>/evaluation
+    tensorboard: bool = True
+
+
+@dataclass
+class ExportConfig:
+    """``conf/export.yaml``: ``python -m hypa.export``."""
+
+    run: str = MISSING  # a hypa.train run folder or one of its checkpoints
+    format: str = "onnx"  # onnx | fmu | statespace | all
+    record: int = 0  # the validation record of reference.csv and the check
+    tolerance: float = 1e-5  # of each output's standard deviation
+
+    def __post_init__(self) -> None:
+        checked("record", self.record, int, minimum=0)
+        checked("tolerance", self.tolerance, float, positive=True)
+
+
+@dataclass
+class ExplainConfig:
+    """``conf/explain.yaml``: ``python -m hypa.explain``."""
+
+    run: str = MISSING
+    block: Optional[str] = None  # None: every ANN block
+    baseline: Optional[str] = None
+    extra: Any = None  # one signal or a list; None: the measured outputs and scheduling channels
+    penalty: float = 0.002
+    margin: float = 0.005
+    max_lag: float = 2.0  # [s]
+    max_delay: float = 0.25  # [s]
+    plot: bool = True
+
+    def __post_init__(self) -> None:
+        for key in ("penalty", "margin", "max_lag", "max_delay"):
+            checked(key, getattr(self, key), float)
+        if self.extra is not None:
+            self.extra = tuple(str(n) for n in ([self.extra] if isinstance(self.extra, str) else self.extra))
+
+
+@dataclass
+class ReproduceConfig:
+    """``conf/reproduce.yaml``: ``python -m hypa.reproduce``."""
+
+    rows: Any = field(default_factory=list)  # conf/row/ names; one name alone: rows=v2
+    seeds: Any = field(default_factory=lambda: [0, 1, 2])  # a list or one seed
+    n_jobs: int = 2
+    out: str = "results"
+    skip_training: bool = False
+    train_overrides: List[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.rows = [str(r) for r in self.rows] if isinstance(self.rows, (list, tuple)) else [str(self.rows)]
+        self.seeds = ([checked(f"seeds.{i}", s, int) for i, s in enumerate(self.seeds)]
+                      if isinstance(self.seeds, (list, tuple)) else [checked("seeds", self.seeds, int)])
+        checked("n_jobs", self.n_jobs, int, minimum=1)
+
+
+@dataclass
+class SuiteConfig:
+    """A data set's benchmark suite: model label -> hypa.train overrides, published figures."""
+
+    diagnose: Optional[str] = None  # the nominal model hypa.diagnose extends into model=diagnosed(_hybrid)
+    models: Dict[str, List[str]] = field(default_factory=dict)
+    published: Dict[str, Any] = field(default_factory=dict)  # test set -> output -> figure
+
+
+@dataclass
+class BenchmarkConfig:
+    """``conf/benchmark.yaml``: ``python -m hypa.benchmark``."""
+
+    vehicle: Any = None
+    testbench: Any = None
+    data: DataConfig = field(default_factory=DataConfig)
+    budget: str = "quick"
+    models: Optional[List[str]] = None  # None: the suite's
+    seeds: List[int] = field(default_factory=lambda: [0])
+    train_overrides: List[str] = field(default_factory=list)
+    budgets: Dict[str, List[str]] = field(default_factory=dict)
+    suites: Dict[str, SuiteConfig] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.budgets and self.budget not in self.budgets:
+            raise UserError(f"unknown budget={self.budget}; use {' or '.join(self.budgets)}")
+        if not self.seeds or len(set(self.seeds)) != len(self.seeds):
+            raise UserError(f"seeds must name at least one seed, each once; got {list(self.seeds)}")
+
+
+@dataclass
+class TestbenchCommandConfig:
+    """``conf/testbench.yaml``: ``python -m hypa.testbench``."""
+
+    __test__ = False  # not a pytest test class
+
+    testbench: Any = None  # hypa.paper.testbench.config.TestbenchConfig
+    out: Optional[str] = None  # None: the cache
+    cache_dir: Optional[str] = None
+    plot: bool = False
+    plot_record: str = "val"
+
+
+SCHEMAS: dict[str, type] = {
+    "train": TrainConfig, "diagnose": DiagnoseConfig, "simulate": SimulateConfig, "evaluate": EvaluateConfig,
+    "explain": ExplainConfig, "reproduce": ReproduceConfig, "benchmark": BenchmarkConfig,
+    "testbench": TestbenchCommandConfig, "export": ExportConfig,
+}
+
+
+def register_configs() -> None:
+    """Store the schemas in Hydra's ConfigStore: ``/hypa/<command>_schema`` (package ``_global_``,
+    the root of ``conf/<command>.yaml``) and ``/hypa/data_schema`` (the datasets' ``data`` node)."""
+    from hydra.core.config_store import ConfigStore
+
+    from hypa.data.schema import register_configs as register_data_schema
+
+    register_data_schema()
+    store = ConfigStore.instance()
+    for command, schema in SCHEMAS.items():
+        store.store(group=SCHEMA_GROUP, name=f"{command}_schema", node=schema, package="_global_")
+
+
+def typed(cfg: DictConfig, schema: type[C]) -> C:
+    """A command's composed configuration as its typed object (``OmegaConf.to_object``): every value
+    checked (the schemas' ``__post_init__``) before the command reads any data. A ``hydra`` node
+    (``compose(..., return_hydra_config=True)``, as tests compose) is left out."""
+    if "hydra" in cfg:
+        cfg = copy.deepcopy(cfg)
+        with open_dict(cfg):
+            del cfg["hydra"]
+    config = OmegaConf.to_object(cfg)
+    if not isinstance(config, schema):
+        raise TypeError(f"the configuration is a {type(config).__name__}, not a {schema.__name__}: does its "
+                        f"defaults list start with /{SCHEMA_GROUP}/<command>_schema?")
+    return config

@@ -1,0 +1,54 @@
+"""Explain what the learned blocks of a trained run learned.
+
+    python -m hypa.explain run=outputs/train/v1-lstm/2026-11-22_10-00-00                    # every ANN block
+    python -m hypa.explain run=outputs/train/v1-lstm/2026-11-22_10-00-00 block=rear_steering
+    python -m hypa.explain run=RUN baseline=outputs/train/physical/...   # the replacement beside a baseline
+
+Writes ``explanation.md``, ``explanation.json`` and the figures into the Hydra run folder
+(``outputs/explain/<time>/``; :mod:`hypa.explain.run` holds what it computes).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig
+
+from hypa.commands.config import ExplainConfig, typed
+from hypa.errors import hydra_command
+
+
+@hydra_command("hypa.explain", "explain")
+def main(cfg: DictConfig) -> None:
+    from hypa.commands.entry import from_cwd
+    from hypa.evaluation.evaluation import run_datamodule
+    from hypa.evaluation.runs import load_run
+    from hypa.explain.report import replacement_line
+    from hypa.explain.run import Settings, explain_run, select_blocks
+
+    config = typed(cfg, ExplainConfig)  # every value checked (hypa.commands.config)
+    block = config.block
+    settings = Settings(extra=config.extra, penalty=config.penalty, margin=config.margin, max_lag=config.max_lag,
+                        max_delay=config.max_delay, plot=config.plot)
+    run = load_run(from_cwd(config.run))
+    baseline = load_run(from_cwd(config.baseline)) if config.baseline else None
+    select_blocks(run.module.model.spec, block)  # a wrong block name fails before the data are read
+    out = Path(HydraConfig.get().runtime.output_dir)
+    dm = run_datamodule(run)
+    started = time.perf_counter()
+    results = explain_run(run, dm, out, block, settings, progress=lambda text: print(text, flush=True),
+                          baseline=baseline)
+    seconds = time.perf_counter() - started
+    for result in results:
+        print(result.summary(), flush=True)
+        if result.replacement:
+            print("  " + replacement_line(result.replacement), flush=True)
+    fits = ", ".join(f"{r.problem.block} {r.problem.output} {r.seconds:.1f} s" for r in results)
+    print(f"explained in {seconds:.1f} s after training (fitting the ladders: {fits}); "
+          f"report: {out / 'explanation.md'}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

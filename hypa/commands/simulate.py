@@ -1,0 +1,54 @@
+"""Simulate a physics model at its configured values on measured data and report how far off it is.
+
+    python -m hypa.simulate                                  # the vehicle physics, default test bench
+    python -m hypa.simulate physics.hold=foh vehicle.cf=140000
+    python -m hypa.simulate model=vehicle_nominal            # front steering only
+    python -m hypa.simulate dataset=silverbox                # its own model (<dataset>_physical)
+    python -m hypa.simulate dataset=files data.dir=PATH data.channels.<input>.unit=deg
+
+The entry point only reads the settings; :func:`hypa.evaluation.nominal.simulate_nominal` runs
+the model (windowed and free-running on each validation record, through the same engine as
+training) and writes ``simulation.json`` and a figure per record into the Hydra run folder.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, OmegaConf
+
+from hypa.commands.config import SimulateConfig, typed
+from hypa.errors import hydra_command, settings
+
+
+@hydra_command("hypa.simulate", "simulate")
+def main(cfg: DictConfig) -> float:
+    from hypa.data import datamodule_from_config
+    from hypa.commands.entry import data_dir_from_config, vehicle_from_config
+    from hypa.evaluation.nominal import nominal_module, report, simulate_nominal
+    from hypa.models.schema import plain_model
+
+    config = typed(cfg, SimulateConfig)  # every value checked (hypa.commands.config)
+    hold = config.physics.hold
+    model_config = plain_model(OmegaConf.to_container(cfg.model, resolve=True))
+    with settings("vehicle"):
+        values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.vehicle else {}
+    with settings("testbench"):  # the test bench's settings build its data (files: a folder only)
+        data_dir = data_dir_from_config(cfg)
+    dm = datamodule_from_config(cfg.data, data_dir)
+    dm.setup()
+    module = nominal_module(model_config, values, dm, hold)
+    out = Path(HydraConfig.get().runtime.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    results = simulate_nominal(module, dm, out, plot=config.plot)
+    print(report(results, dm, f"model {model_config['name']} at its configured values (hold={hold}) "
+                              "against the validation data:"))
+    print(f"results and figures in {out}")
+    return float(np.mean([m["nrmse"] for label, r in results.items() if label.startswith("windowed")
+                          for m in r.values()]))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,193 @@
+"""Train a HyPA-Net (or a baseline) on measured data.
+
+    python -m hypa.train model=v2 ann=lstm                 # the paper's V2 on the default data
+    python -m hypa.train model=physical                    # physics only, parameters fitted
+    python -m hypa.train model=blackbox ann=transformer    # a pure network
+    python -m hypa.train -m model=v1,v2,v3 ann=lstm,s4 seed=0,1,2     # a sweep (parallel)
+    python -m hypa.train dataset=files data.dir=PATH vehicle.cf=...    # your data
+
+Writes the best and last checkpoints and TensorBoard logs into the Hydra run folder and prints
+where; returns the best validation loss (for Hydra sweepers).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import torch
+from hydra.core.hydra_config import HydraConfig
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+from hypa.commands.config import TrainConfig, typed
+from hypa.errors import UserError, hydra_command, settings
+
+log = logging.getLogger(__name__)
+
+
+def run_name(model: str, ann: str, blocks: Any) -> str:
+    """Folder name of a run: the model, and its network where it has one."""
+    has_ann = any(b.get("kind") == "ann" for b in (blocks or {}).values())
+    return f"{model}-{ann}" if has_ann else model
+
+
+def channels(*roles: str, _root_: DictConfig) -> list[str]:
+    """``${channels:input,scheduling}``: the data set's channels with these roles, in declared order
+    (so one model YAML, e.g. ``blackbox``, serves every data set)."""
+    return [name for name, c in _root_.data.channels.items() if c.role in roles]
+
+
+OmegaConf.register_new_resolver("run_name", run_name, replace=True)
+OmegaConf.register_new_resolver("channels", channels, replace=True)
+
+
+def train(cfg: DictConfig) -> dict[str, Any]:
+    """Fit the configured model; returns the best validation loss and the output paths."""
+    from hypa.data import datamodule_from_config
+    from hypa.commands.entry import (data_dir_from_config, flat_hparams, from_cwd, network_settings, user_callbacks,
+                                     vehicle_from_config)
+    from hypa.metadata import run_metadata
+    from hypa.models import parse_model_spec
+    from hypa.models.schema import plain_model
+    from hypa.training import HybridModule, StagedTraining, ValidationFigures
+    from hypa.training.baseline import network_defaults
+    from hypa.training.checkpoints import AtomicCheckpointIO, RecordedCheckpoint, load_module
+    from hypa.training.divergence import DivergedError, StopOnNonFiniteLoss
+    from hypa.training.identified import fit_by_identification, identify_physics, plan
+    from hypa.training.run_folder import CONFIG_FILE, RunFolder, write_text_atomic
+
+    # every value checked first (hypa.commands.config), so a bad override fails before any data are read or generated
+    config = typed(cfg, TrainConfig)
+    lr, physics_lr, weight_decay = config.optimizer.lr, config.optimizer.physics_lr, config.optimizer.weight_decay
+    epochs, patience = config.trainer.max_epochs, config.patience  # None: see network_defaults
+    hold, horizon = config.physics.hold, config.horizon
+    model_config = plain_model(OmegaConf.to_container(cfg.model, resolve=True))
+    ann_name, ann = network_settings(cfg.ann)
+    with settings("vehicle"):
+        physical_values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.vehicle else {}
+    identification = config.identification.settings()
+    extra_callbacks = user_callbacks(config.callbacks)  # built before any data are read: a bad one fails first
+
+    out, ckpt_path = Path(HydraConfig.get().runtime.output_dir), None
+    if config.ckpt_path:
+        ckpt_path = from_cwd(config.ckpt_path)
+        if not ckpt_path.is_file():
+            raise FileNotFoundError(f"ckpt_path={ckpt_path} does not exist")
+        resumed = load_module(ckpt_path).hparams.model_config.get("name")  # no hypa checkpoint: one line
+        if resumed != model_config.get("name"):
+            raise UserError(f"ckpt_path={ckpt_path} holds model {resumed}, not model={model_config.get('name')}; "
+                            f"resume with model={resumed}")
+        if ckpt_path.parent.name == "checkpoints":  # resume in the interrupted run's own folder
+            out = ckpt_path.parent.parent
+    with settings("logger"):
+        logger = instantiate(config.logger, save_dir=str(out))
+    with RunFolder.claim(out, resume=ckpt_path) as folder:  # one run, one folder: refused before any data are read
+        if ckpt_path is not None:
+            log.info("resuming %s in %s", ckpt_path.name, out)
+        L.seed_everything(config.seed, workers=True)
+        torch.set_num_threads(config.torch_threads)
+        with settings("testbench"):  # the test bench's settings build its data (files: a folder only)
+            data_dir = data_dir_from_config(cfg)
+        dm = datamodule_from_config(cfg.data, data_dir)
+        dm.setup()
+        # the settings left null: an end-to-end network's from its training data, the fixed defaults otherwise;
+        # written into the run's configuration (what was trained, for hypa.evaluate and TensorBoard)
+        ann, weight_decay, epochs, patience = network_defaults(model_config, ann_name, ann, dm, lr, weight_decay,
+                                                               epochs, patience, config.trainer.limit_train_batches)
+        for key, value in (("optimizer.weight_decay", weight_decay), ("trainer.max_epochs", epochs),
+                           ("early_stopping.patience", patience), *((f"ann.{k}", v) for k, v in ann.items())):
+            OmegaConf.update(cfg, key, value)
+        # where the data were, resolved, so hypa.evaluate finds them from any working directory; what
+        # the run was made from (code, packages, data checksums), so hypa.evaluate notices other data
+        folder.update_record(data_dir=str(data_dir.resolve()), **run_metadata(dm.files, data_dir))
+        # the run's own resolved configuration, written while this process holds the folder (a refused
+        # second run may already have overwritten Hydra's .hydra/config.yaml)
+        write_text_atomic(out / CONFIG_FILE, OmegaConf.to_yaml(cfg, resolve=True))
+        module = HybridModule.from_data(  # channels, normalization, dt and past from the data module
+            dm, model_config, physical_values=physical_values, horizon=horizon,
+            hold=None if model_config.get("hold") else hold,  # physics.hold: for a model without its own hold:
+            ann_name=ann_name, ann_hparams=ann, lr=lr, physics_lr=physics_lr, weight_decay=weight_decay,
+        )
+        stages = parse_model_spec(model_config).stages
+        started = time.perf_counter()
+        how = plan(module, stages) if identification is not None and ckpt_path is None else None
+        if how in ("stage", "first"):  # a hybrid: its physics identified, then its networks train on it
+            identify_physics(module, how, stages, dm, folder, identification, logger)
+            stages = stages[1:] if how == "stage" else stages
+        checkpoint = RecordedCheckpoint(folder)
+        callbacks: list[L.Callback] = [
+            StopOnNonFiniteLoss(hint=f"lower optimizer.lr={lr:g} or optimizer.physics_lr={physics_lr:g}"),
+            instantiate(config.early_stopping, patience=patience, min_delta=config.min_delta),
+            *extra_callbacks,
+        ]
+        if stages:
+            callbacks.append(StagedTraining(stages, max_epochs=epochs))
+        if config.figures.enabled:
+            figures = config.figures
+            callbacks.append(ValidationFigures(figures.seconds, figures.start_s, figures.every_n_epochs))
+        callbacks.append(checkpoint)
+        trainer_args = OmegaConf.to_container(cfg.trainer, resolve=True)  # with any +trainer.<Lightning argument>
+        trainer_args["max_epochs"] = epochs * max(len(stages), 1)
+        with settings("trainer"):  # passed to Lightning as given: its ValueError / TypeError is the user's
+            trainer = L.Trainer(**trainer_args, callbacks=callbacks, logger=logger, default_root_dir=str(out),
+                                plugins=[AtomicCheckpointIO()])
+        log.info("model %s:\n%s", model_config["name"], module.model)
+        if how == "model":
+            result = fit_by_identification(trainer, module, dm, folder, identification, logger)
+            ended = "identification"
+        else:
+            try:
+                trainer.fit(module, datamodule=dm, ckpt_path=ckpt_path, weights_only=True)
+            except DivergedError as error:
+                best = folder.record.get("best_checkpoint")
+                kept = (f"the best checkpoint before it (epoch {best['epoch']}, val/loss {best['val_loss']:.5g}) "
+                        "stays the run's record" if best else "no checkpoint was recorded")
+                folder.update_record(stopped=str(error), training_time_s=time.perf_counter() - started)
+                raise DivergedError(f"{error}; {kept}") from None
+            if trainer.interrupted:  # Ctrl-C: Lightning stops gracefully; the run is not finished, say how to go on
+                folder.update_record(stopped=f"interrupted at epoch {trainer.current_epoch}")
+                log.warning("interrupted at epoch %d; resume with ckpt_path=%s", trainer.current_epoch,
+                            folder.checkpoints / "last.ckpt")
+            best = checkpoint.best_model_score
+            result = {"best_val_loss": float(best) if best is not None else float("nan"),
+                      "checkpoint": checkpoint.best_model_path, "last_checkpoint": checkpoint.last_model_path,
+                      "epochs": trainer.current_epoch}
+            ended = f"{result['epochs']} epochs"
+        result.update(tensorboard=str(out / "tensorboard"), training_time_s=time.perf_counter() - started)
+        folder.update_record(training_time_s=result["training_time_s"], best_val_loss=result["best_val_loss"])
+        logger.log_hyperparams(flat_hparams(OmegaConf.to_container(cfg, resolve=True)),
+                               {"hp/best_val_loss": result["best_val_loss"]})
+        logger.finalize("success")  # written now: after fit, nothing else flushes it before the process ends
+    print(f"best val/loss {result['best_val_loss']:.5g} after {ended}\n"
+          f"checkpoint:  {result['checkpoint']}\n"
+          f"tensorboard: tensorboard --logdir {result['tensorboard']}")
+    return result
+
+
+@hydra_command("hypa.train", "train")
+def main(cfg: DictConfig) -> float:
+    """The best validation loss, for sweepers; inf for a run without a finite one (diverged, or no
+    validation): Optuna's sweeper aborts the whole study on a NaN, whereas inf ranks the trial last.
+    In a sweep a diverged run says so in one line and ranks last; alone it is an error (exit status 1)."""
+    from hydra.types import RunMode
+
+    from hypa.training.divergence import DivergedError
+
+    try:
+        loss = train(cfg)["best_val_loss"]
+    except DivergedError as error:
+        if not HydraConfig.initialized() or HydraConfig.get().mode != RunMode.MULTIRUN:
+            raise
+        print(f"hypa.train: {error}", file=sys.stderr, flush=True)
+        return math.inf
+    return loss if math.isfinite(loss) else math.inf
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,145 @@
+"""One candidate fitted and scored: the :class:`Finding`, and what the data cannot tell it from.
+
+A candidate cause (:mod:`hypa.diagnosis.edits`) is fitted on the training windows
+(:mod:`hypa.diagnosis.fitting`) and scored free-running on the validation stretches
+(:func:`evaluate`); a fit that fails is reported as a finding with its error, never ends the
+diagnosis (``FIT_ERRORS``). Beside the cause named, the search lists the candidates the data
+cannot tell from it (:func:`alternatives`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied
+from hypa.diagnosis.fitting import fit_affine, fit_gradient
+from hypa.diagnosis.problem import Problem, TooLittleData, format_value
+from hypa.models.spec import ModelSpecError
+from hypa.physics import SchedulingError, UnstablePhysicsError
+
+
+ALTERNATIVE = 0.95  # a candidate explaining this share of the named one's gain is reported beside it ...
+SIMPLER = 0.75  # ... and one with fewer numbers from this share on (the data cannot prefer the richer claim)
+
+
+@dataclass
+class Finding:
+    """A candidate after its fit: fitted values [SI], validation score and gain over the base model."""
+
+    cause: str
+    target: str
+    values: dict[str, float]
+    units: dict[str, str]
+    score: float
+    gain: float
+    seconds: float
+    error: str | None = None
+    candidate: Candidate | None = field(default=None, repr=False)
+    alternatives: list[str] = field(default_factory=list)  # candidates that explain (almost) as much
+    note: str = ""  # what a value-less cause means on these data (scheduling: the ranges)
+    refined: dict[str, float] = field(default_factory=dict)  # earlier causes' knobs, re-fitted with it
+    steps: tuple[int, int] | None = None  # gradient fits: (steps done, of); fewer: stopped early, behind others
+    z: float | None = None  # offsets: |estimate| / its standard error (clustered by training stretch)
+    small: bool = False  # named below min_gain: an offset far from zero by its standard error
+    too_short: str = ""  # why the data are too short: to fit it (then not fitted) or to judge its standard error
+    generic: float | None = None  # named: the gain of the generic linear filter it had to beat (generic.py)
+    folds: list[Finding] = field(default_factory=list, repr=False)  # cross-validated: the fit of each fold
+    screened: bool = False  # judged on the first fold only: far behind that fold's best (see evaluate_folds)
+
+    @property
+    def key(self) -> str:
+        return f"{self.cause}:{self.target}"
+
+    def describe(self) -> str:
+        """One line in units: ``input_delay on steering_angle: 236 ms``."""
+        if self.error:
+            return f"{self.cause} on {self.target}: not fitted ({self.error})"
+        parts = [f"{k.split('/')[-1]} {format_value(v, self.units.get(k, ''))}" for k, v in self.values.items()
+                 if k != self.target] + [format_value(v, self.units.get(k, "")) for k, v in self.values.items()
+                                         if k == self.target] + ([self.note] if self.note else [])
+        return f"{self.cause} on {self.target}" + (f": {', '.join(parts)}" if parts else "")
+
+    def to_dict(self) -> dict:
+        return {"cause": self.cause, "target": self.target, "values": self.values, "units": self.units,
+                "score": self.score, "gain": self.gain, "seconds": self.seconds, "error": self.error,
+                "alternatives": self.alternatives, "refined": self.refined,
+                "steps": list(self.steps) if self.steps else None, "z": self.z, "small": self.small,
+                "too_short": self.too_short, "generic": self.generic, "text": self.describe(),
+                "folds": [f.values for f in self.folds], "screened": self.screened}
+
+    @property
+    def numbers(self) -> int:
+        """How many numbers its fit sets (its candidate's knobs)."""
+        return len(self.candidate.knobs) if self.candidate is not None else 0
+
+
+FIT_ERRORS = (UnstablePhysicsError, SchedulingError, ModelSpecError, ValueError, ArithmeticError,
+              torch.linalg.LinAlgError)  # a candidate that fails is reported, never ends the diagnosis
+
+
+def evaluate(candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor], base_score: float,
+             refine: Sequence[str] = ()) -> Finding:
+    """Fit a candidate (with ``refine``, see :class:`~hypa.diagnosis.fitting.GradientFit`) and score it on the validation
+    stretches. ``values`` holds the candidate's own knobs, ``refined`` the others."""
+    started, z = time.perf_counter(), None
+    try:
+        if candidate.fit == GRADIENT:
+            values = fit_gradient(candidate, problem, windows, refine)
+        elif candidate.fit == AFFINE:
+            values, z = fit_affine(candidate, problem)
+        else:
+            values = {}
+        value = problem.stretches("val").score(problem.build(applied(candidate, values)))
+    except FIT_ERRORS as error:
+        return failed(candidate, error, time.perf_counter() - started)
+    finding = scored(candidate, problem, values, value, base_score, time.perf_counter() - started)
+    finding.z = z
+    if candidate.fit == AFFINE and z is None:
+        finding.too_short = f"its standard error is not judged: {problem.evidence().error_shortfall(1)}"
+    return finding
+
+
+def failed(candidate: Candidate, error: Exception, seconds: float) -> Finding:
+    """A candidate whose fit failed: its error on one line, no values, an infinite score."""
+    short = isinstance(error, TooLittleData)
+    return Finding(candidate.cause, candidate.target, {}, {}, math.inf, -math.inf, seconds,
+                   ("too little data: " if short else "") + str(error).split("\n")[0], candidate,
+                   too_short=str(error) if short else "")
+
+
+def scored(candidate: Candidate, problem: Problem, values: Mapping[str, float], value: float, base_score: float,
+           seconds: float) -> Finding:
+    """A candidate fitted to ``values`` and scored ``value`` on the validation stretches."""
+    units = dict(candidate.units) or {candidate.target: problem.dm.channels[candidate.target].unit
+                                      if candidate.fit == AFFINE else ""}
+    gain = 1.0 - value / base_score if base_score > 0 else 0.0
+    note = _scheduling_note(candidate, problem) if candidate.cause == "scheduling" else ""
+    own = {k: v for k, v in values.items() if k in candidate.knobs or candidate.fit == AFFINE}
+    refined = {k: v for k, v in values.items() if k not in own}
+    return Finding(candidate.cause, candidate.target, own, units, value, gain, seconds, None, candidate, note=note,
+                   refined=refined)
+
+
+def _scheduling_note(candidate: Candidate, problem: Problem) -> str:
+    """``fixed at 20 m/s in the model, measured 5.1–32 m/s``."""
+    dm, name = problem.dm, candidate.target
+    values = np.concatenate([r[name] for r in dm.records("train")])
+    fixed = {**problem.physical_values, **candidate.spec.parameters}.get(name)
+    unit = dm.channels[name].unit
+    held = f"fixed at {fixed:.3g} {unit} in the model, " if fixed is not None else ""
+    return f"{held}measured {values.min():.3g}–{values.max():.3g} {unit}"
+
+
+def alternatives(best: Finding, others: Sequence[Finding]) -> list[str]:
+    """What the data cannot tell ``best`` from, each with its gain: a candidate explaining almost
+    as much (``ALTERNATIVE``), or one with fewer numbers explaining most of it (``SIMPLER``: a
+    rear-steering path of four numbers beside a refit of one stiffness)."""
+    return [f"{f.describe()} ({100 * f.gain:.2g} % lower)" for f in others if f.error is None and not f.screened
+            and (f.gain >= ALTERNATIVE * best.gain or (f.numbers < best.numbers and f.gain >= SIMPLER * best.gain))]
+

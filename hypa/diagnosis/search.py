@@ -1,0 +1,262 @@
+"""Name what the physics gets wrong, on any system: candidates fitted and scored with the model itself.
+
+The nominal model is a :class:`~hypa.models.ModelSpec` (the physics a user trusts, frozen). Each
+candidate cause (:mod:`hypa.diagnosis.edits`) is an edit of it; the edited model is built as a
+:class:`~hypa.models.ComposedModel` (the class ``hypa.train`` trains), its knobs are fitted on
+the training windows (:mod:`hypa.diagnosis.fitting`: gradient fits of the physical parameters,
+least squares for an offset; on worker processes, :mod:`hypa.diagnosis.workers`), and it is
+scored free-running over held-out data (:mod:`hypa.diagnosis.problem`; one candidate:
+:mod:`hypa.diagnosis.finding`, a round's fits raced: :mod:`hypa.diagnosis.race`). Judged by
+cross-validation over blocked stretches of all records, training and validation
+(:meth:`Problem.folds`, :mod:`hypa.diagnosis.cross_validation`): each fold fits on every other block and scores
+on the rest, and the folds' errors pool into the error over all blocks, so one validation record
+unlike the training does not decide. A greedy search names the
+candidate with the largest gain, writes its fitted values (each fold's) into the model and searches again
+from there, until no candidate improves the cross-validated error by ``min_gain``. What remains is
+then tested for structure (:mod:`hypa.diagnosis.structure`): where significant error is left that
+no catalogue entry explains, the diagnosis says where it lives instead of naming a proxy.
+
+Nothing is named on more than the data can support (:class:`~hypa.diagnosis.problem.Evidence`):
+a fit of as many numbers as the training windows without overlap, or more, is not run, an offset's
+standard error needs more training stretches than the offsets fitted with it, and data that
+cannot support a fit of one number are refused (:meth:`Problem.require_data`). Each such
+shortfall is listed in :attr:`Search.too_short`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from functools import partial
+
+import numpy as np
+import torch
+
+from hypa.diagnosis.catalogue import Entry, catalogue_candidates, load_catalogue
+from hypa.diagnosis.cross_validation import evaluate_folds, evaluate_generic, pool, pooled_z
+from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, averaged, frozen
+from hypa.diagnosis.finding import SIMPLER, Finding, alternatives
+from hypa.diagnosis.fitting import fit_offsets
+from hypa.diagnosis.generic import MARGIN as GENERIC_MARGIN
+from hypa.diagnosis.generic import GenericFit
+from hypa.diagnosis.problem import Problem
+from hypa.diagnosis.race import append_result
+from hypa.diagnosis.scales import duration
+from hypa.models.spec import ModelSpec
+
+
+OFFSET_Z = 5.0  # an offset below min_gain is still named this many standard errors away from zero ...
+OFFSET_GAIN = 0.005  # ... when it lowers the validation error by at least this share (a small sensor bias)
+
+
+@dataclass
+class Search:
+    """The greedy search: the nominal score, every round's findings (best first), the named ones
+    (their ``values`` final: re-fitted jointly with the causes named after them) and the model
+    with them applied."""
+
+    nominal_score: float
+    rounds: list[list[Finding]]
+    named: list[Finding]
+    spec: ModelSpec
+    final_score: float
+    seconds: float
+    dropped: list[Finding] = field(default_factory=list)  # named, then dropped by the joint fit of the offsets
+    too_short: list[str] = field(default_factory=list)  # what the data were too short to fit or judge, and why
+    generic: list[GenericFit] = field(default_factory=list)  # per round: the generic filter every cause must beat
+    standin: str = ""  # why the search stopped at a cause no better than the generic filter ("" if it did not)
+    folds: int = 1  # cross-validation folds the scores are pooled over (1: the validation records alone)
+    blocks: int = 0  # the blocks of all records the folds hold out in turn (0: no cross-validation)
+
+
+def name_causes(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | None = None,
+                candidates: Callable[[ModelSpec], list[Candidate]] | None = None, max_causes: int = 8,
+                min_gain: float = 0.15, floor: float = 1e-4, progress: Callable[[str], None] = lambda _: None) -> Search:
+    """Greedy forward search over the catalogue from the frozen ``nominal`` model.
+
+    ``catalogue``: the entries (default: the built-in catalogues, :func:`load_catalogue`);
+    ``candidates(spec)``, if given, lists the candidates of a base model instead. Each round fits all of them, names the best if it lowers the validation
+    error (1 - R², mean over outputs) by at least ``min_gain`` (relative), applies it and goes on;
+    below ``floor`` (share of the output variance: sensor noise) there is nothing left to name.
+    Refuses data too short to fit even one number (:meth:`Problem.require_data`); a candidate
+    that fits more numbers than the data support is not fitted, an offset whose standard error the
+    training stretches cannot judge is not named on it (:class:`~hypa.diagnosis.problem.Evidence`):
+    both are listed in ``Search.too_short``.
+    """
+    problem = problem.scaled(frozen(nominal))
+    problem.require_data()
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # tiny tensors: a second thread only waits (and on a busy machine, 20x slower)
+    try:
+        return _search(nominal, problem, catalogue, candidates, max_causes, min_gain, floor, progress)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | None,
+            candidates: Callable[[ModelSpec], list[Candidate]] | None, max_causes: int, min_gain: float,
+            floor: float, progress: Callable[[str], None]) -> Search:
+    started = time.perf_counter()
+    dm = problem.dm
+    uncertain = {b.name: b.trainable for b in nominal.blocks}
+    entries = load_catalogue() if catalogue is None else list(catalogue)
+    if candidates is None:
+        measured = [*dm.input_names, *dm.output_names, *dm.scheduling_names]
+        channels = {n: (max(float(np.max(np.abs(r[n]))) for r in dm.records("train")), dm.channels[n].unit)
+                    for n in measured}
+
+        def candidates(spec: ModelSpec) -> list[Candidate]:
+            return catalogue_candidates(entries, spec, dm.input_names, dm.output_names, dm.scheduling_names,
+                                        problem.physical_values, dm.dt, uncertain, channels)
+    torch.manual_seed(problem.seed)
+    folds = problem.folds()
+    windows = [p.windows() for p in folds]
+    bases = [frozen(nominal)] * len(folds)
+    scores = [p.stretches("val").score(p.build(b)) for p, b in zip(folds, bases)]
+    base_score = nominal_score = pool(folds, scores)
+    error = "cross-validated error" if len(folds) > 1 else "validation error"
+    progress(f"time scales: {problem.time_scales.describe()}")
+    if len(folds) > 1:
+        progress(f"judged by cross-validation: {len(problem.blocks())} blocks of {duration(problem.time_scales.stretch_s)} "
+                 f"from all {len(dm.records('train')) + len(dm.records('val'))} records (training and validation), "
+                 f"{len(folds)} folds: each candidate fitted on every other block and scored on the rest")
+    progress(f"nominal model: {error} {100 * base_score:.3g} % of the output variance (the search's "
+             f"score: free runs restarted from the data every {duration(problem.time_scales.stretch_s)})")
+
+    def round_of(keep: Callable[[Candidate], bool], refine: Sequence[str] = (),
+                 side: Sequence[Callable[[], None]] = ()) -> list[Finding]:
+        return evaluate_folds(candidates, folds, bases, scores, windows, base_score, min_gain, refine, keep, side)
+
+    def adopt(best: Finding) -> None:
+        nonlocal bases, scores, base_score
+        fits = best.folds or [best]
+        bases = [applied(f.candidate, {**f.refined, **f.values}) for f in fits]
+        scores, base_score = [f.score for f in fits], best.score
+        named.append(best)
+
+    rounds, named, refine, findings, generic, standin = [], [], [], [], [], ""
+    while len(named) < max_causes and base_score > floor:
+        done = {f.key for f in named}
+        bar: list[GenericFit] = []  # fitted by this process while the workers fit the candidates
+        findings = round_of(lambda c: c.key not in done, refine,
+                            side=[partial(append_result, bar, evaluate_generic, folds, bases, scores, base_score)])
+        rounds.append(findings)
+        generic.append(bar[0] if bar else evaluate_generic(folds, bases, scores, base_score))
+        if not findings or findings[0].gain < min_gain:
+            break
+        best, bar = findings[0], generic[-1]
+        simpler = best.candidate is not None and len(best.candidate.knobs) < bar.numbers
+        if not (best.score < (1.0 - GENERIC_MARGIN) * bar.score or (simpler and best.gain >= SIMPLER * bar.gain)):
+            standin = (f"{best.describe()} would lower the {error} by {100 * best.gain:.2g} %, but "
+                       f"{bar.describe()}: not named (a cause must beat it by {100 * GENERIC_MARGIN:.0f} % of its "
+                       f"error, or explain {100 * SIMPLER:.0f} % as much with fewer numbers); what is left may be "
+                       "dynamics the catalogue cannot express")
+            progress(standin)
+            findings = [f for f in findings if f.candidate is not None and f.candidate.fit == AFFINE]
+            break
+        best.alternatives, best.generic = alternatives(best, findings[1:]), bar.gain
+        if bar.gain >= SIMPLER * best.gain:  # the generic filter explains most of it too: a possible stand-in
+            best.alternatives.append(f"{bar.describe()}")
+        adopt(best)
+        refine += [k for k in best.candidate.knobs if best.candidate.fit == GRADIENT and k not in refine]
+        progress(f"named {best.describe()} ({error} {100 * best.gain:.0f} % lower; a generic linear filter: "
+                 f"{100 * generic[-1].gain:.0f} %)"
+                 + (f"; the data cannot tell it from {' or '.join(best.alternatives)}" if best.alternatives else ""))
+        findings = []
+    # below min_gain: offsets (one number each, exact least squares) that sit far from zero by their
+    # standard error, a small sensor bias, one at a time (the best first, the others fitted again on top)
+    unjudged: dict[str, str] = {}
+    findings = _small_offsets(findings, unjudged, error)
+    while findings and len(named) < max_causes:
+        best = findings[0]
+        best.small = True
+        best.alternatives = alternatives(best, findings[1:])
+        adopt(best)
+        progress(f"named {best.describe()} ({error} {100 * best.gain:.2g} % lower: small, but "
+                 f"{best.z:.0f} standard errors from zero)")
+        findings = round_of(lambda c, keys={f.key for f in findings[1:]}: c.key in keys)
+        if findings:
+            rounds.append(findings)
+        findings = _small_offsets(findings, unjudged, error)
+    too_short = _not_fitted(rounds) + list(unjudged.values())
+    named, dropped, bases, scores = _joint_offsets(named, bases, scores, folds, progress, too_short)
+    for k, f in enumerate(named):  # the final values: re-fitted jointly with every later cause
+        for later in named[k + 1 :]:
+            f.values.update({name: v for name, v in later.refined.items() if name in f.values})
+    return Search(nominal_score, rounds, named, averaged(bases), pool(folds, scores), time.perf_counter() - started,
+                  dropped, too_short, generic, standin, folds=len(folds),
+                  blocks=len(problem.blocks()) if len(folds) > 1 else 0)
+
+
+def _not_fitted(rounds: Sequence[Sequence[Finding]]) -> list[str]:
+    """One line per candidate the data were too short to fit, from the first round it was not fitted in."""
+    lines: dict[str, str] = {}
+    for findings in rounds:
+        for f in findings:
+            if f.too_short and f.error and f.key not in lines:
+                lines[f.key] = f"{f.cause} on {f.target} not fitted: {f.too_short}"
+    return list(lines.values())
+
+
+def _small_offsets(findings: Sequence[Finding], unjudged: dict[str, str], error: str) -> list[Finding]:
+    """The findings below min_gain that are named as small offsets (:func:`_significant`); an offset
+    that would be weighed as one but whose standard error the data cannot judge goes to ``unjudged``."""
+    for f in findings:
+        if f.error is None and f.too_short and f.gain >= OFFSET_GAIN:
+            unjudged[f.key] = (f"{f.cause} on {f.target} lowers the {error} by {100 * f.gain:.2g} %, "
+                               f"but {f.too_short}, so it is not named as a small bias")
+    return [f for f in findings if _significant(f)]
+
+
+def _joint_offsets(named: list[Finding], bases: list[ModelSpec], scores: list[float], folds: Sequence[Problem],
+                   progress: Callable[[str], None], too_short: list[str]
+                   ) -> tuple[list[Finding], list[Finding], list[ModelSpec], list[float]]:
+    """The named offsets fitted again all together (in each fold); while one of them is then under
+    OFFSET_Z standard errors from zero in a fold (it stood in for the others: a steering offset
+    for a yaw-rate and a side-slip bias), the weakest is dropped; an offset as weak in that fit
+    lists it as the alternative the data cannot tell it from. Where the training stretches cannot
+    judge them together, they stay as named and ``too_short`` says why. Returns the named causes,
+    the dropped ones, each fold's model with the final offsets and its score."""
+    offsets = [f for f in named if f.candidate is not None and f.candidate.fit == AFFINE]
+    dropped: list[Finding] = []
+    if len(offsets) < 2:
+        return named, dropped, bases, scores
+    shortfalls = [p.evidence().error_shortfall(len(offsets)) for p in folds]
+    judged = [k for k, short in enumerate(shortfalls) if not short]  # the folds whose stretches can judge them
+    if not judged:
+        shortfall = shortfalls[0]
+        too_short.append(f"the {len(offsets)} named offsets are not weighed against each other: {shortfall}")
+        return named, dropped, bases, scores
+    while True:
+        fitted = [fit_offsets(b, [f.target for f in offsets], p) for b, p in zip(bases, folds)]
+        z = {f.target: pooled_z([fitted[k][0][f.target] for k in judged], [fitted[k][1][f.target] for k in judged])
+             for f in offsets}
+        weakest = min(offsets, key=lambda f: z[f.target])
+        if z[weakest.target] >= OFFSET_Z or len(offsets) == 1:
+            break
+        offsets.remove(weakest)
+        dropped.append(weakest)
+        for other in offsets:  # as weak in the joint fit: the data cannot tell the two apart
+            if z[other.target] < OFFSET_Z:
+                other.alternatives = [a for a in other.alternatives
+                                      if not a.startswith(f"{weakest.cause} on {weakest.target}:")]
+                other.alternatives.append(weakest.describe())
+        bases = [dataclasses.replace(b, sensor_offsets={k: v for k, v in b.sensor_offsets.items()
+                                                        if k != weakest.target}) for b in bases]
+        weakest.note = (f"dropped: fitted together with the other offsets it is {z[weakest.target]:.1f} "
+                        "standard errors from zero (they carry what it explained)")
+        progress(f"{weakest.cause} on {weakest.target}: {weakest.note}")
+    if not dropped:
+        return named, dropped, bases, scores
+    for f in offsets:
+        f.values, f.z = {f.target: sum(values[f.target] for values, _ in fitted) / len(fitted)}, z[f.target]
+    bases = [dataclasses.replace(b, sensor_offsets={**b.sensor_offsets, **values}) for b, (values, _) in zip(bases, fitted)]
+    scores = [p.stretches("val").score(p.build(b)) for p, b in zip(folds, bases)]
+    return [f for f in named if all(f is not d for d in dropped)], dropped, bases, scores
+
+
+def _significant(f: Finding) -> bool:
+    """An offset fitted, far from zero by its standard error, and lowering the validation error."""
+    return f.error is None and f.z is not None and f.z >= OFFSET_Z and f.gain >= OFFSET_GAIN

@@ -1,0 +1,137 @@
+"""Exporting a trained run: the one-step model, its reference record, ``export.json``, and the check.
+
+    model.onnx      the step (``hypa.export.step``): state, u [SI] -> next_state, y [SI]
+    reference.csv   the first validation record's time, inputs, scheduling signals and hypa's free run
+    export.json     names, units, dt, the state layout, the initial state, the check's figures
+
+The export reports success only when onnxruntime, run step by step over the reference record
+from the initial state, reproduces hypa's free run to ``tolerance`` of each output's σ.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import torch
+
+from hypa.export.blocks import ExportError, PhysicsStep
+from hypa.export.onnx import OPSET, Check, check_onnx, export_onnx
+from hypa.export.reference import Reference, reference_run
+from hypa.export.step import ModelStep, scheduled_squarings
+
+if TYPE_CHECKING:
+    from hypa.data import HypaDataModule
+    from hypa.evaluation.runs import TrainedRun
+
+FORMATS = ("onnx", "fmu", "statespace", "all")
+BUILT = ("onnx",)
+FORMAT_VERSION = 1
+STIFF_SQUARINGS = 10  # a scheduled hold this many squarings deep amplifies rounding ~1000 times
+
+
+@dataclass
+class Export:
+    """What an export wrote (``files``: name -> path) and its check."""
+
+    folder: Path
+    files: dict[str, Path]
+    check: Check
+    state_size: int
+
+    def sizes(self) -> dict[str, int]:
+        return {name: path.stat().st_size for name, path in self.files.items()}
+
+
+def formats_to_build(name: str) -> tuple[str, ...]:
+    """The formats ``format=name`` asks for; a format not built yet is one line."""
+    if name not in FORMATS:
+        raise ExportError(f"format={name} is not one of {', '.join(FORMATS)}")
+    wanted = tuple(f for f in FORMATS[:-1] if name in (f, "all"))
+    missing = [f for f in wanted if f not in BUILT]
+    if missing:
+        exports = f"{' and '.join(missing)} export{'s are' if len(missing) > 1 else ' is'}"
+        raise ExportError(f"format={name}: the {exports} not yet built; use format={' or '.join(BUILT)}")
+    return wanted
+
+
+def build_step(run: TrainedRun, dm: HypaDataModule, record_index: int = 0) -> tuple[ModelStep, Reference]:
+    """The step of ``run``'s model and its reference: the ``record_index``-th validation record."""
+    model = run.module.model.eval().float()
+    records = dm.records("val")
+    if not records:
+        raise ExportError("the run's data have no validation record to check the export against")
+    if not 0 <= record_index < len(records):
+        raise ExportError(f"record={record_index}: the validation split has records 0..{len(records) - 1}")
+    record = records[record_index]
+    units = {n: c.unit for n, c in dm.channels.items()}
+    schedule = torch.as_tensor(record.stack(dm.scheduling_names), dtype=torch.float32) if dm.scheduling_names else None
+    squarings = scheduled_squarings(model, schedule) if schedule is not None else {}
+    step = ModelStep(model, units, squarings).eval()
+    return step, reference_run(step, dm, record)
+
+
+def export_run(run: TrainedRun, dm: HypaDataModule, out: Path, format: str = "onnx", record_index: int = 0,
+               tolerance: float = 1e-5) -> Export:
+    """Export ``run`` into ``out`` (see the module's docstring); ``ExportError`` when it cannot or the check fails."""
+    formats_to_build(format)
+    out.mkdir(parents=True, exist_ok=True)
+    step, reference = build_step(run, dm, record_index)
+    files = {"model.onnx": export_onnx(step, out / "model.onnx", reference),
+             "reference.csv": reference.write_csv(out / "reference.csv")}
+    check = check_onnx(files["model.onnx"], reference, tolerance)
+    description = describe(run, dm, step, reference, check)
+    files["export.json"] = out / "export.json"
+    files["export.json"].write_text(json.dumps(description, indent=2) + "\n")
+    if not check.passed:
+        worst = max(check.outputs, key=lambda n: check.outputs[n].relative)
+        stiff = [f"{name} needs {form.squarings} squarings of its hold per step, stiff enough that float32 rounding, "
+                 "hypa's own free run's included, is amplified 2^squarings times" for name, form in step.forms.items()
+                 if isinstance(form, PhysicsStep) and form.squarings >= STIFF_SQUARINGS]
+        raise ExportError(f"the ONNX step does not reproduce hypa's free run of {reference.record}: {worst} is off by "
+                          f"{check.outputs[worst].relative:.3g} of its σ (tolerance {tolerance:g}); "
+                          + (f"{'; '.join(stiff)}; " if stiff else "") + f"see {files['export.json']}")
+    return Export(out, files, check, step.state_size)
+
+
+def describe(run: TrainedRun, dm: HypaDataModule, step: ModelStep, reference: Reference, check: Check) -> dict:
+    """The contents of ``export.json``."""
+    import onnxruntime
+
+    units = {n: c.unit for n, c in dm.channels.items()}
+    model = step.model
+    signal = lambda name, role: {"name": name, "unit": units.get(name, ""), "role": role}  # noqa: E731
+    return {
+        "format_version": FORMAT_VERSION,
+        "model": model.spec.name,
+        "run": str(run.folder),
+        "checkpoint": str(run.checkpoint),
+        "dt": dm.dt,
+        "hold": model.hold,
+        "onnx": {"file": "model.onnx", "opset": OPSET, "dtype": "float32",
+                 "inputs": {"state": [step.state_size], "u": [len(reference.input_names)]},
+                 "outputs": {"next_state": [step.state_size], "y": [len(reference.output_names)]}},
+        "inputs": [signal(n, "input") for n in model.input_names]
+                  + [signal(n, "scheduling") for n in model.scheduling_names],
+        "outputs": [signal(n, "output") for n in reference.output_names],
+        "state": [{"index": i, "block": s.block, "name": s.name, "kind": s.kind, "unit": s.unit}
+                  for i, s in enumerate(step.slots)],
+        "step": ("y[k], state[k+1] = step(state[k], u[k]): u[k] the inputs and scheduling signals of sample k, y[k] "
+                 "the outputs hypa predicts at sample k; the first step is sample first_sample, from initial_state"),
+        "initial_state": reference.initial_state.tolist(),
+        "reference": {"file": "reference.csv", "record": reference.record, "samples": len(reference.time),
+                      "first_sample": reference.first, "first_time": float(reference.time[reference.first]),
+                      "scheduling_range": {n: [float(reference.u[:, i].min()), float(reference.u[:, i].max())]
+                                           for i, n in enumerate(reference.input_names)
+                                           if n in model.scheduling_names}},
+        "scheduled_squarings": {name: {"squarings": form.squarings, "exact_while": "the 1-norm of the block's hold "
+                                       f"generator stays <= {0.5 * 2 ** form.squarings:g} (4x the largest seen)"}
+                                for name, form in step.forms.items() if isinstance(form, PhysicsStep)
+                                and form.block.scheduled},
+        "check": check.as_dict(),
+        "versions": {"torch": torch.__version__, "onnxruntime": onnxruntime.__version__,
+                     "python": platform.python_version()},
+    }
