@@ -40,13 +40,13 @@ tensorboard: $(STAMP) ## open TensorBoard over all runs (outputs/ and multirun/)
 	mkdir -p outputs multirun
 	$(BIN)/tensorboard --logdir_spec runs:outputs,sweeps:multirun $(ARGS)
 
-test: $(STAMP) ## ruff, the strict docs build, then the test suite without the slow checks (what CI runs)
-	$(BIN)/ruff check --select F hypa tests
+test: $(STAMP) ## ruff (the rules in pyproject.toml), the strict docs build, then the test suite without the slow checks (what CI runs)
+	$(BIN)/ruff check hypa tests
 	$(BIN)/mkdocs build --strict --quiet
 	$(BIN)/python -m pytest -q $(ARGS)
 
-lint: $(STAMP) ## ruff over hypa/ and tests/ (the pyflakes rules, F: the code passes them)
-	$(BIN)/ruff check --select F hypa tests
+lint: $(STAMP) ## ruff over hypa/ and tests/ (the rules of [tool.ruff.lint] in pyproject.toml: the code passes them)
+	$(BIN)/ruff check hypa tests
 
 test-slow: $(STAMP) ## only the checks marked slow
 	$(BIN)/python -m pytest -q -m slow $(ARGS)

@@ -1,4 +1,5 @@
-"""Deprecated: ``python -m hypa.bench_diagnosis`` is ``python -m hypa.speed diagnosis`` (:mod:`hypa.commands.speed.diagnosis`)."""
+"""Deprecated: ``python -m hypa.bench_diagnosis`` is ``python -m hypa.speed diagnosis``
+(:mod:`hypa.commands.speed.diagnosis`)."""
 
 from __future__ import annotations
 

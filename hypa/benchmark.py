@@ -1,4 +1,5 @@
-"""``python -m hypa.benchmark``: the command is :mod:`hypa.commands.benchmark` (every command lives in :mod:`hypa.commands`)."""
+"""``python -m hypa.benchmark``: the command is :mod:`hypa.commands.benchmark`
+(every command lives in :mod:`hypa.commands`)."""
 
 from hypa.commands.benchmark import main
 

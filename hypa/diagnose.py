@@ -1,4 +1,5 @@
-"""``python -m hypa.diagnose``: the command is :mod:`hypa.commands.diagnose` (every command lives in :mod:`hypa.commands`)."""
+"""``python -m hypa.diagnose``: the command is :mod:`hypa.commands.diagnose`
+(every command lives in :mod:`hypa.commands`)."""
 
 from hypa.commands.diagnose import main
 

@@ -26,9 +26,9 @@ import math
 import os
 import sys
 import traceback
-from pathlib import Path
 from collections.abc import Callable, Collection, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any, TypeVar
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -47,8 +47,13 @@ def user_error_types() -> tuple[type[BaseException], ...]:
     cannot run: ``UnstablePhysicsError``, ``SchedulingError``, ...), so this module imports none
     of them.
     """
-    from hydra.errors import CompactHydraException, ConfigCompositionException, MissingConfigException
-    from hydra.errors import OverrideParseException, SearchPathException
+    from hydra.errors import (
+        CompactHydraException,
+        ConfigCompositionException,
+        MissingConfigException,
+        OverrideParseException,
+        SearchPathException,
+    )
     from omegaconf.errors import MissingMandatoryValue
 
     # The OSErrors about a path the user gave (a missing run folder, a folder that cannot be
@@ -186,7 +191,8 @@ def hydra_command(command: str, config_name: str, config_path: str | Path = CONF
     import hydra
 
     def decorate(main: F) -> F:
-        job = hydra.main(config_path=str(config_path), config_name=config_name, version_base="1.3")(user_errors(command)(main))
+        job = hydra.main(config_path=str(config_path), config_name=config_name,
+                         version_base="1.3")(user_errors(command)(main))
         return user_errors(command)(job)
 
     return decorate

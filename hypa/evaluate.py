@@ -1,4 +1,5 @@
-"""``python -m hypa.evaluate``: the command is :mod:`hypa.commands.evaluate` (every command lives in :mod:`hypa.commands`)."""
+"""``python -m hypa.evaluate``: the command is :mod:`hypa.commands.evaluate`
+(every command lives in :mod:`hypa.commands`)."""
 
 from hypa.commands.evaluate import main
 

@@ -15,9 +15,9 @@ two plain statistics the reports also print. The arrays are in the channel's SI 
 A figure over several seeds (the benchmark, the paper's Table 1) or logs (a fleet diagnosis) is
 reported as ``mean_std``: mean ± the *sample* standard deviation (ddof = 1), the same everywhere.
 
-The Table 1 metrics (``regression_metrics``, ``state_metrics``): all inputs are numpy arrays in SI units (rad/s for the yaw rate, rad for the side slip); the
-numbers are computed with torchmetrics' functional API in float64 so they match a hand
-calculation to ~1e-12.
+The Table 1 metrics (``regression_metrics``, ``state_metrics``): all inputs are numpy arrays
+in SI units (rad/s for the yaw rate, rad for the side slip); the numbers are computed with
+torchmetrics' functional API in float64 so they match a hand calculation to ~1e-12.
 
 MAPE is *floored* here, because the plain definition is useless for vehicle states:
 

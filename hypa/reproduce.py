@@ -1,4 +1,5 @@
-"""``python -m hypa.reproduce``: the command is :mod:`hypa.commands.reproduce` (every command lives in :mod:`hypa.commands`)."""
+"""``python -m hypa.reproduce``: the command is :mod:`hypa.commands.reproduce`
+(every command lives in :mod:`hypa.commands`)."""
 
 from hypa.commands.reproduce import main
 

@@ -1,4 +1,5 @@
-"""``python -m hypa.simulate``: the command is :mod:`hypa.commands.simulate` (every command lives in :mod:`hypa.commands`)."""
+"""``python -m hypa.simulate``: the command is :mod:`hypa.commands.simulate`
+(every command lives in :mod:`hypa.commands`)."""
 
 from hypa.commands.simulate import main
 

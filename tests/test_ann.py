@@ -13,7 +13,13 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from hypa.ann import (
-    ANN_BLOCKS, S4DKernel, SequenceBlock, ann_hyperparameters, build_ann, selective_scan, target,
+    ANN_BLOCKS,
+    S4DKernel,
+    SequenceBlock,
+    ann_hyperparameters,
+    build_ann,
+    selective_scan,
+    target,
 )
 from hypa.ann.s4 import causal_convolution
 
@@ -29,7 +35,7 @@ CONF_ANN = Path(__file__).resolve().parents[1] / "conf" / "ann"
 
 
 @pytest.fixture(autouse=True, scope="module")
-def one_thread():  # noqa: ANN201
+def one_thread():
     """These small models run faster on one intra-op thread; two threads on a shared 2-core
     machine were measured up to 10x slower (threads waiting for each other)."""
     threads = torch.get_num_threads()
@@ -300,9 +306,9 @@ def test_mamba_long_free_run_depends_only_on_the_recent_past(a_log: float, dt_bi
 
 # -- registry and configs --------------------------------------------------------------------
 def test_build_ann_rejects_unknown_names_and_hyperparameters() -> None:
-    with pytest.raises(ValueError, match="unknown ANN block 'gru'.*lstm.*mamba.*s4.*transformer"):
+    with pytest.raises(ValueError, match=r"unknown ANN block 'gru'.*lstm.*mamba.*s4.*transformer"):
         build_ann("gru", 1, 1)
-    with pytest.raises(TypeError, match="hidden_sise.*accepted: hidden_size"):
+    with pytest.raises(TypeError, match=r"hidden_sise.*accepted: hidden_size"):
         build_ann("lstm", 1, 1, hidden_sise=32)
     with pytest.raises(ValueError, match="divisible"):
         build_ann("transformer", 1, 1, d_model=30, n_heads=4)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 import torch
+
 from data_helpers import make_data_dir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,7 +42,8 @@ def places(tmp_path_factory) -> dict[str, Path]:
 
 # id, command, overrides ({name} from the fixture), a part of the message
 CASES = [
-    ("train-max_epochs-text", "hypa.train", [*FILES, "trainer.max_epochs=abc"], "trainer.max_epochs=abc is not an integer"),
+    ("train-max_epochs-text", "hypa.train", [*FILES, "trainer.max_epochs=abc"],
+     "trainer.max_epochs=abc is not an integer"),
     ("train-window-negative", "hypa.train", [*FILES, "data.window=-3"], "data.window must be >= 1"),
     ("train-unknown-model", "hypa.train", [*FILES, "model=nonexistent"], "Could not find 'model/nonexistent'"),
     ("train-unknown-hold", "hypa.train", [*FILES, "physics.hold=xyz"], "physics.hold=xyz is not one of zoh, foh"),
@@ -78,7 +80,7 @@ def hypa(command: str, overrides: list[str], places: dict[str, Path], tmp_path: 
     environment = {k: v for k, v in os.environ.items() if k != "HYDRA_FULL_ERROR"}
     environment.update(HYPA_CACHE_DIR=str(tmp_path / "cache"), **env)
     return subprocess.run([sys.executable, "-m", command, *args, f"hydra.run.dir={tmp_path / 'run'}"],
-                          cwd=ROOT, env=environment, capture_output=True, text=True, timeout=300)
+                          cwd=ROOT, env=environment, capture_output=True, text=True, timeout=300, check=False)
 
 
 @pytest.mark.parametrize("command, overrides, message", [pytest.param(*case[1:], id=case[0]) for case in CASES])
@@ -103,10 +105,10 @@ def test_a_data_folder_without_dataset_files_is_not_silently_ignored(tmp_path) -
     """``data.dir=PATH`` alone would have trained on the test bench: one line says what to add."""
     import subprocess
     import sys
-
     from pathlib import Path
 
     result = subprocess.run([sys.executable, "-m", "hypa.train", f"data.dir={tmp_path}", f"hydra.run.dir={tmp_path}"],
-                            cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=120)
+                            cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=120,
+                            check=False)
     assert result.returncode == 1
     assert "add dataset=files" in result.stderr.strip().splitlines()[-1] and "Traceback" not in result.stderr

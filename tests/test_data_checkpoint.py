@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import lightning as L
 import torch
-from data_helpers import make_data_dir
 
-from hypa.paper.testbench.sensors import TESTBENCH_CHANNELS
 from hypa.data import HypaDataModule
+from hypa.paper.testbench.sensors import TESTBENCH_CHANNELS
+
+from data_helpers import make_data_dir
 
 
 class _Linear(L.LightningModule):
@@ -35,7 +36,7 @@ def _trainer(tmp_path) -> L.Trainer:
 
 
 def test_checkpoint_restores_the_normalization_into_a_new_datamodule(tmp_path):
-    options = dict(window=20, stride=5, eval_stride=10, batch_size=4)
+    options = {"window": 20, "stride": 5, "eval_stride": 10, "batch_size": 4}
     train_dir = make_data_dir(tmp_path / "a", duration_s=4.0, train_offset=2.0)
     dm = HypaDataModule(train_dir, TESTBENCH_CHANNELS, **options)
     model = _Linear()

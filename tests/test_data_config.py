@@ -7,16 +7,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from data_helpers import synthetic_channels, write_table
 from hydra import compose, initialize_config_dir
 from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
 import hypa.commands  # noqa: F401  (registers the schemas, as every command does)
 from hypa.data import DataError, HypaDataModule, datamodule_from_config, decimate
-from hypa.data.from_config import validated
-from hypa.data.from_config import data_dir_from_config
+from hypa.data.from_config import data_dir_from_config, validated
 from hypa.paper.testbench.sensors import TESTBENCH_CHANNELS
+
+from data_helpers import synthetic_channels, write_table
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 DATASETS = ("testbench", "files", "silverbox", "emps", "racecar")
@@ -138,6 +138,7 @@ def test_testbench_dataset_loads_as_before(hypa_cache):
     """The default data set through the config: the test bench's files at 1024 Hz, decimated to
     32 Hz, windows of 101 samples every 5 (train) / 50 (val), scaled with training statistics."""
     import pyarrow.parquet as pq
+
     from conftest import SHORT_OVERRIDES
 
     cfg = _compose(*SHORT_OVERRIDES)
@@ -174,7 +175,7 @@ def test_the_docs_example_dataset_loads(tmp_path):
 
     page = (CONF.parent / "docs" / "data.md").read_text()
     pattern = r"```yaml\n(# @package _global_\n# conf/dataset/my_rig\.yaml.*?)```"
-    block = re.search(pattern, page, re.S).group(1)
+    block = re.search(pattern, page, re.DOTALL).group(1)
     conf = tmp_path / "conf"
     shutil.copytree(CONF, conf)
     (conf / "dataset" / "my_rig.yaml").write_text(block.replace("/path/to/my_rig", str(tmp_path / "rig")))

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from data_helpers import write_table
 
 from hypa.data import ChannelSpec, DataError, Expression, load_record
+
+from data_helpers import write_table
 
 
 def test_arithmetic_functions_constants_and_backticked_columns():

@@ -7,13 +7,6 @@ import math
 
 import numpy as np
 import pytest
-from data_helpers import (
-    fake_mat73,
-    make_data_dir,
-    synthetic_channels,
-    write_csv_text,
-    write_table,
-)
 
 from hypa.data import (
     ChannelSpec,
@@ -25,6 +18,14 @@ from hypa.data import (
     unit_factor,
 )
 from hypa.paper.testbench.sensors import TESTBENCH_CHANNELS
+
+from data_helpers import (
+    fake_mat73,
+    make_data_dir,
+    synthetic_channels,
+    write_csv_text,
+    write_table,
+)
 
 BENCH = {c.name: c for c in TESTBENCH_CHANNELS}
 MODEL = ["steering_wheel_angle", "yaw_rate", "side_slip"]
@@ -98,7 +99,8 @@ def test_unknown_unit_names_the_channel_and_lists_the_known_ones():
 @pytest.mark.parametrize("name, factor, offset, si", [
     ("degC", 1.0, 273.15, "K"), ("degF", 5 / 9, 255.3722222, "K"), ("delta_degC", 1.0, 0.0, "K"), ("K", 1.0, 0.0, "K"),
     ("psi", 6894.757293, 0.0, "Pa"), ("l/min", 1e-3 / 60, 0.0, "m^3/s"), ("mA", 1e-3, 0.0, "A"),
-    ("N*m", 1.0, 0.0, "Nm"), ("kW", 1e3, 0.0, "W"), ("g", 9.80665, 0.0, "m/s^2"), ("1/min", 2 * np.pi / 60, 0.0, "rad/s"),
+    ("N*m", 1.0, 0.0, "Nm"), ("kW", 1e3, 0.0, "W"), ("g", 9.80665, 0.0, "m/s^2"),
+    ("1/min", 2 * np.pi / 60, 0.0, "rad/s"),
 ])
 def test_units_for_any_field_convert_to_si(name, factor, offset, si):
     from hypa.data.units import unit

@@ -19,9 +19,9 @@ import pytest
 
 asammdf = pytest.importorskip("asammdf")
 
-from hypa.data import ChannelSpec, DataError, decimate, find_split_files, load_record
-from hypa.data.decimation import lowpass
-from hypa.data.mdf import read_signals
+from hypa.data import ChannelSpec, DataError, decimate, find_split_files, load_record  # noqa: E402 -- after the importorskip
+from hypa.data.decimation import lowpass  # noqa: E402 -- after the importorskip
+from hypa.data.mdf import read_signals  # noqa: E402 -- after the importorskip
 
 ROOT = Path(__file__).resolve().parents[1]
 DEG = math.pi / 180.0

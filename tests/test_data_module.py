@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from data_helpers import make_data_dir, synthetic_channels, write_table
 
 from hypa.data import (
     ChannelSpec,
@@ -19,12 +18,14 @@ from hypa.data import (
 )
 from hypa.paper.testbench.sensors import TESTBENCH_CHANNELS
 
+from data_helpers import make_data_dir, synthetic_channels, write_table
+
 WINDOW, STRIDE, EVAL_STRIDE = 20, 3, 7
 CONF = Path(__file__).resolve().parents[1] / "conf" / "dataset"
 
 
 def _module(data_dir: Path, **kwargs) -> HypaDataModule:
-    options = dict(window=WINDOW, stride=STRIDE, eval_stride=EVAL_STRIDE, batch_size=4)
+    options = {"window": WINDOW, "stride": STRIDE, "eval_stride": EVAL_STRIDE, "batch_size": 4}
     options.update(kwargs)
     dm = HypaDataModule(data_dir, TESTBENCH_CHANNELS, **options)
     dm.setup("fit")

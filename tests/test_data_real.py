@@ -49,7 +49,7 @@ def test_silverbox_standard_split(monkeypatch):
                     "arrow_full": [("SNLS80mV.csv[100:40575]", 40475)],
                     "arrow_no_extrapolation": [("SNLS80mV.csv[100:32100]", 32000)]}
     # train + val = the first 75 % of the multisine [40650, 127400), as nonlinear_benchmarks
-    assert 55300 + 9762 == int(0.75 * (127400 - 40650))
+    assert int(0.75 * (127400 - 40650)) == 55300 + 9762
     raw = read_columns(DATA / "silverbox" / "SNLS80mV.csv")
     assert list(raw) == ["V1", "V2"]  # the trailing comma's empty column is gone
     test = dm.test_sets()["multisine"][0]

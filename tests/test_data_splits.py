@@ -7,9 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from data_helpers import write_table
 
 from hypa.data import ChannelSpec, DataError, HypaDataModule, Piece, SplitSpec
+
+from data_helpers import write_table
 
 RATE = 50.0  # [Hz] any rate works; no decimation unless asked
 N = 1000  # samples per file
@@ -46,8 +47,8 @@ def folder(tmp_path) -> Path:
 
 
 def _module(folder: Path, **kwargs) -> HypaDataModule:
-    options = dict(channels=CHANNELS, sample_rate_hz=RATE, rate_hz=None, window=20, stride=1,
-                   eval_stride=1, batch_size=8)
+    options = {"channels": CHANNELS, "sample_rate_hz": RATE, "rate_hz": None, "window": 20, "stride": 1,
+               "eval_stride": 1, "batch_size": 8}
     options.update(kwargs)
     dm = HypaDataModule(folder, **options)
     dm.setup()

@@ -34,7 +34,7 @@ DELAY_ONLY = ["testbench.tires.enabled=false", "testbench.relaxation.enabled=fal
 def run_diagnose(tmp_path: Path, *overrides: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "HYPA_CACHE_DIR": str(tmp_path / "cache")}
     return subprocess.run([sys.executable, "-m", "hypa.diagnose", f"hydra.run.dir={tmp_path / 'run'}", *overrides],
-                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)
 
 
 @pytest.fixture(scope="module")
@@ -91,7 +91,7 @@ def test_extended_model_is_a_hypa_model_that_trains(delay_run, tmp_path: Path) -
     env = {**os.environ, "HYPA_CACHE_DIR": str(run.parent / "cache")}
     trained = subprocess.run([sys.executable, *words[1:], f"hydra.run.dir={tmp_path / 'train'}",
                               "trainer.max_epochs=1", "trainer.limit_train_batches=3", "figures.enabled=false"],
-                             cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+                             cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)
     assert trained.returncode == 0, trained.stderr[-3000:]
     from hypa.evaluation.runs import load_run
 
@@ -139,7 +139,7 @@ def test_extension_train_true_trains_and_reports_the_trained_gain(delay_run) -> 
         [sys.executable, "-m", "hypa.diagnose", f"hydra.run.dir={run}", *SHORT, *DELAY_ONLY, "plot=false",
          "extension.train=true",
          'extension.train_overrides=["trainer.max_epochs=1","trainer.limit_train_batches=3","figures.enabled=false"]'],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)
     assert result.returncode == 0, result.stderr[-3000:]
     diagnosis = json.loads((run / "diagnosis.json").read_text())
     trained = diagnosis["extended"]["trained"]
@@ -164,7 +164,7 @@ def test_the_trained_correction_network_is_explained(delay_run) -> None:
         [sys.executable, "-m", "hypa.diagnose", f"hydra.run.dir={run}", *SHORT, *DELAY_ONLY, "plot=false",
          "diagnosis.max_causes=0", "extension.train=true",
          'extension.train_overrides=["trainer.max_epochs=1","trainer.limit_train_batches=3","figures.enabled=false"]'],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)
     assert result.returncode == 0, result.stderr[-3000:]
     diagnosis = json.loads((run / "diagnosis.json").read_text())
     trained = diagnosis["extended"]["trained"]

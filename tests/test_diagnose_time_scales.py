@@ -24,8 +24,8 @@ from scipy import signal
 
 from hypa.data import datamodule_from_config
 from hypa.diagnosis.problem import Problem
-from hypa.diagnosis.search import name_causes
 from hypa.diagnosis.scales import Scales
+from hypa.diagnosis.search import name_causes
 from hypa.models.spec import parse_model_spec
 
 THERMAL = '''
@@ -139,7 +139,8 @@ def _effect(system: str, cause: str, rng: np.random.Generator) -> tuple[dict[str
     """(the truth's keyword, the knob the diagnosis reports, the true value) for one random effect."""
     sign = rng.choice([-1.0, 1.0])
     if system == "thermal":
-        value = {"input_delay": rng.uniform(30.0, 90.0), "parameter_mismatch": 30.0 * (1 + sign * rng.uniform(0.2, 0.4)),
+        value = {"input_delay": rng.uniform(30.0, 90.0),
+                 "parameter_mismatch": 30.0 * (1 + sign * rng.uniform(0.2, 0.4)),
                  "output_offset": sign * rng.uniform(0.3, 0.8)}[cause]
         key = {"input_delay": "delay_s", "parameter_mismatch": "g12", "output_offset": "offset"}[cause]
         knob = {"input_delay": "diagnosed_delay_power/delay_s", "parameter_mismatch": "g12",

@@ -140,7 +140,7 @@ def test_an_entry_that_breaks_the_model_names_itself(tmp_path: Path) -> None:
         '- id: broken\n  for_each: input\n  patch: {blocks: {"x_{input}": {kind: physics, system: nope, '
         'inputs: ["{input}"], outputs: [y2], trainable: [k]}}}\n')
     entries = [e for e in load_catalogue([tmp_path / "bad.yaml"]) if e.id == "broken"]
-    with pytest.raises(CatalogueError, match="entry broken on force: the edited model is not valid: .*nope"):
+    with pytest.raises(CatalogueError, match=r"entry broken on force: the edited model is not valid: .*nope"):
         catalogue_candidates(entries, parse_model_spec(MODEL), ("force",), ("position",), (), NOMINAL, 0.01)
 
 
@@ -179,7 +179,8 @@ def test_a_limit_is_linear_below_and_bounded_above() -> None:
     y = block(u) * 4.0 + 1.0
     physical = 1.0 + 4.0 * u
     assert torch.allclose(y, physical / (1.0 + (physical.abs() / 2.0) ** 6) ** (1 / 6))
-    assert float(y.detach().abs().max()) <= 2.0 and abs(float(block(torch.zeros(1, 1, 1).double()) * 4 + 1) - 1.0) < 3e-3  # at L/2
+    assert float(y.detach().abs().max()) <= 2.0
+    assert abs(float(block(torch.zeros(1, 1, 1).double()) * 4 + 1) - 1.0) < 3e-3  # at L/2
     y.sum().backward()
     assert params.raw["lim/limit"].grad is not None and float(params.raw["lim/limit"].grad) != 0.0
 

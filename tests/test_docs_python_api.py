@@ -36,7 +36,7 @@ def workdir(tmp_path_factory):
 
 def run(blocks: list[str], namespace: dict, first: int) -> None:
     for k, block in enumerate(blocks, first):
-        exec(compile(block, f"{PAGE.name}, python block {k}", "exec"), namespace)
+        exec(compile(block, f"{PAGE.name}, python block {k}", "exec"), namespace)  # noqa: S102 -- the page's own code blocks
 
 
 @pytest.fixture(scope="module")

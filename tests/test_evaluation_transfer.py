@@ -86,7 +86,7 @@ def test_h1_is_unbiased_under_output_noise(record):
     assert est.coherence.min() < 0.8  # the noise is really there
     # mean over ~60 bins of nearly independent errors: its 1σ is ~ mean(ε) / sqrt(60)
     assert abs(ratio.mean() - 1.0) < 3 * random_error(est).mean() / np.sqrt(ratio.size)
-    kw = dict(fs=FS, window="hann", nperseg=512, noverlap=256)
+    kw = {"fs": FS, "window": "hann", "nperseg": 512, "noverlap": 256}
     f, s_yy = signal.welch(record["y_very_noisy"], **kw)
     _, s_uy = signal.csd(record["u"], record["y_very_noisy"], **kw)
     keep = (f >= BAND[0]) & (f <= BAND[1])

@@ -21,11 +21,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from conftest import SHORT_OVERRIDES
 
 from hypa.errors import UserError
 from hypa.explain.run import compare, select_blocks
 from hypa.models.spec import parse_model_spec
+
+from conftest import SHORT_OVERRIDES
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ["trainer.max_epochs=1", "trainer.limit_train_batches=2", "trainer.limit_val_batches=2",

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from hypa.data.units import unit_ratio
 from hypa.errors import UserError
 from hypa.explain import Recording, explain
-from hypa.data.units import unit_ratio
 from hypa.explain.signals import delayed, filtered, lag_filter, second_order_filters
 
 DT = 0.01  # [s] the records' sample time
@@ -75,7 +75,8 @@ def test_a_lag_of_70_ms_recovers_gain_and_time_constant(seed):
     assert result.best.form.name == "lag"
     assert result.best.value("gain", "front_angle").value == pytest.approx(0.12, rel=0.02)
     assert result.best.value("lag").value == pytest.approx(0.07, rel=0.10)
-    assert ", lag 70 ms" in result.describe() or ", lag 69 ms" in result.describe() or ", lag 71 ms" in result.describe()
+    assert (", lag 70 ms" in result.describe() or ", lag 69 ms" in result.describe()
+            or ", lag 71 ms" in result.describe())
 
 
 def test_a_lag_with_40_ms_dead_time_recovers_all_three():
@@ -179,7 +180,7 @@ def test_the_uncertainty_covers_the_truth_and_is_not_vacuous():
 
 def test_the_remainder_names_where_an_unmodelled_resonance_lives():
     # a lightly damped 4 Hz mode on top of a gain: a static gain cannot explain it
-    law = lambda u, r: 0.12 * u + truth(smooth(np.random.default_rng(5), 8.0, 0.01), [1.0],
+    law = lambda u, r: 0.12 * u + truth(smooth(np.random.default_rng(5), 8.0, 0.01), [1.0],  # noqa: E731
                                         [1 / (2 * np.pi * 4) ** 2, 0.1 / (2 * np.pi * 4), 1.0])
     result = explain(records(law, 0, 2), records(law, 100, 1), DT, "rear_angle", ["front_angle"],
                      units=UNITS, max_lag=0.02, max_delay=0.0)

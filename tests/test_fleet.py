@@ -200,7 +200,8 @@ def _diagnosis(named: list[dict], change: float, trained: float | None = None) -
     result = {"cause": named[0]["cause"] if named else "none", "estimate": named[0]["values"] if named else {},
               "causes": [n["cause"] for n in named], "named": named,
               "candidates": [{"cause": n["cause"], "target": n["target"], "score": n["gain"], "estimate": n["values"],
-                              "evidence": n["text"], "alternatives": []} for n in [*named, tested]],  # tested, not named
+                              # tested, not named
+                              "evidence": n["text"], "alternatives": []} for n in [*named, tested]],
               "rounds": [[*named, tested]],
               "gain": {"all": {"yaw_rate": change, "overall": change}}, "extended": {"config": {}, "signals": {}}}
     if trained is not None:
@@ -303,7 +304,7 @@ def test_a_summary_that_cannot_be_written_ends_the_sweep_with_one_line(tmp_path:
 
 
 def test_summary_of_a_folder_without_jobs_is_a_user_error(tmp_path: Path) -> None:
-    with pytest.raises(UserError, match="no hypa.diagnose jobs"):
+    with pytest.raises(UserError, match=r"no hypa.diagnose jobs"):
         fleet.collect(tmp_path)
 
 

@@ -9,6 +9,7 @@ import yaml
 
 from hypa.models import ComposedModel, ModelSpecError, parse_model_spec
 from hypa.vehicle import VehicleParameters
+
 from vehicle_reference import simulate_vehicle
 
 CONF = Path(__file__).resolve().parents[1] / "conf" / "model"
@@ -87,7 +88,7 @@ def test_stages_freeze_and_bypass() -> None:
     model.set_stage(["rear_steering"], ["correction"])
     assert all(p.requires_grad for p in model.blocks["rear_steering"].parameters())
     assert not any(p.requires_grad for p in model.blocks["correction"].parameters())
-    swa, x0, u, x0_hat, *_ = normalized_window()
+    _swa, _x0, u, x0_hat, *_ = normalized_window()
     signals = model.signals(u.float(), x0_hat.float())
     torch.testing.assert_close(signals["yaw_rate"][0], signals["yaw_rate_physics"][0])
     model.set_stage(["correction"])

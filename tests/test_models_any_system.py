@@ -116,7 +116,7 @@ def test_scheduling_and_estimation_errors_name_what_exists() -> None:
     build = lambda cfg, sched: ComposedModel(parse_model_spec(cfg), VehicleParameters().as_dict(),  # noqa: E731
                                              ["steering_angle"], list(scale), {"steering_angle": (0.0, 0.05)},
                                              scale, 0.04, scheduling_names=sched,
-                                             scheduling_scale={n: (20.0, 5.0) for n in sched})
+                                             scheduling_scale=dict.fromkeys(sched, (20.0, 5.0)))
     with pytest.raises(ModelSpecError, match="not measured scheduling channels; the data declare: \\['velocity'\\]"):
         build(config, ["velocity"])
     config["blocks"]["single_track"]["scheduling"] = {"speed": "velocity"}
@@ -138,6 +138,6 @@ def test_training_refuses_a_past_too_short_to_estimate_the_state() -> None:
         "oscillator": {"kind": "physics", "system": "mass_spring_damper", "inputs": ["u"], "outputs": ["y"]}}}
     data = lambda past: DataSignature(["u"], ["y"], Normalization(["u", "y"], [0.0, 0.0], [1.0, 1.0]), DT,  # noqa: E731
                                       window=100, past=past)
-    with pytest.raises(ValueError, match="estimates its 2 states from 1 measured value.*at least 1"):
+    with pytest.raises(ValueError, match=r"estimates its 2 states from 1 measured value.*at least 1"):
         HybridModule.from_data(data(0), config)
     HybridModule.from_data(data(1), config)  # two samples of the position: enough

@@ -63,10 +63,11 @@ def dm(tmp_path_factory) -> HypaDataModule:
 def old_hparams(dm: HypaDataModule, model_config: dict) -> dict:
     """The 16 settings as the train command wrote them into every checkpoint before ``from_data``:
     copied from the data module one by one, the run's ``physics.hold`` even where the model fixes its own."""
-    return dict(model_config=model_config, physical_values={}, normalization=dm.normalization.state_dict(),
-                input_names=dm.input_names, output_names=dm.output_names, eval_names=dm.eval_names,
-                scheduling_names=dm.scheduling_names, past=dm.past, dt=dm.dt, horizon=dm.window, hold="zoh",
-                ann_name="lstm", ann_hparams=LSTM, lr=5e-4, physics_lr=1e-2, weight_decay=0.0)
+    return {"model_config": model_config, "physical_values": {}, "normalization": dm.normalization.state_dict(),
+            "input_names": dm.input_names, "output_names": dm.output_names, "eval_names": dm.eval_names,
+            "scheduling_names": dm.scheduling_names, "past": dm.past, "dt": dm.dt, "horizon": dm.window,
+            "hold": "zoh", "ann_name": "lstm", "ann_hparams": LSTM, "lr": 5e-4, "physics_lr": 1e-2,
+            "weight_decay": 0.0}
 
 
 def predict(module: HybridModule, dm: HypaDataModule) -> torch.Tensor:

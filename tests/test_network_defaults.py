@@ -9,7 +9,6 @@ import math
 from pathlib import Path
 
 import pytest
-from data_helpers import make_data_dir
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
@@ -24,6 +23,8 @@ from hypa.training.baseline import (
     network_defaults,
     training_defaults,
 )
+
+from data_helpers import make_data_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 LR = 5e-4

@@ -14,12 +14,12 @@ from hypa.physics import (
     PhysicalParameters,
     Scaling,
     UnstablePhysicsError,
-    simulate_recursive,
     discretize,
     normalize,
+    simulate_recursive,
 )
-from hypa.vehicle import SingleTrack, SteeringGain, VehicleParameters, vehicle_parameters
 from hypa.physics.normalized import NormalizingMaps
+from hypa.vehicle import SingleTrack, SteeringGain, VehicleParameters, vehicle_parameters
 
 DT = 1 / 32
 VP = VehicleParameters()
@@ -38,7 +38,8 @@ def test_single_track_matrices_as_printed() -> None:
     b = [[cf * lf / izz, -cr * lr / izz], [cf / (v * m), cr / (v * m)]]
     np.testing.assert_allclose(ss.a.numpy(), a, rtol=1e-14)
     np.testing.assert_allclose(ss.b.numpy(), b, rtol=1e-14)
-    fws = SingleTrack(rear_steering=False).matrices({k: torch.tensor(v, dtype=torch.float64) for k, v in VP.as_dict().items()})
+    fws = SingleTrack(rear_steering=False).matrices({k: torch.tensor(v, dtype=torch.float64)
+                                                     for k, v in VP.as_dict().items()})
     np.testing.assert_allclose(fws.b.numpy(), np.array(b)[:, :1], rtol=1e-14)
 
 
@@ -158,7 +159,8 @@ def test_frozen_lifted_matrices_are_cached_and_refreshed_on_change() -> None:
     params.set_values({"cf": 120000.0})
     second, _ = block.lifted(torch.float32)
     assert second is not first and not torch.equal(second.b, first.b)
-    block.set_scaling(dataclasses.replace(vehicle_scaling(), input_std=torch.tensor([0.05, 0.003], dtype=torch.float64)))
+    block.set_scaling(dataclasses.replace(vehicle_scaling(),
+                                          input_std=torch.tensor([0.05, 0.003], dtype=torch.float64)))
     assert block.lifted(torch.float32)[0] is not second
 
 

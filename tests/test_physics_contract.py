@@ -360,7 +360,7 @@ def test_contract_errors_say_what_is_wrong_in_one_line(user_module: str, target:
 
 
 def test_check_system_refuses_what_is_not_a_system() -> None:
-    with pytest.raises(SystemContractError, match="not an instance of a hypa.physics.LTIModel subclass"):
+    with pytest.raises(SystemContractError, match=r"not an instance of a hypa.physics.LTIModel subclass"):
         check_system(object())
 
 
@@ -384,5 +384,6 @@ def test_model_spec_accepts_import_paths_and_lists_builtins() -> None:
     block = {"kind": "physics", "inputs": ["force"], "outputs": ["position"]}
     spec = parse_model_spec({"blocks": {"axis": {**block, "system": "my_lab.axes:Axis"}}, "outputs": ["position"]})
     assert spec.block("axis").system == "my_lab.axes:Axis"  # resolved when the model is built
-    with pytest.raises(ModelSpecError, match="known: first_order_lag.*mass_with_friction.*single_track.*, or an import path"):
+    with pytest.raises(ModelSpecError,
+                       match=r"known: first_order_lag.*mass_with_friction.*single_track.*, or an import path"):
         parse_model_spec({"blocks": {"axis": {**block, "system": "mass_with_frction"}}, "outputs": ["position"]})

@@ -77,7 +77,7 @@ def test_with_noise_it_is_the_least_squares_optimum() -> None:
     positions += rng.normal(size=positions.shape) * 1e-3
     u, y = normalized(block, force, positions)
     exact, default = block.estimate_state(u, y, [True], ridge=0.0), block.estimate_state(u, y, [True])
-    phi, gamma, drift = physical_matrices()
+    phi, _gamma, _drift = physical_matrices()
     powers = [np.linalg.matrix_power(phi, j) for j in range(past + 1)]
     observability = np.stack([p[0] for p in powers])  # rows C Φ^j, C = [1, 0]
     for i in range(3):

@@ -157,7 +157,8 @@ def test_coulomb_friction_against_scipy_and_zero_friction_is_the_linear_axis() -
     linear = run(MassWithFriction())
     assert np.allclose(run(model, coulomb_friction=1e-12), linear, atol=1e-12, rtol=0)  # positive: not 0 itself
     x = run(model, coulomb_friction=20.0)
-    p = {k: torch.tensor(v, dtype=torch.float64) for k, v in {**model.nominal_values(), "coulomb_friction": 20.0}.items()}
+    p = {k: torch.tensor(v, dtype=torch.float64)
+         for k, v in {**model.nominal_values(), "coulomb_friction": 20.0}.items()}
     ss, f = model.matrices(p), model.feedback(p)
     a, b, e, f = ss.a.numpy(), ss.b.numpy(), ss.e.numpy(), f.numpy()
 

@@ -18,8 +18,8 @@ from hypa.physics import (
     StateSpace,
     affine_scan,
 )
-from hypa.vehicle import SingleTrack, vehicle_parameters
 from hypa.physics.scheduled import simulate_scheduled, simulate_scheduled_recursive
+from hypa.vehicle import SingleTrack, vehicle_parameters
 
 from test_physics_block import DT, VP, vehicle_scaling
 
@@ -135,7 +135,7 @@ def test_without_feedthrough_the_window_takes_t_minus_1_extra_inputs() -> None:
 
 def test_fused_training_window_is_used_when_s_equals_horizon(monkeypatch: pytest.MonkeyPatch) -> None:
     """With feedthrough, u has S + 1 samples and the one-node path still runs (and matches the frozen one)."""
-    import hypa.physics.simulation as simulation
+    from hypa.physics import simulation
 
     calls = []
     fused = simulation.simulate_from_rows
@@ -199,11 +199,16 @@ def test_zoh_on_the_scheduling_signal_against_a_fine_step_reference() -> None:
                                        torch.tensor(v)[None, :, None])[0].numpy()
         steps, h = ours.shape[0], DT / substeps
         u_fine = np.repeat(u[:steps], substeps, 0) if hold == "zoh" else np.concatenate(
-            [u[j] + (u[j + 1] - u[j]) * np.arange(substeps)[:, None] / substeps for j in range(steps)] + [u[steps:steps + 1]])
+            [u[j] + (u[j + 1] - u[j]) * np.arange(substeps)[:, None] / substeps for j in range(steps)]
+            + [u[steps:steps + 1]])
         v_mid = np.interp((np.arange(steps * substeps) + 0.5) / substeps, np.arange(length), v)
         fixed = {k: torch.tensor(x, dtype=torch.float64) for k, x in VP.as_dict().items() if k != "velocity"}
-        a, b = torch.func.vmap(lambda s: (lambda ss: (ss.a, ss.b))(model.matrices({**fixed, "velocity": s})))(
-            torch.tensor(v_mid))
+
+        def ab(s: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            ss = model.matrices({**fixed, "velocity": s})  # noqa: B023 -- vmap calls it in this iteration
+            return ss.a, ss.b
+
+        a, b = torch.func.vmap(ab)(torch.tensor(v_mid))
         gen = np.zeros((len(v_mid), 6, 6))  # one exact FOH substep each (a held input is a flat ramp)
         gen[:, :2, :2], gen[:, :2, 2:4], gen[:, 2:4, 4:] = a.numpy() * h, b.numpy() * h, np.eye(2)
         big = scipy.linalg.expm(gen)

@@ -18,7 +18,8 @@ def test_importing_hypa_leaves_the_matplotlib_backend_alone(tmp_path):
         "assert matplotlib.rcParams._get_backend_or_none() is None, matplotlib.rcParams._get_backend_or_none()\n"
         "import numpy as np\n"
         "from hypa.plots import time_series\n"
-        f"time_series(np.arange(5.0), {{'y': np.zeros(5)}}, {{'m': {{'y': np.ones(5)}}}}).savefig({str(tmp_path / 'f.png')!r})\n"
+        f"time_series(np.arange(5.0), {{'y': np.zeros(5)}}, {{'m': {{'y': np.ones(5)}}}})"
+        f".savefig({str(tmp_path / 'f.png')!r})\n"
         "assert matplotlib.rcParams._get_backend_or_none() is None\n"
     )
     env = {k: v for k, v in os.environ.items() if k not in ("MPLBACKEND", "DISPLAY")}
@@ -30,6 +31,6 @@ def test_figures_are_not_kept_by_pyplot():
     import matplotlib.pyplot as plt
 
     before = plt.get_fignums()
-    fig, axes = subplots(2, 1, figsize=(4, 3))
+    _fig, axes = subplots(2, 1, figsize=(4, 3))
     fig2 = time_series(np.arange(3.0), {"y": np.zeros(3)}, {"m": {"y": np.ones(3)}}, units={"y": "m"})
     assert len(axes) == 2 and fig2.axes and plt.get_fignums() == before

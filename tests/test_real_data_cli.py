@@ -20,7 +20,7 @@ CASES = [(d, m) for d in ("silverbox", "emps", "racecar") for m in (f"{d}_physic
 
 def hypa(module: str, *args: str, timeout: int = 600) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", module, *args], cwd=ROOT, capture_output=True, text=True,
-                          timeout=timeout)
+                          timeout=timeout, check=False)
 
 
 @pytest.mark.parametrize("dataset, model", CASES)
@@ -70,8 +70,8 @@ def test_silverbox_state_estimated_from_the_past_starts_the_nominal_physics_righ
     from omegaconf import OmegaConf
 
     from hypa.data import datamodule_from_config
-    from hypa.models.rollout import free_run
     from hypa.models import ComposedModel
+    from hypa.models.rollout import free_run
 
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         cfg = compose(config_name="train", overrides=["dataset=silverbox", "model=silverbox_physical"])
@@ -88,7 +88,8 @@ def test_silverbox_state_estimated_from_the_past_starts_the_nominal_physics_righ
 
 @pytest.mark.parametrize("args, message", [
     (["hypa.train", "dataset=racecar", "data.dir=/nowhere"], "/nowhere does not exist"),
-    (["hypa.train", "dataset=racecar", "data.channels.velocity.unit=furlongz"], "unknown unit 'furlongz' of channel 'velocity'"),
+    (["hypa.train", "dataset=racecar", "data.channels.velocity.unit=furlongz"],
+     "unknown unit 'furlongz' of channel 'velocity'"),
     (["hypa.train", "dataset=silverbox", "model=silverbox_physical", "data.past=0"], "set data.past to at least 1"),
     (["hypa.benchmark", "dataset=racecar", "models=[foo]"], "not in the racecar suite"),
 ])
@@ -163,7 +164,8 @@ def test_benchmark_diagnoses_the_nominal_model_and_identifies_its_extension(tmp_
     """The silverbox suite's `diagnosed` row: hypa.diagnose extends the nominal linear physics (a stiffening
     spring), and that model, identified by its output error, is tested like every other row."""
     result = hypa("hypa.benchmark", "dataset=silverbox", "models=[physical,diagnosed]", f"hydra.run.dir={tmp_path}",
-                  "train_overrides=['identification.stretch_s=2']")  # free runs restarted every 2 s: seconds, not a minute
+                  # free runs restarted every 2 s: seconds, not a minute
+                  "train_overrides=['identification.stretch_s=2']")
     assert result.returncode == 0, result.stderr[-3000:]
     written = (tmp_path / "diagnosis" / "conf" / "model" / "diagnosed.yaml").read_text()
     assert "system: duffing_oscillator" in written and "- hardening" in written

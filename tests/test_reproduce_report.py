@@ -41,7 +41,7 @@ def check_line(markdown: str, claim_start: str) -> str:
 
 
 def section(markdown: str, title: str) -> str:
-    return markdown.split(f"### {title}")[1].split("\n### ")[0]
+    return markdown.split(f"### {title}")[1].split("\n### ", maxsplit=1)[0]
 
 
 def test_the_paper_table_is_packaged_and_names_our_rows() -> None:
@@ -141,7 +141,7 @@ def test_a_new_reproduction_moves_the_earlier_runs_aside(tmp_path, monkeypatch) 
 
     from hydra import compose, initialize_config_dir
 
-    import hypa.commands.reproduce as reproduce
+    from hypa.commands import reproduce
 
     earlier = tmp_path / "results" / "runs" / "0_physical-seed0"
     (earlier / ".hydra").mkdir(parents=True)
@@ -154,7 +154,8 @@ def test_a_new_reproduction_moves_the_earlier_runs_aside(tmp_path, monkeypatch) 
 
     monkeypatch.setattr(reproduce, "train_rows", train_rows)
     with initialize_config_dir(config_dir=str(Path(reproduce.ROOT) / "conf"), version_base="1.3"):
-        cfg = compose(config_name="reproduce", overrides=[f"out={tmp_path / 'results'}", "rows=[physical]", "seeds=[0]"])
+        cfg = compose(config_name="reproduce",
+                      overrides=[f"out={tmp_path / 'results'}", "rows=[physical]", "seeds=[0]"])
     with pytest.raises(RuntimeError, match="no training"):
         reproduce.main(cfg)
     assert seen["free"] and seen["sweep"] == tmp_path / "results" / "runs"

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 import torch
+
 from data_helpers import make_data_dir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -32,7 +33,7 @@ def hypa(command: str, *args: str, cwd: Path = ROOT, limit_bytes: int | None = N
         resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
 
     return subprocess.run([sys.executable, "-m", command, *args], cwd=cwd, env=environment, capture_output=True,
-                          text=True, timeout=300, preexec_fn=limit if limit_bytes else None)
+                          text=True, timeout=300, preexec_fn=limit if limit_bytes else None, check=False)
 
 
 def one_line_error(result: subprocess.CompletedProcess, command: str, *parts: str) -> str:
@@ -262,8 +263,8 @@ def test_bad_training_values_stop_before_training(override: str, message: str, d
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import open_dict
 
-    from hypa.errors import UserError
     from hypa.commands.train import train
+    from hypa.errors import UserError
 
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         cfg = compose(config_name="train", overrides=[*FAST, f"data.dir={data}", override], return_hydra_config=True)
@@ -300,12 +301,12 @@ def test_an_unwritable_output_folder_is_one_line(data: Path, tmp_path: Path) -> 
     script = (f"mount --bind {read_only} {read_only} && mount -o remount,ro,bind {read_only} && "
               f"{sys.executable} -m hypa.train " + " ".join(f"'{c}'" for c in command))
     probe = subprocess.run(["unshare", "-m", "sh", "-c", f"mount --bind {read_only} {read_only}"],
-                           capture_output=True, text=True)
+                           capture_output=True, text=True, check=False)
     if shutil.which("unshare") is None or probe.returncode != 0:
         pytest.skip("running as root without mount namespaces: no read-only folder to try")
     environment = {k: v for k, v in os.environ.items() if k not in ("HYDRA_FULL_ERROR", "HYPA_FULL_ERROR")}
     result = subprocess.run(["unshare", "-m", "sh", "-c", script], cwd=ROOT, env=environment, capture_output=True,
-                            text=True, timeout=300)
+                            text=True, timeout=300, check=False)
     one_line_error(result, "hypa.train", "Read-only file system")
 
 

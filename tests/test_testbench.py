@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import runpy
@@ -14,7 +15,6 @@ import pytest
 from omegaconf.errors import ConfigKeyError
 from scipy.signal import lsim, welch
 
-from hypa.vehicle import VehicleParameters
 from hypa.paper.testbench import (
     TestbenchConfig,
     ensure_dataset,
@@ -34,6 +34,7 @@ from hypa.paper.testbench.truth import (
     simulate_truth,
     static_axle_loads,
 )
+from hypa.vehicle import VehicleParameters
 
 FS = 1024.0
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
@@ -348,7 +349,7 @@ def test_dataset_json_segments_cover_every_file(short_dataset):
         samples = len(read_record(folder / file)["time"])
         assert segments[0]["start_s"] == 0.0
         assert segments[-1]["end_s"] == pytest.approx(samples / 1024.0)
-        for before, after in zip(segments, segments[1:]):
+        for before, after in itertools.pairwise(segments):
             assert before["end_s"] == after["start_s"]
     val = [s["name"] for s in description["files"]["val.parquet"]["segments"]]
     assert val == ["stochastic", "lane_change", "step_steer", "sine_sweep"]

@@ -99,6 +99,16 @@ def build_ann(name: str, d_in: int, d_out: int, **hparams: Any) -> SequenceBlock
 
 
 __all__ = [
-    "ANN_BLOCKS", "SequenceBlock", "LSTMBlock", "TransformerBlock", "S4Block", "S4DKernel",
-    "MambaBlock", "selective_scan", "ann_hyperparameters", "build_ann", "network_class", "target",
+    "ANN_BLOCKS",
+    "LSTMBlock",
+    "MambaBlock",
+    "S4Block",
+    "S4DKernel",
+    "SequenceBlock",
+    "TransformerBlock",
+    "ann_hyperparameters",
+    "build_ann",
+    "network_class",
+    "selective_scan",
+    "target",
 ]

@@ -75,7 +75,8 @@ class _MambaLayer(nn.Module):
         dt_low, b, c = self.x_proj(u).split([self.dt_rank, self.d_state, self.d_state], dim=-1)
         delta = F.softplus(self.dt_proj(dt_low))  # (B, L, D_in)
         a = -self.a_log.exp()  # (D_in, N)
-        y, new_ssm = selective_scan(u, delta, a, b, c, self.d, ssm, min_rate=self.min_rate)  # (B, L, D_in), (B, D_in, N)
+        # y (B, L, D_in), new_ssm (B, D_in, N)
+        y, new_ssm = selective_scan(u, delta, a, b, c, self.d, ssm, min_rate=self.min_rate)
         return x + self.out_proj(y * F.silu(gate)), new_buf, new_ssm  # (B, L, d_model)
 
 

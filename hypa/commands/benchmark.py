@@ -40,16 +40,16 @@ def train_model(label: str, overrides: list[str], folder: Path, config_dirs: lis
 def diagnose_suite(dataset: str, nominal: str, overrides: list[str], folder: Path, config_dirs: list[Path]) -> Path:
     """Run ``python -m hypa.diagnose`` on the data set's nominal model; returns the folder of the models it
     writes (``conf``, for ``hydra.searchpath``)."""
-    run_hypa("diagnose", [f"dataset={dataset}", f"model={nominal}", *overrides, "plot=false", f"hydra.run.dir={folder}"],
-             f"diagnosing {nominal}", config_dirs)
+    run_hypa("diagnose", [f"dataset={dataset}", f"model={nominal}", *overrides, "plot=false",
+                          f"hydra.run.dir={folder}"], f"diagnosing {nominal}", config_dirs)
     return folder / "conf"
 
 
 @hydra_command("hypa.benchmark", "benchmark")
 def main(cfg: DictConfig) -> None:
-    from hypa.data import datamodule_from_config
     from hypa.commands.entry import data_dir_from_config, data_overrides, user_config_dirs
     from hypa.commands.evaluate import run_datamodule
+    from hypa.data import datamodule_from_config
     from hypa.evaluation.benchmark import benchmark, score_run
     from hypa.evaluation.runs import load_run
 
@@ -81,22 +81,24 @@ def main(cfg: DictConfig) -> None:
     out = Path(HydraConfig.get().runtime.output_dir)
     # the models hypa.diagnose writes (model=diagnosed, diagnosed_hybrid) come from diagnosing the suite's
     # nominal model on the same data, once for all seeds
-    written = [o for label in labels for o in (suite_models[label] if label in suite_models else [f"model={label}"])
+    written = [o for label in labels for o in suite_models.get(label, [f"model={label}"])
                if o in ("model=diagnosed", "model=diagnosed_hybrid")]
     searchpath = []
     if written:
         nominal = suite.diagnose if suite is not None else None
         if nominal is None:
-            raise UserError(f"models {sorted(set(written))} are written by hypa.diagnose, but the {dataset} suite names "
-                            "no nominal model to diagnose (diagnose: M in conf/benchmark.yaml)")
-        searchpath = [f"hydra.searchpath=[file://{diagnose_suite(dataset, str(nominal), asked, out / 'diagnosis', config_dirs)}]"]
+            raise UserError(f"models {sorted(set(written))} are written by hypa.diagnose, but the {dataset} suite "
+                            "names no nominal model to diagnose (diagnose: M in conf/benchmark.yaml)")
+        conf = diagnose_suite(dataset, str(nominal), asked, out / "diagnosis", config_dirs)
+        searchpath = [f"hydra.searchpath=[file://{conf}]"]
     scores, times = [], {}
     jobs = [(label, seed) for label in labels for seed in seeds]
     for i, (label, seed) in enumerate(jobs, 1):
         print(f"[{i}/{len(jobs)}] {dataset}: {label}" + (f", seed {seed}" if len(seeds) > 1 else ""), flush=True)
         folder = out / label if len(seeds) == 1 else out / f"{label}-seed{seed}"
         model = list(suite_models[label]) if label in suite_models else [f"model={label}"]
-        overrides = [*searchpath, f"dataset={dataset}", *model, *asked, *config.budgets[config.budget], *config.train_overrides,
+        overrides = [*searchpath, f"dataset={dataset}", *model, *asked, *config.budgets[config.budget],
+                     *config.train_overrides,
                      f"seed={seed}", f"data.seed={seed}"]  # the networks' start and the windows' order
         train_model(label, overrides, folder, config_dirs)
         run = load_run(folder)

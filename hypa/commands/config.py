@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Dict, List, Optional, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from omegaconf import MISSING, DictConfig, OmegaConf, open_dict
 
@@ -51,7 +51,7 @@ class HoldConfig:
 class PhysicsConfig(HoldConfig):
     """``physics`` of hypa.train: the hold and the lifted horizon."""
 
-    horizon: Optional[int] = None  # lifted steps per matrix product; None: the window
+    horizon: int | None = None  # lifted steps per matrix product; None: the window
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -64,7 +64,7 @@ class OptimizerConfig:
 
     lr: float = 5.0e-4  # networks
     physics_lr: float = 1.0e-2  # trainable physical parameters (log space)
-    weight_decay: Optional[float] = None  # None: hypa.training.baseline.network_defaults
+    weight_decay: float | None = None  # None: hypa.training.baseline.network_defaults
 
     def __post_init__(self) -> None:
         checked("optimizer.lr", self.lr, float, positive=True)
@@ -77,10 +77,10 @@ class IdentificationConfig:
     """``identification``: physical parameters fitted by their free-run output error."""
 
     enabled: bool = True
-    stretch_s: Optional[float] = None  # [s] None: single shooting
-    max_evaluations: Optional[int] = None
+    stretch_s: float | None = None  # [s] None: single shooting
+    max_evaluations: int | None = None
     tolerance: float = 1.0e-8
-    max_seconds: Optional[float] = None
+    max_seconds: float | None = None
 
     def __post_init__(self) -> None:
         checked("identification.stretch_s", self.stretch_s, float, optional=True, positive=True)
@@ -103,13 +103,13 @@ class IdentificationConfig:
 class TrainerConfig:
     """``trainer``: passed to ``lightning.Trainer`` as given (its own errors name ``trainer``)."""
 
-    max_epochs: Optional[int] = None  # per stage; None: hypa.training.baseline.network_defaults
+    max_epochs: int | None = None  # per stage; None: hypa.training.baseline.network_defaults
     accelerator: str = "auto"
     strategy: str = "auto"  # ddp, ... (several processes)
     devices: Any = 1  # a number, a list of devices or auto
     num_nodes: int = 1
     precision: Any = "32-true"
-    gradient_clip_val: Optional[float] = 1.0
+    gradient_clip_val: float | None = 1.0
     log_every_n_steps: int = 20
     limit_train_batches: Any = 1.0  # a share (float) or a number of batches (int)
     limit_val_batches: Any = 1.0
@@ -141,21 +141,21 @@ class TrainConfig:
     """``conf/train.yaml``: ``python -m hypa.train``."""
 
     model: ModelConfig = field(default_factory=ModelConfig)
-    ann: Dict[str, Any] = field(default_factory=dict)  # name, _target_ and the network's own arguments
+    ann: dict[str, Any] = field(default_factory=dict)  # name, _target_ and the network's own arguments
     vehicle: Any = None
     testbench: Any = None
     data: DataConfig = field(default_factory=DataConfig)
     seed: int = 0
-    table1_row: Optional[str] = None
+    table1_row: str | None = None
     torch_threads: int = 1
-    ckpt_path: Optional[str] = None
+    ckpt_path: str | None = None
     physics: PhysicsConfig = field(default_factory=PhysicsConfig)
     optimizer: OptimizerConfig = field(default_factory=OptimizerConfig)
     identification: IdentificationConfig = field(default_factory=IdentificationConfig)
     trainer: TrainerConfig = field(default_factory=TrainerConfig)
-    early_stopping: Dict[str, Any] = field(default_factory=dict)  # _target_: a Lightning EarlyStopping
-    callbacks: Dict[str, Any] = field(default_factory=dict)  # name -> {_target_: ..., its arguments}
-    logger: Dict[str, Any] = field(default_factory=dict)  # _target_: a Lightning logger
+    early_stopping: dict[str, Any] = field(default_factory=dict)  # _target_: a Lightning EarlyStopping
+    callbacks: dict[str, Any] = field(default_factory=dict)  # name -> {_target_: ..., its arguments}
+    logger: dict[str, Any] = field(default_factory=dict)  # _target_: a Lightning logger
     figures: FiguresConfig = field(default_factory=FiguresConfig)
 
     def __post_init__(self) -> None:
@@ -175,11 +175,11 @@ class TrainConfig:
 class DiagnosisConfig:
     """``diagnosis``: how candidate causes are searched and scored."""
 
-    catalogue: List[str] = field(default_factory=list)  # the user's catalogue files
+    catalogue: list[str] = field(default_factory=list)  # the user's catalogue files
     max_causes: int = 8
     min_gain: float = 0.15
-    workers: Optional[int] = None  # None: one per core (at most 4)
-    stretch_s: Optional[float] = None  # [s] None: from the nominal model's time scales
+    workers: int | None = None  # None: one per core (at most 4)
+    stretch_s: float | None = None  # [s] None: from the nominal model's time scales
     fit_seconds: float = 60.0  # [s]
 
     def __post_init__(self) -> None:
@@ -195,7 +195,7 @@ class ExtensionConfig:
     """``extension``: the extended model hypa.diagnose writes, trained now or not."""
 
     train: bool = False
-    train_overrides: List[str] = field(default_factory=list)
+    train_overrides: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -205,7 +205,7 @@ class DiagnoseConfig:
     vehicle: Any = None
     testbench: Any = None
     data: DataConfig = field(default_factory=DataConfig)
-    model: Optional[ModelConfig] = None  # the nominal model; None: none given
+    model: ModelConfig | None = None  # the nominal model; None: none given
     physics: HoldConfig = field(default_factory=lambda: HoldConfig(hold="foh"))
     diagnosis: DiagnosisConfig = field(default_factory=DiagnosisConfig)
     extension: ExtensionConfig = field(default_factory=ExtensionConfig)
@@ -229,7 +229,7 @@ class EvaluateConfig:
     """``conf/evaluate.yaml``: ``python -m hypa.evaluate``."""
 
     run: str = MISSING  # a hypa.train run folder or one of its checkpoints
-    out: Optional[str] = None  # None: <run>/evaluation
+    out: str | None = None  # None: <run>/evaluation
     tensorboard: bool = True
 
 
@@ -252,8 +252,8 @@ class ExplainConfig:
     """``conf/explain.yaml``: ``python -m hypa.explain``."""
 
     run: str = MISSING
-    block: Optional[str] = None  # None: every ANN block
-    baseline: Optional[str] = None
+    block: str | None = None  # None: every ANN block
+    baseline: str | None = None
     extra: Any = None  # one signal or a list; None: the measured outputs and scheduling channels
     penalty: float = 0.002
     margin: float = 0.005
@@ -277,7 +277,7 @@ class ReproduceConfig:
     n_jobs: int = 2
     out: str = "results"
     skip_training: bool = False
-    train_overrides: List[str] = field(default_factory=list)
+    train_overrides: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.rows = [str(r) for r in self.rows] if isinstance(self.rows, (list, tuple)) else [str(self.rows)]
@@ -290,9 +290,9 @@ class ReproduceConfig:
 class SuiteConfig:
     """A data set's benchmark suite: model label -> hypa.train overrides, published figures."""
 
-    diagnose: Optional[str] = None  # the nominal model hypa.diagnose extends into model=diagnosed(_hybrid)
-    models: Dict[str, List[str]] = field(default_factory=dict)
-    published: Dict[str, Any] = field(default_factory=dict)  # test set -> output -> figure
+    diagnose: str | None = None  # the nominal model hypa.diagnose extends into model=diagnosed(_hybrid)
+    models: dict[str, list[str]] = field(default_factory=dict)
+    published: dict[str, Any] = field(default_factory=dict)  # test set -> output -> figure
 
 
 @dataclass
@@ -303,11 +303,11 @@ class BenchmarkConfig:
     testbench: Any = None
     data: DataConfig = field(default_factory=DataConfig)
     budget: str = "quick"
-    models: Optional[List[str]] = None  # None: the suite's
-    seeds: List[int] = field(default_factory=lambda: [0])
-    train_overrides: List[str] = field(default_factory=list)
-    budgets: Dict[str, List[str]] = field(default_factory=dict)
-    suites: Dict[str, SuiteConfig] = field(default_factory=dict)
+    models: list[str] | None = None  # None: the suite's
+    seeds: list[int] = field(default_factory=lambda: [0])
+    train_overrides: list[str] = field(default_factory=list)
+    budgets: dict[str, list[str]] = field(default_factory=dict)
+    suites: dict[str, SuiteConfig] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.budgets and self.budget not in self.budgets:
@@ -323,8 +323,8 @@ class TestbenchCommandConfig:
     __test__ = False  # not a pytest test class
 
     testbench: Any = None  # hypa.paper.testbench.config.TestbenchConfig
-    out: Optional[str] = None  # None: the cache
-    cache_dir: Optional[str] = None
+    out: str | None = None  # None: the cache
+    cache_dir: str | None = None
     plot: bool = False
     plot_record: str = "val"
 

@@ -27,11 +27,11 @@ from hypa.errors import hydra_command
 @hydra_command("hypa.diagnose", "diagnose")
 @record_failures("hypa.diagnose")  # -m over many logs: a bad log is reported in the fleet summary, the others run
 def main(cfg: DictConfig) -> None:
+    from hypa.commands.config import DiagnoseConfig, typed
+    from hypa.commands.entry import data_overrides, datamodule, from_cwd, user_config_dirs, vehicle_from_config
     from hypa.diagnosis.catalogue import load_catalogue
     from hypa.diagnosis.problem import Problem, format_change
     from hypa.diagnosis.system import diagnose_system
-    from hypa.commands.config import DiagnoseConfig, typed
-    from hypa.commands.entry import data_overrides, datamodule, from_cwd, user_config_dirs, vehicle_from_config
     from hypa.errors import UserError
     from hypa.models.schema import plain_model
     from hypa.models.spec import parse_model_spec

@@ -15,11 +15,11 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from hypa.commands.config import EvaluateConfig, typed
+from hypa.errors import hydra_command
 from hypa.evaluation.evaluation import Evaluation, evaluate_run, run_datamodule
 from hypa.evaluation.runs import load_run
-from hypa.errors import hydra_command
 
-__all__ = ["Evaluation", "evaluate_run", "run_datamodule", "main"]
+__all__ = ["Evaluation", "evaluate_run", "main", "run_datamodule"]
 
 
 @hydra_command("hypa.evaluate", "evaluate")

@@ -22,13 +22,13 @@ from omegaconf import DictConfig, OmegaConf
 
 from hypa import markdown as md
 from hypa.commands.config import ReproduceConfig, typed
-from hypa.errors import UserError, hydra_command
-from hypa.launch import run_hypa
 from hypa.commands.evaluate import Evaluation, evaluate_run
+from hypa.errors import UserError, hydra_command
 from hypa.evaluation.plots import bode, rear_steer
 from hypa.evaluation.runs import load_run
-from hypa.paper.table1 import comparison_markdown
+from hypa.launch import run_hypa
 from hypa.metrics import mean_std
+from hypa.paper.table1 import comparison_markdown
 
 log = logging.getLogger(__name__)
 ROOT = Path(__file__).resolve().parents[2]  # the repository
@@ -102,14 +102,15 @@ def report(table: list[dict[str, Any]], config: ReproduceConfig, wall_s: float, 
     experiment = OmegaConf.load(ROOT / "conf" / "experiment" / "table1.yaml")
     return "\n".join([
         "# HyPA-Net: the paper's experiment on the hypa test bench", "",
-        f"{runs} runs ({len(table)} models x {'/'.join(map(str, seeds))} seeds), "
+        (f"{runs} runs ({len(table)} models x {'/'.join(map(str, seeds))} seeds), "
         f"{'evaluated (trained before)' if config.skip_training else 'trained and evaluated'} in "
-        f"{wall_s / 60:.1f} min on this machine (this invocation). Metrics on the validation run, mean ± std over seeds; "
+        f"{wall_s / 60:.1f} min on this machine (this invocation). "
+        "Metrics on the validation run, mean ± std over seeds; "
         "states in SI units (yaw rate rad/s, side slip rad), overall = mean over both states. "
-        "MAPE is floored (|error| / max(|y|, 10 % of the channel's RMS)) so zero crossings cannot explode it.", "",
-        "*Windowed*: 100 steps from each measured state, as in training. *Free run*: the whole validation "
+        "MAPE is floored (|error| / max(|y|, 10 % of the channel's RMS)) so zero crossings cannot explode it."), "",
+        ("*Windowed*: 100 steps from each measured state, as in training. *Free run*: the whole validation "
         "record simulated from its first sample. *Maneuvers*: lane change, step steer and sine sweep, "
-        "which training never saw.", "",
+        "which training never saw."), "",
         table_markdown(table), "",
         comparison_markdown(table), "",
         "## Yaw transfer function (steering-wheel angle to yaw rate, H1 estimate)", "",
@@ -117,10 +118,10 @@ def report(table: list[dict[str, Any]], config: ReproduceConfig, wall_s: float, 
         "## Implicitly learned rear-wheel angle", "", "![rear steer](rear_steer.png)", "",
         "## Configuration", "", "Training budget (`conf/experiment/table1.yaml`):", "", "```yaml",
         OmegaConf.to_yaml(experiment).strip(), "```", "",
-        f"Extra overrides: `{list(config.train_overrides)}`. Everything else as in `conf/train.yaml` "
+        (f"Extra overrides: `{list(config.train_overrides)}`. Everything else as in `conf/train.yaml` "
         "(NAdam 5e-4, batch 32, windows of 100, early stopping on val/loss), the default test bench "
         "(`conf/testbench/default.yaml`) and the nominal vehicle (`conf/vehicle/sedan.yaml`). "
-        "Per-run evaluations: `runs/*/evaluation/summary.md`.", ""])
+        "Per-run evaluations: `runs/*/evaluation/summary.md`."), ""])
 
 
 @hydra_command("hypa.reproduce", "reproduce")

@@ -25,8 +25,8 @@ from hypa.errors import hydra_command, settings
 
 @hydra_command("hypa.simulate", "simulate")
 def main(cfg: DictConfig) -> float:
-    from hypa.data import datamodule_from_config
     from hypa.commands.entry import data_dir_from_config, vehicle_from_config
+    from hypa.data import datamodule_from_config
     from hypa.evaluation.nominal import nominal_module, report, simulate_nominal
     from hypa.models.schema import plain_model
 

@@ -33,8 +33,8 @@ def summarize(folder: Path) -> str:
     description = load_description(folder)
     lines = [
         f"test-bench data in {Path(folder).resolve()}  (config hash {description['config_hash']})",
-        f"{'file':<16}{'duration':>10}{'samples':>10}{'rate':>9}{'max|sw|':>10}"
-        f"{'max|ay|':>11}{'max|rear|':>11}  segments",
+        (f"{'file':<16}{'duration':>10}{'samples':>10}{'rate':>9}{'max|sw|':>10}"
+        f"{'max|ay|':>11}{'max|rear|':>11}  segments"),
     ]
     for file, info in description["files"].items():
         columns = read_record(Path(folder) / file)

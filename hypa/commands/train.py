@@ -49,9 +49,15 @@ OmegaConf.register_new_resolver("channels", channels, replace=True)
 
 def train(cfg: DictConfig) -> dict[str, Any]:
     """Fit the configured model; returns the best validation loss and the output paths."""
+    from hypa.commands.entry import (
+        data_dir_from_config,
+        flat_hparams,
+        from_cwd,
+        network_settings,
+        user_callbacks,
+        vehicle_from_config,
+    )
     from hypa.data import datamodule_from_config
-    from hypa.commands.entry import (data_dir_from_config, flat_hparams, from_cwd, network_settings, user_callbacks,
-                                     vehicle_from_config)
     from hypa.metadata import run_metadata
     from hypa.models import parse_model_spec
     from hypa.models.schema import plain_model

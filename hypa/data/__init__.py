@@ -50,7 +50,7 @@ _EXPORTS: dict[str, str] = {
     "unit_factor": "units",
 }
 
-__all__ = sorted(_EXPORTS)
+__all__ = sorted(_EXPORTS)  # noqa: PLE0605 -- a list of the lazy exports' names
 
 
 def __getattr__(name: str) -> Any:

@@ -157,7 +157,7 @@ def _numeric(path: Path, name: str, column: str, raw: np.ndarray) -> np.ndarray 
         for row, item in enumerate(array):
             try:
                 values[row] = np.nan if item is None else float(item)
-            except (TypeError, ValueError):
+            except (TypeError, ValueError):  # noqa: PERF203 -- the error names its row
                 raise DataError(
                     f"{_where(path, name, column)}, {_row(path, row)}: {item!r} is not a number"
                 ) from None

@@ -114,6 +114,8 @@ class Normalization:
     def from_state_dict(cls, state: Mapping[str, Sequence]) -> Normalization:
         return cls(state["names"], state["mean"], state["std"])
 
+    __hash__ = None  # equal by value (tensors): not hashable, as __eq__ alone already made it
+
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Normalization):
             return NotImplemented

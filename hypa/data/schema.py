@@ -15,7 +15,7 @@ with :class:`DataConfig` too (:mod:`hypa.commands.config`, which registers this 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Dict, List, Optional
+from typing import Any
 
 from omegaconf import MISSING
 
@@ -28,17 +28,17 @@ class ChannelConfig:
     """One channel: its role, where it comes from (a column or an expression) and its units."""
 
     role: str = MISSING  # input | output | scheduling | evaluation | auxiliary
-    column: Optional[str] = None  # column in the files (default: the channel's name)
+    column: str | None = None  # column in the files (default: the channel's name)
     unit: str = MISSING  # unit of the column / expression result ('-' dimensionless)
-    display_unit: Optional[str] = None  # unit in plots and tables (default: SI)
-    expression: Optional[str] = None  # derived channel, e.g. "arctan2(`vy(m/s)`, `vx(m/s)`)"
+    display_unit: str | None = None  # unit in plots and tables (default: SI)
+    expression: str | None = None  # derived channel, e.g. "arctan2(`vy(m/s)`, `vx(m/s)`)"
 
 
 @dataclass
 class TimeConfig:
     """The time base: a column (its offset removed) or none (samples at ``sample_rate_hz``)."""
 
-    column: Optional[str] = "time"
+    column: str | None = "time"
     unit: str = "s"
 
 
@@ -55,8 +55,8 @@ class PieceConfig:
 class SplitsConfig:
     """Explicit splits; ``test`` is a list of pieces or a mapping test-set name -> pieces."""
 
-    train: List[PieceConfig] = MISSING
-    val: List[PieceConfig] = MISSING
+    train: list[PieceConfig] = MISSING
+    val: list[PieceConfig] = MISSING
     test: Any = None
 
 
@@ -65,14 +65,14 @@ class DataConfig:
     """The ``data`` node. ``source`` and ``dir`` are read by the entry point only."""
 
     source: str = "files"  # files | testbench
-    dir: Optional[str] = None
+    dir: str | None = None
     time: TimeConfig = field(default_factory=TimeConfig)
     sample_rate_hz: float = MISSING  # [Hz] rate of the files
-    rate_hz: Optional[float] = None  # [Hz] model rate; None: no decimation
-    channels: Dict[str, Any] = field(default_factory=dict)  # name -> ChannelConfig
-    splits: Optional[SplitsConfig] = None  # None: train*, val*, test* files in dir
-    select: List[str] = field(default_factory=list)  # conditions, e.g. "velocity > 5"
-    units: Dict[str, str] = field(default_factory=dict)  # the data set's own unit names -> pint definition
+    rate_hz: float | None = None  # [Hz] model rate; None: no decimation
+    channels: dict[str, Any] = field(default_factory=dict)  # name -> ChannelConfig
+    splits: SplitsConfig | None = None  # None: train*, val*, test* files in dir
+    select: list[str] = field(default_factory=list)  # conditions, e.g. "velocity > 5"
+    units: dict[str, str] = field(default_factory=dict)  # the data set's own unit names -> pint definition
     window: int = 100  # predicted samples N per window
     past: int = 0  # past samples P before the window start
     stride: int = 5

@@ -61,7 +61,7 @@ class Piece:
         return f"{self.file}[{_text(self.start)}:{_text(self.stop)}]"
 
 
-def _index(value: int | float | None, length: int, default: int) -> int:
+def _index(value: float | None, length: int, default: int) -> int:
     if value is None:
         return default
     if isinstance(value, float):
@@ -69,7 +69,7 @@ def _index(value: int | float | None, length: int, default: int) -> int:
     return int(value)
 
 
-def _text(value: int | float | None) -> str:
+def _text(value: float | None) -> str:
     return "" if value is None else f"{value:g}" if isinstance(value, float) else str(value)
 
 

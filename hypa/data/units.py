@@ -83,7 +83,7 @@ def define_units(units: Mapping[str, str] | None) -> None:
         try:
             _REGISTRY.define(f"{name} = {definition}")
             _REGISTRY.Quantity(1.0, name).to_base_units()
-        except Exception as error:  # pint's many error types: one line naming the setting
+        except Exception as error:  # noqa: BLE001 -- pint's many error types: one line naming the setting
             raise DataError(f"data.units.{name}: cannot define {name!r} as {definition!r} "
                             f"({type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}); "
                             "write it as pint reads it, e.g. counts: 0.001 * m") from None
@@ -91,13 +91,13 @@ def define_units(units: Mapping[str, str] | None) -> None:
         _parse.cache_clear()
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _parse(text: str) -> Unit | None:
     spelled = _ALIASES.get(text, text).replace("^", "**")
     try:
         zero = _REGISTRY.Quantity(0.0, spelled).to_base_units()
         one = _REGISTRY.Quantity(1.0, spelled).to_base_units()
-    except Exception:  # pint's undefined-unit, syntax and offset errors alike: not a unit
+    except Exception:  # noqa: BLE001 -- pint's undefined-unit, syntax and offset errors alike: not a unit
         return None
     base = str(one.units)
     si = _SI_NAMES.get(base) or f"{one.units:~P}"

@@ -156,7 +156,7 @@ def _number(value: Any, variables: Mapping[str, float], where: str) -> float:
 
     try:
         return float(Expression(str(value), where).evaluate(dict(variables), where))
-    except Exception as error:  # a catalogue's expression: report it on one line
+    except Exception as error:  # noqa: BLE001 -- a catalogue's expression: report it on one line
         raise CatalogueError(f"{where}: parameter value {value!r} is neither a number nor an expression of "
                              f"{' and '.join(variables)} ({error})") from None
 

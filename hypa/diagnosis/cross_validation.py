@@ -23,8 +23,8 @@ from hypa.diagnosis.problem import Problem
 from hypa.diagnosis.race import evaluate_round
 from hypa.models.spec import ModelSpec
 
-
-CONTENDER = 0.8  # a gradient fit goes on to the other folds from this share of what it needs on the first (evaluate_folds)
+# a gradient fit goes on to the other folds from this share of what it needs on the first (evaluate_folds)
+CONTENDER = 0.8
 
 
 def evaluate_folds(candidates: Callable[[ModelSpec], list[Candidate]], folds: Sequence[Problem],

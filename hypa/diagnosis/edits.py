@@ -97,7 +97,7 @@ def averaged(specs: Sequence[ModelSpec]) -> ModelSpec:
 
     def mean(values: Sequence[Mapping[str, object]]) -> dict[str, object]:
         out = dict(values[0])
-        for name, value in values[0].items():
+        for name in values[0]:
             numbers = [v.get(name) for v in values]
             if all(isinstance(n, (int, float)) and not isinstance(n, bool) for n in numbers):
                 out[name] = sum(float(n) for n in numbers) / len(numbers)

@@ -23,7 +23,6 @@ from hypa.diagnosis.problem import Problem, TooLittleData, format_value
 from hypa.models.spec import ModelSpecError
 from hypa.physics import SchedulingError, UnstablePhysicsError
 
-
 ALTERNATIVE = 0.95  # a candidate explaining this share of the named one's gain is reported beside it ...
 SIMPLER = 0.75  # ... and one with fewer numbers from this share on (the data cannot prefer the richer claim)
 
@@ -85,8 +84,8 @@ FIT_ERRORS = (UnstablePhysicsError, SchedulingError, ModelSpecError, ValueError,
 
 def evaluate(candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor], base_score: float,
              refine: Sequence[str] = ()) -> Finding:
-    """Fit a candidate (with ``refine``, see :class:`~hypa.diagnosis.fitting.GradientFit`) and score it on the validation
-    stretches. ``values`` holds the candidate's own knobs, ``refined`` the others."""
+    """Fit a candidate (with ``refine``, see :class:`~hypa.diagnosis.fitting.GradientFit`) and score it on the
+    validation stretches. ``values`` holds the candidate's own knobs, ``refined`` the others."""
     started, z = time.perf_counter(), None
     try:
         if candidate.fit == GRADIENT:

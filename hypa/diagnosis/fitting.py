@@ -202,7 +202,7 @@ def fit_offsets(spec: ModelSpec, channels: Sequence[str], problem: Problem) -> t
     stretches than offsets that ratio is ``None``: the stretches' shares sum to zero at the
     optimum, so they cannot judge as many directions as there are offsets (one stretch gives a
     standard error of exactly zero)."""
-    zeroed = {**spec.sensor_offsets, **{c: 0.0 for c in channels}}
+    zeroed = {**spec.sensor_offsets, **dict.fromkeys(channels, 0.0)}
     train = problem.stretches("train")
     base = train.predict(problem.build(dataclasses.replace(spec, sensor_offsets=zeroed)))
     responses = []
@@ -219,7 +219,7 @@ def fit_offsets(spec: ModelSpec, channels: Sequence[str], problem: Problem) -> t
     offsets = torch.linalg.solve(gram, rhs)
     values = {c: float(v) for c, v in zip(channels, offsets)}
     if problem.evidence().error_shortfall(k):
-        return values, {c: None for c in channels}
+        return values, dict.fromkeys(channels)
     scores = torch.cat([torch.einsum("blpi,blp,p->bi", g, r - torch.einsum("blpi,i->blp", g, offsets), weights)
                         for g, r in batches])  # (stretches, k): each stretch's share of the normal equations
     inverse = torch.linalg.inv(gram)

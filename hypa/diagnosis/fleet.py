@@ -281,7 +281,7 @@ def markdown(fleet: Fleet) -> str:
         rows.append(cells)
     lines += [*md.table(head, rows), "", "## Across logs", ""]
     if not diagnosed:
-        return "\n".join(lines + ["No log was diagnosed.", ""])
+        return "\n".join([*lines, "No log was diagnosed.", ""])
     lines += md.table(["cause", "named in", "share"],
                       [[c, f"{n} / {diagnosed}", f"{100 * n / diagnosed:.0f} %"] for c, n in counts.items()])
     if spreads:
@@ -367,7 +367,8 @@ def record_failures(command: str) -> Callable[[F], F]:
     return decorate
 
 
-if __name__ == "__main__":  # python -m hypa.diagnosis.fleet, its documented spelling: the command is hypa.commands.fleet
+# python -m hypa.diagnosis.fleet, its documented spelling: the command is hypa.commands.fleet
+if __name__ == "__main__":
     from hypa.commands.fleet import main as command
 
     sys.exit(command())

@@ -33,11 +33,10 @@ from hypa.data import HypaDataModule, Record
 from hypa.data.units import readable
 from hypa.diagnosis.scales import Scales
 from hypa.diagnosis.workers import default_workers
-from hypa.identification.stretches import Stretches
 from hypa.errors import UserError
+from hypa.identification.stretches import Stretches
 from hypa.models import ComposedModel
 from hypa.models.spec import ModelSpec
-
 
 FOLDS = 2  # cross-validation folds: each candidate is fitted twice (once per fold)
 

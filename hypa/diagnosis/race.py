@@ -25,7 +25,6 @@ from hypa.diagnosis.problem import Problem
 from hypa.diagnosis.workers import Workers, can_fork
 from hypa.identification.stretches import Stretches
 
-
 RUNGS = (0.25, 0.5, 1.0)  # shares of the fit steps after which the gradient fits are ranked
 
 
@@ -62,8 +61,8 @@ def evaluate_round(candidates: Sequence[Candidate], problem: Problem, windows: M
     the end, unless still worse than the base model and no better than at the quarter. Linear
     fits always run to the end: early in a fit (Adam's first steps are about the learning rate
     whatever the gradient) a resonant system's error is no guide. A fit stopped early says so
-    (``Finding.steps``); its gain is a lower bound. ``rungs=(1.0,)``: no race, every fit to its end. ``side``: other work for this process
-    while the workers fit (run with the offsets).
+    (``Finding.steps``); its gain is a lower bound. ``rungs=(1.0,)``: no race, every fit to its end.
+    ``side``: other work for this process while the workers fit (run with the offsets).
     """
     findings, runners, others = [], [], []
     for c in candidates:

@@ -428,11 +428,11 @@ def _markdown(d: Diagnosis, units: Mapping[str, tuple[str, float]], min_gain: fl
               *md.table(["output", *(f"{m} RMS" for m in models), *(f"{m} R²" for m in models)], output_rows)]
     trained = d.extended.trained
     if trained:
-        lines += ["", f"The trained extension is `{trained.model}` trained by hypa.train (run `{trained.run}`): "
-                  f"validation error {format_change(trained.change)} against the nominal model."]
+        lines += ["", (f"The trained extension is `{trained.model}` trained by hypa.train (run `{trained.run}`): "
+                  f"validation error {format_change(trained.change)} against the nominal model.")]
         if trained.explained:
-            lines += ["", "What its networks learned (hypa.explain; fitted on the training records, R² on the "
-                      f"validation records; report `{trained.explained[0].report}`):", ""]
+            lines += ["", ("What its networks learned (hypa.explain; fitted on the training records, R² on the "
+                      f"validation records; report `{trained.explained[0].report}`):"), ""]
             lines += [f"- `{e.block}`, {e.signal}: {e.description}" for e in trained.explained]
     if d.extended.signals:
         recovered = []
@@ -441,8 +441,9 @@ def _markdown(d: Diagnosis, units: Mapping[str, tuple[str, float]], min_gain: fl
             recovered.append([channel, f"{a.correlation:.3f}", f"{a.rmse * factor:.3g} {shown}",
                               f"{a.measured_rms * factor:.3g} {shown}"])
         lines += ["", "## Recovered signals against their measurement", "",
-                  "What a diagnosed block recovers, compared with a channel the data measure but that was "
-                  "never trained on:", "", *md.table(["signal", "correlation", "RMS error", "measured RMS"], recovered)]
+                  ("What a diagnosed block recovers, compared with a channel the data measure but that was "
+                  "never trained on:"), "",
+                  *md.table(["signal", "correlation", "RMS error", "measured RMS"], recovered)]
     lines += ["", "## What remains", ""]
     for s in d.structure.values():
         if s.unexplained:

@@ -46,7 +46,6 @@ from hypa.diagnosis.race import append_result
 from hypa.diagnosis.scales import duration
 from hypa.models.spec import ModelSpec
 
-
 OFFSET_Z = 5.0  # an offset below min_gain is still named this many standard errors away from zero ...
 OFFSET_GAIN = 0.005  # ... when it lowers the validation error by at least this share (a small sensor bias)
 
@@ -73,12 +72,14 @@ class Search:
 
 def name_causes(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | None = None,
                 candidates: Callable[[ModelSpec], list[Candidate]] | None = None, max_causes: int = 8,
-                min_gain: float = 0.15, floor: float = 1e-4, progress: Callable[[str], None] = lambda _: None) -> Search:
+                min_gain: float = 0.15, floor: float = 1e-4,
+                progress: Callable[[str], None] = lambda _: None) -> Search:
     """Greedy forward search over the catalogue from the frozen ``nominal`` model.
 
     ``catalogue``: the entries (default: the built-in catalogues, :func:`load_catalogue`);
-    ``candidates(spec)``, if given, lists the candidates of a base model instead. Each round fits all of them, names the best if it lowers the validation
-    error (1 - R², mean over outputs) by at least ``min_gain`` (relative), applies it and goes on;
+    ``candidates(spec)``, if given, lists the candidates of a base model instead. Each round fits
+    all of them, names the best if it lowers the validation error (1 - R², mean over outputs) by
+    at least ``min_gain`` (relative), applies it and goes on;
     below ``floor`` (share of the output variance: sensor noise) there is nothing left to name.
     Refuses data too short to fit even one number (:meth:`Problem.require_data`); a candidate
     that fits more numbers than the data support is not fitted, an offset whose standard error the
@@ -119,7 +120,8 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
     error = "cross-validated error" if len(folds) > 1 else "validation error"
     progress(f"time scales: {problem.time_scales.describe()}")
     if len(folds) > 1:
-        progress(f"judged by cross-validation: {len(problem.blocks())} blocks of {duration(problem.time_scales.stretch_s)} "
+        progress(f"judged by cross-validation: {len(problem.blocks())} blocks of "
+                 f"{duration(problem.time_scales.stretch_s)} "
                  f"from all {len(dm.records('train')) + len(dm.records('val'))} records (training and validation), "
                  f"{len(folds)} folds: each candidate fitted on every other block and scored on the rest")
     progress(f"nominal model: {error} {100 * base_score:.3g} % of the output variance (the search's "
@@ -140,7 +142,7 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
     while len(named) < max_causes and base_score > floor:
         done = {f.key for f in named}
         bar: list[GenericFit] = []  # fitted by this process while the workers fit the candidates
-        findings = round_of(lambda c: c.key not in done, refine,
+        findings = round_of(lambda c: c.key not in done, refine,  # noqa: B023 -- round_of applies it before returning
                             side=[partial(append_result, bar, evaluate_generic, folds, bases, scores, base_score)])
         rounds.append(findings)
         generic.append(bar[0] if bar else evaluate_generic(folds, bases, scores, base_score))
@@ -252,7 +254,8 @@ def _joint_offsets(named: list[Finding], bases: list[ModelSpec], scores: list[fl
         return named, dropped, bases, scores
     for f in offsets:
         f.values, f.z = {f.target: sum(values[f.target] for values, _ in fitted) / len(fitted)}, z[f.target]
-    bases = [dataclasses.replace(b, sensor_offsets={**b.sensor_offsets, **values}) for b, (values, _) in zip(bases, fitted)]
+    bases = [dataclasses.replace(b, sensor_offsets={**b.sensor_offsets, **values})
+             for b, (values, _) in zip(bases, fitted)]
     scores = [p.stretches("val").score(p.build(b)) for p, b in zip(folds, bases)]
     return [f for f in named if all(f is not d for d in dropped)], dropped, bases, scores
 

@@ -25,8 +25,19 @@ from hypa.diagnosis.coverage import coverage, short_lines
 from hypa.diagnosis.edits import frozen, set_free
 from hypa.diagnosis.finding import Finding
 from hypa.diagnosis.problem import Problem
-from hypa.diagnosis.result import (CandidateRow, DataSummary, Diagnosis, ErrorShares, Extension, FindingRow,
-                                   FreeRunMetrics, SearchScore, SignalAgreement, SystemSummary, TrainedSummary)
+from hypa.diagnosis.result import (
+    CandidateRow,
+    DataSummary,
+    Diagnosis,
+    ErrorShares,
+    Extension,
+    FindingRow,
+    FreeRunMetrics,
+    SearchScore,
+    SignalAgreement,
+    SystemSummary,
+    TrainedSummary,
+)
 from hypa.diagnosis.search import name_causes
 from hypa.diagnosis.structure import analyze_output
 from hypa.diagnosis.trained import TrainedExtension
@@ -34,7 +45,6 @@ from hypa.metrics import correlation, errors, rms
 from hypa.models.rollout import Prediction, free_run, free_run_metrics
 from hypa.models.spec import DIAGNOSED, ModelSpec, spec_config
 from hypa.plots import time_series
-
 
 
 def with_correction(spec: ModelSpec, inputs: Sequence[str]) -> ModelSpec:

@@ -18,10 +18,10 @@ from pathlib import Path
 from hypa.data import HypaDataModule
 from hypa.diagnosis.result import NetworkExplanation
 from hypa.errors import UserError
-from hypa.launch import run_hypa
 from hypa.evaluation.evaluation import run_datamodule
 from hypa.evaluation.runs import load_run
 from hypa.explain.run import Settings, ann_blocks, explain_run
+from hypa.launch import run_hypa
 from hypa.models.rollout import Prediction, free_run
 
 

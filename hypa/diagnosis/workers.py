@@ -13,6 +13,7 @@ platform can fork; otherwise the round runs in the calling process.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import traceback
@@ -95,15 +96,13 @@ class Workers:
         runner.fit.done, runner.values = state["done"], state["values"]
         runner.fit.diverged, runner.fit.timed_out = state["diverged"], state["timed_out"]
 
-    def __enter__(self) -> Workers:
+    def __enter__(self) -> Workers:  # noqa: PYI034 -- never subclassed; typing.Self needs 3.11
         return self
 
     def __exit__(self, *exc: object) -> None:
         for pipe in self.pipes:
-            try:
+            with contextlib.suppress(BrokenPipeError, OSError):
                 pipe.send(None)
-            except (BrokenPipeError, OSError):
-                pass
             pipe.close()
         for process in self.processes:
             process.join(timeout=5)

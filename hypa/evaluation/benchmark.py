@@ -16,8 +16,8 @@ import numpy as np
 
 from hypa.data import HypaDataModule
 from hypa.evaluation.benchmark_result import Benchmark, Summary
-from hypa.metrics import mean_std, regression_metrics
 from hypa.evaluation.runs import TrainedRun
+from hypa.metrics import mean_std, regression_metrics
 from hypa.models.rollout import free_run
 
 

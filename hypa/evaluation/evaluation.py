@@ -18,12 +18,12 @@ import numpy as np
 
 from hypa.data import HypaDataModule
 from hypa.errors import UserError
-from hypa.metrics import correlation, errors, state_metrics
 from hypa.evaluation.plots import bode
 from hypa.evaluation.result import Evaluation, RunMetrics, SignalMetrics, SplitMetrics, segments
 from hypa.evaluation.runs import TrainedRun, windowed
-from hypa.models.rollout import Prediction, free_run
 from hypa.evaluation.transfer import TransferEstimate, h1_estimate
+from hypa.metrics import correlation, errors, state_metrics
+from hypa.models.rollout import Prediction, free_run
 from hypa.plots import time_series
 
 log = logging.getLogger(__name__)
@@ -126,7 +126,8 @@ def evaluate_split(run: TrainedRun, dm: HypaDataModule, split: str, subset: Sequ
             mask[: p.first] = False  # the samples that started the model
             if name != "all" and mask.any():
                 by_segment.setdefault(name, []).append(
-                    (np.stack([p.predicted[n][mask] for n in names], -1), np.stack([p.measured[n][mask] for n in names], -1)))
+                    (np.stack([p.predicted[n][mask] for n in names], -1),
+                     np.stack([p.measured[n][mask] for n in names], -1)))
     for name, parts in by_segment.items():
         result["free_run"][name] = state_metrics(np.concatenate([a for a, _ in parts]),
                                                  np.concatenate([b for _, b in parts]), names)

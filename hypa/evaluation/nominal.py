@@ -24,8 +24,8 @@ from hypa.data import HypaDataModule
 from hypa.errors import UserError
 from hypa.evaluation.runs import windowed
 from hypa.metrics import errors
-from hypa.models.rollout import free_run
 from hypa.models import parse_model_spec
+from hypa.models.rollout import free_run
 from hypa.training.module import HybridModule
 
 log = logging.getLogger(__name__)

@@ -49,7 +49,7 @@ def bode(
     # models first, then the reference on top so the dashed line stays visible
     for name in models + ([reference] if reference is not None else []):
         est = estimates[name].band(*f_range)
-        style = dict(color="k", ls="--", lw=1.2) if name == reference else dict(ls="-", lw=1.0)
+        style = {"color": "k", "ls": "--", "lw": 1.2} if name == reference else {"ls": "-", "lw": 1.0}
         gain_ax.plot(est.frequency_hz, _masked(est.magnitude, est.coherence, coherence_min), label=name, **style)
         phase_ax.plot(est.frequency_hz, _masked(est.phase_deg, est.coherence, coherence_min), label=name, **style)
     gain_ax.set_ylabel(f"gain [{gain_unit}]")
@@ -67,7 +67,8 @@ def bode(
         ax.grid(alpha=0.3, which="both")
     axes[-1].set_xlim(*f_range)
     # plain decimal ticks: the default 2×10⁻¹ minor labels overlap on a one-decade axis
-    ticks = [v for v in (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500) if f_range[0] <= v <= f_range[1]]
+    ticks = [v for v in (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500)
+             if f_range[0] <= v <= f_range[1]]
     axes[-1].set_xticks(ticks, [f"{v:g}" for v in ticks])
     axes[-1].xaxis.set_minor_formatter(NullFormatter())
     axes[-1].set_xlabel("frequency [Hz]")

@@ -161,8 +161,8 @@ class RunMetrics:
                       *md.table(["mode", "segment", "output", "MAE", "RMSE", "MAPE [%]", "R²"], rows)]
             for name, r in s.signals.items():
                 k, unit = scale.get(name, 1.0), units.get(name, "SI")
-                lines += ["", f"Model vs measured {name} (free run; never trained on): correlation {r.corr:.3f}, "
-                          f"RMSE {r.rmse * k:.3g} {unit}"]
+                lines += ["", (f"Model vs measured {name} (free run; never trained on): correlation {r.corr:.3f}, "
+                          f"RMSE {r.rmse * k:.3g} {unit}")]
             lines.append("")
         lines += [f"![{f}]({f})" for f in figures]
         return "\n".join(lines) + "\n"

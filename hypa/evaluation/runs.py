@@ -102,7 +102,7 @@ def run_config(folder: Path) -> DictConfig:
         raise FileNotFoundError(f"{folder / CONFIG_FILE} is missing: {folder} is not a hypa.train run folder")
     try:
         config = OmegaConf.load(config_file)
-    except Exception as error:  # YAML's scanner and parser errors, an unreadable byte
+    except Exception as error:  # noqa: BLE001 -- YAML's scanner and parser errors, an unreadable byte
         raise UserError(f"{config_file}: not a readable run configuration ({one_line(error)[:200]}); "
                         "the run folder is damaged") from None
     if not isinstance(config, DictConfig) or not isinstance(config.get("data"), DictConfig):
@@ -129,5 +129,5 @@ def windowed(module: HybridModule, dm: HypaDataModule, split: str) -> dict[str, 
     return {k: torch.cat(v).double().numpy() for k, v in out.items()}
 
 
-__all__ = ["Prediction", "TrainedRun", "free_run", "free_run_metrics", "load_run", "model_inputs", "recorded_checkpoint",
-           "run_config", "windowed"]
+__all__ = ["Prediction", "TrainedRun", "free_run", "free_run_metrics", "load_run", "model_inputs",
+           "recorded_checkpoint", "run_config", "windowed"]

@@ -107,7 +107,7 @@ def h1_estimate(
             f"Welch segments of {segment_s} s; need at least 2 ({need / sample_rate_hz:.1f} s)")
     if np.ptp(u) == 0:
         raise ValueError("u is constant: it excites no frequency")
-    kw = dict(fs=sample_rate_hz, window="hann", nperseg=nperseg, noverlap=noverlap, detrend="constant")
+    kw = {"fs": sample_rate_hz, "window": "hann", "nperseg": nperseg, "noverlap": noverlap, "detrend": "constant"}
     f, s_uu = signal.welch(u, **kw)
     _, s_yy = signal.welch(y, **kw)
     _, s_uy = signal.csd(u, y, **kw)  # scipy: conj(U) Y, so S_uy / S_uu is the gain u -> y

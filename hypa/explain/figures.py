@@ -24,7 +24,8 @@ SEGMENT_S = 16.0  # [s] H1's Welch segments (shorter where the records are short
 
 
 def write_figures(result: BlockExplanation, train: Sequence[Recording], val: Sequence[Recording],
-                  predictions: Sequence[Prediction], dm: HypaDataModule, out: Path) -> tuple[dict[str, Path], list[str]]:
+                  predictions: Sequence[Prediction], dm: HypaDataModule,
+                  out: Path) -> tuple[dict[str, Path], list[str]]:
     """The three figures of one explained signal as PNG in ``out``; returns their paths and notes
     on what could not be drawn."""
     figures, notes = {}, []

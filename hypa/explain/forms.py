@@ -46,8 +46,21 @@ from hypa.explain.signals import Recording, check_recordings
 DEFAULT_PENALTY = 0.002  # score lost per parameter (share of the output variance)
 DEFAULT_MARGIN = 0.005  # a richer form must beat a simpler one by this much (share of the variance)
 
-__all__ = ["DEFAULT_MARGIN", "DEFAULT_PENALTY", "Explanation", "FittedForm", "Form", "LADDER", "Value",
-           "choose", "describe", "explain", "frequency_response", "predict", "second_order_text"]
+__all__ = [
+    "DEFAULT_MARGIN",
+    "DEFAULT_PENALTY",
+    "LADDER",
+    "Explanation",
+    "FittedForm",
+    "Form",
+    "Value",
+    "choose",
+    "describe",
+    "explain",
+    "frequency_response",
+    "predict",
+    "second_order_text",
+]
 
 
 @dataclass(frozen=True)

@@ -77,7 +77,8 @@ class BlockExplanation:
         if self.comparison:
             unit = self.problem.units[self.problem.output]
             lm, em = self.comparison["learned_vs_measured"], self.comparison["explained_vs_measured"]
-            line += (f"; vs measured {self.problem.measured}: learned r {lm['corr']:.2f} (RMS {rounded(lm['rms'])} {unit}), "
+            line += (f"; vs measured {self.problem.measured}: "
+                     f"learned r {lm['corr']:.2f} (RMS {rounded(lm['rms'])} {unit}), "
                      f"explained r {em['corr']:.2f} (RMS {rounded(em['rms'])} {unit})")
         return line
 

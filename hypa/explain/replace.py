@@ -19,9 +19,9 @@ from pathlib import Path
 
 from hypa.data import HypaDataModule
 from hypa.evaluation.runs import TrainedRun
-from hypa.models.rollout import Prediction, free_run, free_run_metrics
 from hypa.explain.forms import FittedForm
 from hypa.models import ComposedModel
+from hypa.models.rollout import Prediction, free_run, free_run_metrics
 from hypa.models.spec import BlockSpec, ModelSpec, spec_config
 
 SYSTEMS = {"static": "gain", "lag": "gain_lag", "lag_delay": "gain_lag", "second_order": "second_order"}

@@ -77,7 +77,8 @@ def _report_block(r: BlockExplanation) -> list[str]:
     lines += [f"Signals: output {p.output} [{u[p.output]}]; inputs "
               + ", ".join(f"{n} [{u[n]}]" for n in p.inputs)
               + (f"; extra {', '.join(f'{n} [{u[n]}]' for n in p.extra)}" if p.extra else "; no extra signals")
-              + f". Sample time {1000 * e.dt:.3g} ms; validation std of the output {rounded(e.output_std)} {u[p.output]}.",
+              + f". Sample time {1000 * e.dt:.3g} ms;"
+              + f" validation std of the output {rounded(e.output_std)} {u[p.output]}.",
               "", *md.table(["rung", "form", "parameters", "R² train", "R² validation", "score", ""],
                             [[f.form.rung, f.form.name, f.n_parameters, f"{f.r2_train:.3f}", f"{f.r2_val:.3f}",
                               f"{f.score:.3f}", "**chosen**" if i == e.chosen else ""]
@@ -126,8 +127,8 @@ def _report_block(r: BlockExplanation) -> list[str]:
                 base = rp["baseline"].get(name)
                 cells += [f"{rounded(base['rms'])} {unit}", f"{base['r2']:.4f}"] if base else ["-", "-"]
             rows.append(cells)
-        lines += ["", f"Replaced by its {rp['form']} (`{rp['config']}`: physics blocks with the fitted values; "
-                  "the rest of the model as trained), free-running over the validation records:", "",
+        lines += ["", (f"Replaced by its {rp['form']} (`{rp['config']}`: physics blocks with the fitted values; "
+                  "the rest of the model as trained), free-running over the validation records:"), "",
                   *md.table(header, rows, align="l" + "r" * (len(header) - 1))]
     captions = {"time": "learned vs explained over time (first validation record)",
                 "frequency": "frequency response: the learned block (H1) and the chosen form",
@@ -136,4 +137,4 @@ def _report_block(r: BlockExplanation) -> list[str]:
         lines += ["", f"![{captions.get(kind, kind)}]({path.name})"]
     for note in r.notes:
         lines += ["", f"Note: {note}"]
-    return lines + [""]
+    return [*lines, ""]

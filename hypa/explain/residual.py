@@ -133,7 +133,7 @@ def remainder(y: list[np.ndarray], predicted: list[np.ndarray], u: list[np.ndarr
     256 samples, the mean kept, averaged over records by length) and by quartile of ``|u|``."""
     residual = [a - b for a, b in zip(y, predicted)]
     y_all, r_all = np.concatenate(y), np.concatenate(residual)
-    segment = min(256, min(len(r) for r in residual))
+    segment = min(256, *(len(r) for r in residual))
     of_residual = spectra(residual, dt, segment, detrend=False)
     of_output = spectra([v - y_all.mean() for v in y], dt, segment, detrend=False)
     freq = of_residual[0][0]

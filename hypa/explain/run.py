@@ -25,8 +25,6 @@ import numpy as np
 from hypa.data import HypaDataModule
 from hypa.errors import UserError
 from hypa.evaluation.runs import TrainedRun
-from hypa.metrics import correlation, errors, rms
-from hypa.models.rollout import Prediction, free_run
 from hypa.explain.figures import write_figures
 from hypa.explain.forms import explain, frequency_response, predict
 from hypa.explain.problem import (
@@ -42,7 +40,9 @@ from hypa.explain.problem import (
 from hypa.explain.replace import replace_and_score, validation_errors, writable_form
 from hypa.explain.report import write_json, write_report
 from hypa.explain.signals import Recording
+from hypa.metrics import correlation, errors, rms
 from hypa.models import ComposedModel
+from hypa.models.rollout import Prediction, free_run
 from hypa.models.spec import DIAGNOSED, BlockSpec, ModelSpec
 
 # --- which blocks, which signals --------------------------------------------------------------
@@ -53,7 +53,8 @@ def ann_blocks(spec: ModelSpec) -> list[BlockSpec]:
 
 
 def select_blocks(spec: ModelSpec, name: str | None) -> list[BlockSpec]:
-    """The ANN block ``name`` (all ANN blocks for None); one-line errors for a wrong name or a model without networks."""
+    """The ANN block ``name`` (all ANN blocks for None); one-line errors for a wrong name or a model
+    without networks."""
     blocks = ann_blocks(spec)
     if not blocks:
         raise UserError(f"model {spec.name!r} has no ANN block: nothing learned to explain "
@@ -236,9 +237,9 @@ def hold_note(model: ComposedModel, block: str, dt: float) -> list[str]:
     feeds = [b.name for b in model.spec.blocks if b.kind == "physics" and set(b.inputs) & set(outputs)]
     if model.hold != "zoh" or not feeds:
         return []
-    return [f"the run's physics ({', '.join(feeds)}) holds its inputs constant between samples (zero-order "
+    return [(f"the run's physics ({', '.join(feeds)}) holds its inputs constant between samples (zero-order "
             f"hold): it sees them {1000 * dt / 2:.3g} ms late, and part of what {block} learned may make up "
-            "for that; train with physics.hold=foh to explain the law itself"]
+            "for that; train with physics.hold=foh to explain the law itself")]
 
 
 def replace_block(result: BlockExplanation, run: TrainedRun, dm: HypaDataModule, val: Sequence[Prediction],
@@ -265,5 +266,23 @@ def _signal_names(spec: ModelSpec) -> set[str]:
     return {n for b in spec.blocks for n in (*b.inputs, *b.outputs)}
 
 
-__all__ = ["FIT_SPLIT", "PAIRS", "SCORE_SPLIT", "BlockExplanation", "Problem", "Settings", "gain_unit", "rounded", "ann_blocks", "compare", "explain_problem", "explain_run",
-           "free_runs", "frequency_response", "problems", "recordings", "select_blocks", "signal_unit"]
+__all__ = [
+    "FIT_SPLIT",
+    "PAIRS",
+    "SCORE_SPLIT",
+    "BlockExplanation",
+    "Problem",
+    "Settings",
+    "ann_blocks",
+    "compare",
+    "explain_problem",
+    "explain_run",
+    "free_runs",
+    "frequency_response",
+    "gain_unit",
+    "problems",
+    "recordings",
+    "rounded",
+    "select_blocks",
+    "signal_unit",
+]

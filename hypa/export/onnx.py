@@ -28,7 +28,8 @@ OPSET = 17
 
 
 def export_onnx(step: ModelStep, path: Path, reference: Reference) -> Path:
-    """Write ``step`` as ONNX: inputs ``state`` (r,), ``u`` (m + q,), outputs ``next_state`` (r,), ``y`` (p,), float32."""
+    """Write ``step`` as ONNX: inputs ``state`` (r,), ``u`` (m + q,), outputs ``next_state`` (r,),
+    ``y`` (p,), float32."""
     state = torch.as_tensor(reference.initial_state, dtype=torch.float32)
     u = torch.as_tensor(reference.u[reference.first], dtype=torch.float32)
     errors = []
@@ -43,7 +44,7 @@ def export_onnx(step: ModelStep, path: Path, reference: Reference) -> Path:
             return path
         except ExportError:
             raise
-        except Exception as error:  # the exporter's own: an operation without an ONNX form, onnxscript missing
+        except Exception as error:  # noqa: BLE001 -- the exporter's own: an operation without an ONNX form, onnxscript missing
             errors.append(f"{'dynamo' if dynamo else 'TorchScript'} exporter: {one_line(error)[:200]}")
         finally:
             logging.disable(logging.NOTSET)

@@ -17,8 +17,16 @@ from collections.abc import Mapping
 import torch
 from torch import Tensor, nn
 
-from hypa.export.blocks import (DelayStep, ExportError, GainStep, NetworkStep, NonlinearStep, PhysicsStep,
-                                SaturationStep, StateSlot)
+from hypa.export.blocks import (
+    DelayStep,
+    ExportError,
+    GainStep,
+    NetworkStep,
+    NonlinearStep,
+    PhysicsStep,
+    SaturationStep,
+    StateSlot,
+)
 from hypa.models.building import STEADY
 from hypa.models.composed import ComposedModel
 
@@ -104,7 +112,8 @@ class ModelStep(nn.Module):
             x = torch.cat([signals[n] for n in b.inputs], -1)
             rho = None
             if b.scheduling:
-                rho = torch.cat([physical[:, self.scheduling_names.index(s)][:, None] for s in b.scheduling.values()], -1)
+                rho = torch.cat([physical[:, self.scheduling_names.index(s)][:, None]
+                                 for s in b.scheduling.values()], -1)
             if b.kind == "ann" and b.name in model.bypassed:
                 y, after = torch.cat([signals[n] for n in b.residual_of], -1), part
             else:
@@ -132,7 +141,8 @@ class ModelStep(nn.Module):
             values = torch.cat([signals[n][0][:, start - signals[n][1] :] for n in b.inputs], -1)  # (1, T, m)
             if isinstance(form, NetworkStep):
                 if start > first:
-                    raise ExportError(f"block {b.name!r} starts at sample {start}, after the first exported one {first}")
+                    raise ExportError(f"block {b.name!r} starts at sample {start}, "
+                                      f"after the first exported one {first}")
                 chunk = values[:, : first - start]
                 if b.initial_state:
                     index = [model.output_names.index(n) for n in b.initial_state]

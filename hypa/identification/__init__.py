@@ -10,4 +10,5 @@ from hypa.identification.output_error import (
 )
 from hypa.identification.stretches import Stretches
 
-__all__ = ["Estimate", "Identification", "IdentificationError", "IdentificationSettings", "Stretches", "identify", "identify_records"]
+__all__ = ["Estimate", "Identification", "IdentificationError", "IdentificationSettings", "Stretches", "identify",
+           "identify_records"]

@@ -282,7 +282,7 @@ def _covariance(J, cost: float, m: int) -> np.ndarray:
     J = J.toarray() if sparse.issparse(J) else J
     p = J.shape[1]
     sigma2 = cost / max(m - p, 1)
-    u, s, vt = np.linalg.svd(J, full_matrices=False)
+    _u, s, vt = np.linalg.svd(J, full_matrices=False)
     tiny = s <= s.max(initial=0.0) * 1e-10 if s.size else s
     with np.errstate(divide="ignore"):
         inverse = np.where(tiny, np.inf, 1.0 / np.where(tiny, 1.0, s) ** 2)
@@ -325,7 +325,8 @@ def _warnings(estimates: Sequence[Estimate], limits: Sequence[tuple[float, float
         for j in range(i + 1, len(estimates)):
             if math.isfinite(correlation[i, j]) and abs(correlation[i, j]) > correlated:
                 group[root(j)] = root(i)
-    for members in {r: [i for i in range(len(estimates)) if root(i) == r] for r in map(root, range(len(estimates)))}.values():
+    groups = {r: [i for i in range(len(estimates)) if root(i) == r] for r in map(root, range(len(estimates)))}
+    for members in groups.values():
         if len(members) > 1:
             names = ", ".join(estimates[i].name for i in members)
             strongest = max(abs(correlation[i, j]) for i in members for j in members if i < j)

@@ -61,8 +61,9 @@ class Identification:
     def summary(self) -> str:
         """One line: the error before and after, convergence, and how many warnings."""
         state = "converged" if self.converged else "did NOT converge"
-        runs = f"{self.stretches} free run(s)" if self.shooting == "single" else \
-            f"{self.stretches} stretches by multiple shooting (continuity defects {self.continuity_defect:.2g} state std)"
+        runs = f"{self.stretches} free run(s)" if self.shooting == "single" else (
+            f"{self.stretches} stretches by multiple shooting "
+            f"(continuity defects {self.continuity_defect:.2g} state std)")
         return (f"identified {len(self.estimates)} parameter(s) on {runs}: output error "
                 f"{100 * self.error_initial:.3g} % -> {100 * self.error_final:.3g} % of the output variance, "
                 f"{state} after {self.iterations} iteration(s), {self.seconds:.1f} s"
@@ -75,8 +76,8 @@ class Identification:
     def markdown(self) -> str:
         """The report: the estimates with ± 1σ, the correlations, convergence and warnings."""
         lines = ["## Identification", "", self.summary() + f" ({self.message}; last step {self.final_step:.2g}).", "",
-                 "± 1σ counts the output errors as correlated over τ samples (the errors weighted by each "
-                 "parameter's sensitivity), not as independent.", "",
+                 ("± 1σ counts the output errors as correlated over τ samples (the errors weighted by each "
+                 "parameter's sensitivity), not as independent."), "",
                  *md.table(["parameter", "start", "identified", "± 1σ", "unit", "τ [samples]"],
                            [[e.name, f"{e.initial:.4g}", f"{e.value:.4g}",
                              "undetermined" if e.std is None else f"{e.std:.3g}", e.unit, self._tau(e.name)]

@@ -32,6 +32,7 @@ exactly) up to 256 MiB, as a sparse one (solved by LSMR) beyond.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Sequence
 
@@ -85,7 +86,8 @@ class Shooting:
 
     def __init__(self, model: ComposedModel, stretches: Stretches, set_parameters: Callable[[np.ndarray], None],
                  parameters: int) -> None:
-        self.model, self.data, self.set_parameters, self.p = model, stretches.to(torch.float64), set_parameters, parameters
+        self.model, self.data = model, stretches.to(torch.float64)
+        self.set_parameters, self.p = set_parameters, parameters
         self.first = self.data.first
         weights = self.data.weights()
         self.outputs = int(weights.numel())
@@ -118,7 +120,7 @@ class Shooting:
         out = []
         for items in by_record.values():
             items.sort()
-            for (start_a, a), (start_b, b) in zip(items, items[1:]):
+            for (start_a, a), (start_b, b) in itertools.pairwise(items):
                 out.append((a, b, start_b - start_a))
         return out
 

@@ -70,8 +70,8 @@ class ComposedModel(nn.Module):
         self.hold = model_hold(spec, hold)
         self._register_offsets(spec.sensor_offsets, input_scale)
         scales = {**input_scale, **(scheduling_scale or {})}
-        builder = BlockBuilder(self.parameters_, systems, scales, self.measured_scale, self.scheduling_names, dt, horizon,
-                               self.hold, ann_name, ann_hparams or {})
+        builder = BlockBuilder(self.parameters_, systems, scales, self.measured_scale, self.scheduling_names, dt,
+                               horizon, self.hold, ann_name, ann_hparams or {})
         self.blocks = nn.ModuleDict({b.name: builder.build(b) for b in self.order})
         self.scales, self.starts, self.encoders = builder.scales, builder.starts, builder.encoders
         self._observed: dict[str, str] = {}  # block -> buffer: which of its outputs are measured (estimate)
@@ -236,7 +236,7 @@ class ComposedModel(nn.Module):
             end = min(signals[n][1] + signals[n][0].shape[1] for n in names)
             if end - start < 2:
                 raise ValueError(f"block {b.name!r}: inputs overlap on {end - start} samples; need at least 2")
-            aligned = lambda ns: torch.cat([signals[n][0][:, start - signals[n][1] : end - signals[n][1]]  # noqa: E731
+            aligned = lambda ns: torch.cat([signals[n][0][:, start - signals[n][1] : end - signals[n][1]]  # noqa: E731, B023 -- called in this iteration
                                             for n in ns], dim=-1)
             if b.kind == "ann":
                 y, out_start = self._ann(b, aligned, y_past, start), start

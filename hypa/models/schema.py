@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
-from typing import Any, Dict, List, Optional
+from typing import Any
 
 from omegaconf import MISSING
 
@@ -27,7 +27,7 @@ class BlockConfig:
     kind: str = MISSING  # physics | ann | delay | saturation
     inputs: Any = None  # signal names read
     outputs: Any = None  # signal names written
-    system: Optional[str] = None  # physics: a built-in system or package.module:Class
+    system: str | None = None  # physics: a built-in system or package.module:Class
     trainable: Any = None  # parameter names learned from data
     residual_of: Any = None  # ann: signals the output is added to
     scale_as: Any = None  # signals whose scale the outputs share
@@ -51,10 +51,10 @@ class ModelConfig:
     """The ``model`` node (see :class:`hypa.models.spec.ModelSpec`)."""
 
     name: str = "model"
-    blocks: Dict[str, BlockConfig] = field(default_factory=dict)
+    blocks: dict[str, BlockConfig] = field(default_factory=dict)
     outputs: Any = None
-    stages: List[StageConfig] = field(default_factory=list)
-    hold: Optional[str] = None  # zoh | foh, overriding physics.hold of the run
+    stages: list[StageConfig] = field(default_factory=list)
+    hold: str | None = None  # zoh | foh, overriding physics.hold of the run
     parameters: Any = None  # shared physical parameters [SI], overriding the vehicle config
     sensor_offsets: Any = None  # measured - true [SI]
 

@@ -63,7 +63,7 @@ def discretize(a: Tensor, b: Tensor, dt: float, hold: Hold = "zoh", e: Tensor | 
     n, m = b.shape[-2], b.shape[-1]
     if a.shape[-2:] != (n, n):
         raise ValueError(f"A must be ({n}, {n}) to match B {tuple(b.shape)}, got {tuple(a.shape)}")
-    opts = dict(dtype=a.dtype, device=a.device)
+    opts = {"dtype": a.dtype, "device": a.device}
     if hold == "zoh":
         top = hold_exponential(torch.cat([a, b], dim=-1) * dt, torch.zeros(m, n + m, **opts))
         return DiscreteLTI(phi=top[:, :n], taps=(top[:, n:],), hold=hold)
@@ -202,7 +202,8 @@ def _t(a: Tensor) -> Tensor:
 
 
 class _PhiFunctions(torch.autograd.Function):
-    """φ_0(M), ..., φ_p(M) (p = ``order``) of m (k, k) or a stack (k, k, K): ``_phi_forward``, adjoint ``_phi_backward``."""
+    """φ_0(M), ..., φ_p(M) (p = ``order``) of m (k, k) or a stack (k, k, K): ``_phi_forward``,
+    adjoint ``_phi_backward``."""
 
     @staticmethod
     def forward(ctx, m: Tensor, order: int) -> tuple[Tensor, ...]:  # type: ignore[override]
@@ -277,7 +278,7 @@ def _phi_forward(m: Tensor, order: int, squarings: int | None = None
     """
     eye = torch.eye(m.shape[0], dtype=m.dtype, device=m.device)
     eye = eye if m.dim() == 2 else eye[..., None].expand_as(m)
-    if squarings is not None:  # given (``hold_exponential_steps``): no host sync, nothing read from the values
+    if squarings is not None:  # noqa: SIM108 -- given (``hold_exponential_steps``): no host sync, nothing read from the values
         norm = 0.0
     else:
         norm = float(m.abs().sum(0).max()) if m.numel() else 0.0  # ‖M‖_1, the largest of a stack: a host sync

@@ -60,7 +60,7 @@ class MassWithCoulombFriction(MassWithFriction):
 
     SMOOTHING_MPS = 0.005  # [m/s]
 
-    parameters = MassWithFriction.parameters + (ParameterSpec("coulomb_friction", 20.0, "N"),)
+    parameters = (*MassWithFriction.parameters, ParameterSpec("coulomb_friction", 20.0, "N"))
 
     def feedback(self, p: Mapping[str, Tensor]) -> Tensor:
         m = p["mass"]

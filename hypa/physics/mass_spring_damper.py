@@ -54,7 +54,7 @@ class DuffingOscillator(MassSpringDamper):
     k q (1 + h q²), so ``hardening`` h [1/m²] (signed: < 0 softens) adds the cubic force
     -k h q³ to the linear part, fed back in Lur'e form (F = [0, 1/m]). Silverbox's nonlinearity."""
 
-    parameters = MassSpringDamper.parameters + (ParameterSpec("hardening", 1.0, "1/m^2", positive=False),)
+    parameters = (*MassSpringDamper.parameters, ParameterSpec("hardening", 1.0, "1/m^2", positive=False))
 
     def feedback(self, p: Mapping[str, Tensor]) -> Tensor:
         m = p["mass"]

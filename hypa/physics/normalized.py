@@ -40,7 +40,7 @@ class Scaling:
     output_std: Tensor  # (p,)
 
     @staticmethod
-    def identity(n: int, m: int, p: int, dtype: torch.dtype = torch.float64) -> "Scaling":
+    def identity(n: int, m: int, p: int, dtype: torch.dtype = torch.float64) -> Scaling:
         """μ = 0, σ = 1: the normalized system is the physical one."""
         z = lambda k: torch.zeros(k, dtype=dtype)  # noqa: E731
         o = lambda k: torch.ones(k, dtype=dtype)  # noqa: E731
@@ -119,7 +119,7 @@ class NormalizingMaps:
     output_rest: Tensor  # (p, n+m+1): [0, 0, -μy/σy]
 
     @staticmethod
-    def build(scaling: Scaling, dt: float, n_taps: int, dtype: torch.dtype) -> "NormalizingMaps":
+    def build(scaling: Scaling, dt: float, n_taps: int, dtype: torch.dtype) -> NormalizingMaps:
         s = Scaling(*(t.to(dtype) for t in dataclasses.astuple(scaling)))
         n, m, p = s.state_mean.numel(), s.input_mean.numel(), s.output_mean.numel()
         k = n + n_taps * m + 1

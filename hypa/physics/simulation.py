@@ -279,7 +279,8 @@ class BlockSimulation:
         ss, f = self.model.matrices(p), self.model.feedback(p)
         disc = discretize(ss.a, ss.b, self.dt, self.hold, ss.e)
         w_now, w_next = discretize(ss.a, f, self.dt, "foh").taps
-        return LureParts(disc.phi.T, disc.taps, disc.drift, w_now.T, w_next.T, (w_now + w_next).T, self.model.prepare(p))
+        return LureParts(disc.phi.T, disc.taps, disc.drift, w_now.T, w_next.T, (w_now + w_next).T,
+                         self.model.prepare(p))
 
     def lure_step(self, lure: LureParts, x: Tensor, u_now: Tensor, u_next: Tensor, forced: Tensor) -> Tensor:
         """x_{k+1} (B, n) [SI] of ``_simulate_nonlinear`` from x_k, u_k, u_{k+1} [SI] and the forced
@@ -313,10 +314,11 @@ class BlockSimulation:
         if scheduling is None:
             raise SchedulingError(f"{name} schedules {list(self.scheduled)}: give scheduling (..., {q}) in SI units")
         if scheduling.shape[:-1] != like.shape[:-1] and (scheduling.dim() != 3 or scheduling.shape[0] != like.shape[0]):
-            raise SchedulingError(f"{name}: scheduling {tuple(scheduling.shape)} does not fit inputs {tuple(like.shape)}")
+            raise SchedulingError(f"{name}: scheduling {tuple(scheduling.shape)} does not fit inputs "
+                                  f"{tuple(like.shape)}")
         if scheduling.shape[-1] != q or (samples and scheduling.shape[1] < samples):
-            raise SchedulingError(f"{name}: scheduling must be (B, >= {samples or 'L'}, {q}) for {list(self.scheduled)}, "
-                                  f"got {tuple(scheduling.shape)}")
+            raise SchedulingError(f"{name}: scheduling must be (B, >= {samples or 'L'}, {q}) "
+                                  f"for {list(self.scheduled)}, got {tuple(scheduling.shape)}")
         return scheduling.to(like.dtype)
 
     def _per_sample(self, rho: Tensor) -> StateSpace:

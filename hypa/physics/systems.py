@@ -58,7 +58,8 @@ PHYSICS_SYSTEMS = SystemRegistry({
     "gain_lag": GainLag,  # τ ẏ = k u - y, parameters <block>/gain, <block>/tau_s
     "lead_lag": LeadLag,  # a gain with a transient part through a lag: <block>/gain, transient, transient_tau_s, tau_s
     "gain": StaticGain,  # y = k u, parameter <block>/gain
-    "second_order": SecondOrder,  # k (1 + T s) / (1 + 2ζ s/ω + s²/ω²): <block>/gain, zero_s, natural_frequency_hz, damping
+    # k (1 + T s) / (1 + 2ζ s/ω + s²/ω²): <block>/gain, zero_s, natural_frequency_hz, damping
+    "second_order": SecondOrder,
     "mass_spring_damper": lambda block: MassSpringDamper(),  # force -> position (Silverbox)
     "duffing_oscillator": lambda block: DuffingOscillator(),  # the same with a cubic spring (nonlinear)
     "mass_with_friction": lambda block: MassWithFriction(),  # force -> position (EMPS)

@@ -89,8 +89,9 @@ def load_checkpoint(checkpoint: Path) -> tuple[dict[str, Any], bytes]:
         found = re.search(r"GLOBAL ([\w.]+)|global: ([\w.]+)", str(error))
         what = f" ({next(g for g in found.groups() if g)})" if found else ""
         raise UserError(f"{checkpoint}: not a readable checkpoint: it holds objects that a hypa checkpoint never "
-                        f"holds{what}, which were not loaded and did not run; give a .ckpt written by hypa.train") from None
-    except Exception as error:  # a zip or EOF error: a text file, a truncated download
+                        f"holds{what}, which were not loaded and did not run; "
+                        "give a .ckpt written by hypa.train") from None
+    except Exception as error:  # noqa: BLE001 -- a zip or EOF error: a text file, a truncated download
         raise UserError(f"{checkpoint}: not a readable checkpoint ({type(error).__name__}: {one_line(error)[:200]}); "
                         "give a .ckpt written by hypa.train") from None
     hparams = state.get("hyper_parameters") if isinstance(state, dict) else None

@@ -151,7 +151,8 @@ class RunFolder:
             return
         handler = logging.FileHandler(target, mode="a")
         formats = [h.formatter for h in root.handlers if h.formatter is not None]
-        handler.setFormatter(formats[0] if formats else logging.Formatter("[%(asctime)s][%(name)s][%(levelname)s] - %(message)s"))
+        handler.setFormatter(formats[0] if formats
+                             else logging.Formatter("[%(asctime)s][%(name)s][%(levelname)s] - %(message)s"))
         root.addHandler(handler)
         self._log_handler = handler
 

@@ -10,9 +10,16 @@ from collections.abc import Callable
 from pathlib import Path
 
 from hypa.physics.lti import LTIModel
-from hypa.vehicle.physics import (SingleTrack, SingleTrackRelaxation, SingleTrackRelaxationSaturation,
-                                  SingleTrackSaturation, SteeringGain, VehicleParameters, parameter_spec,
-                                  vehicle_parameters)
+from hypa.vehicle.physics import (
+                                  SingleTrack,
+                                  SingleTrackRelaxation,
+                                  SingleTrackRelaxationSaturation,
+                                  SingleTrackSaturation,
+                                  SteeringGain,
+                                  VehicleParameters,
+                                  parameter_spec,
+                                  vehicle_parameters,
+)
 
 SYSTEMS: dict[str, Callable[[str], LTIModel]] = {
     "single_track": lambda block: SingleTrack(rear_steering=True),  # u = [δf, δr]

@@ -136,7 +136,7 @@ class SingleTrackRelaxation(SingleTrack):
 
     state_names = ("yaw_rate", "side_slip", "front_slip", "rear_slip")
     output_names = ("yaw_rate", "side_slip")
-    parameters = SingleTrack.parameters + (ParameterSpec("relaxation_length", 0.3, "m"),)
+    parameters = (*SingleTrack.parameters, ParameterSpec("relaxation_length", 0.3, "m"))
 
     def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
         m, izz, lf, lr, cf, cr, v, sigma = (p[k] for k in ("mass", "izz", "lf", "lr", "cf", "cr", "velocity",
@@ -173,7 +173,7 @@ class SingleTrackSaturation(SingleTrack):
     F = diag(1/Izz, 1/(m v)) [[lf, -lr], [1, 1]]. As μ → ∞ it is the single track.
     """
 
-    parameters = SingleTrack.parameters + (ParameterSpec("mu", 1.0, "-"),)
+    parameters = (*SingleTrack.parameters, ParameterSpec("mu", 1.0, "-"))
 
     def feedback(self, p: Mapping[str, Tensor]) -> Tensor:
         m, izz, lf, lr, v = (p[k] for k in ("mass", "izz", "lf", "lr", "velocity"))
@@ -213,7 +213,7 @@ class SingleTrackRelaxationSaturation(SingleTrackRelaxation):
     magic-formula forces F_k(s_k) (``SingleTrackSaturation``'s), the deficit entering yaw and
     side slip through F = [[lf/Izz, -lr/Izz], [1/(m v), 1/(m v)], [0, 0], [0, 0]]."""
 
-    parameters = SingleTrackRelaxation.parameters + (ParameterSpec("mu", 1.0, "-"),)
+    parameters = (*SingleTrackRelaxation.parameters, ParameterSpec("mu", 1.0, "-"))
 
     def feedback(self, p: Mapping[str, Tensor]) -> Tensor:
         upper = SingleTrackSaturation.feedback(self, p)

@@ -88,9 +88,9 @@ def run_dataset(name: str) -> dict[str, Any]:
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
+    from hypa.commands.entry import datamodule, vehicle_from_config
     from hypa.diagnosis.problem import Problem
     from hypa.diagnosis.search import name_causes
-    from hypa.commands.entry import datamodule, vehicle_from_config
     from hypa.models.spec import parse_model_spec
 
     with initialize_config_dir(config_dir=str(NOMINAL.parents[1]), version_base=None):

@@ -10,11 +10,11 @@ trainable physics (lifted matrices rebuilt every step) >= 5x faster than the rec
 
 Then the velocity-scheduled single track at N = 100 (matrices per sample: one batched call of
 the system's batch-safe code, verified once against vmap; one batched hold exponential of the
-n x n A dt; a parallel-prefix scan with a hand-written adjoint), forward and forward+backward, against the python recursion over the same
-per-sample matrices and against the constant-matrix lifted block (trainable cf, cr in all
-three). Goals: scheduled <= 10x the lifted block's forward (which, without gradients, is its
-cached window matrices times the inputs) and <= 3x its forward+backward. A quick run of this
-part alone: ``python -m hypa.speed physics --scheduled-only --min-time 0.1``.
+n x n A dt; a parallel-prefix scan with a hand-written adjoint), forward and forward+backward,
+against the python recursion over the same per-sample matrices and against the constant-matrix
+lifted block (trainable cf, cr in all three). Goals: scheduled <= 10x the lifted block's forward
+(which, without gradients, is its cached window matrices times the inputs) and <= 3x its
+forward+backward. A quick run of this part alone: ``python -m hypa.speed physics --scheduled-only --min-time 0.1``.
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ import torch
 from torch.utils.benchmark import Timer
 
 from hypa.physics import LTIBlock, Scaling, simulate_recursive
-from hypa.vehicle import SingleTrack, VehicleParameters, vehicle_parameters
 from hypa.physics.scheduled import simulate_scheduled_recursive
+from hypa.vehicle import SingleTrack, VehicleParameters, vehicle_parameters
 
 GOALS = {"frozen_vs_recursion": 30.0, "frozen_vs_matmul": 2.0, "trainable_vs_recursion": 5.0,
          "scheduled_vs_lifted": 10.0, "scheduled_vs_lifted_backward": 3.0}
@@ -168,10 +168,11 @@ def _constant_table(args: argparse.Namespace) -> None:
         t = measure(horizon, args.batch, args.min_time)
         r = ratios(t)
         results[horizon] = r
-        ms = lambda k: f"{t[k] * 1e3:9.3f}m"  # noqa: E731
+        ms = lambda k: f"{t[k] * 1e3:9.3f}m"  # noqa: E731, B023 -- called in this iteration
         print(f"{horizon:>5} {ms('lifted_frozen'):>10} {ms('recursion_frozen'):>10} {ms('bare_matmul'):>10}"
               f" {ms('lifted_trainable'):>10} {ms('recursion_trainable'):>11}"
-              f" {r['frozen_vs_recursion']:>10.1f}x {r['frozen_vs_matmul']:>9.2f}x {r['trainable_vs_recursion']:>12.1f}x",
+              f" {r['frozen_vs_recursion']:>10.1f}x {r['frozen_vs_matmul']:>9.2f}x"
+              f" {r['trainable_vs_recursion']:>12.1f}x",
               flush=True)
     print("\ntimes in ms; * = trainable physical parameters (cf, cr): lifted matrices rebuilt every step")
     if 100 in results:

@@ -32,7 +32,7 @@ def plot_record(
     fig = Figure(figsize=(12, 9), layout="constrained")
     axes = fig.subplots(len(panels), 1, sharex=True)
     for ax, (values, label) in zip(axes, panels):
-        for i, (name, start, end) in enumerate(segments):
+        for i, (_name, start, end) in enumerate(segments):
             ax.axvspan(start, end, color=_SEGMENT_COLOURS[i % len(_SEGMENT_COLOURS)], lw=0)
         ax.plot(time, values, lw=0.6, color="C0")
         ax.set_ylabel(label)

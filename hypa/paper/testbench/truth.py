@@ -28,7 +28,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
-from hypa.vehicle import VehicleParameters
 from hypa.paper.testbench.config import (
     LoadTransferConfig,
     RearSteeringConfig,
@@ -36,6 +35,7 @@ from hypa.paper.testbench.config import (
     SteeringConfig,
     TireConfig,
 )
+from hypa.vehicle import VehicleParameters
 
 GRAVITY = 9.81  # [m/s^2]
 
@@ -271,7 +271,7 @@ def _right_hand_side(
         if rws:
             cmd = ratio * (1.0 + gain * tanh(abs(r) / r_ref)) * delta_f_ecu + feedback * r
             cmd -= transient * (delta_f_ecu - lagged_ecu)  # counter-phase while the steer changes
-            cmd = limit if cmd > limit else (-limit if cmd < -limit else cmd)
+            cmd = limit if cmd > limit else (max(cmd, -limit))
             d_delta_r = (cmd - delta_r) * inv_tau
             if d_delta_r > rate_limit:
                 d_delta_r = rate_limit
