@@ -15,7 +15,9 @@ pytestmark = pytest.mark.skipif(not SHARED.is_dir(), reason="../shared/data is n
 TINY = ["trainer.max_epochs=1", "trainer.limit_train_batches=2", "trainer.limit_val_batches=2",
         "trainer.enable_progress_bar=false", "figures.enabled=true", "figures.seconds=2", "figures.start_s=0",
         "ann.hidden_size=8", "identification.max_seconds=8"]  # the fit's time limit: the best point so far
-CASES = [(d, m) for d in ("silverbox", "emps", "racecar") for m in (f"{d}_physical", f"{d}_hybrid", "blackbox")]
+# the EMPS hybrid (its physics identified, then its network: about 25 s) runs with the slow checks (make test-slow)
+CASES = [pytest.param(d, m, marks=pytest.mark.slow) if (d, m) == ("emps", "emps_hybrid") else (d, m)
+         for d in ("silverbox", "emps", "racecar") for m in (f"{d}_physical", f"{d}_hybrid", "blackbox")]
 
 
 def hypa(module: str, *args: str, timeout: int = 600) -> subprocess.CompletedProcess:
@@ -160,6 +162,7 @@ def test_a_run_that_trained_on_other_data_than_asked_is_an_error(tmp_path: Path)
     assert f"physical trained on {other}, not on the data asked for ({asked})" in result.stderr.strip().splitlines()[-1]
 
 
+@pytest.mark.slow  # about 50 s: a diagnosis and an identification through hypa.benchmark (make test-slow)
 def test_benchmark_diagnoses_the_nominal_model_and_identifies_its_extension(tmp_path: Path) -> None:
     """The silverbox suite's `diagnosed` row: hypa.diagnose extends the nominal linear physics (a stiffening
     spring), and that model, identified by its output error, is tested like every other row."""
