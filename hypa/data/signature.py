@@ -12,8 +12,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from hypa.data.errors import DataError
 from hypa.data.normalization import Normalization
+from hypa.data.records import Record
+from hypa.data.windows import model_arrays
 
 Scale = tuple[float, float]  # (mean, std) in SI units
 
@@ -62,6 +66,11 @@ class DataSignature:
     def of(data: Any) -> DataSignature:
         """``data`` itself if it is a signature, else its ``signature`` (a ``HypaDataModule``'s)."""
         return data if isinstance(data, DataSignature) else data.signature
+
+    def arrays(self, record: Record) -> dict[str, np.ndarray]:
+        """``record`` as the model reads it (:func:`hypa.data.windows.model_arrays`): ``u``, ``y``
+        normalized, ``s`` scheduling in SI units, float64 (T, channels)."""
+        return model_arrays(record, self.normalization, self.input_names, self.output_names, self.scheduling_names)
 
     def scale(self, names: Sequence[str]) -> dict[str, Scale]:
         """(mean, std) in SI units of each of ``names``, from the training-set statistics."""

@@ -23,6 +23,20 @@ from hypa.data.normalization import Normalization
 from hypa.data.records import Record
 
 
+def model_arrays(record: Record, normalization: Normalization, input_names: Sequence[str],
+                 output_names: Sequence[str], scheduling_names: Sequence[str] = ()) -> dict[str, np.ndarray]:
+    """One record as a model reads it, float64 (T, channels): ``u`` and ``y`` normalized inputs and
+    outputs, ``s`` the scheduling signals in SI units. The one place a record becomes model inputs:
+    the training windows, the free run (``hypa.models.rollout``) and the stretches of identification
+    and diagnosis (``hypa.identification.stretches``) all cut from these."""
+    def normalized(names: Sequence[str]) -> np.ndarray:
+        names = tuple(names)
+        return normalization.normalize(record.stack(names), names) if names else np.zeros((len(record), 0))
+
+    return {"u": normalized(input_names), "y": normalized(output_names),
+            "s": record.stack(tuple(scheduling_names)).astype(np.float64)}
+
+
 def window_starts(length: int, span: int, stride: int) -> range:
     """Start indices of all windows of ``span + 1`` samples (``span = P + N``) in ``length``."""
     if span < 1 or stride < 1:
@@ -85,9 +99,9 @@ class WindowDataset(Dataset):
         self.with_eval = with_eval
         # Normalize in float64 and round once to float32, so de-normalizing a window gives
         # the SI values back to float32 precision.
-        self._u = [self._normalized(r, self.input_names, normalization) for r in records]
-        self._y = [self._normalized(r, self.output_names, normalization) for r in records]
-        self._s = [self._si(r, self.scheduling_names) for r in records]
+        arrays = [model_arrays(r, normalization, self.input_names, self.output_names, self.scheduling_names)
+                  for r in records]
+        self._u, self._y, self._s = ([torch.from_numpy(a[k].astype(np.float32)) for a in arrays] for k in "uys")
         self._eval = [self._si(r, self.eval_names) for r in records] if with_eval else []
         span = self.past + self.window
         self.index: list[tuple[int, int]] = [
@@ -100,15 +114,6 @@ class WindowDataset(Dataset):
     def state_names(self) -> tuple[str, ...]:
         """Alias of :attr:`output_names` (older callers)."""
         return self.output_names
-
-    @staticmethod
-    def _normalized(
-        record: Record, names: tuple[str, ...], normalization: Normalization
-    ) -> torch.Tensor:
-        if not names:
-            return torch.zeros(len(record), 0)
-        values = normalization.normalize(record.stack(names), names)  # (T, channels) float64
-        return torch.from_numpy(values.astype(np.float32))
 
     @staticmethod
     def _si(record: Record, names: tuple[str, ...]) -> torch.Tensor:

@@ -57,8 +57,7 @@ class Stretches:
     def cut(cls, dm: HypaDataModule, records: Sequence[Record], samples: int, step: int | None = None) -> Stretches:
         """Each record cut into stretches predicting ``samples`` each, started every ``step``
         samples (default: ``samples``, tiling the record), the last one ending at the record's end."""
-        first, groups, positions = dm.past + 1, {}, {}
-        norm = dm.normalization
+        first, groups, positions, signature = dm.past + 1, {}, {}, dm.signature
         for index, record in enumerate(records):
             length = min(len(record), first + samples)
             if length <= first:
@@ -66,9 +65,7 @@ class Stretches:
             starts = list(range(0, len(record) - length + 1, step or samples))
             if starts[-1] != len(record) - length:
                 starts.append(len(record) - length)
-            arrays = {"u": norm.normalize(record.stack(dm.input_names), dm.input_names),
-                      "y": norm.normalize(record.stack(dm.output_names), dm.output_names),
-                      "s": record.stack(dm.scheduling_names)}
+            arrays = signature.arrays(record)
             for start in starts:
                 groups.setdefault(length, []).append({k: a[start : start + length] for k, a in arrays.items()})
                 positions.setdefault(length, []).append((index, start))

@@ -51,11 +51,9 @@ class Prediction:
 def model_inputs(dm: HypaDataModule, record: Record, stretch: slice = slice(None)) -> tuple[torch.Tensor, ...]:
     """(u, y_past, s) of one record for the model, batch of one: normalized inputs, normalized
     measured outputs up to the window start (the first ``past`` + 1 samples), SI scheduling."""
-    norm, past = dm.normalization, dm.past
-    u = norm.normalize(record.stack(dm.input_names)[stretch], dm.input_names)
-    y = norm.normalize(record.stack(dm.output_names)[stretch][: past + 1], dm.output_names)
-    s = record.stack(dm.scheduling_names)[stretch]
-    return tuple(torch.as_tensor(a, dtype=torch.float32)[None] for a in (u, y, s))
+    arrays = {k: a[stretch] for k, a in dm.signature.arrays(record).items()}
+    arrays["y"] = arrays["y"][: dm.past + 1]
+    return tuple(torch.as_tensor(arrays[k], dtype=torch.float32)[None] for k in "uys")
 
 
 @torch.no_grad()
