@@ -267,7 +267,7 @@ class ComplexStateBlock(SequenceBlock):
 
 
 def test_refusals_are_one_line(hypa_cache, tmp_path) -> None:
-    """A network without a real step form and a format not built yet: one line each, saying why."""
+    """A network without a real step form and an unknown format: one line each, saying why."""
     from omegaconf import OmegaConf
 
     from hypa.export import ExportError, ModelStep, formats_to_build
@@ -285,13 +285,13 @@ def test_refusals_are_one_line(hypa_cache, tmp_path) -> None:
     with pytest.raises(ExportError, match=r"rear_steering.*not a structure of real tensors") as error:
         ModelStep(build("test_export.ComplexStateBlock", {}))
     assert "\n" not in str(error.value)
-    for name in ("fmu", "statespace", "all"):
-        with pytest.raises(ExportError, match="not yet built"):
-            formats_to_build(name)
+    assert formats_to_build("all") == ("onnx", "fmu", "statespace")
+    with pytest.raises(ExportError, match="format=mat is not one of onnx, fmu, statespace, all"):
+        formats_to_build("mat")
     env = {**os.environ, "HYPA_CACHE_DIR": str(hypa_cache)}
-    result = subprocess.run([sys.executable, "-m", "hypa.export", "run=nowhere", "format=fmu",
+    result = subprocess.run([sys.executable, "-m", "hypa.export", "run=nowhere", "format=mat",
                              f"hydra.run.dir={tmp_path}"], cwd=ROOT, env=env, capture_output=True, text=True,
                             timeout=120, check=False)
     assert result.returncode == 1 and "Traceback" not in result.stderr
-    assert "not yet built" in result.stderr.strip().splitlines()[-1]
+    assert "is not one of" in result.stderr.strip().splitlines()[-1]
 

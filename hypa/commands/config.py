@@ -238,7 +238,7 @@ class ExportConfig:
     """``conf/export.yaml``: ``python -m hypa.export``."""
 
     run: str = MISSING  # a hypa.train run folder or one of its checkpoints
-    format: str = "onnx"  # onnx | fmu | statespace | all
+    format: str = "onnx"  # onnx | fmu | statespace (physics-only models) | all (every format the model allows)
     record: int = 0  # the validation record of reference.csv and the check
     tolerance: float = 1e-5  # of each output's standard deviation
 

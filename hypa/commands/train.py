@@ -6,14 +6,18 @@
     python -m hypa.train -m model=v1,v2,v3 ann=lstm,s4 seed=0,1,2     # a sweep (parallel)
     python -m hypa.train dataset=files data.dir=PATH vehicle.cf=...    # your data
 
+    python -m hypa.train trainer.strategy=ddp trainer.devices=2            # across 2 processes (GPUs)
+
 Writes the best and last checkpoints and TensorBoard logs into the Hydra run folder and prints
-where; returns the best validation loss (for Hydra sweepers).
+where; returns the best validation loss (for Hydra sweepers). Across processes rank 0 writes all
+of it (:mod:`hypa.training.distributed`).
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -49,6 +53,8 @@ OmegaConf.register_new_resolver("channels", channels, replace=True)
 
 def train(cfg: DictConfig) -> dict[str, Any]:
     """Fit the configured model; returns the best validation loss and the output paths."""
+    from hydra.types import RunMode
+
     from hypa.commands.entry import (
         data_dir_from_config,
         flat_hparams,
@@ -64,8 +70,14 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     from hypa.training import HybridModule, StagedTraining, ValidationFigures
     from hypa.training.baseline import network_defaults
     from hypa.training.checkpoints import AtomicCheckpointIO, RecordedCheckpoint, load_module
+    from hypa.training.distributed import (
+        SameModelOnEveryRank,
+        join_rank_zero_log,
+        launched_as_rank_zero,
+        lightning_strategy,
+    )
     from hypa.training.divergence import DivergedError, StopOnNonFiniteLoss
-    from hypa.training.identified import fit_by_identification, identify_physics, plan
+    from hypa.training.identified import fit_by_identification, identified_elsewhere, identify_physics, plan
     from hypa.training.run_folder import CONFIG_FILE, RunFolder, write_text_atomic
 
     # every value checked first (hypa.commands.config), so a bad override fails before any data are read or generated
@@ -79,6 +91,13 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         physical_values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.vehicle else {}
     identification = config.identification.settings()
     extra_callbacks = user_callbacks(config.callbacks)  # built before any data are read: a bad one fails first
+    lightning_strategy(config.trainer.strategy, staged=False)  # ddp_spawn: refused before any data are read
+    zero = launched_as_rank_zero()  # the run's only process, or rank 0 of several: it owns the run folder
+    distributed = str(config.trainer.strategy).startswith("ddp")
+    if distributed and HydraConfig.get().mode == RunMode.MULTIRUN:
+        raise UserError("trainer.strategy=ddp in a sweep (-m): Lightning starts the other ranks by running the "
+                        "command line again, which would start the sweep again; train each configuration as "
+                        "its own command")
 
     out, ckpt_path = Path(HydraConfig.get().runtime.output_dir), None
     if config.ckpt_path:
@@ -93,11 +112,15 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             out = ckpt_path.parent.parent
     with settings("logger"):
         logger = instantiate(config.logger, save_dir=str(out))
-    with RunFolder.claim(out, resume=ckpt_path) as folder:  # one run, one folder: refused before any data are read
+    # one run, one folder: refused before any data are read; the other ranks of a run across processes follow it
+    with RunFolder.claim(out, resume=ckpt_path) if zero else RunFolder.follow(out) as folder:
+        if not zero:
+            join_rank_zero_log(out)
         if ckpt_path is not None:
             log.info("resuming %s in %s", ckpt_path.name, out)
         L.seed_everything(config.seed, workers=True)
         torch.set_num_threads(config.torch_threads)
+        os.environ.setdefault("OMP_NUM_THREADS", str(config.torch_threads))  # else Lightning's ddp sets cores / ranks
         with settings("testbench"):  # the test bench's settings build its data (files: a folder only)
             data_dir = data_dir_from_config(cfg)
         dm = datamodule_from_config(cfg.data, data_dir)
@@ -114,7 +137,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         folder.update_record(data_dir=str(data_dir.resolve()), **run_metadata(dm.files, data_dir))
         # the run's own resolved configuration, written while this process holds the folder (a refused
         # second run may already have overwritten Hydra's .hydra/config.yaml)
-        write_text_atomic(out / CONFIG_FILE, OmegaConf.to_yaml(cfg, resolve=True))
+        if folder.writer:
+            write_text_atomic(out / CONFIG_FILE, OmegaConf.to_yaml(cfg, resolve=True))
         module = HybridModule.from_data(  # channels, normalization, dt and past from the data module
             dm, model_config, physical_values=physical_values, horizon=horizon,
             hold=None if model_config.get("hold") else hold,  # physics.hold: for a model without its own hold:
@@ -124,10 +148,17 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         started = time.perf_counter()
         how = plan(module, stages) if identification is not None and ckpt_path is None else None
         if how in ("stage", "first"):  # a hybrid: its physics identified, then its networks train on it
-            identify_physics(module, how, stages, dm, folder, identification, logger)
+            if zero:
+                identify_physics(module, how, stages, dm, folder, identification, logger)
+            else:  # rank 0's values arrive when training starts (SameModelOnEveryRank)
+                identified_elsewhere(module, how, stages)
             stages = stages[1:] if how == "stage" else stages
+        elif how == "model" and not zero:  # started by torchrun or SLURM: rank 0 identifies alone, without epochs
+            log.info("physics-only model: identified by rank 0 alone")
+            return {"best_val_loss": math.nan}
         checkpoint = RecordedCheckpoint(folder)
         callbacks: list[L.Callback] = [
+            SameModelOnEveryRank(),
             StopOnNonFiniteLoss(hint=f"lower optimizer.lr={lr:g} or optimizer.physics_lr={physics_lr:g}"),
             instantiate(config.early_stopping, patience=patience, min_delta=config.min_delta),
             *extra_callbacks,
@@ -140,6 +171,13 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         callbacks.append(checkpoint)
         trainer_args = OmegaConf.to_container(cfg.trainer, resolve=True)  # with any +trainer.<Lightning argument>
         trainer_args["max_epochs"] = epochs * max(len(stages), 1)
+        if how == "model" and distributed:  # no epochs: one process validates the identified model
+            log.info("physics-only model: identified and validated in one process (trainer.strategy=%s is for "
+                     "epochs)", config.trainer.strategy)
+            trainer_args.update(strategy="auto", devices=1, num_nodes=1)
+        elif how != "model":  # a stage leaves networks or fixed physical parameters unused: DDP must be told
+            unused = bool(stages) or any(not p.requires_grad for p in module.parameters())
+            trainer_args["strategy"] = lightning_strategy(trainer_args.get("strategy", "auto"), staged=unused)
         with settings("trainer"):  # passed to Lightning as given: its ValueError / TypeError is the user's
             trainer = L.Trainer(**trainer_args, callbacks=callbacks, logger=logger, default_root_dir=str(out),
                                 plugins=[AtomicCheckpointIO()])
@@ -170,6 +208,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         logger.log_hyperparams(flat_hparams(OmegaConf.to_container(cfg, resolve=True)),
                                {"hp/best_val_loss": result["best_val_loss"]})
         logger.finalize("success")  # written now: after fit, nothing else flushes it before the process ends
+    if not zero:
+        return result
     print(f"best val/loss {result['best_val_loss']:.5g} after {ended}\n"
           f"checkpoint:  {result['checkpoint']}\n"
           f"tensorboard: tensorboard --logdir {result['tensorboard']}")

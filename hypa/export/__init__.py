@@ -2,14 +2,20 @@
 
 ``ModelStep`` is the step (physics and networks together, SI in and out), ``export_run``
 writes ``model.onnx``, ``reference.csv`` and ``export.json`` and checks the ONNX step with
-onnxruntime against hypa's own free run (``check_onnx``).
+onnxruntime against hypa's own free run (``check_onnx``); ``format=fmu`` adds an FMI 2.0
+co-simulation FMU (``build_fmu``, checked with fmpy: ``run_fmu``), ``format=statespace`` a
+physics-only model's composed linear state space (``linear_model``, ``statespace.mat``,
+``statespace.json``, read back by ``load_statespace`` as a python-control ``StateSpace``).
 """
 
 from hypa.export.blocks import ExportError, StateSlot
+from hypa.export.fmu import build_fmu, run_fmu
 from hypa.export.onnx import Check, check_onnx, export_onnx, run_onnx
 from hypa.export.reference import Reference, reference_run
 from hypa.export.run import Export, build_step, export_run, formats_to_build
+from hypa.export.statespace import LinearModel, linear_model, load_statespace
 from hypa.export.step import ModelStep, scheduled_squarings
 
-__all__ = ["Check", "Export", "ExportError", "ModelStep", "Reference", "StateSlot", "build_step", "check_onnx",
-           "export_onnx", "export_run", "formats_to_build", "reference_run", "run_onnx", "scheduled_squarings"]
+__all__ = ["Check", "Export", "ExportError", "LinearModel", "ModelStep", "Reference", "StateSlot", "build_fmu",
+           "build_step", "check_onnx", "export_onnx", "export_run", "formats_to_build", "linear_model",
+           "load_statespace", "reference_run", "run_fmu", "run_onnx", "scheduled_squarings"]

@@ -93,8 +93,9 @@ class Check:
     outputs: dict[str, OutputCheck]
     tolerance: float  # of each output's σ
     samples: int
-    onnx_seconds_per_step: float
+    onnx_seconds_per_step: float  # the engine's (``engine``), one step
     hypa_seconds_per_sample: float
+    engine: str = "ONNX"
 
     @property
     def passed(self) -> bool:
@@ -102,15 +103,15 @@ class Check:
 
     def summary(self) -> str:
         worst = ", ".join(f"{n} {c.relative:.2g}" for n, c in self.outputs.items())
-        return (f"max |ONNX - hypa| / σ over {self.samples} steps: {worst} (tolerance {self.tolerance:g}); "
-                f"{self.onnx_seconds_per_step * 1e6:.1f} µs per ONNX step, {self.hypa_seconds_per_sample * 1e6:.1f} µs "
-                "per sample of hypa's free run")
+        return (f"max |{self.engine} - hypa| / σ over {self.samples} steps: {worst} (tolerance {self.tolerance:g}); "
+                f"{self.onnx_seconds_per_step * 1e6:.1f} µs per {self.engine} step, "
+                f"{self.hypa_seconds_per_sample * 1e6:.1f} µs per sample of hypa's free run")
 
     def as_dict(self) -> dict:
         return {"passed": self.passed, "tolerance": self.tolerance, "samples": self.samples,
                 "outputs": {n: {"max_error": c.max_error, "std": c.std, "relative": c.relative}
                             for n, c in self.outputs.items()},
-                "onnx_seconds_per_step": self.onnx_seconds_per_step,
+                f"{self.engine.split()[0].lower()}_seconds_per_step": self.onnx_seconds_per_step,
                 "hypa_free_run_seconds_per_sample": self.hypa_seconds_per_sample}
 
 
@@ -118,12 +119,17 @@ def check_onnx(path: Path, reference: Reference, tolerance: float = 1e-5,
                state: np.ndarray | None = None) -> Check:
     """Run ``path`` with onnxruntime over the reference record from its initial state (or ``state``)
     and compare each output with hypa's free run, relative to the output's training-set σ."""
-    first = reference.first
     start = reference.initial_state if state is None else state
-    y, _, seconds = run_onnx(path, start, reference.u[first:])
+    y, _, seconds = run_onnx(path, start, reference.u[reference.first :])
+    return compare(y, reference, tolerance, seconds)
+
+
+def compare(y: np.ndarray, reference: Reference, tolerance: float, seconds: float, engine: str = "ONNX") -> Check:
+    """The check of outputs y (S, p) [SI] from sample ``first`` on, run by ``engine`` at ``seconds`` per step."""
+    first = reference.first
     expected = reference.outputs[first:]
     errors = np.abs(y - expected)
     errors = np.where(np.isfinite(errors), errors, np.inf)
     outputs = {n: OutputCheck(float(errors[:, i].max()) if len(errors) else 0.0, float(reference.output_std[i]))
                for i, n in enumerate(reference.output_names)}
-    return Check(outputs, tolerance, len(y), seconds, reference.free_run_seconds / len(reference.time))
+    return Check(outputs, tolerance, len(y), seconds, reference.free_run_seconds / len(reference.time), engine)

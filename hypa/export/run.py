@@ -1,15 +1,20 @@
-"""Exporting a trained run: the one-step model, its reference record, ``export.json``, and the check.
+"""Exporting a trained run: the one-step model, its reference record, ``export.json``, and the checks.
 
-    model.onnx      the step (``hypa.export.step``): state, u [SI] -> next_state, y [SI]
-    reference.csv   the first validation record's time, inputs, scheduling signals and hypa's free run
-    export.json     names, units, dt, the state layout, the initial state, the check's figures
+    model.onnx          the step (``hypa.export.step``): state, u [SI] -> next_state, y [SI] (every format)
+    reference.csv       the first validation record's time, inputs, scheduling signals and hypa's free run
+    export.json         names, units, dt, the state layout, the initial state, the checks' figures
+    model.fmu           format=fmu: the step as an FMI 2.0 co-simulation FMU (``hypa.export.fmu``)
+    statespace.mat      format=statespace, physics-only models: A, B, C, D, Ad, Bd, Cd, Dd, Ts
+    statespace.json     the same, for ``load_statespace`` (python-control) (``hypa.export.statespace``)
 
-The export reports success only when onnxruntime, run step by step over the reference record
-from the initial state, reproduces hypa's free run to ``tolerance`` of each output's σ.
+The export reports success only when each format, run step by step over the reference record
+from the initial state (onnxruntime; fmpy; the discrete state space in numpy), reproduces hypa's
+free run to ``tolerance`` of each output's σ.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import platform
 from dataclasses import dataclass
@@ -19,7 +24,7 @@ from typing import TYPE_CHECKING
 import torch
 
 from hypa.export.blocks import ExportError, PhysicsStep
-from hypa.export.onnx import OPSET, Check, check_onnx, export_onnx
+from hypa.export.onnx import OPSET, Check, check_onnx, compare, export_onnx
 from hypa.export.reference import Reference, reference_run
 from hypa.export.step import ModelStep, scheduled_squarings
 
@@ -28,7 +33,6 @@ if TYPE_CHECKING:
     from hypa.evaluation.runs import TrainedRun
 
 FORMATS = ("onnx", "fmu", "statespace", "all")
-BUILT = ("onnx",)
 FORMAT_VERSION = 1
 STIFF_SQUARINGS = 10  # a scheduled hold this many squarings deep amplifies rounding ~1000 times
 
@@ -39,23 +43,20 @@ class Export:
 
     folder: Path
     files: dict[str, Path]
-    check: Check
+    check: Check  # the ONNX step's
     state_size: int
+    checks: dict[str, Check] = dataclasses.field(default_factory=dict)  # format -> its check, ONNX's included
+    skipped: dict[str, str] = dataclasses.field(default_factory=dict)  # format -> why it was not written
 
     def sizes(self) -> dict[str, int]:
         return {name: path.stat().st_size for name, path in self.files.items()}
 
 
 def formats_to_build(name: str) -> tuple[str, ...]:
-    """The formats ``format=name`` asks for; a format not built yet is one line."""
+    """The formats ``format=name`` asks for; an unknown one is one line."""
     if name not in FORMATS:
         raise ExportError(f"format={name} is not one of {', '.join(FORMATS)}")
-    wanted = tuple(f for f in FORMATS[:-1] if name in (f, "all"))
-    missing = [f for f in wanted if f not in BUILT]
-    if missing:
-        exports = f"{' and '.join(missing)} export{'s are' if len(missing) > 1 else ' is'}"
-        raise ExportError(f"format={name}: the {exports} not yet built; use format={' or '.join(BUILT)}")
-    return wanted
+    return tuple(f for f in FORMATS[:-1] if name in (f, "all"))
 
 
 def build_step(run: TrainedRun, dm: HypaDataModule, record_index: int = 0) -> tuple[ModelStep, Reference]:
@@ -76,25 +77,79 @@ def build_step(run: TrainedRun, dm: HypaDataModule, record_index: int = 0) -> tu
 
 def export_run(run: TrainedRun, dm: HypaDataModule, out: Path, format: str = "onnx", record_index: int = 0,
                tolerance: float = 1e-5) -> Export:
-    """Export ``run`` into ``out`` (see the module's docstring); ``ExportError`` when it cannot or the check fails."""
-    formats_to_build(format)
+    """Export ``run`` into ``out`` (see the module's docstring); ``ExportError`` when it cannot or a check fails.
+
+    ``format=all`` writes every format the model allows and names the ones skipped (``Export.skipped``)."""
+    from hypa.export.statespace import refusal
+
+    wanted = formats_to_build(format)
+    skipped = {}
+    why = refusal(run.module.model) if "statespace" in wanted else None
+    if why and format == "statespace":
+        raise ExportError(f"format=statespace: {why}")
+    if why:
+        skipped["statespace"] = why
+        wanted = tuple(f for f in wanted if f != "statespace")
     out.mkdir(parents=True, exist_ok=True)
     step, reference = build_step(run, dm, record_index)
     files = {"model.onnx": export_onnx(step, out / "model.onnx", reference),
              "reference.csv": reference.write_csv(out / "reference.csv")}
-    check = check_onnx(files["model.onnx"], reference, tolerance)
-    description = describe(run, dm, step, reference, check)
+    checks = {"onnx": check_onnx(files["model.onnx"], reference, tolerance)}
+    description = describe(run, dm, step, reference, checks["onnx"])
+    if checks["onnx"].passed:
+        if "statespace" in wanted:
+            checks["statespace"] = _statespace(step, dm, reference, out, files, tolerance)
+        if "fmu" in wanted:
+            checks["fmu"] = _fmu(step, reference, description, out, files, tolerance)
+    description["checks"] = {name: check.as_dict() for name, check in checks.items()}
+    description["skipped"] = skipped
+    description["files"] = sorted({*files, "export.json"})
     files["export.json"] = out / "export.json"
     files["export.json"].write_text(json.dumps(description, indent=2) + "\n")
-    if not check.passed:
-        worst = max(check.outputs, key=lambda n: check.outputs[n].relative)
-        stiff = [f"{name} needs {form.squarings} squarings of its hold per step, stiff enough that float32 rounding, "
-                 "hypa's own free run's included, is amplified 2^squarings times" for name, form in step.forms.items()
-                 if isinstance(form, PhysicsStep) and form.squarings >= STIFF_SQUARINGS]
-        raise ExportError(f"the ONNX step does not reproduce hypa's free run of {reference.record}: {worst} is off by "
-                          f"{check.outputs[worst].relative:.3g} of its σ (tolerance {tolerance:g}); "
-                          + (f"{'; '.join(stiff)}; " if stiff else "") + f"see {files['export.json']}")
-    return Export(out, files, check, step.state_size)
+    for name, check in checks.items():
+        if not check.passed:
+            _refuse(name, check, step, reference, files["export.json"])
+    return Export(out, files, checks["onnx"], step.state_size, checks, skipped)
+
+
+def _refuse(name: str, check: Check, step: ModelStep, reference: Reference, description: Path) -> None:
+    worst = max(check.outputs, key=lambda n: check.outputs[n].relative)
+    stiff = [f"{block} needs {form.squarings} squarings of its hold per step, stiff enough that float32 rounding, "
+             "hypa's own free run's included, is amplified 2^squarings times" for block, form in step.forms.items()
+             if isinstance(form, PhysicsStep) and form.squarings >= STIFF_SQUARINGS]
+    what = {"onnx": "the ONNX step", "fmu": "the FMU (fmpy)", "statespace": "the discrete state space"}[name]
+    raise ExportError(f"{what} does not reproduce hypa's free run of {reference.record}: {worst} is off by "
+                      f"{check.outputs[worst].relative:.3g} of its σ (tolerance {check.tolerance:g}); "
+                      + (f"{'; '.join(stiff)}; " if stiff else "") + f"see {description}")
+
+
+def _statespace(step: ModelStep, dm: HypaDataModule, reference: Reference, out: Path, files: dict[str, Path],
+                tolerance: float) -> Check:
+    """Write ``statespace.mat`` and ``statespace.json`` and check the discrete system against hypa's free run."""
+    import time
+
+    from hypa.export.statespace import discrete_initial_state, linear_model, write_statespace
+
+    system = linear_model(step.model, {n: c.unit for n, c in dm.channels.items()}, dm.dt)
+    x0 = discrete_initial_state(step.model, reference)
+    files["statespace.mat"], files["statespace.json"] = write_statespace(system, x0, out)
+    started = time.perf_counter()
+    y = system.simulate(x0, reference.u[reference.first :])
+    seconds = (time.perf_counter() - started) / max(len(y), 1)
+    return compare(y, reference, tolerance, seconds, "state space (numpy)")
+
+
+def _fmu(step: ModelStep, reference: Reference, description: dict, out: Path, files: dict[str, Path],
+         tolerance: float) -> Check:
+    """Write ``model.fmu`` and check it with fmpy against hypa's free run."""
+    from hypa.export.fmu import build_fmu, run_fmu
+
+    model = step.model
+    parameters = {n: (v, model.parameters_.specs[n].unit) for n, v in model.parameters_.as_floats().items()}
+    files["model.fmu"] = build_fmu(files["model.onnx"], out / "model.fmu", description, reference, step.slots,
+                                   parameters)
+    y, seconds = run_fmu(files["model.fmu"], reference)
+    return compare(y, reference, tolerance, seconds, "FMU (fmpy)")
 
 
 def describe(run: TrainedRun, dm: HypaDataModule, step: ModelStep, reference: Reference, check: Check) -> dict:

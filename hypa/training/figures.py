@@ -18,7 +18,7 @@ class ValidationFigures(Callback):
         self.seconds, self.start_s, self.every_n_epochs = seconds, start_s, every_n_epochs
 
     def on_validation_epoch_end(self, trainer: L.Trainer, module: L.LightningModule) -> None:
-        if trainer.sanity_checking or trainer.current_epoch % self.every_n_epochs:
+        if not trainer.is_global_zero or trainer.sanity_checking or trainer.current_epoch % self.every_n_epochs:
             return
         experiment = getattr(trainer.logger, "experiment", None)
         if experiment is None or not hasattr(experiment, "add_figure"):

@@ -21,6 +21,10 @@ physical parameters gets one of:
 
 The report goes to ``identification.md``, ``run.json`` (``identification``) and TensorBoard (text
 and the parameters as ``physics/<name>``).
+
+Across processes (``trainer.strategy=ddp``) rank 0 alone identifies; the other ranks take the
+same stage settings with :func:`identified_elsewhere` and receive rank 0's values when training
+starts (:class:`hypa.training.distributed.SameModelOnEveryRank`).
 """
 
 from __future__ import annotations
@@ -78,6 +82,13 @@ def identify_physics(module: HybridModule, how: Plan, stages: Sequence[StageSpec
         return _identify(module, dm, folder, settings, logger)
     finally:
         model.set_stage(None)
+
+
+def identified_elsewhere(module: HybridModule, how: Plan, stages: Sequence[StageSpec]) -> None:
+    """On a rank > 0: the stage settings :func:`identify_physics` leaves (``how``: ``stage`` or
+    ``first``), without identifying; the identified values come from rank 0 when training starts."""
+    if how == "stage":
+        module.model.set_stage(stages[0].train, stages[0].bypass)
 
 
 def _identify(module: HybridModule, dm: HypaDataModule, folder: RunFolder, settings: IdentificationSettings,

@@ -138,14 +138,16 @@ class HybridModule(L.LightningModule):
     def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> Tensor:
         y, start = batch["y"], self.past + 1
         loss = self.loss(self(batch["u"], y[:, :start], batch.get("s")), y[:, start:])
-        self.log("train/loss", loss, on_step=True, on_epoch=True, prog_bar=True, batch_size=y.shape[0])
+        self.log("train/loss", loss, on_step=True, on_epoch=True, prog_bar=True, batch_size=y.shape[0], sync_dist=True)
         return loss
 
     def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
         u, y, first = batch["u"], batch["y"], self.past + 1
         signals = self.model.signals(u, y[:, :first], batch.get("s"))
         pred = self.model.outputs(signals, self.past)
-        self.log("val/loss", self.loss(pred, y[:, first:]), prog_bar=True, batch_size=y.shape[0])
+        # sync_dist: across processes (trainer.strategy=ddp) the mean over every rank's share of the validation
+        # windows, so early stopping, the stages and the best checkpoint decide the same on every rank
+        self.log("val/loss", self.loss(pred, y[:, first:]), prog_bar=True, batch_size=y.shape[0], sync_dist=True)
         for i, name in enumerate(self.output_names):  # metrics in SI units
             p = self.model.to_physical(name, pred[..., i]).flatten()
             t = self.model.to_physical(name, y[:, first:, i]).flatten()
@@ -161,16 +163,16 @@ class HybridModule(L.LightningModule):
 
     def on_validation_epoch_end(self) -> None:
         for name, metrics in self.val_metrics.items():
-            self.log_dict({f"val/{name}/{k}": v for k, v in metrics.compute().items()})
+            self.log_dict({f"val/{name}/{k}": v for k, v in metrics.compute().items()}, sync_dist=True)
             metrics.reset()
         for name, metrics in self.signal_metrics.items():
             if metrics["rmse"].update_count:
-                self.log_dict({f"val/{name}/{k}": v for k, v in metrics.compute().items()})
+                self.log_dict({f"val/{name}/{k}": v for k, v in metrics.compute().items()}, sync_dist=True)
                 metrics.reset()
     def on_train_epoch_end(self) -> None:
         params = self.model.parameters_
         for name in self.model.trainable_physics:
-            self.log(f"physics/{name}", params.value(name).detach().float())
+            self.log(f"physics/{name}", params.value(name).detach().float(), sync_dist=True)
 
     def configure_optimizers(self) -> torch.optim.Optimizer:
         # Every parameter is handed over, frozen ones too: a staged training only flips

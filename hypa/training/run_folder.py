@@ -15,6 +15,9 @@ its best checkpoint: path, validation loss, epoch and SHA-256). :class:`RunFolde
 Hydra writes ``.hydra/`` and the log before hypa's code runs, so a refused second writer may have
 touched those; what hypa reads back (``config.yaml``, ``run.json``, the recorded checkpoint) it
 has not.
+
+In a run across processes (``trainer.strategy=ddp``) rank 0 holds the folder; the other ranks
+:meth:`RunFolder.follow` it: they know where it is and never write it.
 """
 
 from __future__ import annotations
@@ -86,8 +89,9 @@ class RunFolder:
     Use :meth:`claim` as a context manager: ``with RunFolder.claim(out, resume) as folder: ...``.
     """
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, writer: bool = True) -> None:
         self.path = Path(path)
+        self.writer = writer  # False: a rank > 0 of a run across processes (update_record writes nothing)
         self.record: dict[str, Any] = {}
         self._lock: IO[str] | None = None
         self._log_handler: logging.Handler | None = None
@@ -113,6 +117,13 @@ class RunFolder:
             yield folder
         finally:
             folder._release()
+
+    @classmethod
+    @contextmanager
+    def follow(cls, path: Path) -> Iterator[RunFolder]:
+        """The folder that rank 0 of a run across processes holds, seen from another rank: not
+        locked, not checked, never written."""
+        yield cls(path, writer=False)
 
     def _take_lock(self) -> None:
         if fcntl is None:  # pragma: no cover
@@ -166,8 +177,10 @@ class RunFolder:
             self._lock = None
 
     def update_record(self, **fields: Any) -> None:
-        """Add ``fields`` to ``run.json`` and write it (atomically)."""
+        """Add ``fields`` to ``run.json`` and write it (atomically); nothing on a following rank."""
         self.record.update(fields)
+        if not self.writer:
+            return
         write_text_atomic(self.path / RECORD_FILE, json.dumps(self.record, indent=2) + "\n")
 
     def relative(self, path: Path | str) -> str:

@@ -47,7 +47,7 @@ class StagedTraining(Callback):
                  self.current.name, list(self.current.train), list(self.current.bypass))
 
     def on_train_epoch_start(self, trainer: L.Trainer, module: L.LightningModule) -> None:
-        module.log("stage", float(self.stage), on_step=False, on_epoch=True)
+        module.log("stage", float(self.stage), on_step=False, on_epoch=True, sync_dist=True)
 
     def on_validation_end(self, trainer: L.Trainer, module: L.LightningModule) -> None:
         if trainer.sanity_checking or self.monitor not in trainer.callback_metrics:
