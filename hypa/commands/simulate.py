@@ -43,7 +43,8 @@ def main(cfg: DictConfig) -> float:
     out = Path(HydraConfig.get().runtime.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     results = simulate_nominal(module, dm, out, plot=config.plot)
-    print(report(results, dm, f"model {model_config['name']} at its configured values (hold={hold}) "
+    # the hold the physics ran with: the model's own where it fixes one (silverbox_physical: foh)
+    print(report(results, dm, f"model {model_config['name']} at its configured values (hold={module.model.hold}) "
                               "against the validation data:"))
     print(f"results and figures in {out}")
     return float(np.mean([m["nrmse"] for label, r in results.items() if label.startswith("windowed")
