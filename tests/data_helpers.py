@@ -109,3 +109,25 @@ def make_dc_motor_data(folder: Path, seconds: float) -> dict[str, str]:
                           capture_output=True, text=True, timeout=120, env=env, check=False)
     assert made.returncode == 0, made.stderr[-2000:]
     return env
+
+
+# the example DC motor's physics with a correction network, one stage (trained jointly after identification)
+DC_MOTOR_HYBRID = """# @package model
+name: dc_motor_hybrid
+blocks:
+  motor:
+    kind: physics
+    system: dc_motor:DCMotor
+    inputs: [voltage]
+    outputs: [speed_physics]
+    observe: {speed_physics: speed}
+    initial_state: estimate
+    trainable: [torque_constant, friction, load_torque]
+  correction:
+    kind: ann
+    inputs: [voltage, speed_physics]
+    outputs: [speed]
+    residual_of: [speed_physics]
+outputs: [speed]
+stages: []
+"""

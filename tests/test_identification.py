@@ -14,7 +14,7 @@ from omegaconf import OmegaConf
 
 import hypa.commands  # noqa: F401  (registers the schemas conf/train.yaml extends)
 
-from data_helpers import USER_EXAMPLE, make_dc_motor_data
+from data_helpers import DC_MOTOR_HYBRID, USER_EXAMPLE, make_dc_motor_data
 
 ROOT = Path(__file__).resolve().parents[1]
 TRUE = {"torque_constant": 0.065, "friction": 3e-5, "load_torque": 0.004}  # examples/user_system/make_data.py
@@ -263,25 +263,6 @@ def test_hypa_train_identifies_a_physics_only_model(data: Path, tmp_path: Path) 
     assert "## Identification" in (tmp_path / "eval" / "summary.md").read_text()  # the run's report says how
 
 
-HYBRID = """# @package model
-name: dc_motor_hybrid
-blocks:
-  motor:
-    kind: physics
-    system: dc_motor:DCMotor
-    inputs: [voltage]
-    outputs: [speed_physics]
-    observe: {speed_physics: speed}
-    initial_state: estimate
-    trainable: [torque_constant, friction, load_torque]
-  correction:
-    kind: ann
-    inputs: [voltage, speed_physics]
-    outputs: [speed]
-    residual_of: [speed_physics]
-outputs: [speed]
-stages: []
-"""
 
 
 def test_a_jointly_trained_hybrid_starts_its_networks_on_identified_physics(data: Path, tmp_path: Path) -> None:
@@ -289,7 +270,7 @@ def test_a_jointly_trained_hybrid_starts_its_networks_on_identified_physics(data
     then the configured training (physics and network together, by epochs) starts from there."""
     env = make_dc_motor_data(tmp_path / "unused", 1)
     (tmp_path / "conf" / "model").mkdir(parents=True)
-    (tmp_path / "conf" / "model" / "dc_motor_hybrid.yaml").write_text(HYBRID)
+    (tmp_path / "conf" / "model" / "dc_motor_hybrid.yaml").write_text(DC_MOTOR_HYBRID)
     run = tmp_path / "run"
     command = [sys.executable, "-m", "hypa.train", "--config-dir", str(USER_EXAMPLE / "conf"), "dataset=dc_motor",
                f"hydra.searchpath=[file://{tmp_path / 'conf'}]", "model=dc_motor_hybrid", "ann=lstm",

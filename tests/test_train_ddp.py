@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from conftest import SHORT_OVERRIDES
-from data_helpers import USER_EXAMPLE, make_dc_motor_data
+from data_helpers import DC_MOTOR_HYBRID, USER_EXAMPLE, make_dc_motor_data
 
 ROOT = Path(__file__).resolve().parents[1]
 DDP = ["trainer.strategy=ddp", "trainer.devices=2", "trainer.accelerator=cpu"]
@@ -60,25 +60,6 @@ def test_v2_trains_across_two_processes_as_in_one(tmp_path: Path, hypa_cache: Pa
     assert "stage 'rear_steering' done" in (tmp_path / "two" / "train.log").read_text()
 
 
-HYBRID = """# @package model
-name: dc_motor_hybrid
-blocks:
-  motor:
-    kind: physics
-    system: dc_motor:DCMotor
-    inputs: [voltage]
-    outputs: [speed_physics]
-    observe: {speed_physics: speed}
-    initial_state: estimate
-    trainable: [torque_constant, friction, load_torque]
-  correction:
-    kind: ann
-    inputs: [voltage, speed_physics]
-    outputs: [speed]
-    residual_of: [speed_physics]
-outputs: [speed]
-stages: []
-"""
 TRUE = {"torque_constant": 0.065, "friction": 3e-5, "load_torque": 0.004}  # examples/user_system/make_data.py
 
 
@@ -89,7 +70,7 @@ def test_a_hybrid_identified_once_trains_on_its_physics_across_two_processes(tmp
     data = tmp_path / "data"
     env = make_dc_motor_data(data, 20)
     (tmp_path / "conf" / "model").mkdir(parents=True)
-    (tmp_path / "conf" / "model" / "dc_motor_hybrid.yaml").write_text(HYBRID)
+    (tmp_path / "conf" / "model" / "dc_motor_hybrid.yaml").write_text(DC_MOTOR_HYBRID)
     user = ["--config-dir", str(USER_EXAMPLE / "conf"), "dataset=dc_motor", f"data.dir={data}", *QUIET, *DDP]
     run = tmp_path / "hybrid"
     result = hypa_train(run, [*user, f"hydra.searchpath=[file://{tmp_path / 'conf'}]", "model=dc_motor_hybrid",
