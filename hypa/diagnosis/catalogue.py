@@ -21,7 +21,9 @@ the vehicle's, a user's own file with ``diagnosis.catalogue=[PATH]``)::
                                        # modelled: diagnosed_learned.yaml learns each with a network
 
 Placeholders: ``{input}``, ``{output}``, ``{block}``, ``{parameter}`` (the block's own name of
-it), ``{channel}`` (scheduling), ``{block_input}`` (the block's first input), ``{system}`` (the
+it), ``{channel}`` (scheduling), ``{block_input}`` (the block's first input), ``{block_outputs[i]}``
+(its i-th output), ``{block_scheduling}`` (a whole value: the block's scheduling mapping, so that a
+new block is scheduled like it), ``{system}`` (the
 replacement of the matched block's system, when ``where.system`` is a mapping). A parameter value
 may be an expression of ``dt`` [s], the sample time. Which parameters ``for_each: parameter``
 visits: those the nominal model declares uncertain (its blocks' ``trainable``), or all.
@@ -138,9 +140,12 @@ def _entry(item: Any, path: Path) -> Entry:
                  source=str(path), learn=tuple(str(b) for b in learn))
 
 
-def _format(value: Any, context: Mapping[str, str]) -> Any:
+def _format(value: Any, context: Mapping[str, Any]) -> Any:
     """Fill the placeholders in every string of a nested value (keys too)."""
     if isinstance(value, str):
+        whole = value[1:-1] if value.startswith("{") and value.endswith("}") else None
+        if whole in context and not isinstance(context[whole], str):  # a mapping or list placeholder, itself
+            return copy.deepcopy(context[whole])
         return value.format(**context)
     if isinstance(value, list):
         return [_format(v, context) for v in value]
@@ -197,7 +202,7 @@ def apply_patch(spec: ModelSpec, patch: Mapping[str, Any], dt: float, where: str
 
 def _contexts(entry: Entry, spec: ModelSpec, inputs: Sequence[str], outputs: Sequence[str],
               scheduling: Sequence[str], values: Mapping[str, float], uncertain: Mapping[str, Sequence[str]]
-              ) -> Iterator[tuple[str, dict[str, str]]]:
+              ) -> Iterator[tuple[str, dict[str, Any]]]:
     """(target, placeholders) for each place the entry applies to."""
     if entry.for_each == "input":
         consumed = {s for b in spec.blocks for s in b.inputs}
@@ -208,6 +213,7 @@ def _contexts(entry: Entry, spec: ModelSpec, inputs: Sequence[str], outputs: Seq
         systems = entry.where.get("system", ())
         replace = systems if isinstance(systems, Mapping) else {}
         yield from ((b.name, {"block": b.name, "block_input": b.inputs[0] if b.inputs else "",
+                              "block_outputs": list(b.outputs), "block_scheduling": dict(b.scheduling),
                               "system": replace.get(b.system, b.system)})
                     for b in spec.blocks if b.kind == "physics" and b.system in systems)
     else:
@@ -257,6 +263,7 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
     channels = channels or {}
     uncertain = {b.name: b.trainable for b in spec.blocks} if uncertain is None else uncertain
     base = frozen(spec)
+    existing = {b.name for b in base.blocks}
     out = []
     known = {**physical_values, **spec.parameters}
     for entry in entries:
@@ -271,7 +278,10 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
                 continue
             channel = context.get("input") or context.get("output") or context.get("channel")
             variables = {"peak": channels[channel][0]} if channel in channels else {}
-            edited = apply_patch(base, _format(dict(entry.patch), context), dt, where, variables)
+            patch = _format(dict(entry.patch), context)
+            if any(name.startswith("diagnosed_") and name in existing for name in patch.get("blocks", {})):
+                continue  # the model has this cause's block already: named in an earlier round
+            edited = apply_patch(base, patch, dt, where, variables)
             knobs = _knobs(edited, physical_values, channels) if entry.fit == GRADIENT else {}
             if entry.fit == GRADIENT and not knobs:
                 raise CatalogueError(f"{where}: fit: gradient but the patch makes nothing trainable")

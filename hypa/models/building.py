@@ -269,7 +269,9 @@ class BlockBuilder:
         mean_in = torch.tensor([m for m, _ in inputs], dtype=torch.float64)
         std_in = torch.tensor([s for _, s in inputs], dtype=torch.float64)
         mean_out, std_out = d @ mean_in, d.abs() @ std_in  # y = D u: μy = D μu, σy <= |D| σu
-        if not bool((std_out > 0).all()):
+        # a measured output keeps the data's scale: the model's outputs are compared with the data in it
+        image = [self.measured.get(o, (m, s)) for o, m, s in zip(b.outputs, mean_out.tolist(), std_out.tolist())]
+        if not all(s > 0 for _, s in image):
             raise ModelSpecError(f"block {b.name!r}: its gain is zero at the nominal parameters; "
                                  "give scale_as to fix the output scaling")
-        return list(zip(mean_out.tolist(), std_out.tolist()))
+        return image

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from hypa.physics.lti import LTIModel
 from hypa.vehicle.physics import (
+                                  SideSlipAtSensor,
                                   SingleTrack,
                                   SingleTrackRelaxation,
                                   SingleTrackRelaxationSaturation,
@@ -34,9 +35,12 @@ SYSTEMS: dict[str, Callable[[str], LTIModel]] = {
     "single_track_front_saturation": lambda block: SingleTrackSaturation(rear_steering=False),
     "single_track_relaxation_saturation": lambda block: SingleTrackRelaxationSaturation(rear_steering=True),
     "single_track_front_relaxation_saturation": lambda block: SingleTrackRelaxationSaturation(rear_steering=False),
+    # the side slip at a sensor sensor_x [m] ahead of the centre of gravity: [yaw_rate, side_slip] -> side_slip
+    "side_slip_at_sensor": lambda block: SideSlipAtSensor(),
 }
 
 CATALOGUE = Path(__file__).with_name("catalogue.yaml")  # the vehicle's causes for hypa.diagnose model=M
 
-__all__ = ["CATALOGUE", "SYSTEMS", "SingleTrack", "SingleTrackRelaxation", "SingleTrackRelaxationSaturation",
-           "SingleTrackSaturation", "SteeringGain", "VehicleParameters", "parameter_spec", "vehicle_parameters"]
+__all__ = ["CATALOGUE", "SYSTEMS", "SideSlipAtSensor", "SingleTrack", "SingleTrackRelaxation",
+           "SingleTrackRelaxationSaturation", "SingleTrackSaturation", "SteeringGain", "VehicleParameters",
+           "parameter_spec", "vehicle_parameters"]

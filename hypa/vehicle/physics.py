@@ -248,3 +248,29 @@ class SteeringGain(LTIModel):
         gain = 1.0 / ratio if self.axle == "front" else p["rws_ratio"] / ratio
         empty = ratio.new_zeros(0, 0)
         return StateSpace(empty, ratio.new_zeros(0, 1), ratio.new_zeros(1, 0), gain.reshape(1, 1))
+
+
+class SideSlipAtSensor(LTIModel):
+    """The side slip where it is measured: a point ``sensor_x`` [m] ahead of the centre of gravity.
+
+    A rigid body turning at ψ̇ moves a point x ahead of its centre of gravity sideways at
+    v_y + x ψ̇, so its slip angle there is (small angles)
+
+        β_s = β + x ψ̇ / v,    y = D u with u = [ψ̇, β], D = [[x / v, 1]]
+
+    A side slip from a localization's v_y (GNSS antenna, IMU) is taken at that point, not at the
+    centre of gravity the single track describes. On a course driven mostly one way round, the
+    mean of x ψ̇ / v reads as a side-slip offset; a single track fitted without it can run a
+    cornering stiffness to infinity to make β small where the sensor is. No states; ``velocity``
+    (the vehicle's, or scheduled like the single track's) sets the lever arm's angle.
+    """
+
+    state_names: tuple[str, ...] = ()
+    input_names = ("yaw_rate", "side_slip")
+    output_names = ("side_slip",)
+    parameters = (ParameterSpec("sensor_x", 0.0, "m", positive=False), *_specs(("velocity",)))
+
+    def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
+        x, v = p["sensor_x"], p["velocity"]
+        arm = torch.stack([torch.stack([x / v, torch.ones_like(v)])])  # (1, 2): batch-safe (trailing samples)
+        return StateSpace(v.new_zeros(0, 0), v.new_zeros(0, 2), v.new_zeros(1, 0), arm)
