@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import nbformat
+import pytest
 from nbclient import NotebookClient
 
 from conftest import SHORT_OVERRIDES
@@ -67,6 +68,7 @@ def test_reproduce_notebook_runs_on_a_tiny_reproduction(tmp_path: Path, hypa_cac
     assert any("image/png" in o.get("data", {}) for o in outputs)
 
 
+@pytest.mark.slow  # about 20 s; test_diagnose_vehicle names the same causes through the command, in CI
 def test_diagnose_notebook_names_the_rear_steering_and_the_relaxation(tmp_path: Path, monkeypatch) -> None:
     """02_diagnose on the default test bench shortened to 40 s records, three rounds: the rear-wheel
     steering (unmodeled_input), the tire saturation and the tire relaxation are named, the gain and

@@ -160,7 +160,7 @@ def _car_log(path: Path, sensor_x: float, seed: int) -> None:
     np.savetxt(path, table, delimiter=",", header="time,steering_angle,yaw_rate,side_slip,velocity", comments="")
 
 
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.slow)])  # about 12 s each
 def test_the_diagnosis_names_a_side_slip_sensor_off_the_centre_of_gravity(tmp_path: Path, seed: int) -> None:
     """A lever arm of random length and sign (0.3-1 m) hidden in a simulated log; the nominal model is
     the scheduled single track at the true stiffnesses. ``hypa.diagnose`` names sensor_location
