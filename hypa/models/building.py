@@ -3,7 +3,8 @@
 Every signal of a composition has a physical scale (μ, σ) so that blocks can exchange it in
 the normalized scale of the paper (eq. 2): measured inputs, outputs and scheduling signals take
 the training set's statistics; a block's outputs take the scale of the measured output they
-observe, of the signals named in ``scale_as``, or (a static gain) the image of its inputs'.
+observe, of the signals named in ``scale_as``, or (a static gain) the image of its inputs' (a
+static block's measured output keeps the data's scale: the model's outputs are compared in it).
 States nobody measures get a data-free scale from the nominal physics
 (``hypa.physics.default_state_std``).
 """
