@@ -130,7 +130,7 @@ def test_the_hold_is_the_models_and_a_conflict_is_one_line(dm: HypaDataModule) -
     for build in (lambda: HybridModule.from_data(dm, OSCILLATOR, hold="zoh"),
                   lambda: ComposedModel.from_data(dm, OSCILLATOR, hold="zoh"),
                   lambda: Problem(dm, hold="zoh", workers=1).build(parse_model_spec(OSCILLATOR))):
-        with pytest.raises(UserError, match="model 'oscillator' fixes hold: foh, but hold='zoh' was given") as error:
+        with pytest.raises(UserError, match="model 'oscillator' fixes hold: foh, but hold=zoh was given") as error:
             build()
         assert "\n" not in str(error.value)
 

@@ -39,12 +39,17 @@ C = TypeVar("C")
 
 @dataclass
 class HoldConfig:
-    """``physics`` of the commands that simulate a physics model as it is: its hold."""
+    """``physics`` of the commands that simulate a physics model as it is: its hold.
 
-    hold: str = "zoh"  # zoh (as the paper) | foh
+    ``None`` (the default): the model's own ``hold:``, else the command's default (``zoh``;
+    ``foh`` for hypa.diagnose). A hold given here that contradicts the model's own is refused in
+    one line (:func:`hypa.models.building.model_hold`): the hold belongs to the model.
+    """
+
+    hold: str | None = None  # zoh (as the paper) | foh | None: the model's, else the command's default
 
     def __post_init__(self) -> None:
-        checked("physics.hold", self.hold, str, choices=HOLDS)
+        checked("physics.hold", self.hold, str, choices=HOLDS, optional=True)
 
 
 @dataclass
@@ -206,7 +211,7 @@ class DiagnoseConfig:
     testbench: Any = None
     data: DataConfig = field(default_factory=DataConfig)
     model: ModelConfig | None = None  # the nominal model; None: none given
-    physics: HoldConfig = field(default_factory=lambda: HoldConfig(hold="foh"))
+    physics: HoldConfig = field(default_factory=HoldConfig)  # None: the model's hold, else foh
     diagnosis: DiagnosisConfig = field(default_factory=DiagnosisConfig)
     extension: ExtensionConfig = field(default_factory=ExtensionConfig)
     plot: bool = True

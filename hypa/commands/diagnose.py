@@ -30,7 +30,7 @@ def main(cfg: DictConfig) -> None:
     from hypa.commands.config import DiagnoseConfig, typed
     from hypa.commands.entry import data_overrides, datamodule, from_cwd, user_config_dirs, vehicle_from_config
     from hypa.diagnosis.catalogue import load_catalogue
-    from hypa.diagnosis.problem import Problem, format_change
+    from hypa.diagnosis.problem import Problem, format_change, nominal_hold
     from hypa.diagnosis.system import diagnose_system
     from hypa.errors import UserError
     from hypa.models.schema import plain_model
@@ -41,6 +41,7 @@ def main(cfg: DictConfig) -> None:
         raise UserError("no nominal model: give one with model=M (a conf/model/M.yaml, e.g. model=vehicle_nominal)")
     out = Path(HydraConfig.get().runtime.output_dir)
     spec = parse_model_spec(plain_model(OmegaConf.to_container(cfg.model, resolve=True)))
+    hold = nominal_hold(spec, config.physics.hold)  # one that contradicts the model's own: refused before the data
     catalogue = load_catalogue([from_cwd(p) for p in config.diagnosis.catalogue])
     values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.get("vehicle") else {}
     print("reading the data", flush=True)
@@ -48,7 +49,7 @@ def main(cfg: DictConfig) -> None:
     dm.setup()
     diagnosis = config.diagnosis
     workers = {} if diagnosis.workers is None else {"workers": diagnosis.workers}
-    problem = Problem(dm, values, hold=config.physics.hold, horizon=config.data.window,
+    problem = Problem(dm, values, hold=hold, horizon=config.data.window,
                       fit_seconds=diagnosis.fit_seconds, stretch_s=diagnosis.stretch_s, **workers)
     user_dirs = user_config_dirs()
     overrides = data_overrides(HydraConfig.get().overrides.task)

@@ -28,11 +28,14 @@ def main(cfg: DictConfig) -> float:
     from hypa.commands.entry import data_dir_from_config, vehicle_from_config
     from hypa.data import datamodule_from_config
     from hypa.evaluation.nominal import nominal_module, report, simulate_nominal
+    from hypa.models.building import model_hold
     from hypa.models.schema import plain_model
+    from hypa.models.spec import parse_model_spec
 
     config = typed(cfg, SimulateConfig)  # every value checked (hypa.commands.config)
     hold = config.physics.hold
     model_config = plain_model(OmegaConf.to_container(cfg.model, resolve=True))
+    model_hold(parse_model_spec(model_config), hold, "physics.hold")  # against the model's own: refused before the data
     with settings("vehicle"):
         values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.vehicle else {}
     with settings("testbench"):  # the test bench's settings build its data (files: a folder only)

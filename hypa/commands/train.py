@@ -66,6 +66,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     from hypa.data import datamodule_from_config
     from hypa.metadata import run_metadata
     from hypa.models import parse_model_spec
+    from hypa.models.building import model_hold
     from hypa.models.schema import plain_model
     from hypa.training import HybridModule, StagedTraining, ValidationFigures
     from hypa.training.baseline import network_defaults
@@ -86,6 +87,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     epochs, patience = config.trainer.max_epochs, config.patience  # None: see network_defaults
     hold, horizon = config.physics.hold, config.horizon
     model_config = plain_model(OmegaConf.to_container(cfg.model, resolve=True))
+    model_hold(parse_model_spec(model_config), hold, "physics.hold")  # against the model's own: refused before the data
     ann_name, ann = network_settings(cfg.ann)
     with settings("vehicle"):
         physical_values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.vehicle else {}
@@ -141,7 +143,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             write_text_atomic(out / CONFIG_FILE, OmegaConf.to_yaml(cfg, resolve=True))
         module = HybridModule.from_data(  # channels, normalization, dt and past from the data module
             dm, model_config, physical_values=physical_values, horizon=horizon,
-            hold=None if model_config.get("hold") else hold,  # physics.hold: for a model without its own hold:
+            hold=hold,  # physics.hold: for a model without its own hold (one that contradicts it is refused):
             ann_name=ann_name, ann_hparams=ann, lr=lr, physics_lr=physics_lr, weight_decay=weight_decay,
         )
         stages = parse_model_spec(model_config).stages

@@ -36,9 +36,19 @@ from hypa.diagnosis.workers import default_workers
 from hypa.errors import UserError
 from hypa.identification.stretches import Stretches
 from hypa.models import ComposedModel
+from hypa.models.building import model_hold
 from hypa.models.spec import ModelSpec
 
 FOLDS = 2  # cross-validation folds: each candidate is fitted twice (once per fold)
+
+
+NOMINAL_HOLD = "foh"  # the diagnosis' hold for a model that fixes none: with zoh a real dead time comes out dt/2 short
+
+
+def nominal_hold(spec: ModelSpec, hold: str | None) -> str:
+    """The hold the diagnosis builds ``spec`` with: ``hold`` (``physics.hold``) where given, else the
+    model's own, else :data:`NOMINAL_HOLD`; a given one that contradicts the model's is a ``ModelSpecError``."""
+    return model_hold(spec, hold if hold is not None or spec.hold else NOMINAL_HOLD, "physics.hold")
 
 
 @dataclass(frozen=True)

@@ -35,7 +35,8 @@ def nominal_module(model_config: Mapping[str, Any], physical_values: Mapping[str
                    dm: HypaDataModule, hold: str | None) -> HybridModule:
     """The model of ``model_config`` built on ``dm``'s channels with its configured parameter
     values (``physical_values`` for the parameter group's names, else the systems' nominal ones).
-    ``hold``: the run's ``physics.hold``, for a model whose spec fixes no ``hold:`` of its own.
+    ``hold``: the run's ``physics.hold``, for a model whose spec fixes no ``hold:`` of its own
+    (``None``: the spec's, else ``zoh``; a different one than the spec's is a ``ModelSpecError``).
 
     Raises ``UserError`` for a model with networks: untrained, they would simulate nothing.
     """
@@ -44,8 +45,7 @@ def nominal_module(model_config: Mapping[str, Any], physical_values: Mapping[str
     if networks:
         raise UserError(f"hypa.simulate runs physics only; model {spec.name} has the network blocks "
                         f"{', '.join(networks)}: train it (python -m hypa.train) and evaluate the run instead")
-    module = HybridModule.from_data(dm, dict(model_config), physical_values=physical_values,
-                                    hold=None if spec.hold else hold)
+    module = HybridModule.from_data(dm, dict(model_config), physical_values=physical_values, hold=hold)
     return module.eval()
 
 

@@ -45,14 +45,15 @@ class PhysicsStart:
     encoder: bool = False  # estimate: a network over the past corrects the least-squares state
 
 
-def model_hold(spec: ModelSpec, hold: str | None = None) -> str:
+def model_hold(spec: ModelSpec, hold: str | None = None, setting: str = "hold") -> str:
     """The hold of ``spec``'s physics (``zoh`` | ``foh``): the model's own ``hold:``, else ``hold``,
     else ``zoh``. The hold belongs to the model (its fitted values belong to it), so ``hold`` only
-    fills in for a model that fixes none; both given and different is the user's error."""
+    fills in for a model that fixes none; both given and different is the user's error, named as
+    ``setting`` (``physics.hold`` on a command line)."""
     if hold is not None and hold not in HOLDS:
-        raise ModelSpecError(f"hold must be one of {', '.join(HOLDS)}, got {hold!r}")
+        raise ModelSpecError(f"{setting} must be one of {', '.join(HOLDS)}, got {hold!r}")
     if hold is not None and spec.hold is not None and hold != spec.hold:
-        raise ModelSpecError(f"model {spec.name!r} fixes hold: {spec.hold}, but hold={hold!r} was given: "
+        raise ModelSpecError(f"model {spec.name!r} fixes hold: {spec.hold}, but {setting}={hold} was given: "
                              f"drop one of them (the hold is the model's)")
     return spec.hold or hold or "zoh"
 

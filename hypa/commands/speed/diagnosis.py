@@ -89,7 +89,7 @@ def run_dataset(name: str) -> dict[str, Any]:
     from omegaconf import OmegaConf
 
     from hypa.commands.entry import datamodule, vehicle_from_config
-    from hypa.diagnosis.problem import Problem
+    from hypa.diagnosis.problem import Problem, nominal_hold
     from hypa.diagnosis.search import name_causes
     from hypa.models.spec import parse_model_spec
 
@@ -101,7 +101,7 @@ def run_dataset(name: str) -> dict[str, Any]:
     dm.setup()
     spec = parse_model_spec(OmegaConf.to_container(cfg.model, resolve=True))
     values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.get("vehicle") else {}
-    problem = Problem(dm, values, hold=str(cfg.physics.hold), horizon=int(cfg.data.window))
+    problem = Problem(dm, values, hold=nominal_hold(spec, cfg.physics.hold), horizon=int(cfg.data.window))
     started = time.perf_counter()
     search = name_causes(spec, problem, max_causes=int(cfg.diagnosis.max_causes))
     return {"search": search, "engine_s": time.perf_counter() - started}
