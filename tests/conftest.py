@@ -21,3 +21,14 @@ def hypa_cache(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("hypa-cache")
     os.environ["HYPA_CACHE_DIR"] = str(path)
     return path
+
+
+@pytest.fixture(autouse=True)
+def _no_hydra_app_left_running():
+    """A test that runs a command's ``main`` in this process leaves Hydra's run (its original working
+    directory, its choices) set globally: the next test would read it (a relative ``data.dir`` taken
+    from where that run started). Each test starts without one."""
+    yield
+    from hydra.core.hydra_config import HydraConfig
+
+    HydraConfig.instance().cfg = None  # type: ignore[assignment]
