@@ -177,3 +177,13 @@ def test_benchmark_diagnoses_the_nominal_model_and_identifies_its_extension(tmp_
     assert diagnosed < 0.5 * physical  # the hardening spring extrapolates where the linear physics cannot
     info = json.loads((tmp_path / "diagnosed" / "run.json").read_text())
     assert "hardening" in info["identification"]["parameters"]
+
+
+@pytest.mark.parametrize("dataset, model", [("racecar", "racecar_physical"), ("emps", "emps_physical"),
+                                            ("silverbox", "silverbox_physical")])
+def test_simulate_runs_each_data_sets_physics(dataset: str, model: str, tmp_path: Path) -> None:
+    """``python -m hypa.simulate dataset=D`` with the data set's own model, a dead time (the race
+    car's steering) counting as physics, not as a network to train first."""
+    result = hypa("hypa.simulate", f"dataset={dataset}", "plot=false", f"hydra.run.dir={tmp_path}")
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert f"model {model} at its configured values" in result.stdout and "free-run" in result.stdout

@@ -41,7 +41,7 @@ def nominal_module(model_config: Mapping[str, Any], physical_values: Mapping[str
     Raises ``UserError`` for a model with networks: untrained, they would simulate nothing.
     """
     spec = parse_model_spec(dict(model_config))
-    networks = [b.name for b in spec.blocks if b.kind != "physics"]
+    networks = [b.name for b in spec.blocks if b.kind == "ann"]  # a dead time or a limit is physics too
     if networks:
         raise UserError(f"hypa.simulate runs physics only; model {spec.name} has the network blocks "
                         f"{', '.join(networks)}: train it (python -m hypa.train) and evaluate the run instead")
