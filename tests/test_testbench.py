@@ -15,6 +15,7 @@ import pytest
 from omegaconf.errors import ConfigKeyError
 from scipy.signal import lsim, welch
 
+import hypa.commands  # noqa: F401  (registers the schemas conf/testbench.yaml extends: this file alone passes too)
 from hypa.paper.testbench import (
     TestbenchConfig,
     ensure_dataset,
@@ -26,12 +27,11 @@ from hypa.paper.testbench import (
 from hypa.paper.testbench import dataset as dataset_module
 from hypa.paper.testbench.config import RecordConfig, SteeringConfig, StochasticConfig
 from hypa.paper.testbench.excitation import stochastic_steering
-from hypa.paper.testbench.records import COLUMNS
+from hypa.paper.testbench.records import COLUMNS, config_truth
 from hypa.paper.testbench.truth import (
     axle_characteristic,
     front_wheel_angle,
     rear_steering_command,
-    simulate_truth,
     static_axle_loads,
 )
 from hypa.vehicle import VehicleParameters
@@ -58,17 +58,7 @@ def short_config(overrides: dict | None = None, base: TestbenchConfig | None = N
     return (base or TestbenchConfig()).merged(SHORT).merged(overrides)
 
 
-def truth_of(config: TestbenchConfig, steering_wheel_angle: np.ndarray):
-    return simulate_truth(
-        steering_wheel_angle,
-        config.sample_rate_hz,
-        config.vehicle,
-        config.tires,
-        config.relaxation,
-        config.rear_steering,
-        config.steering,
-        config.load_transfer,
-    )
+truth_of = config_truth  # the test bench's truth for a whole config (hypa.paper.testbench.records)
 
 
 def linear_single_track(vehicle: VehicleParameters) -> tuple[np.ndarray, np.ndarray]:

@@ -38,22 +38,20 @@ class SimulatedRecord:
         return self.segments[-1].end_s
 
 
+def config_truth(config: TestbenchConfig, steering_wheel_angle: np.ndarray) -> TruthTrajectory:
+    """The truth of the test bench ``config`` (its vehicle, tires, relaxation, ECU, steering and load
+    transfer) from rest, for a steering-wheel angle [rad] at its sample rate."""
+    return simulate_truth(steering_wheel_angle, config.sample_rate_hz, config.vehicle, config.tires, config.relaxation,
+                          config.rear_steering, config.steering, config.load_transfer)
+
+
 def simulate_record(config: TestbenchConfig, record: str | RecordConfig) -> SimulatedRecord:
     """Simulate one record of ``config`` (by name, or any :class:`RecordConfig`)."""
     name = record if isinstance(record, str) else "record"
     spec = config.records[record] if isinstance(record, str) else record
     fs = config.sample_rate_hz
     steering_wheel_angle, segments = steering_programme(spec, config.excitation, fs)
-    truth = simulate_truth(
-        steering_wheel_angle,
-        fs,
-        config.vehicle,
-        config.tires,
-        config.relaxation,
-        config.rear_steering,
-        config.steering,
-        config.load_transfer,
-    )
+    truth = config_truth(config, steering_wheel_angle)
     n = len(steering_wheel_angle)
     true_channels = {
         "steering_wheel_angle": steering_wheel_angle,
