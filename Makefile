@@ -3,6 +3,10 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
+# test processes (pytest-xdist; a test file stays in one process, so its fixtures are built once):
+# 2 suits CI's two cores; TEST_WORKERS=0 runs the suite in this process (a debugger, -x)
+TEST_WORKERS ?= 2
+PYTEST := $(BIN)/python -m pytest -q $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist loadfile)
 # mkdocs-material's banner about MkDocs 2.0 on every build (make docs, make test)
 export NO_MKDOCS_2_WARNING := 1
 
@@ -43,16 +47,16 @@ tensorboard: $(STAMP) ## open TensorBoard over all runs (outputs/ and multirun/)
 test: $(STAMP) ## ruff (the rules in pyproject.toml), the strict docs build, then the test suite without the slow checks (what CI runs)
 	$(BIN)/ruff check hypa tests
 	$(BIN)/mkdocs build --strict --quiet
-	$(BIN)/python -m pytest -q $(ARGS)
+	$(PYTEST) $(ARGS)
 
 lint: $(STAMP) ## ruff over hypa/ and tests/ (the rules of [tool.ruff.lint] in pyproject.toml: the code passes them)
 	$(BIN)/ruff check hypa tests
 
 test-slow: $(STAMP) ## only the checks marked slow
-	$(BIN)/python -m pytest -q -m slow $(ARGS)
+	$(PYTEST) -m slow $(ARGS)
 
 test-all: $(STAMP) ## every test
-	$(BIN)/python -m pytest -q -m "slow or not slow" $(ARGS)
+	$(PYTEST) -m "slow or not slow" $(ARGS)
 
 speed: $(STAMP) ## how fast: the physics blocks (ratios) and the time to name causes; one part: ARGS="physics --min-time 0.1"
 	$(BIN)/python -m hypa.speed $(ARGS)
