@@ -141,3 +141,15 @@ def test_training_refuses_a_past_too_short_to_estimate_the_state() -> None:
     with pytest.raises(ValueError, match=r"estimates its 2 states from 1 measured value.*at least 1"):
         HybridModule.from_data(data(0), config)
     HybridModule.from_data(data(1), config)  # two samples of the position: enough
+
+
+def test_a_state_an_output_reads_alone_takes_that_outputs_scale() -> None:
+    """The position (read by y = position) gets y's operating point and spread, wherever that is;
+    the velocity, read by no output, keeps the data-free scale of the nominal physics around 0."""
+    spec = msd_model().spec
+    blocks = [ComposedModel(spec, {}, ["u"], ["y"], {"u": (0.01, 0.05)}, {"y": (mean, 0.06)}, dt=DT,
+                            horizon=100).blocks["oscillator"] for mean in (-0.004, 5.0)]
+    for block, mean in zip(blocks, (-0.004, 5.0)):
+        assert block.state_mean.tolist() == pytest.approx([mean, 0.0])
+        assert float(block.state_std[0]) == pytest.approx(0.06)
+    assert float(blocks[0].state_std[1]) == float(blocks[1].state_std[1]) > 0

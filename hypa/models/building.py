@@ -6,7 +6,8 @@ the training set's statistics; a block's outputs take the scale of the measured 
 observe, of the signals named in ``scale_as``, or (a static gain) the image of its inputs' (a
 static block's measured output keeps the data's scale: the model's outputs are compared in it).
 States nobody measures get a data-free scale from the nominal physics
-(``hypa.physics.default_state_std``).
+(``hypa.physics.default_state_std``), except a state that an observed output reads alone: it takes
+that output's scale in the data (its operating point and spread).
 """
 
 from __future__ import annotations
@@ -199,7 +200,7 @@ class BlockBuilder:
             else:
                 std = default_state_std(ss, self.dt, torch.tensor([s for _, s in inputs], dtype=torch.float64),
                                         self.horizon)
-                states = [(0.0, float(s)) for s in std]
+                states = self._observed_state_scales(b, ss, start, inputs, [(0.0, float(s)) for s in std])
         self.scales.update(zip(b.outputs, outputs))
         t = lambda pairs, i: torch.tensor([p[i] for p in pairs], dtype=torch.float64)  # noqa: E731
         scaling = Scaling(t(states, 0), t(states, 1), t(inputs, 0), t(inputs, 1), t(outputs, 0), t(outputs, 1))
@@ -264,6 +265,34 @@ class BlockBuilder:
             raise ModelSpecError(f"block {b.name!r}: {len(b.outputs)} outputs but {len(scales)} scales "
                                  "(scale_as, or its inputs for a steady start)")
         return scales
+
+    def _observed_state_scales(self, b: BlockSpec, ss, start: PhysicsStart, inputs: list[Scale],
+                               states: list[Scale]) -> list[Scale]:
+        """``states`` with the data's scale for each state that an observed output reads alone.
+
+        Where row i of C (at the nominal parameters) has a single nonzero entry c_j, the
+        measured output y_i = c_j x_j + (D u)_i tells state j's operating point and spread:
+        μ_j = (μ_yi - (D μu)_i) / c_j, σ_j = σ_yi / |c_j|. The data-free scale of the nominal
+        physics (``default_state_std``, around 0) knows neither: a level of 5.6 V measured with a
+        spread of 0.67 V would be scaled by the spread the inputs give it in the linear part
+        alone (1e-3 of another state's where the coupling is nonlinear), and the estimate's
+        ridge would pull it toward 0 V.
+        """
+        if start.mode != ESTIMATE or not start.observed:
+            return states
+        states = list(states)
+        mean_in = torch.tensor([m for m, _ in inputs], dtype=torch.float64)
+        for row, measured in enumerate(start.observed):
+            if measured is None or measured not in self.measured:
+                continue
+            entries = torch.nonzero(ss.c[row]).flatten().tolist()
+            if len(entries) != 1:
+                continue
+            j, gain = entries[0], float(ss.c[row, entries[0]])
+            mean_y, std_y = self.measured[measured]
+            feedthrough = float(ss.d[row] @ mean_in) if ss.d.numel() else 0.0
+            states[j] = ((mean_y - feedthrough) / gain, std_y / abs(gain))
+        return states
 
     def _gain_scale(self, b: BlockSpec, inputs: list[Scale], d: torch.Tensor) -> list[Scale]:
         if b.scale_as:

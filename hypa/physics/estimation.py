@@ -29,6 +29,7 @@ Only samples 0..P are read.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 from torch import Tensor
@@ -37,8 +38,8 @@ from hypa.physics.scheduled import affine_scan
 
 
 def estimate_last_state(phi: Tensor, forced: Tensor, c: Tensor, offset: Tensor, y: Tensor, observed: Tensor,
-                        ridge: float = 1e-8) -> Tensor:
-    """x̂_P* (B, n) from a past window (see the module docstring).
+                        ridge: float = 1e-8, first: bool = False) -> Tensor:
+    """x̂_P* (B, n) from a past window (see the module docstring); x̂_0* with ``first``.
 
     phi: (B' , P, n, n) Â_j (B' = 1 for constant matrices); forced: (B, P, n) c_j;
     c: (B' | 1, P+1 | 1, p, n) Ĉ_j; offset: (B, P+1, p) D̂_j û_j + Ĝ_j; y: (B, P+1, p) normalized
@@ -62,4 +63,63 @@ def estimate_last_state(phi: Tensor, forced: Tensor, c: Tensor, offset: Tensor, 
     q, r = torch.linalg.qr(rows)  # (B', M (+n), n), (B', n, n)
     measured = z.reshape(batch, -1, 1)  # (B, M, 1); the ridge rows' targets are 0
     x0 = torch.linalg.solve_triangular(r, q[:, : measured.shape[1]].transpose(-1, -2) @ measured, upper=True)
+    if first:
+        return x0.squeeze(-1).expand(batch, n)
     return (transition[:, -1] @ x0).squeeze(-1) + response[:, -1]  # (B, n)
+
+
+GAUSS_NEWTON_STEPS = 4  # refinements of a nonlinear block's estimate (each one simulation of the past, n + 1 wide)
+
+
+def refine_first_state(simulate: Callable[[Tensor], Tensor], x0: Tensor, y: Tensor, observed: Tensor,
+                       ridge: float = 1e-8, steps: int = GAUSS_NEWTON_STEPS) -> Tensor:
+    """x̂_0 (B, n) of a nonlinear block refined by Gauss-Newton on its own simulation of the past window.
+
+    ``simulate(x0)`` (K, n) -> the normalized outputs ŷ_0..ŷ_P (K, P+1, p) of the block's
+    nonlinear steps started at x̂_0 = x0; ``x0`` the start (the linear part's estimate); y
+    (B, P+1, p) and observed (p,) as ``estimate_last_state``. Each step minimizes
+
+        ‖ŷ(x̂_0 + δ) - y‖² + λ ‖x̂_0 + δ‖²     over the observed rows, ŷ linearized at x̂_0,
+
+    with the Jacobian ∂ŷ/∂x̂_0 by forward differences (n more simulations in the same batch,
+    so any ``nonlinearity`` works) and takes δ only where it lowers that cost (per window),
+    so a window the linear part already fits keeps its estimate. Differentiable in y, u and
+    the parameters through the simulations (the Jacobian's values enter as they are).
+
+    Why: the linear part alone may not see a state that the feedback couples to the outputs
+    (an upper tank whose outflow fills the measured lower one): its estimate is then the
+    ridge's 0, the state mean, and the window starts far off.
+    """
+    batch, n = x0.shape
+    seen = y[..., observed]  # (B, P+1, p_o)
+    eps = torch.finfo(x0.dtype).eps  # normalized units: the states have unit spread
+    delta, tolerance = eps ** (1 / 3), math.sqrt(eps)  # the difference's step; a step that changes nothing
+    eye = torch.eye(n, dtype=x0.dtype, device=x0.device)
+
+    def cost(residual: Tensor, x: Tensor) -> Tensor:
+        return residual.square().flatten(1).sum(1) + ridge * x.square().sum(1)  # (B,)
+
+    starts = torch.cat([x0[:, None], x0[:, None] + delta * eye], 1)  # (B, n + 1, n)
+    out = simulate(starts.reshape(-1, n)).reshape(batch, n + 1, *y.shape[1:])[..., observed]
+    residual = out[:, 0] - seen
+    current = cost(residual, x0)
+    for _ in range(steps):
+        jacobian = ((out[:, 1:] - out[:, :1]) / delta).flatten(2).transpose(1, 2)  # (B, M, n)
+        rows = torch.cat([jacobian, math.sqrt(ridge) * eye.expand(batch, n, n)], 1) if ridge > 0 else jacobian
+        target = torch.cat([-residual.flatten(1), -math.sqrt(ridge) * x0], 1) if ridge > 0 else -residual.flatten(1)
+        step = torch.linalg.lstsq(rows, target[..., None]).solution.squeeze(-1)  # (B, n)
+        if not bool(torch.isfinite(step).all()) or float(step.abs().max()) <= tolerance:
+            break  # converged: a step below the dtype's resolution of a state of unit spread
+        candidate = x0 + step
+        starts = torch.cat([candidate[:, None], candidate[:, None] + delta * eye], 1)
+        trial = simulate(starts.reshape(-1, n)).reshape(batch, n + 1, *y.shape[1:])[..., observed]
+        trial_residual = trial[:, 0] - seen
+        trial_cost = cost(trial_residual, candidate)
+        better = (trial_cost < current) & torch.isfinite(trial_cost)  # (B,)
+        if not bool(better.any()):
+            break
+        x0 = torch.where(better[:, None], candidate, x0)
+        out = torch.where(better[:, None, None, None], trial, out)
+        residual = torch.where(better[:, None, None], trial_residual, residual)
+        current = torch.where(better, trial_cost, current)
+    return x0

@@ -24,7 +24,7 @@ import torch
 from torch import Tensor
 
 from hypa.physics.discretization import discretize, squarings_for
-from hypa.physics.estimation import estimate_last_state
+from hypa.physics.estimation import estimate_last_state, refine_first_state
 from hypa.physics.lifted import simulate_chunked, simulate_from_rows
 from hypa.physics.normalized import NormalizedLTI, NormalizingMaps
 from hypa.physics.scheduled import SchedulingError, forced_terms, per_sample_matrices, simulate_scheduled
@@ -162,7 +162,19 @@ class BlockSimulation:
             phi, forced = rows[..., :n], forced_terms(rows[..., n:], self.n_taps, u, past)
             c, d, g = self._output_rows(ss)
             offset = (d @ u[..., None]).squeeze(-1) + g
-        return estimate_last_state(phi, forced, c, offset, y, observed, ridge)
+        if not self.model.is_nonlinear or past == 0:
+            return estimate_last_state(phi, forced, c, offset, y, observed, ridge)
+        # a Lur'e block: the linear part's x̂_0, refined on the block's own steps over the past
+        norm = self._norm(u.dtype)
+
+        def run(starts: Tensor) -> tuple[Tensor, Tensor]:  # (K, n), K windows' starts -> x̂_0..x̂_P, ŷ_0..ŷ_P
+            inputs = u.repeat_interleave(starts.shape[0] // u.shape[0], 0)  # each window's starts are adjacent
+            states = torch.cat([starts[:, None], self._simulate_nonlinear(starts, inputs, past)], 1)
+            return states, apply_output(norm.c, norm.d, norm.g, states, inputs)
+
+        start = estimate_last_state(phi, forced, c, offset, y, observed, ridge, first=True)
+        start = refine_first_state(lambda starts: run(starts)[1], start, y, observed, ridge)
+        return run(start)[0][:, -1]
 
     def simulate_physical(self, x0: Tensor | None, u: Tensor, scheduling: Tensor | None = None) -> Tensor:
         """``forward`` in physical units: normalize, simulate, de-normalize (x0 (B, n), u (B, L, m))."""
