@@ -131,3 +131,12 @@ blocks:
 outputs: [speed]
 stages: []
 """
+
+
+def user_dataset(data: dict, vehicle: str = "none") -> str:
+    """The YAML of a user's data set config (conf/dataset/NAME.yaml): the typed data schema with
+    ``data`` (``source: files`` and ``dir: ???`` unless given), in a config folder of the user's."""
+    from omegaconf import OmegaConf
+
+    head = f"# @package _global_\ndefaults:\n  - /hypa/data_schema@data\n  - override /vehicle: {vehicle}\n  - _self_\n"
+    return head + OmegaConf.to_yaml({"data": {"source": "files", "dir": "???", **data}})

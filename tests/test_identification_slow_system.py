@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from data_helpers import user_dataset
+
 ROOT = Path(__file__).resolve().parents[1]
 DT = 5.0  # [s]
 AMBIENT = 293.15  # [K]
@@ -50,30 +52,11 @@ class HeatedBodyNonlinear(HeatedBody):
         return -p["quadratic_loss"] * (x - AMBIENT) ** 2
 '''
 
-DATASET = """# @package _global_
-defaults:
-  - /hypa/data_schema@data
-  - override /vehicle: none
-  - _self_
-data:
-  source: files
-  dir: ???
-  time: {column: time, unit: s}
-  sample_rate_hz: 0.2
-  rate_hz: null
-  channels:
-    power: {role: input, unit: W}
-    temperature: {role: output, unit: K}
-  splits: null
-  select: []
-  window: 60
-  past: 0
-  stride: 10
-  eval_stride: 30
-  batch_size: 16
-  num_workers: 0
-  seed: 0
-"""
+DATASET = user_dataset({
+    "time": {"column": "time", "unit": "s"}, "sample_rate_hz": 0.2, "rate_hz": None,
+    "channels": {"power": {"role": "input", "unit": "W"}, "temperature": {"role": "output", "unit": "K"}},
+    "splits": None, "select": [], "window": 60, "past": 0, "stride": 10, "eval_stride": 30, "batch_size": 16,
+    "num_workers": 0, "seed": 0})
 
 MODEL = """# @package model
 name: {name}

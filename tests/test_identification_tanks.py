@@ -22,6 +22,8 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from data_helpers import user_dataset
+
 ROOT = Path(__file__).resolve().parents[1]
 TS = 4.0  # [s]
 TRUE = {"k1": 0.055, "k2": 0.048, "k3": 0.06, "k4": 0.034}
@@ -71,25 +73,12 @@ class LinearTanks(LTIModel):
                           torch.stack([p["e1"], p["e2"]]))
 '''
 
-DATASET = """# @package _global_
-defaults:
-  - /hypa/data_schema@data
-  - override /vehicle: none
-  - _self_
-data:
-  source: files
-  dir: ???
-  time: {column: time, unit: s}
-  sample_rate_hz: 0.25
-  channels:
-    pump: {role: input, unit: V}
-    level: {role: output, unit: V}
-  splits:
-    train: [{file: train.csv, start: 0.0, stop: 0.8}]
-    val: [{file: train.csv, start: 0.8, stop: 1.0}]
-    test: [{file: test.csv}]
-  past: 5                    # the real benchmark's initialization window
-"""
+DATASET = user_dataset({
+    "time": {"column": "time", "unit": "s"}, "sample_rate_hz": 0.25,
+    "channels": {"pump": {"role": "input", "unit": "V"}, "level": {"role": "output", "unit": "V"}},
+    "splits": {"train": [{"file": "train.csv", "start": 0.0, "stop": 0.8}],
+               "val": [{"file": "train.csv", "start": 0.8, "stop": 1.0}], "test": [{"file": "test.csv"}]},
+    "past": 5})  # the real benchmark's initialization window
 
 MODEL = """# @package model
 name: {name}
