@@ -151,6 +151,8 @@ class BlockSimulation:
             return y.new_zeros(batch, 0)
         u = u[:, : past + 1]
         rho = self._check_scheduling(scheduling, u, past + 1)
+        if rho is not None and self.model.is_nonlinear:
+            raise SchedulingError(f"{type(self.model).__name__}: a nonlinear system cannot be scheduled yet")
         if rho is None:
             norm = self._norm(u.dtype)
             phi = norm.a.expand(1, past, n, n)
@@ -165,7 +167,6 @@ class BlockSimulation:
         if not self.model.is_nonlinear or past == 0:
             return estimate_last_state(phi, forced, c, offset, y, observed, ridge)
         # a Lur'e block: the linear part's x̂_0, refined on the block's own steps over the past
-        norm = self._norm(u.dtype)
 
         def run(starts: Tensor) -> tuple[Tensor, Tensor]:  # (K, n), K windows' starts -> x̂_0..x̂_P, ŷ_0..ŷ_P
             inputs = u.repeat_interleave(starts.shape[0] // u.shape[0], 0)  # each window's starts are adjacent
