@@ -200,7 +200,7 @@ class BlockBuilder:
             else:
                 std = default_state_std(ss, self.dt, torch.tensor([s for _, s in inputs], dtype=torch.float64),
                                         self.horizon)
-                states = self._observed_state_scales(b, ss, start, inputs, [(0.0, float(s)) for s in std])
+                states = self._observed_state_scales(ss, start, inputs, [(0.0, float(s)) for s in std])
         self.scales.update(zip(b.outputs, outputs))
         t = lambda pairs, i: torch.tensor([p[i] for p in pairs], dtype=torch.float64)  # noqa: E731
         scaling = Scaling(t(states, 0), t(states, 1), t(inputs, 0), t(inputs, 1), t(outputs, 0), t(outputs, 1))
@@ -266,8 +266,8 @@ class BlockBuilder:
                                  "(scale_as, or its inputs for a steady start)")
         return scales
 
-    def _observed_state_scales(self, b: BlockSpec, ss, start: PhysicsStart, inputs: list[Scale],
-                               states: list[Scale]) -> list[Scale]:
+    def _observed_state_scales(self, ss, start: PhysicsStart, inputs: list[Scale], states: list[Scale]
+                               ) -> list[Scale]:
         """``states`` with the data's scale for each state that an observed output reads alone.
 
         Where row i of C (at the nominal parameters) has a single nonzero entry c_j, the
@@ -283,7 +283,7 @@ class BlockBuilder:
         states = list(states)
         mean_in = torch.tensor([m for m, _ in inputs], dtype=torch.float64)
         for row, measured in enumerate(start.observed):
-            if measured is None or measured not in self.measured:
+            if measured is None:
                 continue
             entries = torch.nonzero(ss.c[row]).flatten().tolist()
             if len(entries) != 1:
