@@ -68,16 +68,17 @@ def estimate_last_state(phi: Tensor, forced: Tensor, c: Tensor, offset: Tensor, 
     return (transition[:, -1] @ x0).squeeze(-1) + response[:, -1]  # (B, n)
 
 
-GAUSS_NEWTON_STEPS = 4  # refinements of a nonlinear block's estimate (each one simulation of the past, n + 1 wide)
+GAUSS_NEWTON_STEPS = 3  # refinements of a nonlinear block's estimate (each one simulation of the past, n + 1 wide)
 
 
-def refine_first_state(simulate: Callable[[Tensor], Tensor], x0: Tensor, y: Tensor, observed: Tensor,
-                       ridge: float = 1e-8, steps: int = GAUSS_NEWTON_STEPS) -> Tensor:
-    """x̂_0 (B, n) of a nonlinear block refined by Gauss-Newton on its own simulation of the past window.
+def refine_first_state(simulate: Callable[[Tensor], tuple[Tensor, Tensor]], x0: Tensor, y: Tensor,
+                       observed: Tensor, ridge: float = 1e-8, steps: int = GAUSS_NEWTON_STEPS) -> Tensor:
+    """x̂_P (B, n) of a nonlinear block whose x̂_0 is refined by Gauss-Newton on its own simulation of
+    the past window.
 
-    ``simulate(x0)`` (K, n) -> the normalized outputs ŷ_0..ŷ_P (K, P+1, p) of the block's
-    nonlinear steps started at x̂_0 = x0; ``x0`` the start (the linear part's estimate); y
-    (B, P+1, p) and observed (p,) as ``estimate_last_state``. Each step minimizes
+    ``simulate(x0)`` (K, n) -> (ŷ_0..ŷ_P (K, P+1, p), x̂_P (K, n)): the normalized outputs and last
+    state of the block's nonlinear steps started at x̂_0 = x0; ``x0`` the start (the linear part's
+    estimate); y (B, P+1, p) and observed (p,) as ``estimate_last_state``. Each step minimizes
 
         ‖ŷ(x̂_0 + δ) - y‖² + λ ‖x̂_0 + δ‖²     over the observed rows, ŷ linearized at x̂_0,
 
@@ -91,7 +92,8 @@ def refine_first_state(simulate: Callable[[Tensor], Tensor], x0: Tensor, y: Tens
     ridge's 0, the state mean, and the window starts far off.
     """
     batch, n = x0.shape
-    seen = y[..., observed]  # (B, P+1, p_o)
+    columns = torch.nonzero(observed).flatten()  # index_select: a boolean mask's indexing costs more than the steps
+    seen = y.index_select(-1, columns)  # (B, P+1, p_o)
     eps = torch.finfo(x0.dtype).eps  # normalized units: the states have unit spread
     delta, tolerance = eps ** (1 / 3), math.sqrt(eps)  # the difference's step; a step that changes nothing
     eye = torch.eye(n, dtype=x0.dtype, device=x0.device)
@@ -99,8 +101,12 @@ def refine_first_state(simulate: Callable[[Tensor], Tensor], x0: Tensor, y: Tens
     def cost(residual: Tensor, x: Tensor) -> Tensor:
         return residual.square().flatten(1).sum(1) + ridge * x.square().sum(1)  # (B,)
 
-    starts = torch.cat([x0[:, None], x0[:, None] + delta * eye], 1)  # (B, n + 1, n)
-    out = simulate(starts.reshape(-1, n)).reshape(batch, n + 1, *y.shape[1:])[..., observed]
+    def run(start: Tensor) -> tuple[Tensor, Tensor]:  # outputs (B, n + 1, P+1, p_o) of start and its nudges, x̂_P
+        outputs, last = simulate(torch.cat([start[:, None], start[:, None] + delta * eye], 1).reshape(-1, n))
+        outputs = outputs.reshape(batch, n + 1, *y.shape[1:]).index_select(-1, columns)
+        return outputs, last.reshape(batch, n + 1, n)[:, 0]
+
+    out, last = run(x0)
     residual = out[:, 0] - seen
     current = cost(residual, x0)
     for _ in range(steps):
@@ -111,15 +117,15 @@ def refine_first_state(simulate: Callable[[Tensor], Tensor], x0: Tensor, y: Tens
         if not bool(torch.isfinite(step).all()) or float(step.abs().max()) <= tolerance:
             break  # converged: a step below the dtype's resolution of a state of unit spread
         candidate = x0 + step
-        starts = torch.cat([candidate[:, None], candidate[:, None] + delta * eye], 1)
-        trial = simulate(starts.reshape(-1, n)).reshape(batch, n + 1, *y.shape[1:])[..., observed]
+        trial, trial_last = run(candidate)
         trial_residual = trial[:, 0] - seen
         trial_cost = cost(trial_residual, candidate)
         better = (trial_cost < current) & torch.isfinite(trial_cost)  # (B,)
         if not bool(better.any()):
             break
         x0 = torch.where(better[:, None], candidate, x0)
+        last = torch.where(better[:, None], trial_last, last)
         out = torch.where(better[:, None, None, None], trial, out)
         residual = torch.where(better[:, None, None], trial_residual, residual)
         current = torch.where(better, trial_cost, current)
-    return x0
+    return last

@@ -134,7 +134,8 @@ class BlockSimulation:
 
     def estimate_state(self, u: Tensor, y: Tensor, observed: Tensor, scheduling: Tensor | None = None,
                        ridge: float = 1e-8) -> Tensor:
-        """Least-squares state x̂_P (B, n) at the last sample P of a past window (``estimation``).
+        """Least-squares state x̂_P (B, n) at the last sample P of a past window (``estimation``); a
+        nonlinear block's refined on its own steps (``estimation.refine_first_state``).
 
         u: (B, >= P+1, m) normalized inputs from sample 0; y: (B, P+1, p) normalized outputs at
         samples 0..P (its length sets P; unobserved channels are never read); observed: (p,)
@@ -168,14 +169,13 @@ class BlockSimulation:
             return estimate_last_state(phi, forced, c, offset, y, observed, ridge)
         # a Lur'e block: the linear part's x̂_0, refined on the block's own steps over the past
 
-        def run(starts: Tensor) -> tuple[Tensor, Tensor]:  # (K, n), K windows' starts -> x̂_0..x̂_P, ŷ_0..ŷ_P
+        def run(starts: Tensor) -> tuple[Tensor, Tensor]:  # (K, n), K windows' starts -> ŷ_0..ŷ_P, x̂_P
             inputs = u.repeat_interleave(starts.shape[0] // u.shape[0], 0)  # each window's starts are adjacent
             states = torch.cat([starts[:, None], self._simulate_nonlinear(starts, inputs, past)], 1)
-            return states, apply_output(norm.c, norm.d, norm.g, states, inputs)
+            return apply_output(norm.c, norm.d, norm.g, states, inputs), states[:, -1]
 
         start = estimate_last_state(phi, forced, c, offset, y, observed, ridge, first=True)
-        start = refine_first_state(lambda starts: run(starts)[1], start, y, observed, ridge)
-        return run(start)[0][:, -1]
+        return refine_first_state(run, start, y, observed, ridge)
 
     def simulate_physical(self, x0: Tensor | None, u: Tensor, scheduling: Tensor | None = None) -> Tensor:
         """``forward`` in physical units: normalize, simulate, de-normalize (x0 (B, n), u (B, L, m))."""
