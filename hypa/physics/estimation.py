@@ -107,9 +107,9 @@ def refine_first_state(simulate: Callable[[Tensor], tuple[Tensor, Tensor]], x0: 
         return outputs, last.reshape(batch, n + 1, n)[:, 0]
 
     out, last = run(x0)
-    residual = out[:, 0] - seen
-    current = cost(residual, x0)
+    current = cost(out[:, 0] - seen, x0)
     for _ in range(steps):
+        residual = out[:, 0] - seen
         jacobian = ((out[:, 1:] - out[:, :1]) / delta).flatten(2).transpose(1, 2)  # (B, M, n)
         rows = torch.cat([jacobian, math.sqrt(ridge) * eye.expand(batch, n, n)], 1) if ridge > 0 else jacobian
         target = torch.cat([-residual.flatten(1), -math.sqrt(ridge) * x0], 1) if ridge > 0 else -residual.flatten(1)
@@ -118,14 +118,12 @@ def refine_first_state(simulate: Callable[[Tensor], tuple[Tensor, Tensor]], x0: 
             break  # converged: a step below the dtype's resolution of a state of unit spread
         candidate = x0 + step
         trial, trial_last = run(candidate)
-        trial_residual = trial[:, 0] - seen
-        trial_cost = cost(trial_residual, candidate)
+        trial_cost = cost(trial[:, 0] - seen, candidate)
         better = (trial_cost < current) & torch.isfinite(trial_cost)  # (B,)
         if not bool(better.any()):
             break
         x0 = torch.where(better[:, None], candidate, x0)
         last = torch.where(better[:, None], trial_last, last)
         out = torch.where(better[:, None, None, None], trial, out)
-        residual = torch.where(better[:, None, None], trial_residual, residual)
         current = torch.where(better, trial_cost, current)
     return last
