@@ -170,3 +170,41 @@ def test_coulomb_friction_against_scipy_and_zero_friction_is_the_linear_axis() -
     assert np.abs(x - ref).max(axis=0)[1] < 1e-3 * np.abs(ref[:, 1]).max()  # velocity
     assert np.abs(x - ref).max(axis=0)[0] < 1e-3 * np.abs(ref[:, 0]).max()  # position
     assert np.abs(linear - x).max(axis=0)[0] > 0.05 * np.abs(x[:, 0]).max()  # the friction matters here
+
+
+def test_cubic_friction_against_scipy_its_pivot_and_zero_share_is_the_coulomb_axis() -> None:
+    """The partly cubic viscous friction, against solve_ivp on the friction law written out (not
+    through the class), at a share where it doubles the friction at twice the pivot speed."""
+    from hypa.physics.friction import MassWithCoulombFriction, MassWithCubicFriction
+
+    dt, model = 1e-3, MassWithCubicFriction()
+    check_system(model)
+    t = np.arange(0, 2, dt)
+    force = 160 * np.sin(2 * np.pi * 0.7 * t) + 25 * np.sin(2 * np.pi * 3.1 * t)  # [N]: beyond 1.5 v_c
+    u = torch.tensor(force, dtype=torch.float64)[None, :, None]
+
+    def run(system: LTIModel, **extra: float) -> np.ndarray:
+        sim = LTIBlock(system, PhysicalParameters(system.parameter_specs(extra)), dt=dt, horizon=100, hold="foh")
+        with torch.no_grad():
+            return np.concatenate([np.zeros((1, 2)), sim.states(torch.zeros(1, 2, dtype=torch.float64), u)[0].numpy()])
+
+    assert np.allclose(run(model), run(MassWithCoulombFriction()), atol=1e-12, rtol=0)  # nominal share 0
+    share = 0.6
+    x = run(model, cubic_share=share)
+    v = model.nominal_values()
+    m, fv, fc, f0, vc = v["mass"], v["viscous_friction"], v["coulomb_friction"], v["offset_force"], v["cubic_speed"]
+    assert vc == pytest.approx(fc / fv)  # the pivot: where the viscous friction equals the Coulomb one
+
+    def rhs(time: float, state: np.ndarray) -> np.ndarray:
+        speed = state[1]
+        friction = fv * (1 - share) * speed + fv * share * speed**3 / vc**2 + fc * np.tanh(speed / model.SMOOTHING_MPS)
+        return np.array([speed, (np.interp(time, t, force) - friction + f0) / m])
+
+    ref = solve_ivp(rhs, (0, t[-1]), np.zeros(2), t_eval=t, rtol=1e-9, atol=1e-12, max_step=dt).y.T
+    assert np.abs(ref[:, 1]).max() > 1.5 * vc  # the cubic part dominates at the fastest
+    assert np.abs(x - ref).max(axis=0)[1] < 1e-3 * np.abs(ref[:, 1]).max()  # velocity
+    assert np.abs(x - ref).max(axis=0)[0] < 1e-3 * np.abs(ref[:, 0]).max()  # position
+    p = {k: torch.tensor(val, dtype=torch.float64) for k, val in {**v, "cubic_share": share}.items()}
+    at_pivot = model.nonlinearity(torch.tensor([0.0, vc], dtype=torch.float64), torch.zeros(1), p)
+    coulomb = MassWithCoulombFriction().nonlinearity(torch.tensor([0.0, vc], dtype=torch.float64), torch.zeros(1), p)
+    assert torch.allclose(at_pivot, coulomb, atol=1e-12, rtol=0)  # the share pivots the law about v_c

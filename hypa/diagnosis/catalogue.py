@@ -163,7 +163,7 @@ def _number(value: Any, variables: Mapping[str, float], where: str) -> float:
         return float(Expression(str(value), where).evaluate(dict(variables), where))
     except Exception as error:  # noqa: BLE001 -- a catalogue's expression: report it on one line
         raise CatalogueError(f"{where}: parameter value {value!r} is neither a number nor an expression of "
-                             f"{' and '.join(variables)} ({error})") from None
+                             f"{', '.join(variables)} ({error})") from None
 
 
 def apply_patch(spec: ModelSpec, patch: Mapping[str, Any], dt: float, where: str = "",
@@ -171,8 +171,9 @@ def apply_patch(spec: ModelSpec, patch: Mapping[str, Any], dt: float, where: str
     """The model with a (formatted) patch applied: signals rewired, blocks added or merged, shared
     parameters set. New blocks come first (the composition is ordered by dependency anyway).
     Parameter values may be expressions of ``dt`` [s] and of ``variables`` (``peak``: the
-    largest |value| of the entry's channel in the training data)."""
-    variables = {"dt": dt, **(variables or {})}
+    largest |value| of the entry's channel in the training data; the model's parameters by
+    their names, at their current values)."""
+    variables = {**(variables or {}), "dt": dt}
     from hypa.models.spec import spec_config
 
     config = spec_config(spec)
@@ -251,6 +252,20 @@ def _knobs(edited: ModelSpec, values: Mapping[str, float],
     return knobs
 
 
+def _parameter_values(spec: ModelSpec, known: Mapping[str, float], block: str | None) -> dict[str, float]:
+    """The model's parameters by name at their current values (given, else nominal), for an entry's
+    expressions: the shared ones (unqualified), and the matched ``block``'s own by their local names."""
+    values = {}
+    for b in spec.blocks:
+        if b.kind != "physics":
+            continue
+        for p in build_system(b.system, b.name).parameter_specs(known):
+            local = p.name.split("/", 1)[-1]
+            if (p.name == local or b.name == block) and local.isidentifier():
+                values[local] = p.value
+    return values
+
+
 def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names: Sequence[str],
                          output_names: Sequence[str], scheduling_names: Sequence[str],
                          physical_values: Mapping[str, float], dt: float,
@@ -259,7 +274,10 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
     """Every entry expanded over the model and the data's channels, as edits of the frozen model.
 
     ``channels``: per measured channel, its largest |value| in the training data [SI] (``peak``
-    in an entry's expressions) and its unit (of a limit on it)."""
+    in an entry's expressions) and its unit (of a limit on it). An entry's expressions may also
+    read the model's parameters by name (``viscous_friction``), the shared ones and the matched
+    block's own (by their local names), at their values in this round: nominal, or fitted by an
+    earlier round; ``dt`` and ``peak`` win over a parameter of the same name."""
     channels = channels or {}
     uncertain = {b.name: b.trainable for b in spec.blocks} if uncertain is None else uncertain
     base = frozen(spec)
@@ -277,7 +295,8 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
                                      (_format(entry.offset, context),)))
                 continue
             channel = context.get("input") or context.get("output") or context.get("channel")
-            variables = {"peak": channels[channel][0]} if channel in channels else {}
+            variables = {**_parameter_values(base, known, context.get("block")),
+                         **({"peak": channels[channel][0]} if channel in channels else {})}
             patch = _format(dict(entry.patch), context)
             if any(name.startswith("diagnosed_") and name in existing for name in patch.get("blocks", {})):
                 continue  # the model has this cause's block already: named in an earlier round

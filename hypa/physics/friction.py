@@ -6,7 +6,8 @@ motor force u moves a load of mass M along a ball screw. Its reference model is
     M q̈ = u - Fv q̇ - Fc sign(q̇) + F0
 
 with states x = [position q (m), velocity q̇ (m/s)], output y = [position q]. The Coulomb term
-Fc sign(q̇) is not linear and is left to a network; the rest is the state space
+Fc sign(q̇) is not linear (``MassWithCoulombFriction``, fed back in Lur'e form, as is a friction
+growing with the cube of the speed, ``MassWithCubicFriction``); the rest is the state space
 
     A = [[0, 1], [0, -Fv/M]],   B = [[0], [1/M]],   C = [[1, 0]],   D = [[0]],   e = [0, F0/M]
 
@@ -68,3 +69,27 @@ class MassWithCoulombFriction(MassWithFriction):
 
     def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
         return -p["coulomb_friction"] * torch.tanh(x[..., 1:2] / self.SMOOTHING_MPS)
+
+
+class MassWithCubicFriction(MassWithCoulombFriction):
+    """The Coulomb model with a viscous friction that is not linear in the speed: its force
+    Fv q̇ becomes Fv q̇ ((1 - w) + w q̇² / v_c²), so
+
+        M q̈ = u - Fv (1 - w) q̇ - Fv w q̇³ / v_c² - Fc sign(q̇) + F0
+
+    ``cubic_share`` w (signed; 0: the Coulomb model) is the share of the viscous force that grows
+    with the cube of the speed, ``cubic_speed`` v_c [m/s] the speed at which the two laws give the
+    same force (w pivots the friction curve about it). A lubricated contact's friction rises
+    faster than linearly at speed (w > 0); w < 0 flattens it. Nominal: w = 0 and v_c = Fc / Fv at
+    the nominal values (0.098 m/s), the speed at which the viscous friction equals the Coulomb one:
+    the model's own speed scale. Fitted with the others, w and Fv give the two coefficients of the
+    friction law; v_c only sets their units, so it is left fixed (with w and Fv it is not
+    identifiable). The cubic term is fed back with the Coulomb force."""
+
+    parameters = (*MassWithCoulombFriction.parameters, ParameterSpec("cubic_share", 0.0, "", positive=False),
+                  ParameterSpec("cubic_speed", 20.0 / 203.5, "m/s"))
+
+    def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
+        v = x[..., 1:2]
+        cubic = p["viscous_friction"] * p["cubic_share"] * (v**3 / p["cubic_speed"] ** 2 - v)
+        return super().nonlinearity(x, u, p) - cubic

@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterator, Mapping
 
 from hypa.physics.contract import SystemContractError, check_system
 from hypa.physics.elements import FirstOrderLag, GainLag, LeadLag, SecondOrder, StaticGain
-from hypa.physics.friction import MassWithCoulombFriction, MassWithFriction
+from hypa.physics.friction import MassWithCoulombFriction, MassWithCubicFriction, MassWithFriction
 from hypa.physics.lti import LTIModel
 from hypa.physics.mass_spring_damper import DuffingOscillator, MassSpringDamper
 
@@ -64,6 +64,7 @@ PHYSICS_SYSTEMS = SystemRegistry({
     "duffing_oscillator": lambda block: DuffingOscillator(),  # the same with a cubic spring (nonlinear)
     "mass_with_friction": lambda block: MassWithFriction(),  # force -> position (EMPS)
     "mass_with_coulomb_friction": lambda block: MassWithCoulombFriction(),  # the same + Fc sign(v) (nonlinear)
+    "mass_with_cubic_friction": lambda block: MassWithCubicFriction(),  # + a partly cubic viscous friction
 }, packages=("hypa.vehicle",))
 
 
