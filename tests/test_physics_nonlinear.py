@@ -163,7 +163,7 @@ def test_coulomb_friction_against_scipy_and_zero_friction_is_the_linear_axis() -
     a, b, e, f = ss.a.numpy(), ss.b.numpy(), ss.e.numpy(), f.numpy()
 
     def rhs(time: float, state: np.ndarray) -> np.ndarray:
-        w = model.nonlinearity(torch.tensor(state), torch.zeros(1, dtype=torch.float64), p).numpy()
+        w = model.nonlinearity(torch.tensor(state), torch.zeros(1, dtype=torch.float64), model.prepare(p)).numpy()
         return a @ state + b @ [np.interp(time, t, force)] + e + f @ w
 
     ref = solve_ivp(rhs, (0, t[-1]), np.zeros(2), t_eval=t, rtol=1e-9, atol=1e-12, max_step=dt).y.T
@@ -205,6 +205,8 @@ def test_cubic_friction_against_scipy_its_pivot_and_zero_share_is_the_coulomb_ax
     assert np.abs(x - ref).max(axis=0)[1] < 1e-3 * np.abs(ref[:, 1]).max()  # velocity
     assert np.abs(x - ref).max(axis=0)[0] < 1e-3 * np.abs(ref[:, 0]).max()  # position
     p = {k: torch.tensor(val, dtype=torch.float64) for k, val in {**v, "cubic_share": share}.items()}
-    at_pivot = model.nonlinearity(torch.tensor([0.0, vc], dtype=torch.float64), torch.zeros(1), p)
-    coulomb = MassWithCoulombFriction().nonlinearity(torch.tensor([0.0, vc], dtype=torch.float64), torch.zeros(1), p)
-    assert torch.allclose(at_pivot, coulomb, atol=1e-12, rtol=0)  # the share pivots the law about v_c
+    at_pivot = model.nonlinearity(torch.tensor([0.0, vc], dtype=torch.float64), torch.zeros(1), model.prepare(p))
+    coulomb = MassWithCoulombFriction()
+    at_pivot_coulomb = coulomb.nonlinearity(torch.tensor([0.0, vc], dtype=torch.float64), torch.zeros(1),
+                                            coulomb.prepare(p))
+    assert torch.allclose(at_pivot, at_pivot_coulomb, atol=1e-12, rtol=0)  # the share pivots the law about v_c

@@ -67,8 +67,11 @@ class MassWithCoulombFriction(MassWithFriction):
         m = p["mass"]
         return torch.stack([torch.zeros_like(m), 1.0 / m]).reshape(2, 1)
 
+    def prepare(self, p: Mapping[str, Tensor]) -> Mapping[str, Tensor]:
+        return {"coulomb": -p["coulomb_friction"]}  # once per simulation, not at every sample
+
     def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
-        return -p["coulomb_friction"] * torch.tanh(x[..., 1:2] / self.SMOOTHING_MPS)
+        return p["coulomb"] * torch.tanh(x[..., 1:2] * (1.0 / self.SMOOTHING_MPS))
 
 
 class MassWithCubicFriction(MassWithCoulombFriction):
@@ -89,7 +92,10 @@ class MassWithCubicFriction(MassWithCoulombFriction):
     parameters = (*MassWithCoulombFriction.parameters, ParameterSpec("cubic_share", 0.0, "", positive=False),
                   ParameterSpec("cubic_speed", 20.0 / 203.5, "m/s"))
 
+    def prepare(self, p: Mapping[str, Tensor]) -> Mapping[str, Tensor]:
+        share = p["viscous_friction"] * p["cubic_share"]  # Fv w: the viscous force moved to the cubic law
+        return {**super().prepare(p), "linear": share, "cubic": -share / p["cubic_speed"] ** 2}
+
     def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
         v = x[..., 1:2]
-        cubic = p["viscous_friction"] * p["cubic_share"] * (v**3 / p["cubic_speed"] ** 2 - v)
-        return super().nonlinearity(x, u, p) - cubic
+        return super().nonlinearity(x, u, p) + v * torch.addcmul(p["linear"], v * v, p["cubic"])

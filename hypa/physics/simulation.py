@@ -281,8 +281,9 @@ class BlockSimulation:
         if lure.drift is not None:
             forced = forced + lure.drift
         x, states = x0 * std_x + mean_x, []
+        samples, pushes = u_phys.unbind(1), forced.unbind(1)  # views made at once: no indexing op per step
         for k in range(steps):
-            x = self.lure_step(lure, x, u_phys[:, k], u_phys[:, min(k + 1, u_phys.shape[1] - 1)], forced[:, k])
+            x = self.lure_step(lure, x, samples[k], samples[min(k + 1, len(samples) - 1)], pushes[k])
             states.append(x)
         return (torch.stack(states, 1) - mean_x) / std_x
 
