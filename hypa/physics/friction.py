@@ -89,7 +89,7 @@ class MassWithCubicFriction(MassWithCoulombFriction):
     friction law; v_c only sets their units, so it is left fixed (with w and Fv it is not
     identifiable). The cubic term is fed back with the Coulomb force."""
 
-    parameters = (*MassWithCoulombFriction.parameters, ParameterSpec("cubic_share", 0.0, "", positive=False),
+    parameters = (*MassWithCoulombFriction.parameters, ParameterSpec("cubic_share", 0.0, "-", positive=False),
                   ParameterSpec("cubic_speed", 20.0 / 203.5, "m/s"))
 
     def prepare(self, p: Mapping[str, Tensor]) -> Mapping[str, Tensor]:
