@@ -114,3 +114,17 @@ def test_the_printed_summary_gives_the_reports_headline_figures(folders, tmp_pat
         table = [1 - m["r2"] for m in diagnosis["metrics"][model].values()]
         assert float(figure.split()[0]) == pytest.approx(100 * sum(table) / len(table), rel=5e-3)
     assert float(printed.group(3).split()[0]) == pytest.approx(100 * diagnosis["gain"]["all"]["overall"], abs=0.5)
+
+
+def test_a_folds_shortfall_says_it_is_the_folds() -> None:
+    """A fit refused in one cross-validation fold names the fold's data, not the whole training
+    data's (EMPS: the fold fitted on its 5 s validation block, while 20 s train)."""
+    from hypa.diagnosis.problem import Evidence
+
+    fold = Evidence(seconds=4.97, records=1, windows=3, window_samples=1421, dt=1e-3, stretches=1, stretch_s=19.9,
+                    fold=True)
+    assert fold.fit_shortfall(2) is None
+    assert fold.fit_shortfall(3) == ("3 numbers to fit from 3 training windows without overlap (1.42 s each) in a "
+                                     "cross-validation fold fitted on 4.97 s of the data: needs 4, about 5.68 s")
+    whole = Evidence(seconds=4.97, records=1, windows=3, window_samples=1421, dt=1e-3, stretches=1, stretch_s=19.9)
+    assert "in 4.97 s of training data: needs 4" in whole.fit_shortfall(3)

@@ -187,7 +187,8 @@ class Problem:
             cache["_evidence"] = Evidence(
                 seconds=sum(len(r) for r in records) * dm.dt, records=len(records),
                 windows=sum(len(r) // span for r in records), window_samples=span, dt=dm.dt,
-                stretches=self.stretches("train").count, stretch_s=self.time_scales.stretch_s)
+                stretches=self.stretches("train").count, stretch_s=self.time_scales.stretch_s,
+                fold=self.fold is not None)
         return cache["_evidence"]
 
     def require_data(self) -> None:
@@ -231,14 +232,17 @@ class Evidence:
     dt: float  # [s]
     stretches: int
     stretch_s: float  # [s]
+    fold: bool = False  # the training blocks of one cross-validation fold, not the whole training data
 
     def fit_shortfall(self, k: int) -> str | None:
         """Why a fit of ``k`` numbers is not supported (``None``: it is)."""
         if self.windows > k:
             return None
+        where = (f" in a cross-validation fold fitted on {self.seconds:.3g} s of the data" if self.fold
+                 else f" in {self.seconds:.3g} s of training data")
         return (f"{_plural(k, 'number')} to fit from {_plural(self.windows, 'training window')} without overlap "
-                f"({self.window_samples * self.dt:.3g} s each): needs {k + 1}, about "
-                f"{(k + 1) * self.window_samples * self.dt:.3g} s of training data")
+                f"({self.window_samples * self.dt:.3g} s each){where}: needs {k + 1}, about "
+                f"{(k + 1) * self.window_samples * self.dt:.3g} s")
 
     def error_shortfall(self, k: int) -> str | None:
         """Why the clustered standard errors of ``k`` offsets fitted together are not judged (``None``: they are)."""
