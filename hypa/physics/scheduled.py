@@ -319,18 +319,20 @@ def affine_scan(phi: Tensor, c: Tensor, prefix: bool = True) -> tuple[Tensor, Te
     if phi.dim() != c.dim() + 1:
         raise ValueError(f"affine_scan needs phi (..., K, n, n) and c (..., K, n) with the same leading dims, "
                          f"got {tuple(phi.shape)} and {tuple(c.shape)}")
-    powers, c = _hillis_steele(phi.movedim((-2, -1), (0, 1)), c.movedim(-1, 0), prefix)  # (n, n, ..., K), (n, ..., K)
+    powers, c = _hillis_steele(phi.movedim((-2, -1), (0, 1)), c.movedim(-1, 0), prefix,  # (n, n, ..., K), (n, ..., K)
+                               keep=torch.is_grad_enabled())  # without a graph, only the level in use is kept
     return powers[-1].movedim((0, 1), (-2, -1)), c.movedim(0, -1)
 
 
-def _hillis_steele(phi: Tensor, c: Tensor, prefix: bool) -> tuple[list[Tensor], Tensor]:
+def _hillis_steele(phi: Tensor, c: Tensor, prefix: bool, keep: bool = True) -> tuple[list[Tensor], Tensor]:
     """The scan of ``affine_scan`` with the sample index laid out last: phi (n, n, ..., K), c (n, ..., K).
 
     Level l (offset d = 2^l) composes element j with element j - d: c_j <- P_l[j] c_{j-d} + c_j and
     P_{l+1}[j] = P_l[j] P_l[j-d], where P_l[j] = Φ_j ⋯ Φ_{max(0, j-d+1)} is the product over
     element j's span before the level. After ⌈log2 K⌉ levels c_j = g_j. The matrices are tiny,
     so the products are ``addcmul`` chains over the sample index laid out last, not per-matrix
-    ``bmm`` calls. Returns [P_0 = Φ, P_1, ...] (the last one F_j when ``prefix``) and g.
+    ``bmm`` calls. Returns [P_0 = Φ, P_1, ...] (the last one F_j when ``prefix``) and g; with
+    ``keep`` False only the last of them (a long scan without a graph holds one level, not log2 K).
     """
     steps, offset, powers = phi.shape[-1], 1, [phi]
     while offset < steps:
@@ -338,6 +340,8 @@ def _hillis_steele(phi: Tensor, c: Tensor, prefix: bool) -> tuple[list[Tensor], 
         c = torch.cat([c[..., :offset], _apply(later, c[..., :-offset], c[..., offset:])], -1)
         if prefix or 2 * offset < steps:
             powers.append(torch.cat([powers[-1][..., :offset], _compose(later, powers[-1][..., :-offset])], -1))
+            if not keep:
+                del powers[0]
         offset *= 2
     return powers, c
 
