@@ -40,6 +40,9 @@ if TYPE_CHECKING:
     from hypa.physics.statespace import LTIModel, StateSpace
 
 PARALLEL_STEPS = 256  # a nonlinear float64 run this long, without a graph, is solved for every sample at once
+PARALLEL_WIDTH = 16  # ... when it is this narrow (batch x states): the loop's steps are then all call overhead
+# (wider, the loop pays each operation's flops once per sample, Newton a few hundred times per iteration:
+# at 64 records of 2 states the loop is 2-3x faster, at 8 Newton is 1.7-2.5x faster, at 1 it is 3-8x)
 PARALLEL_BYTES = 2**30  # ... when its per-sample Jacobians and states take at most this memory (else the loop)
 
 
@@ -292,7 +295,8 @@ class BlockSimulation:
         if lure.drift is not None:
             forced = forced + lure.drift
         x = x0 * std_x + mean_x
-        if steps >= PARALLEL_STEPS and dtype == torch.float64 and not torch.is_grad_enabled():
+        if (steps >= PARALLEL_STEPS and x.numel() <= PARALLEL_WIDTH and dtype == torch.float64
+                and not torch.is_grad_enabled()):
             # a long run in double precision, not trained through (an identification's, a diagnosis'):
             # in single precision the loop's round-off (3e-5 of the spread over EMPS's 5 s validation
             # record) is the free run's, and what an exported model's own steps reproduce
