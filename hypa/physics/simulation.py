@@ -285,7 +285,9 @@ class BlockSimulation:
         The linear part is exact under the block's hold; the nonlinearity's output w is taken
         linear over each sample (its own first-order hold, Γ^w_0 w_k + Γ^w_1 w_{k+1}) with
         w_{k+1} = φ(x̃_{k+1}, u_{k+1}) at a predicted state x̃_{k+1} (w held): Heun's
-        predictor-corrector, second order in dt.
+        predictor-corrector, second order in dt. A long, narrow run in double precision without a
+        graph (an identification's record) solves the same steps for every sample at once
+        (``_solve_nonlinear``: their own fixed point, or the loop where Newton does not reach it).
         """
         dtype = u.dtype
         lure = self.lure_parts(dtype)
