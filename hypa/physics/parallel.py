@@ -15,9 +15,9 @@ about the current iterate x̄, the equations are the affine recursion
 
 which a parallel scan solves in log2(S) levels (:func:`hypa.physics.scheduled.affine_scan`). F is
 evaluated on every sample in one call, and its Jacobian by forward differences in ``n`` more
-(whatever the user's nonlinearity). The iterate after
-``i`` steps is exact on its first ``i`` samples at least, and near the solution the error squares
-at every step, so a stable system converges in a few iterations.
+(whatever the user's nonlinearity). Each full Newton step makes at least one more leading sample
+exact, and near the solution the error squares at every step, so a stable system converges in a
+few iterations.
 
 What it returns is the step-by-step recursion's own fixed point, not an approximation of the
 dynamics: it is accepted only where ``max_k |x_{k+1} - F_k(x_k)|`` (in units of the states'
@@ -45,7 +45,7 @@ def solve_recursion(step: Callable[[Tensor], Tensor], x0: Tensor, guess: Tensor,
     Newton's method does not reach the recursion's fixed point to round-off.
 
     ``step(x)`` evaluates every F_k at once: x (B, S, n) holding x_k at index k -> F_k(x_k) (B, S, n),
-    differentiable in x. ``guess`` (B, S, n): the first iterate of x_1..x_S (any finite states:
+    each F_k reading only its own x_k. ``guess`` (B, S, n): the first iterate of x_1..x_S (any finite states:
     it only sets how many iterations it takes); ``scale`` (n,): the states' spread, the unit of the
     residual max_k |x_{k+1} - F_k(x_k)| / scale. A full Newton step that does not lower it is halved
     until it does (far from the solution the linearization overshoots: a sine map started at 0
