@@ -26,11 +26,12 @@ def _runs(model, values: dict, u: torch.Tensor, dt: float, monkeypatch) -> tuple
     """The states of one run solved at once and of the same run stepped sample by sample."""
     block = LTIBlock(model, PhysicalParameters(model.parameter_specs(values)), dt=dt, horizon=100, hold="foh")
     x0 = torch.zeros(u.shape[0], model.n_states, dtype=u.dtype)
+    threshold = simulation.PARALLEL_STEPS
     with torch.no_grad():
         solved = block.states(x0, u)
         monkeypatch.setattr(simulation, "PARALLEL_STEPS", 10**9)
         stepped = block.states(x0, u)
-        monkeypatch.setattr(simulation, "PARALLEL_STEPS", 256)
+        monkeypatch.setattr(simulation, "PARALLEL_STEPS", threshold)
     return solved, stepped
 
 
