@@ -187,3 +187,20 @@ def test_simulate_runs_each_data_sets_physics(dataset: str, model: str, tmp_path
     result = hypa("hypa.simulate", f"dataset={dataset}", "plot=false", f"hydra.run.dir={tmp_path}")
     assert result.returncode == 0, result.stderr[-3000:]
     assert f"model {model} at its configured values" in result.stdout and "free-run" in result.stdout
+
+
+def test_the_race_car_with_a_table_validates_as_without(tmp_path: Path) -> None:
+    """``table: true`` on the scheduled single track (a key of the model's YAML, set from the command line): the
+    training steps compute the matrices per sample, the validation reads them off the table; the validation
+    loss equals the run's without a table to float32 round-off."""
+    losses = {}
+    for table in ("true", "false"):
+        run = tmp_path / table
+        result = hypa("hypa.train", "dataset=racecar", "model=racecar_physical", *TINY, "identification.enabled=false",
+                      "figures.enabled=false", f"model.blocks.single_track.table={table}", f"hydra.run.dir={run}")
+        assert result.returncode == 0, result.stderr[-3000:]
+        losses[table] = json.loads((run / "run.json").read_text())["best_val_loss"]
+        assert f"table: {table}" in (run / "config.yaml").read_text()
+        assert ("SingleTrack (torch.float32): the matrices off a table of" in (run / "train.log").read_text()) \
+            == (table == "true")
+    assert losses["true"] == pytest.approx(losses["false"], rel=1e-5)

@@ -205,7 +205,7 @@ class BlockBuilder:
         t = lambda pairs, i: torch.tensor([p[i] for p in pairs], dtype=torch.float64)  # noqa: E731
         scaling = Scaling(t(states, 0), t(states, 1), t(inputs, 0), t(inputs, 1), t(outputs, 0), t(outputs, 1))
         block = LTIBlock(system, self.params, self.dt, self.horizon, hold=self.hold if n else "zoh",
-                         scaling=scaling, scheduled=tuple(b.scheduling))
+                         scaling=scaling, scheduled=tuple(b.scheduling), table=b.table)
         if not b.scheduling:  # a scheduled block's stability depends on the signal
             block.check_stable()
         return block

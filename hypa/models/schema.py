@@ -35,6 +35,7 @@ class BlockConfig:
     parameters: Any = None  # name -> value [SI]
     scheduling: Any = None  # physics: parameter -> scheduling channel
     observe: Any = None  # physics: block output -> measured output
+    table: Any = None  # physics scheduled by one signal: its matrices off a verified table where no gradient needs them
 
 
 @dataclass

@@ -67,6 +67,10 @@ class BlockSpec:
     observe: physics only, which measured output each block output is (``{y_physics: y}``)
         for the initial-state estimate; outputs named like a measured output
         observe it without this.
+    table: physics scheduled by one signal only: where no gradient needs its matrices (a
+        validation, an evaluation, a simulation), read them off an interpolation table over the
+        signal's range, verified against the exact matrices to round-off
+        (``hypa.physics.table``); otherwise they are computed at every sample.
     """
 
     name: str
@@ -81,6 +85,7 @@ class BlockSpec:
     parameters: Mapping[str, float] = field(default_factory=dict)
     scheduling: Mapping[str, str] = field(default_factory=dict)
     observe: Mapping[str, str] = field(default_factory=dict)
+    table: bool = False
 
     @property
     def steady(self) -> bool:
@@ -173,6 +178,15 @@ def _signal_map(value: Any, where: str) -> dict[str, str]:
     return {str(k): str(v) for k, v in value.items()}
 
 
+def _flag(value: Any, where: str) -> bool:
+    """true / false (None: false)."""
+    if value is None:
+        return False
+    if not isinstance(value, bool):
+        raise ModelSpecError(f"{where} must be true or false, got {value!r}")
+    return value
+
+
 def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
     """Parse and check the ``model`` config (a plain mapping) into a :class:`ModelSpec`."""
     name = str(config.get("name", "model"))
@@ -214,9 +228,13 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
             parameters=_values(b.get("parameters"), f"{block_name}.parameters"),
             scheduling=_signal_map(b.get("scheduling"), f"{block_name}.scheduling"),
             observe=_signal_map(b.get("observe"), f"{block_name}.observe"),
+            table=_flag(b.get("table"), f"{block_name}.table"),
         ))
         if kind != "physics" and (blocks[-1].scheduling or blocks[-1].observe):
             raise ModelSpecError(f"block {block_name!r}: only physics blocks take scheduling or observe")
+        if blocks[-1].table and len(blocks[-1].scheduling) != 1:
+            raise ModelSpecError(f"block {block_name!r}: table: true needs a physics block scheduled by one signal, "
+                                 f"got scheduling {dict(blocks[-1].scheduling) or 'none'}")
         if kind == "ann" and (blocks[-1].parameters or blocks[-1].trainable):
             raise ModelSpecError(f"block {block_name!r}: an ann block has no physical parameters or trainable")
         own = ELEMENT_PARAMETER.get(kind)
@@ -254,6 +272,8 @@ def spec_config(spec: ModelSpec, name: str | None = None) -> dict[str, Any]:
             if value:
                 entry[key] = dict(value) if isinstance(value, Mapping) else (
                     list(value) if isinstance(value, tuple) else value)
+        if b.table:
+            entry["table"] = True
         blocks[b.name] = entry
     out: dict[str, Any] = {"name": name or spec.name, "blocks": blocks, "outputs": list(spec.outputs)}
     if spec.hold:

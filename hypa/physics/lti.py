@@ -21,6 +21,7 @@ from hypa.physics.parameters import PhysicalParameters
 from hypa.physics.scheduled import SchedulingError
 from hypa.physics.simulation import BlockSimulation
 from hypa.physics.statespace import LTIModel, StateSpace
+from hypa.physics.table import ScheduleTable, ScheduleTables
 
 __all__ = ["LTIBlock", "LTIModel", "StateSpace", "UnstablePhysicsError"]
 
@@ -54,6 +55,7 @@ class LTIBlock(BlockSimulation, nn.Module):
         hold: Hold = "zoh",
         scaling: Scaling | None = None,
         scheduled: Sequence[str] = (),
+        table: bool = False,
     ) -> None:
         super().__init__()
         if hold not in HOLDS:
@@ -71,6 +73,9 @@ class LTIBlock(BlockSimulation, nn.Module):
         if unknown or len(set(self.scheduled)) != len(self.scheduled):
             raise SchedulingError(f"{type(model).__name__}: cannot schedule {list(scheduled)}; its parameters are "
                                   f"{list(model.parameter_names)} (each at most once)")
+        if table and len(self.scheduled) != 1:
+            raise SchedulingError(f"{type(model).__name__}: a table needs one scheduled parameter, got "
+                                  f"{list(self.scheduled) or 'none'}")
         self._fixed_names = tuple(k for k in model.parameter_names if k not in self.scheduled)
         with torch.no_grad():  # feedthrough decides how many inputs a window takes (``extra_inputs``)
             self.feedthrough = bool(model.n_states and torch.count_nonzero(self.state_space().d))
@@ -82,6 +87,7 @@ class LTIBlock(BlockSimulation, nn.Module):
             self.register_buffer(name, getattr(scaling, name).detach().to(torch.float64).clone())
         self._cache: tuple[tuple, LiftedMatrices, NormalizedLTI] | None = None
         self._maps: tuple[tuple, NormalizingMaps] | None = None
+        self.tables = ScheduleTables(type(model).__name__) if table else None
 
     # -- the physics, step by step -------------------------------------------------------
     @property
@@ -190,8 +196,25 @@ class LTIBlock(BlockSimulation, nn.Module):
             self._cache = (key, lifted, norm)
         return lifted, norm
 
+    def _table(self, rho: Tensor) -> ScheduleTable | None:
+        """The verified table of the rows at ρ (B, L, 1) where no gradient needs them, else None (``table.py``)."""
+        if self.tables is None or rho.requires_grad or self._rebuilds():
+            return None
+        return self.tables.get(self._cache_key(rho.dtype, rho.device), rho, self._exact_rows)
+
+    def _exact_rows(self, rho: Tensor) -> Tensor:
+        """What a table holds at ρ (K,): the state rows, then the output rows unless the outputs are the states."""
+        with torch.no_grad():
+            rho = rho[None, :, None]
+            ss = self._per_sample(rho)
+            parts = [self._state_rows(ss, rho.shape[1])]
+            if not self.model.outputs_are_states:
+                parts.append(self._normalizing_maps(rho.dtype, rho.device).output_rows(ss.c, ss.d))
+            return torch.cat([part[0].reshape(rho.shape[1], -1) for part in parts], 1)
+
     def extra_repr(self) -> str:
         m = self.model
         return (f"{type(m).__name__}: {list(m.input_names)} -> {list(m.output_names)}, "
                 f"dt={self.dt:g} s, horizon={self.horizon}, hold={self.hold}"
-                + (f", scheduled={list(self.scheduled)}" if self.scheduled else ""))
+                + (f", scheduled={list(self.scheduled)}" if self.scheduled else "")
+                + (", table" if self.tables is not None else ""))

@@ -329,21 +329,52 @@ def _hillis_steele(phi: Tensor, c: Tensor, prefix: bool, keep: bool = True) -> t
 
     Level l (offset d = 2^l) composes element j with element j - d: c_j <- P_l[j] c_{j-d} + c_j and
     P_{l+1}[j] = P_l[j] P_l[j-d], where P_l[j] = Φ_j ⋯ Φ_{max(0, j-d+1)} is the product over
-    element j's span before the level. After ⌈log2 K⌉ levels c_j = g_j. The matrices are tiny,
-    so the products are ``addcmul`` chains over the sample index laid out last, not per-matrix
-    ``bmm`` calls. Returns [P_0 = Φ, P_1, ...] (the last one F_j when ``prefix``) and g; with
-    ``keep`` False only the last of them (a long scan without a graph holds one level, not log2 K).
+    element j's span before the level. Both are one product, P_l[j] [c | P_l]_{j-d}, of the
+    stacked columns [c | P_l] (n, 1 + n, ..., K) (``_level``); the last level, whose product
+    only ``prefix`` wants, carries c alone. After ⌈log2 K⌉ levels c_j = g_j. Returns
+    [P_0 = Φ, P_1, ...] (the last one F_j when ``prefix``) and g; with ``keep`` False only the
+    last of them (a long scan without a graph holds one level, not log2 K).
     """
-    steps, offset, powers = phi.shape[-1], 1, [phi]
+    if phi.shape[2:] != c.shape[1:]:  # one Φ sequence may serve a batch of c
+        lead = torch.broadcast_shapes(phi.shape[2:], c.shape[1:])
+        phi, c = phi.expand(*phi.shape[:2], *lead), c.expand(c.shape[0], *lead)
+    return _scan(torch.cat([c[:, None], phi], 1), prefix, keep)
+
+
+def _scan(z: Tensor, prefix: bool, keep: bool) -> tuple[list[Tensor], Tensor]:
+    """``_hillis_steele``'s levels on its first columns z = [c | Φ] (n, 1 + n, ..., K)."""
+    steps, offset = z.shape[-1], 1
+    powers = [z[:, 1:]]
     while offset < steps:
-        later = powers[-1][..., offset:]
-        c = torch.cat([c[..., :offset], _apply(later, c[..., :-offset], c[..., offset:])], -1)
-        if prefix or 2 * offset < steps:
-            powers.append(torch.cat([powers[-1][..., :offset], _compose(later, powers[-1][..., :-offset])], -1))
+        full = prefix or 2 * offset < steps  # is P_{l+1} needed?
+        z = _level(z if full else z[:, :1], z[:, 1:, ..., offset:], offset)
+        if full:
+            powers.append(z[:, 1:])
             if not keep:
                 del powers[0]
         offset *= 2
-    return powers, c
+    return powers, z[:, 0]
+
+
+def _level(src: Tensor, later: Tensor, offset: int) -> Tensor:
+    """One scan level: z_j = P_l[j] src_{j-d} + [c_j, 0] for j >= d, src_j below (d = ``offset``).
+
+    src (n, r, ..., K) are the stacked columns [c | P_l] (r = 1 + n) or [c] (r = 1), later
+    (n, n, ..., K - d) the products P_l[j] of the elements j >= d. Taped: ``_compose`` and two
+    cats; untaped: written into one new tensor by an ``addcmul`` chain, nothing else allocated.
+    """
+    tail = src[..., :-offset]
+    if torch.is_grad_enabled():
+        out = _compose(later, tail)
+        return torch.cat([src[..., :offset], torch.cat([out[:, :1] + src[:, :1, ..., offset:], out[:, 1:]], 1)], -1)
+    new = torch.empty_like(src)
+    new[..., :offset] = src[..., :offset]
+    out = new[..., offset:]
+    torch.mul(later[:, 0, None], tail[0, None], out=out)
+    for i in range(1, later.shape[1]):
+        out.addcmul_(later[:, i, None], tail[i, None])
+    out[:, 0].add_(src[:, 0, ..., offset:])  # (not +=, which would copy the result back through __setitem__)
+    return new
 
 
 def _apply(a: Tensor, x: Tensor, plus: Tensor | None = None) -> Tensor:
@@ -427,8 +458,11 @@ def simulate_scheduled(rows: Tensor, n_taps: int, x0: Tensor, u: Tensor) -> Tens
 
     rows: (B, S, n, n + T m + 1) per-step [Â_j, B̂_{0,j}, ..., B̂_{T-1,j}, Ĥ_j]; x0: (B, n);
     u: (B, >= S + T - 1, m). x̂_0 is folded into the first step's forced term, then the states
-    are ``_AffineStates`` (the scan of ``affine_scan`` with a hand-written adjoint).
+    are ``_AffineStates`` (the scan of ``affine_scan`` with a hand-written adjoint); where no
+    gradient is wanted, ``_untaped_states``.
     """
+    if not (torch.is_grad_enabled() and (rows.requires_grad or x0.requires_grad or u.requires_grad)):
+        return _untaped_states(rows, n_taps, x0, u)
     n, steps = x0.shape[-1], rows.shape[-3]
     phi, v = rows.split([n, rows.shape[-1] - n], -1)  # one graph node (its backward one cat), not two slices
     phi = phi.movedim((-2, -1), (0, 1))  # (n, n, B, S)
@@ -436,6 +470,23 @@ def simulate_scheduled(rows: Tensor, n_taps: int, x0: Tensor, u: Tensor) -> Tens
     start = _apply(phi[..., 0], x0.T, c[..., 0])  # x̂_0 folded into the first map
     c = torch.cat([start[..., None], c[..., 1:]], -1)
     return _AffineStates.apply(phi.expand(n, n, *c.shape[1:]), c).movedim(0, -1)
+
+
+def _untaped_states(rows: Tensor, n_taps: int, x0: Tensor, u: Tensor) -> Tensor:
+    """``simulate_scheduled`` without a graph: the scan's first columns [c | Φ] (n, 1 + n, B, S) written in
+    place (the forced terms and x̂_0 by ``addcmul``, no window copied), then its levels (``_scan``)."""
+    n, (batch, steps), m = x0.shape[-1], rows.shape[:2], u.shape[-1]
+    with torch.no_grad():
+        z = rows.new_empty(n, n + 1, batch, steps)
+        z[:, 1:] = rows[..., :n].permute(2, 3, 0, 1)
+        v, c = rows[..., n:].permute(2, 3, 0, 1), z[:, 0]  # v (n, T m + 1, B, S), c (n, B, S)
+        c.copy_(v[:, -1])  # Ĥ_j
+        for t in range(n_taps):
+            for i in range(m):
+                c.addcmul_(v[:, t * m + i], u[:, t : t + steps, i])
+        for i in range(n):
+            c[..., 0].addcmul_(z[:, 1 + i, :, 0], x0[:, i])  # Â_0 x̂_0
+        return _scan(z, prefix=False, keep=False)[1].permute(1, 2, 0)
 
 
 def simulate_scheduled_recursive(rows: Tensor, n_taps: int, x0: Tensor, u: Tensor) -> Tensor:

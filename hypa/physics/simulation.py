@@ -272,12 +272,8 @@ class BlockSimulation:
         rho = rho[:, : steps + (not same)]
         if rho.shape[1] == steps and not same:
             rho = torch.cat([rho, rho[:, -1:]], 1)
-        ss = self._per_sample(rho)
-        states = simulate_scheduled(self._state_rows(ss, steps), self.n_taps, x0, u_states)
-        if same:
-            return states, None
-        c, d, g = self._output_rows(ss)
-        return states, (c[:, 1:], d[:, 1:], g[:, 1:])
+        rows, output = self._scheduled_rows(rho, steps)
+        return simulate_scheduled(rows, self.n_taps, x0, u_states), output
 
     def _simulate_nonlinear(self, x0: Tensor, u: Tensor, steps: int) -> Tensor:
         """States x̂_{k+1..k+S} of a Lur'e system, step by step in physical units.
@@ -386,6 +382,25 @@ class BlockSimulation:
     def _per_sample(self, rho: Tensor) -> StateSpace:
         fixed = self.parameters_.values(self._fixed_names, rho.dtype) if self._fixed_names else {}
         return per_sample_matrices(self.model, fixed, self.scheduled, rho)
+
+    def _scheduled_rows(self, rho: Tensor, steps: int) -> tuple[Tensor, Output | None]:
+        """The state rows of samples 0..steps-1 (B, steps, n, k) and, unless the outputs are the states, the
+        output matrices of samples 1..steps: off the block's table where it has one (``_table``), else per sample."""
+        same, n = self.model.outputs_are_states, self.model.n_states
+        table = self._table(rho)
+        if table is None:
+            ss = self._per_sample(rho)
+            if same:
+                return self._state_rows(ss, steps), None
+            c, d, g = self._output_rows(ss)
+            return self._state_rows(ss, steps), (c[:, 1:], d[:, 1:], g[:, 1:])
+        entries, m = table(rho[..., 0]), len(self.model.input_names)  # (B, L, E): the state rows, then the output rows
+        width = n + self.n_taps * m + 1
+        rows = entries[:, :steps, : n * width].reshape(rho.shape[0], steps, n, width)
+        if same:
+            return rows, None
+        out = entries[:, 1 : steps + 1, n * width :].reshape(rho.shape[0], steps, -1, n + m + 1)
+        return rows, (out[..., :n], out[..., n:-1], out[..., -1])
 
     def _state_rows(self, ss: StateSpace, steps: int) -> Tensor:
         """[Â_j, B̂_{t,j}, Ĥ_j] (B, steps, n, n + T m + 1) of samples 0..steps-1: one batched exponential
