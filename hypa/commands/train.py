@@ -78,7 +78,13 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         lightning_strategy,
     )
     from hypa.training.divergence import DivergedError, StopOnNonFiniteLoss
-    from hypa.training.identified import fit_by_identification, identified_elsewhere, identify_physics, plan
+    from hypa.training.identified import (
+        choose_hold,
+        fit_by_identification,
+        identified_elsewhere,
+        identify_physics,
+        plan,
+    )
     from hypa.training.run_folder import CONFIG_FILE, RunFolder, write_text_atomic
 
     # every value checked first (hypa.commands.config), so a bad override fails before any data are read or generated
@@ -141,17 +147,32 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         # second run may already have overwritten Hydra's .hydra/config.yaml)
         if folder.writer:
             write_text_atomic(out / CONFIG_FILE, OmegaConf.to_yaml(cfg, resolve=True))
-        module = HybridModule.from_data(  # channels, normalization, dt and past from the data module
-            dm, model_config, physical_values=physical_values, horizon=horizon,
-            hold=hold,  # physics.hold: for a model without its own hold (one that contradicts it is refused):
-            ann_name=ann_name, ann_hparams=ann, lr=lr, physics_lr=physics_lr, weight_decay=weight_decay,
-        )
-        stages = parse_model_spec(model_config).stages
+        def build(with_hold: str | None) -> HybridModule:  # channels, normalization, dt and past from the data module
+            return HybridModule.from_data(
+                dm, model_config, physical_values=physical_values, horizon=horizon,
+                hold=with_hold,  # physics.hold: for a model without its own hold (one that contradicts it is refused)
+                ann_name=ann_name, ann_hparams=ann, lr=lr, physics_lr=physics_lr, weight_decay=weight_decay,
+            )
+
+        module = build(hold)
+        spec = parse_model_spec(model_config)
+        stages = spec.stages
         started = time.perf_counter()
         how = plan(module, stages) if identification is not None and ckpt_path is None else None
+        identified = None
+        if how is not None and hold is None and spec.hold is None:  # no hold given: the data choose it
+            if distributed:
+                log.info("physics.hold is not set: zoh (across processes the data do not choose it; set it)")
+            elif zero:
+                module, identified, choice = choose_hold(build, how, stages, dm, identification)
+                print(choice.line(), flush=True)
+                folder.update_record(hold=choice.to_dict())
+                OmegaConf.update(cfg, "physics.hold", choice.chosen)  # what every later command rebuilds
+                if folder.writer:
+                    write_text_atomic(out / CONFIG_FILE, OmegaConf.to_yaml(cfg, resolve=True))
         if how in ("stage", "first"):  # a hybrid: its physics identified, then its networks train on it
             if zero:
-                identify_physics(module, how, stages, dm, folder, identification, logger)
+                identify_physics(module, how, stages, dm, folder, identification, logger, identified)
             else:  # rank 0's values arrive when training starts (SameModelOnEveryRank)
                 identified_elsewhere(module, how, stages)
             stages = stages[1:] if how == "stage" else stages
@@ -185,7 +206,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
                                 plugins=[AtomicCheckpointIO()])
         log.info("model %s:\n%s", model_config["name"], module.model)
         if how == "model":
-            result = fit_by_identification(trainer, module, dm, folder, identification, logger)
+            result = fit_by_identification(trainer, module, dm, folder, identification, logger, identified)
             ended = "identification"
         else:
             try:

@@ -30,7 +30,8 @@ starts (:class:`hypa.training.distributed.SameModelOnEveryRank`).
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import lightning as L
@@ -68,20 +69,80 @@ def plan(module: HybridModule, stages: Sequence[StageSpec]) -> Plan | None:
 
 def identify_physics(module: HybridModule, how: Plan, stages: Sequence[StageSpec], dm: HypaDataModule,
                      folder: RunFolder, settings: IdentificationSettings,
-                     logger: Logger) -> Identification:
+                     logger: Logger, result: Identification | None = None) -> Identification:
     """Identify a hybrid's physics (``how``: ``stage`` or ``first``) and report it; the networks then
     train on it. ``stage`` leaves the first stage's settings (the trainer's stage callback sets the
-    next); ``first`` restores every block to training with nothing bypassed."""
+    next); ``first`` restores every block to training with nothing bypassed. ``result``: the
+    identification already done on this module (:func:`choose_hold`), reported as it is."""
     model = module.model
     if how == "stage":
         model.set_stage(stages[0].train, stages[0].bypass)
-        return _identify(module, dm, folder, settings, logger)
-    anns = [b.name for b in model.spec.blocks if b.kind == "ann"]
-    model.set_stage([b.name for b in model.spec.blocks if b.kind != "ann"], anns)
+        return _identify(module, dm, folder, settings, logger, result)
+    _physics_only(module)
     try:
-        return _identify(module, dm, folder, settings, logger)
+        return _identify(module, dm, folder, settings, logger, result)
     finally:
         model.set_stage(None)
+
+
+def _physics_only(module: HybridModule) -> None:
+    """Every network bypassed, every physics block trained (``first``)."""
+    blocks = module.model.spec.blocks
+    module.model.set_stage([b.name for b in blocks if b.kind != "ann"], [b.name for b in blocks if b.kind == "ann"])
+
+
+@dataclass(frozen=True)
+class HoldChoice:
+    """The hold the data chose (:func:`choose_hold`): each hold's identified output error (mean 1 - R²)."""
+
+    chosen: str
+    errors: dict[str, float]
+
+    def line(self) -> str:
+        other = next(h for h in self.errors if h != self.chosen)
+        return (f"hold: {self.chosen}, chosen by the data: the identified physics' output error is "
+                f"{100 * self.errors[self.chosen]:.3g} % of the output variance under {_HOLD_NAMES[self.chosen]}, "
+                f"{100 * self.errors[other]:.3g} % under {_HOLD_NAMES[other]} (physics.hold=zoh|foh, or the "
+                "model's hold:, fixes it and saves the second fit)")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"chosen": self.chosen, "by": "identification", "output_error": dict(self.errors)}
+
+
+_HOLD_NAMES = {"zoh": "a zero-order hold", "foh": "a first-order hold"}
+
+
+def choose_hold(build: Callable[[str], HybridModule], how: Plan, stages: Sequence[StageSpec], dm: HypaDataModule,
+                settings: IdentificationSettings) -> tuple[HybridModule, Identification, HoldChoice]:
+    """The hold of a model that fixes none, chosen by the data: the physics identified under a zero-order
+    and under a first-order hold (``build(hold)`` gives each its module, with the stage settings
+    :func:`identify_physics` uses), the one with the smaller output error over the training records
+    kept (a tie: ``zoh``).
+
+    How the inputs move between samples is a property of the data, not of the physics: a signal
+    held by a digital controller over each sample is a zero-order hold, a smooth measured signal
+    is closer to a first-order one, and the samples alone cannot tell. The two fits have the same
+    parameters, so their training errors compare directly. Returns the kept module with its
+    identified values, its identification (report it with ``result=``) and the choice.
+    """
+    fits = {}
+    for hold in ("zoh", "foh"):
+        log.info("identification under %s (physics.hold is not set: the data choose)", _HOLD_NAMES[hold])
+        module = build(hold)
+        model = module.model
+        if how == "stage":
+            model.set_stage(stages[0].train, stages[0].bypass)
+        elif how == "first":
+            _physics_only(module)
+        try:
+            fits[hold] = (module, identify_records(model, dm, dm.records("train"), settings,
+                                                   progress=lambda text: log.info("%s", text)))
+        finally:
+            model.set_stage(None)
+    errors = {hold: fit[1].error_final for hold, fit in fits.items()}
+    chosen = "foh" if errors["foh"] < errors["zoh"] else "zoh"  # NaN (a failed fit) never wins
+    module, result = fits[chosen]
+    return module, result, HoldChoice(chosen, errors)
 
 
 def identified_elsewhere(module: HybridModule, how: Plan, stages: Sequence[StageSpec]) -> None:
@@ -92,9 +153,10 @@ def identified_elsewhere(module: HybridModule, how: Plan, stages: Sequence[Stage
 
 
 def _identify(module: HybridModule, dm: HypaDataModule, folder: RunFolder, settings: IdentificationSettings,
-              logger: Logger) -> Identification:
-    result = identify_records(module.model, dm, dm.records("train"), settings,
-                              progress=lambda text: log.info("%s", text))
+              logger: Logger, result: Identification | None = None) -> Identification:
+    if result is None:
+        result = identify_records(module.model, dm, dm.records("train"), settings,
+                                  progress=lambda text: log.info("%s", text))
     print(result.summary(), flush=True)
     for warning in result.warnings:
         print(f"  warning: {warning}", flush=True)
@@ -108,9 +170,11 @@ def _identify(module: HybridModule, dm: HypaDataModule, folder: RunFolder, setti
 
 
 def fit_by_identification(trainer: L.Trainer, module: HybridModule, dm: HypaDataModule, folder: RunFolder,
-                          settings: IdentificationSettings, logger: Logger) -> dict[str, Any]:
-    """Identify, validate once, save the checkpoint and record it; returns the run's result fields."""
-    result = _identify(module, dm, folder, settings, logger)
+                          settings: IdentificationSettings, logger: Logger,
+                          result: Identification | None = None) -> dict[str, Any]:
+    """Identify (or report ``result``, done already), validate once, save the checkpoint and record it;
+    returns the run's result fields."""
+    result = _identify(module, dm, folder, settings, logger, result)
     module.model.parameters_.set_trainable(None, False)  # the identified values are the run's
     try:
         validated = trainer.validate(module, datamodule=dm, verbose=False)[0]
