@@ -140,3 +140,35 @@ def user_dataset(data: dict, vehicle: str = "none") -> str:
 
     head = f"# @package _global_\ndefaults:\n  - /hypa/data_schema@data\n  - override /vehicle: {vehicle}\n  - _self_\n"
     return head + OmegaConf.to_yaml({"data": {"source": "files", "dir": "???", **data}})
+
+
+def user_project(folder: Path, module: str, code: str, dataset: str, dataset_yaml: str,
+                 models: dict[str, str]) -> Path:
+    """A user's own project in ``folder``: ``module``.py (their systems, importable with ``folder`` on
+    PYTHONPATH), conf/dataset/``dataset``.yaml, conf/model/NAME.yaml (``models``: name -> YAML) and an
+    empty data/ folder for their records; returns ``folder``."""
+    (folder / f"{module}.py").write_text(code)
+    (folder / "conf" / "dataset").mkdir(parents=True)
+    (folder / "conf" / "model").mkdir()
+    (folder / "conf" / "dataset" / f"{dataset}.yaml").write_text(dataset_yaml)
+    for name, text in models.items():
+        (folder / "conf" / "model" / f"{name}.yaml").write_text(text)
+    (folder / "data").mkdir()
+    return folder
+
+
+def run_user_benchmark(user: Path, dataset: str, models: list[str], out: Path, timeout: int = 900) -> dict:
+    """``python -m hypa.benchmark --config-dir`` on a :func:`user_project` (its data in data/, budget=full):
+    benchmark.json's models of ``dataset`` (asserting the command succeeded)."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    result = subprocess.run(
+        [sys.executable, "-m", "hypa.benchmark", "--config-dir", str(user / "conf"), f"dataset={dataset}",
+         f"data.dir={user / 'data'}", "budget=full", f"models=[{','.join(models)}]", f"hydra.run.dir={out}"],
+        cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=timeout,
+        env={**os.environ, "PYTHONPATH": str(user)}, check=False)
+    assert result.returncode == 0, result.stderr[-3000:]
+    return json.loads((out / "benchmark.json").read_text())[dataset]["models"]

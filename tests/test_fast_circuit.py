@@ -13,19 +13,15 @@ the report must say the parameters cannot be told apart, and the checks read the
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from data_helpers import user_dataset
+from data_helpers import run_user_benchmark, user_dataset, user_project
 
 pytestmark = pytest.mark.slow
-ROOT = Path(__file__).resolve().parents[1]
 FS = 40000.0  # [Hz]
 TRUE = {"inductance": 0.01, "capacitance": 1e-6, "resistance": 20.0, "conductance": 1e-3, "cubic_conductance": 2.5e-4}
 NOISE = 0.005  # [V]
@@ -111,15 +107,9 @@ def simulate(seed: int, samples: int) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def user(tmp_path_factory) -> Path:
-    folder = tmp_path_factory.mktemp("circuit")
-    (folder / "circuit.py").write_text(SYSTEM)
-    (folder / "conf" / "dataset").mkdir(parents=True)
-    (folder / "conf" / "model").mkdir()
-    (folder / "conf" / "dataset" / "circuit.yaml").write_text(DATASET)
-    for name, system, trainable in (("circuit", "Circuit", list(TRUE)), ("linear", "LinearCircuit", list(TRUE)[:4])):
-        (folder / "conf" / "model" / f"{name}.yaml").write_text(MODEL.format(name=name, system=system,
-                                                                             trainable=trainable))
-    (folder / "data").mkdir()
+    models = {"circuit": MODEL.format(name="circuit", system="Circuit", trainable=list(TRUE)),
+              "linear": MODEL.format(name="linear", system="LinearCircuit", trainable=list(TRUE)[:4])}
+    folder = user_project(tmp_path_factory.mktemp("circuit"), "circuit", SYSTEM, "circuit", DATASET, models)
     for split, seed, samples in (("train", 0, 12000), ("test", 1, 6000)):
         np.savetxt(folder / "data" / f"{split}.csv", simulate(seed, samples), fmt="%.12g", delimiter=",",
                    header="time,source,voltage", comments="")
@@ -128,12 +118,7 @@ def user(tmp_path_factory) -> Path:
 
 def test_the_data_choose_the_hold_and_the_nonlinear_physics_comes_near_the_noise(user: Path, tmp_path: Path) -> None:
     out = tmp_path / "benchmark"
-    result = subprocess.run(
-        [sys.executable, "-m", "hypa.benchmark", "--config-dir", str(user / "conf"), "dataset=circuit",
-         f"data.dir={user / 'data'}", "budget=full", "models=[circuit,linear]", f"hydra.run.dir={out}"],
-        cwd=ROOT, capture_output=True, text=True, timeout=900, env={**os.environ, "PYTHONPATH": str(user)}, check=False)
-    assert result.returncode == 0, result.stderr[-3000:]
-    models = json.loads((out / "benchmark.json").read_text())["circuit"]["models"]
+    models = run_user_benchmark(user, "circuit", ["circuit", "linear"], out)
     rms = {name: models[name]["test_sets"]["test"]["voltage"]["rms"] for name in ("circuit", "linear")}
     assert rms["circuit"] < 0.1 * rms["linear"], rms
     assert rms["circuit"] < 6 * NOISE, rms

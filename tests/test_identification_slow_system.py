@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from data_helpers import user_dataset
+from data_helpers import user_dataset, user_project
 
 ROOT = Path(__file__).resolve().parents[1]
 DT = 5.0  # [s]
@@ -91,20 +91,14 @@ def simulate(hours: float, seed: int) -> dict[str, np.ndarray]:
 
 @pytest.fixture(scope="module")
 def user(tmp_path_factory) -> Path:
-    folder = tmp_path_factory.mktemp("slow")
-    (folder / "heated_body.py").write_text(SYSTEM)
-    (folder / "conf" / "dataset").mkdir(parents=True)
-    (folder / "conf" / "model").mkdir()
-    (folder / "conf" / "dataset" / "heated.yaml").write_text(DATASET)
     off = {name: 0.7 * value for name, value in TRUE.items()}
     models = {"heated_nonlinear": ("HeatedBodyNonlinear", list(TRUE), off),
               "heated_linear": ("HeatedBody", ["capacity", "conductance"],
                                 {"capacity": off["capacity"], "conductance": off["conductance"]})}
-    for name, (system, trainable, parameters) in models.items():
-        (folder / "conf" / "model" / f"{name}.yaml").write_text(
-            MODEL.format(name=name, system=system, trainable=trainable, parameters=json.dumps(parameters)))
+    texts = {name: MODEL.format(name=name, system=system, trainable=trainable, parameters=json.dumps(parameters))
+             for name, (system, trainable, parameters) in models.items()}
+    folder = user_project(tmp_path_factory.mktemp("slow"), "heated_body", SYSTEM, "heated", DATASET, texts)
     data = folder / "data"
-    data.mkdir()
     for split, seed in (("train", 0), ("val", 1)):
         columns = simulate(3.0, seed)
         rows = np.column_stack([columns[k] for k in ("time", "power", "temperature")])

@@ -13,18 +13,14 @@ ODE solver; through ``python -m hypa.benchmark`` with the user's own data set an
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from data_helpers import user_dataset
+from data_helpers import run_user_benchmark, user_dataset, user_project
 
-ROOT = Path(__file__).resolve().parents[1]
 TS = 4.0  # [s]
 TRUE = {"k1": 0.055, "k2": 0.048, "k3": 0.06, "k4": 0.034}
 NOISE = 0.02  # [V]
@@ -115,16 +111,10 @@ def simulate(seed: int, samples: int = 1024) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def user(tmp_path_factory) -> Path:
-    folder = tmp_path_factory.mktemp("tanks")
-    (folder / "tanks.py").write_text(SYSTEM)
-    (folder / "conf" / "dataset").mkdir(parents=True)
-    (folder / "conf" / "model").mkdir()
-    (folder / "conf" / "dataset" / "tanks.yaml").write_text(DATASET)
-    for name, system, trainable in (("tanks", "Tanks", list(TRUE)),
-                                    ("tanks_linear", "LinearTanks", ["a1", "a2", "a3", "k4", "e1", "e2"])):
-        (folder / "conf" / "model" / f"{name}.yaml").write_text(MODEL.format(name=name, system=system,
-                                                                             trainable=trainable))
-    (folder / "data").mkdir()
+    models = {"tanks": MODEL.format(name="tanks", system="Tanks", trainable=list(TRUE)),
+              "tanks_linear": MODEL.format(name="tanks_linear", system="LinearTanks",
+                                           trainable=["a1", "a2", "a3", "k4", "e1", "e2"])}
+    folder = user_project(tmp_path_factory.mktemp("tanks"), "tanks", SYSTEM, "tanks", DATASET, models)
     for split, seed in (("train", 0), ("test", 1)):
         np.savetxt(folder / "data" / f"{split}.csv", simulate(seed), fmt="%.12g", delimiter=",",
                    header="time,pump,level", comments="")
@@ -133,12 +123,7 @@ def user(tmp_path_factory) -> Path:
 
 def test_the_nonlinear_tanks_reach_the_noise_and_their_linearisation_does_not(user: Path, tmp_path: Path) -> None:
     out = tmp_path / "benchmark"
-    result = subprocess.run(
-        [sys.executable, "-m", "hypa.benchmark", "--config-dir", str(user / "conf"), "dataset=tanks",
-         f"data.dir={user / 'data'}", "budget=full", "models=[tanks,tanks_linear]", f"hydra.run.dir={out}"],
-        cwd=ROOT, capture_output=True, text=True, timeout=600, env={**os.environ, "PYTHONPATH": str(user)}, check=False)
-    assert result.returncode == 0, result.stderr[-3000:]
-    models = json.loads((out / "benchmark.json").read_text())["tanks"]["models"]
+    models = run_user_benchmark(user, "tanks", ["tanks", "tanks_linear"], out, timeout=600)
     rms = {name: models[name]["test_sets"]["test"]["level"]["rms"] for name in ("tanks", "tanks_linear")}
     assert rms["tanks"] < 1.5 * NOISE, rms  # 0.020 V: the record starts right, the rest is the noise
     assert rms["tanks_linear"] > 2 * rms["tanks"], rms  # 0.067 V
