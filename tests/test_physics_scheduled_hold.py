@@ -8,8 +8,8 @@ import torch
 
 from hypa.physics import LTIBlock
 from hypa.physics.discretization import hold_exponential, phi_functions
+from hypa.physics.scan import _AffineStates
 from hypa.physics.scheduled import (
-    _AffineStates,
     forced_terms,
     simulate_scheduled,
     simulate_scheduled_recursive,

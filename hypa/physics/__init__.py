@@ -17,7 +17,8 @@ from hypa.physics.lti import LTIBlock, LTIModel, StateSpace, UnstablePhysicsErro
 from hypa.physics.mass_spring_damper import MassSpringDamper
 from hypa.physics.normalized import NormalizedLTI, Scaling, default_state_std, normalize
 from hypa.physics.parameters import ParameterSpec, PhysicalParameters
-from hypa.physics.scheduled import SchedulingError, affine_scan
+from hypa.physics.scan import affine_scan
+from hypa.physics.scheduled import SchedulingError
 from hypa.physics.systems import PHYSICS_SYSTEMS, build_system, resolve_system
 
 __all__ = [

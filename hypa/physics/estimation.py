@@ -8,7 +8,7 @@ scheduled block) and an unknown x̂_0,
     ŷ_j = Ĉ_j x̂_j + D̂_j û_j + Ĝ_j                                         (j = 0..P)
 
 every state is affine in x̂_0: x̂_j = Ψ_j x̂_0 + r_j with Ψ_0 = I, r_0 = 0, Ψ_{j+1} = Â_j Ψ_j,
-r_{j+1} = Â_j r_j + c_j (the prefix compositions of the steps, ``scheduled.affine_scan``: r_j
+r_{j+1} = Â_j r_j + c_j (the prefix compositions of the steps, ``scan.affine_scan``: r_j
 is the response to the inputs from a zero state). The measured outputs (the rows of ``observed``)
 are then linear in x̂_0:
 
@@ -34,7 +34,7 @@ from collections.abc import Callable
 import torch
 from torch import Tensor
 
-from hypa.physics.scheduled import affine_scan
+from hypa.physics.scan import affine_scan
 
 
 def estimate_last_state(phi: Tensor, forced: Tensor, c: Tensor, offset: Tensor, y: Tensor, observed: Tensor,

@@ -13,7 +13,7 @@ about the current iterate x̄, the equations are the affine recursion
 
     x_{k+1} = J_k x_k + (F_k(x̄_k) - J_k x̄_k),   J_k = ∂F_k/∂x at x̄_k,
 
-which a parallel scan solves in log2(S) levels (:func:`hypa.physics.scheduled.affine_scan`). F is
+which a parallel scan solves in log2(S) levels (:func:`hypa.physics.scan.affine_scan`). F is
 evaluated on every sample in one call, and its Jacobian by forward differences in ``n`` more
 (whatever the user's nonlinearity). Each full Newton step makes at least one more leading sample
 exact, and near the solution the error squares at every step, so a stable system converges in a
@@ -32,7 +32,7 @@ from collections.abc import Callable
 import torch
 from torch import Tensor
 
-from hypa.physics.scheduled import affine_scan
+from hypa.physics.scan import affine_scan
 
 MAX_ITERATIONS = 40  # Newton steps before giving up (each a few dozen whole-sequence operations)
 BACKTRACKS = 6  # halvings of a Newton step that does not lower the residual, before giving up

@@ -28,9 +28,9 @@ from hypa.physics.estimation import estimate_last_state, refine_first_state
 from hypa.physics.lifted import simulate_chunked, simulate_from_rows
 from hypa.physics.normalized import NormalizedLTI, NormalizingMaps
 from hypa.physics.parallel import solve_recursion
+from hypa.physics.scan import affine_scan
 from hypa.physics.scheduled import (
     SchedulingError,
-    affine_scan,
     forced_terms,
     per_sample_matrices,
     simulate_scheduled,
