@@ -5,7 +5,7 @@ the vehicle's, a user's own file with ``diagnosis.catalogue=[PATH]``)::
 
     - id: input_delay                  # the cause's id in reports and diagnosis.json
       name: dead time on a measured input
-      for_each: input                  # input | output | parameter | scheduling | block
+      for_each: input                  # input | output | parameter | scheduling | block | state
       where: {system: [single_track_front]}   # block only: blocks of these systems, or a
                                        # mapping {system: its replacement, ...} read as {system}
       when: {rws_ratio: nonzero}       # only where these nominal parameters are (non)zero
@@ -24,9 +24,15 @@ Placeholders: ``{input}``, ``{output}``, ``{block}``, ``{parameter}`` (the block
 it), ``{channel}`` (scheduling), ``{block_input}`` (the block's first input), ``{block_outputs[i]}``
 (its i-th output), ``{block_scheduling}`` (a whole value: the block's scheduling mapping, so that a
 new block is scheduled like it), ``{system}`` (the
-replacement of the matched block's system, when ``where.system`` is a mapping). A parameter value
-may be an expression of ``dt`` [s], the sample time. Which parameters ``for_each: parameter``
-visits: those the nominal model declares uncertain (its blocks' ``trainable``), or all.
+replacement of the matched block's system, when ``where.system`` is a mapping), ``{state}`` and
+``{couplings}`` (``for_each: state``: a state of a linear physics block, and as a whole value the
+names of the ``curve_<state>_on_<row>`` weights of its nonzero couplings, ``hypa.physics.curved``).
+A parameter value may be an expression of ``dt`` [s], the sample time; ``for_each: state`` adds
+``level`` and ``spread``, the state's operating point and spread in the nominal model's scaling.
+``for_each: state`` visits the states of the linear physics blocks whose system no
+``for_each: block`` entry names (the catalogue's own physics of a system comes first). Which
+parameters ``for_each: parameter`` visits: those the nominal model declares uncertain (its
+blocks' ``trainable``), or all.
 """
 
 from __future__ import annotations
@@ -46,7 +52,7 @@ from hypa.models.spec import ELEMENT_PARAMETER, ModelSpec, ModelSpecError, parse
 from hypa.physics.systems import PHYSICS_SYSTEMS, build_system
 
 GENERIC = Path(__file__).with_name("catalogue.yaml")
-FOR_EACH = ("input", "output", "parameter", "scheduling", "block")
+FOR_EACH = ("input", "output", "parameter", "scheduling", "block", "state")
 FITS = {"gradient": GRADIENT, "offset": AFFINE, "none": NONE}
 _KEYS = {"id", "name", "for_each", "where", "when", "fit", "offset", "patch", "learn"}
 _WHEN = ("zero", "nonzero")
@@ -201,11 +207,49 @@ def apply_patch(spec: ModelSpec, patch: Mapping[str, Any], dt: float, where: str
         raise CatalogueError(f"{where}: the edited model is not valid: {error}") from None
 
 
+def specific_systems(entries: Sequence[Entry]) -> set[str]:
+    """The systems some ``for_each: block`` entry names (matched or put in): the catalogue's own
+    physics of them comes before the generic ``for_each: state`` entries."""
+    named: set[str] = set()
+    for entry in entries:
+        systems = entry.where.get("system", ()) if entry.for_each == "block" else ()
+        named.update(systems)
+        named.update(systems.values() if isinstance(systems, Mapping) else ())
+    return named
+
+
+def _state_contexts(spec: ModelSpec, values: Mapping[str, float], specific: set[str]
+                    ) -> Iterator[tuple[str, dict[str, Any]]]:
+    """Each state of a physics block that the catalogue has no own physics for (not scheduled,
+    not curved yet) with a nonzero coupling into some state derivative at the current values."""
+    import torch
+
+    from hypa.physics.curved import curve_name
+
+    for b in spec.blocks:
+        if b.kind != "physics" or b.system in specific or b.scheduling:
+            continue
+        system = build_system(b.system, b.name, b.curved)
+        if not system.n_states:
+            continue
+        given = {p.name: torch.tensor(p.value, dtype=torch.float64)
+                 for p in system.parameter_specs({**values, **spec.parameters})}
+        a = system.matrices(given).a
+        for j, state in enumerate(system.state_names):
+            rows = [r for i, r in enumerate(system.state_names) if float(a[i, j]) != 0.0]
+            if state in b.curved or not rows:
+                continue
+            yield f"{b.name}/{state}", {"block": b.name, "state": state,
+                                        "couplings": [curve_name(state, r) for r in rows]}
+
+
 def _contexts(entry: Entry, spec: ModelSpec, inputs: Sequence[str], outputs: Sequence[str],
-              scheduling: Sequence[str], values: Mapping[str, float], uncertain: Mapping[str, Sequence[str]]
-              ) -> Iterator[tuple[str, dict[str, Any]]]:
+              scheduling: Sequence[str], values: Mapping[str, float], uncertain: Mapping[str, Sequence[str]],
+              specific: set[str] = frozenset()) -> Iterator[tuple[str, dict[str, Any]]]:
     """(target, placeholders) for each place the entry applies to."""
-    if entry.for_each == "input":
+    if entry.for_each == "state":
+        yield from _state_contexts(spec, values, specific)
+    elif entry.for_each == "input":
         consumed = {s for b in spec.blocks for s in b.inputs}
         yield from ((n, {"input": n}) for n in inputs if n in consumed)
     elif entry.for_each == "output":
@@ -222,7 +266,7 @@ def _contexts(entry: Entry, spec: ModelSpec, inputs: Sequence[str], outputs: Seq
         for b in spec.blocks:
             if b.kind != "physics":
                 continue
-            for p in build_system(b.system, b.name).parameter_specs({**values, **spec.parameters}):
+            for p in build_system(b.system, b.name, b.curved).parameter_specs({**values, **spec.parameters}):
                 local = p.name.split("/", 1)[-1]
                 if local in b.scheduling:
                     continue
@@ -245,7 +289,8 @@ def _knobs(edited: ModelSpec, values: Mapping[str, float],
             unit = "s" if b.kind == "delay" else channels.get(b.inputs[0], (0.0, ""))[1]
             knobs.update({f"{b.name}/{own}": unit} if own in b.trainable else {})
             continue
-        specs = {s.name: s for s in build_system(b.system, b.name).parameter_specs({**values, **edited.parameters})}
+        system = build_system(b.system, b.name, b.curved)
+        specs = {s.name: s for s in system.parameter_specs({**values, **edited.parameters})}
         for t in b.trainable:
             name = f"{b.name}/{t}" if f"{b.name}/{t}" in specs else t
             knobs[name] = specs[name].unit
@@ -259,7 +304,7 @@ def _parameter_values(spec: ModelSpec, known: Mapping[str, float], block: str | 
     for b in spec.blocks:
         if b.kind != "physics":
             continue
-        for p in build_system(b.system, b.name).parameter_specs(known):
+        for p in build_system(b.system, b.name, b.curved).parameter_specs(known):
             local = p.name.split("/", 1)[-1]
             if (p.name == local or b.name == block) and local.isidentifier():
                 values[local] = p.value
@@ -270,15 +315,20 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
                          output_names: Sequence[str], scheduling_names: Sequence[str],
                          physical_values: Mapping[str, float], dt: float,
                          uncertain: Mapping[str, Sequence[str]] | None = None,
-                         channels: Mapping[str, tuple[float, str]] | None = None) -> list[Candidate]:
+                         channels: Mapping[str, tuple[float, str]] | None = None,
+                         states: Mapping[str, tuple[float, float]] | None = None) -> list[Candidate]:
     """Every entry expanded over the model and the data's channels, as edits of the frozen model.
 
     ``channels``: per measured channel, its largest |value| in the training data [SI] (``peak``
     in an entry's expressions) and its unit (of a limit on it). An entry's expressions may also
     read the model's parameters by name (``viscous_friction``), the shared ones and the matched
     block's own (by their local names), at their values in this round: nominal, or fitted by an
-    earlier round; ``dt`` and ``peak`` win over a parameter of the same name."""
-    channels = channels or {}
+    earlier round; ``dt`` and ``peak`` win over a parameter of the same name. ``states``: per
+    state of a physics block (``<block>/<state>``), its operating point and spread [SI] in the
+    nominal model's scaling (``level`` and ``spread`` for ``for_each: state``; without them the
+    state entries are not expanded)."""
+    channels, states = channels or {}, states or {}
+    specific = specific_systems(entries)
     uncertain = {b.name: b.trainable for b in spec.blocks} if uncertain is None else uncertain
     base = frozen(spec)
     existing = {b.name for b in base.blocks}
@@ -288,7 +338,9 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
         if not entry.applies(known):
             continue
         for target, context in _contexts(entry, base, input_names, output_names, scheduling_names,
-                                         physical_values, uncertain):
+                                         physical_values, uncertain, specific):
+            if entry.for_each == "state" and target not in states:
+                continue
             where = f"catalogue {entry.source}, entry {entry.id} on {target}"
             if entry.fit == AFFINE:
                 out.append(Candidate(entry.id, _format(entry.offset, context), base, AFFINE,
@@ -296,7 +348,8 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
                 continue
             channel = context.get("input") or context.get("output") or context.get("channel")
             variables = {**_parameter_values(base, known, context.get("block")),
-                         **({"peak": channels[channel][0]} if channel in channels else {})}
+                         **({"peak": channels[channel][0]} if channel in channels else {}),
+                         **(dict(zip(("level", "spread"), states[target])) if entry.for_each == "state" else {})}
             patch = _format(dict(entry.patch), context)
             if any(name.startswith("diagnosed_") and name in existing for name in patch.get("blocks", {})):
                 continue  # the model has this cause's block already: named in an earlier round

@@ -60,7 +60,7 @@ def set_free(spec: ModelSpec, names: Sequence[str]) -> ModelSpec:
         else:
             local = name
             owners = [b.name for b in spec.blocks if b.kind == "physics"
-                      and name in build_system(b.system, b.name).parameter_names]
+                      and name in build_system(b.system, b.name, b.curved).parameter_names]
         for owner in owners:
             if local not in free[owner]:
                 free[owner].append(local)

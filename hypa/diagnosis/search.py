@@ -26,6 +26,7 @@ shortfall is listed in :attr:`Search.too_short`.
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -44,7 +45,9 @@ from hypa.diagnosis.generic import GenericFit
 from hypa.diagnosis.problem import Problem
 from hypa.diagnosis.race import append_result
 from hypa.diagnosis.scales import duration
+from hypa.models import ComposedModel
 from hypa.models.spec import ModelSpec
+from hypa.physics import LTIBlock
 
 OFFSET_Z = 5.0  # an offset below min_gain is still named this many standard errors away from zero ...
 OFFSET_GAIN = 0.005  # ... when it lowers the validation error by at least this share (a small sensor bias)
@@ -108,9 +111,11 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
         channels = {n: (max(float(np.max(np.abs(r[n]))) for r in dm.records("train")), dm.channels[n].unit)
                     for n in measured}
 
+        states = state_scales(problem.build(frozen(nominal)))
+
         def candidates(spec: ModelSpec) -> list[Candidate]:
             return catalogue_candidates(entries, spec, dm.input_names, dm.output_names, dm.scheduling_names,
-                                        problem.physical_values, dm.dt, uncertain, channels)
+                                        problem.physical_values, dm.dt, uncertain, channels, states)
     torch.manual_seed(problem.seed)
     folds = problem.folds()
     windows = [p.windows() for p in folds]
@@ -184,12 +189,25 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
         findings = _small_offsets(findings, unjudged, error)
     too_short = _not_fitted(rounds) + list(unjudged.values())
     named, dropped, bases, scores = _joint_offsets(named, bases, scores, folds, progress, too_short)
+    named, bases, scores = _prune(nominal, named, dropped, bases, scores, folds, candidates, min_gain, floor, error,
+                                   progress)
     for k, f in enumerate(named):  # the final values: re-fitted jointly with every later cause
         for later in named[k + 1 :]:
             f.values.update({name: v for name, v in later.refined.items() if name in f.values})
     return Search(nominal_score, rounds, named, averaged(bases), pool(folds, scores), time.perf_counter() - started,
                   dropped, too_short, generic, standin, folds=len(folds),
                   blocks=len(problem.blocks()) if len(folds) > 1 else 0)
+
+
+def state_scales(model: ComposedModel) -> dict[str, tuple[float, float]]:
+    """Each physics block's states (``<block>/<state>``) -> (operating point, spread) [SI]: the
+    scaling the model gave them (a measured state's from the data, another's from the physics)."""
+    out = {}
+    for name, block in model.blocks.items():
+        if isinstance(block, LTIBlock):
+            for state, mean, std in zip(block.model.state_names, block.state_mean.tolist(), block.state_std.tolist()):
+                out[f"{name}/{state}"] = (float(mean), float(std))
+    return out
 
 
 def _not_fitted(rounds: Sequence[Sequence[Finding]]) -> list[str]:
@@ -258,6 +276,78 @@ def _joint_offsets(named: list[Finding], bases: list[ModelSpec], scores: list[fl
              for b, (values, _) in zip(bases, fitted)]
     scores = [p.stretches("val").score(p.build(b)) for p, b in zip(folds, bases)]
     return [f for f in named if all(f is not d for d in dropped)], dropped, bases, scores
+
+
+def _knob_values(spec: ModelSpec, candidate: Candidate) -> dict[str, float] | None:
+    """The values ``spec`` holds for ``candidate``'s knobs (None where one is missing)."""
+    values = {}
+    for knob in candidate.knobs:
+        if candidate.fit == AFFINE:
+            found = spec.sensor_offsets.get(knob)
+        elif "/" in knob:
+            block, local = knob.split("/", 1)
+            found = spec.block(block).parameters.get(local)
+        else:
+            found = spec.parameters.get(knob)
+        if found is None:
+            return None
+        values[knob] = float(found)
+    return values
+
+
+def _rebuilt(nominal: ModelSpec, causes: Sequence[Finding], final: ModelSpec,
+             candidates: Callable[[ModelSpec], list[Candidate]]) -> ModelSpec | None:
+    """The nominal model with ``causes`` applied in turn, each at its values in ``final`` (None where
+    one no longer applies)."""
+    spec = frozen(nominal)
+    for f in causes:
+        match = [c for c in candidates(spec) if c.key == f.key]
+        values = _knob_values(final, match[0]) if match else None
+        if values is None:
+            return None
+        spec = applied(match[0], values)
+    return spec
+
+
+def _prune(nominal: ModelSpec, named: list[Finding], dropped: list[Finding], bases: list[ModelSpec],
+           scores: list[float], folds: Sequence[Problem], candidates: Callable[[ModelSpec], list[Candidate]],
+           min_gain: float, floor: float, error: str, progress: Callable[[str], None]
+           ) -> tuple[list[Finding], list[ModelSpec], list[float]]:
+    """The fitted causes that the causes named after them made unnecessary, dropped (the latest
+    first): a cause that stood in for others early in the greedy search (a nonlinearity fitted
+    before a parameter's mismatch was) keeps its knobs in every later fit, and where these end
+    near where it started, removing it from the final model, with every other value as fitted,
+    raises the cross-validated error by less than ``min_gain`` (or leaves it below ``floor``).
+    Each fold's model is rebuilt from the nominal one with the other causes at their final values;
+    where that does not reproduce the final model's error (a cause that no longer applies), nothing is dropped."""
+    fitted = [f for f in named if f.candidate is not None and f.candidate.fit == GRADIENT and not f.small]
+    if len(named) < 2 or not fitted:
+        return named, bases, scores
+    current = pool(folds, scores)
+    again = [_rebuilt(nominal, named, b, candidates) for b in bases]
+    if any(s is None for s in again) or not math.isclose(
+            pool(folds, [p.stretches("val").score(p.build(s)) for p, s in zip(folds, again)]), current,
+            rel_tol=1e-4, abs_tol=1e-12):
+        return named, bases, scores
+    for f in reversed(fitted):
+        kept = [g for g in named if g is not f]
+        without = [_rebuilt(nominal, kept, b, candidates) for b in bases]
+        if any(s is None for s in without):
+            continue
+        trial = [p.stretches("val").score(p.build(s)) for p, s in zip(folds, without)]
+        worse = pool(folds, trial)
+        share = (worse - current) / worse if worse > 0 else 0.0
+        if share >= min_gain and worse > floor:
+            continue
+        why = (f"with the causes named after it, it lowers the {error} by only {100 * max(share, 0.0):.2g} % "
+               f"(under {100 * min_gain:.0f} %)" if share < min_gain else
+               f"without it the {error} is {100 * worse:.2g} % of the output variance, below the noise floor "
+               f"({100 * floor:.2g} %)")
+        f.note = f"dropped: {why}: the causes named after it carry what it explained"
+        progress(f"{f.cause} on {f.target}: {f.note}")
+        named, bases, scores, current = kept, without, trial, worse
+        dropped.append(f)
+    return named, bases, scores
 
 
 def _significant(f: Finding) -> bool:

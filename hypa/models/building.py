@@ -76,7 +76,7 @@ def collect_parameters(spec: ModelSpec, values: Mapping[str, float]
             continue
         local = {local_name(b.name, k): v for k, v in b.parameters.items()}
         own = ELEMENT_PARAMETER.get(b.kind)  # an element's one parameter, else a system's
-        system = None if own else build_system(b.system, b.name)
+        system = None if own else build_system(b.system, b.name, b.curved)
         if system is not None:
             systems[b.name] = system
         names = (local_name(b.name, own),) if system is None else tuple(system.parameter_names)

@@ -36,6 +36,7 @@ class BlockConfig:
     scheduling: Any = None  # physics: parameter -> scheduling channel
     observe: Any = None  # physics: block output -> measured output
     table: Any = None  # physics scheduled by one signal: its matrices off a verified table where no gradient needs them
+    curved: Any = None  # physics: state -> power (2, 3), couplings from the state bent (hypa.physics.curved)
 
 
 @dataclass

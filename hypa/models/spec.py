@@ -71,6 +71,11 @@ class BlockSpec:
         validation, an evaluation, a simulation), read them off an interpolation table over the
         signal's range, verified against the exact matrices to round-off
         (``hypa.physics.table``); otherwise they are computed at every sample.
+    curved: physics only, states whose couplings bend with their deviation, state -> power (2 or
+        3): each coupling A_rj from x_j becomes A_rj (x_j + w_r (x_j - μ_j) z^(p-1)), z = (x_j - μ_j)
+        / σ_j, with the block's own parameters ``<state>_level`` μ_j, ``<state>_spread`` σ_j and
+        ``curve_<state>_on_<row>`` w_r (``hypa.physics.curved``; named by ``hypa.diagnose``'s
+        ``cubic_state`` and ``square_state``).
     """
 
     name: str
@@ -86,6 +91,7 @@ class BlockSpec:
     scheduling: Mapping[str, str] = field(default_factory=dict)
     observe: Mapping[str, str] = field(default_factory=dict)
     table: bool = False
+    curved: Mapping[str, int] = field(default_factory=dict)
 
     @property
     def steady(self) -> bool:
@@ -187,6 +193,15 @@ def _flag(value: Any, where: str) -> bool:
     return value
 
 
+def _powers(value: Any, where: str) -> dict[str, int]:
+    """A mapping state -> power, 2 or 3 (None: empty)."""
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping) or any(isinstance(v, bool) or v not in (2, 3) for v in value.values()):
+        raise ModelSpecError(f"{where} must map state names to a power, 2 or 3 (e.g. {{position: 3}}), got {value!r}")
+    return {str(k): int(v) for k, v in value.items()}
+
+
 def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
     """Parse and check the ``model`` config (a plain mapping) into a :class:`ModelSpec`."""
     name = str(config.get("name", "model"))
@@ -229,9 +244,10 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
             scheduling=_signal_map(b.get("scheduling"), f"{block_name}.scheduling"),
             observe=_signal_map(b.get("observe"), f"{block_name}.observe"),
             table=_flag(b.get("table"), f"{block_name}.table"),
+            curved=_powers(b.get("curved"), f"{block_name}.curved"),
         ))
-        if kind != "physics" and (blocks[-1].scheduling or blocks[-1].observe):
-            raise ModelSpecError(f"block {block_name!r}: only physics blocks take scheduling or observe")
+        if kind != "physics" and (blocks[-1].scheduling or blocks[-1].observe or blocks[-1].curved):
+            raise ModelSpecError(f"block {block_name!r}: only physics blocks take scheduling, observe or curved")
         if blocks[-1].table and len(blocks[-1].scheduling) != 1:
             raise ModelSpecError(f"block {block_name!r}: table: true needs a physics block scheduled by one signal, "
                                  f"got scheduling {dict(blocks[-1].scheduling) or 'none'}")
@@ -267,7 +283,7 @@ def spec_config(spec: ModelSpec, name: str | None = None) -> dict[str, Any]:
     for b in spec.blocks:
         entry: dict[str, Any] = {"kind": b.kind, "inputs": list(b.inputs), "outputs": list(b.outputs)}
         for key in ("system", "trainable", "residual_of", "scale_as", "initial_state", "parameters", "scheduling",
-                    "observe"):
+                    "observe", "curved"):
             value = getattr(b, key)
             if value:
                 entry[key] = dict(value) if isinstance(value, Mapping) else (

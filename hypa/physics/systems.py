@@ -14,6 +14,7 @@ import inspect
 from collections.abc import Callable, Iterator, Mapping
 
 from hypa.physics.contract import SystemContractError, check_system
+from hypa.physics.curved import Curved, CurvedError
 from hypa.physics.elements import FirstOrderLag, GainLag, LeadLag, SecondOrder, StaticGain
 from hypa.physics.friction import MassWithCoulombFriction, MassWithCubicFriction, MassWithFriction
 from hypa.physics.lti import LTIModel
@@ -101,9 +102,16 @@ def resolve_system(name: str, block: str = "") -> LTIModel:
     return system
 
 
-def build_system(name: str, block: str = "") -> LTIModel:
-    """Alias of ``resolve_system`` (the name older callers use)."""
-    return resolve_system(name, block)
+def build_system(name: str, block: str = "", curved: Mapping[str, int] | None = None) -> LTIModel:
+    """The system ``name`` for the block ``block`` (``resolve_system``), its couplings from the
+    states of ``curved`` (state -> power, a block's ``curved:``) bent (``hypa.physics.curved``)."""
+    system = resolve_system(name, block)
+    if not curved:
+        return system
+    try:
+        return Curved(system, curved, block)
+    except CurvedError as error:
+        raise SystemContractError(f"block {block!r} ({name}): {error}") from None
 
 
 def _import_class(path: str) -> type[LTIModel]:

@@ -1,0 +1,89 @@
+"""Curved couplings: any system's linear couplings from a state made to bend with that state.
+
+A physics block's ``curved: {state: power}`` (power 2 or 3) wraps its system (:class:`Curved`):
+every coupling A_rj from the state x_j into a state derivative ẋ_r becomes
+
+    A_rj (x_j + w_r (x_j - μ_j) z^(p-1)),   z = (x_j - μ_j) / σ_j,
+
+so that at one spread σ_j from the operating point μ_j the coupling is (1 + w_r) times the
+linear one. Power 3 is a symmetric stiffening (w > 0) or softening (w < 0), as a hardening
+spring's or a saturating conductance's; power 2 an asymmetric one, as a tank's outflow through
+an orifice (√h) or a quadratic drag about a speed. At x_j = μ_j the term and its slope are zero:
+the model is its linear self near the operating point, and ``w = 0`` is the model as it was.
+
+The new parameters are the block's own (``<block>/...``): ``<state>_level`` μ_j and
+``<state>_spread`` σ_j in the state's unit (fixed: they set the scale of w, not the physics), and
+one dimensionless ``curve_<state>_on_<row>`` w_r per state r (a row where A_rj is 0 has nothing
+to bend: its w does nothing). The generic catalogue's ``cubic_state`` and ``square_state`` entries
+(``hypa/diagnosis/catalogue.yaml``) fit them for any system the catalogue knows nothing
+specific about. The wrapped system is nonlinear and is simulated like any other (Lur'e form,
+``hypa.physics.simulation``): the feedback F's column for x_j is A_{:j} ⊙ w, its signal
+(x_j - μ_j) z^(p-1).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import torch
+from torch import Tensor
+
+from hypa.physics.elements import local_name
+from hypa.physics.parameters import ParameterSpec
+from hypa.physics.statespace import LTIModel, StateSpace
+
+POWERS = (2, 3)
+
+
+def curve_name(state: str, row: str) -> str:
+    """The local name of the weight w of the coupling from ``state`` into ``row``'s derivative."""
+    return f"curve_{state}_on_{row}"
+
+
+class CurvedError(ValueError):
+    """A ``curved`` mapping that does not fit the system (a state it lacks, a power not 2 or 3)."""
+
+
+class Curved(LTIModel):
+    """``base`` with the couplings from the states of ``curved`` (state -> power) bent (module docstring)."""
+
+    def __init__(self, base: LTIModel, curved: Mapping[str, int], block: str = "") -> None:
+        states = list(base.state_names)
+        for state, power in curved.items():
+            if state not in states:
+                raise CurvedError(f"curved: {type(base).__name__} has no state {state!r}; its states: "
+                                  f"{', '.join(states) or 'none'}")
+            if power not in POWERS:
+                raise CurvedError(f"curved: the power of {state!r} must be 2 or 3, got {power!r}")
+        self.base, self.curved = base, dict(curved)
+        self.state_names, self.input_names, self.output_names = base.state_names, base.input_names, base.output_names
+        self._columns = [(states.index(s), p, local_name(block, f"{s}_level"), local_name(block, f"{s}_spread"),
+                          [local_name(block, curve_name(s, r)) for r in states]) for s, p in curved.items()]
+        own = []
+        for _, _, level, spread, weights in self._columns:
+            own += [ParameterSpec(level, 0.0, "", positive=False), ParameterSpec(spread, 1.0, "")]
+            own += [ParameterSpec(w, 0.0, "-", positive=False) for w in weights]
+        self.parameters = (*base.parameters, *own)
+
+    def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
+        return self.base.matrices(p)
+
+    def feedback(self, p: Mapping[str, Tensor]) -> Tensor:
+        a = self.base.matrices(p).a
+        columns = [a[:, j] * torch.stack([p[w] for w in weights]) for j, _, _, _, weights in self._columns]
+        own = torch.stack(columns, 1)  # (n, curved states)
+        return torch.cat([self.base.feedback(p), own], 1) if self.base.is_nonlinear else own
+
+    def prepare(self, p: Mapping[str, Tensor]) -> Mapping[str, Tensor]:
+        prepared = dict(self.base.prepare(p)) if self.base.is_nonlinear else dict(p)
+        prepared["_curved"] = [(p[level], 1.0 / p[spread]) for _, _, level, spread, _ in self._columns]
+        return prepared
+
+    def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
+        signals = []
+        for (j, power, *_), (level, inverse) in zip(self._columns, p["_curved"]):
+            d = x[..., j] - level
+            z = d * inverse
+            signals.append(d * z if power == 2 else d * z * z)
+        own = torch.stack(signals, -1)
+        return torch.cat([self.base.nonlinearity(x, u, p), own], -1) if self.base.is_nonlinear else own
