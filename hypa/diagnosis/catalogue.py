@@ -29,8 +29,9 @@ replacement of the matched block's system, when ``where.system`` is a mapping), 
 names of the ``curve_<state>_on_<row>`` weights of its nonzero couplings, ``hypa.physics.curved``).
 A parameter value may be an expression of ``dt`` [s], the sample time; ``for_each: state`` adds
 ``level`` and ``spread``, the state's operating point and spread in the nominal model's scaling.
-``for_each: state`` visits the states of the linear physics blocks whose system no
-``for_each: block`` entry names (the catalogue's own physics of a system comes first). Which
+``for_each: state`` visits the states of the physics blocks whose system no ``for_each: block``
+entry names (the catalogue's own physics of a system comes first), other than a cause's own
+``diagnosed_`` blocks and scheduled ones. Which
 parameters ``for_each: parameter`` visits: those the nominal model declares uncertain (its
 blocks' ``trainable``), or all.
 """
@@ -221,13 +222,14 @@ def specific_systems(entries: Sequence[Entry]) -> set[str]:
 def _state_contexts(spec: ModelSpec, values: Mapping[str, float], specific: set[str]
                     ) -> Iterator[tuple[str, dict[str, Any]]]:
     """Each state of a physics block that the catalogue has no own physics for (not scheduled,
-    not curved yet) with a nonzero coupling into some state derivative at the current values."""
+    not a cause's own ``diagnosed_`` block, not curved yet) with a nonzero coupling into some
+    state derivative at the current values."""
     import torch
 
     from hypa.physics.curved import curve_name
 
     for b in spec.blocks:
-        if b.kind != "physics" or b.system in specific or b.scheduling:
+        if b.kind != "physics" or b.system in specific or b.scheduling or b.name.startswith("diagnosed_"):
             continue
         system = build_system(b.system, b.name, b.curved)
         if not system.n_states:

@@ -113,6 +113,10 @@ def refine_first_state(simulate: Callable[[Tensor], tuple[Tensor, Tensor]], x0: 
         jacobian = ((out[:, 1:] - out[:, :1]) / delta).flatten(2).transpose(1, 2)  # (B, M, n)
         rows = torch.cat([jacobian, math.sqrt(ridge) * eye.expand(batch, n, n)], 1) if ridge > 0 else jacobian
         target = torch.cat([-residual.flatten(1), -math.sqrt(ridge) * x0], 1) if ridge > 0 else -residual.flatten(1)
+        finite = torch.isfinite(rows).flatten(1).all(1) & torch.isfinite(target).all(1)  # a diverged window: no step
+        if not bool(finite.all()):  # (LAPACK refuses a non-finite matrix outright)
+            rows, target = rows * finite[:, None, None], torch.where(finite[:, None], target, 0.0)
+            rows = torch.nan_to_num(rows, nan=0.0, posinf=0.0, neginf=0.0)
         step = torch.linalg.lstsq(rows, target[..., None]).solution.squeeze(-1)  # (B, n)
         if not bool(torch.isfinite(step).all()) or float(step.abs().max()) <= tolerance:
             break  # converged: a step below the dtype's resolution of a state of unit spread
