@@ -1,0 +1,159 @@
+"""A nonlinearity on a state of a system hypa never saw, hidden at random magnitudes: named by the
+generic ``cubic_state`` entry, with its size, at two time scales.
+
+- **slow**: a ship's roll (a user's class), its righting moment k φ (1 + h φ²) stiffening or
+  softening at large angles, sampled every 0.5 s (a 12 s roll period), records of 40 min;
+- **fast**: a series RLC (a user's class) whose capacitor is shunted by i = g1 v + g3 v³ (a
+  varistor), sampled at 40 kHz (a 1.6 kHz resonance), records of a quarter second.
+
+The truth comes from scipy's ODE solver, the nominal model is the linear class with the true
+linear parameters. The diagnosis must name ``cubic_state`` first, on the state the nonlinearity
+reads, and its weight must give back the hidden coefficient: the coupling from x_j bends as
+A_rj w (x_j - μ_j) ((x_j - μ_j) / σ_j)², so h = w / σ² (roll) and g3 = g1 w / σ² (circuit) where
+the operating point μ is near 0.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import signal
+from scipy.integrate import solve_ivp
+
+from hypa.diagnosis.problem import Problem
+from hypa.diagnosis.search import name_causes
+from hypa.models.spec import parse_model_spec
+from test_diagnose_time_scales import _datamodule, _files
+
+SYSTEMS = '''
+import torch
+from hypa.physics import LTIModel, ParameterSpec, StateSpace
+
+
+class ShipRoll(LTIModel):
+    """I φ'' + d φ' + k φ = M: roll angle [rad] and rate [rad/s] from the wave moment [N m]."""
+    state_names = ("angle", "rate")
+    input_names = ("moment",)
+    output_names = ("angle",)
+    parameters = (ParameterSpec("inertia", 1.0e7, "kg m^2"), ParameterSpec("damping", 1.0e6, "N m s/rad"),
+                  ParameterSpec("stiffness", 2.7e6, "N m/rad"))
+
+    def matrices(self, p):
+        i, d, k = p["inertia"], p["damping"], p["stiffness"]
+        z, one = torch.zeros_like(i), torch.ones_like(i)
+        a = torch.stack([torch.stack([z, one]), torch.stack([-k / i, -d / i])])
+        return StateSpace(a, torch.stack([z, 1 / i]).reshape(2, 1), torch.stack([one, z]).reshape(1, 2),
+                          i.new_zeros(1, 1))
+
+
+class Circuit(LTIModel):
+    """L di/dt = u - R i - v, C dv/dt = i - g v: the capacitor's voltage [V] from the source [V]."""
+    state_names = ("current", "voltage")
+    input_names = ("source",)
+    output_names = ("voltage",)
+    parameters = (ParameterSpec("inductance", 0.01, "H"), ParameterSpec("capacitance", 1e-6, "F"),
+                  ParameterSpec("resistance", 20.0, "Ohm"), ParameterSpec("conductance", 1e-3, "S"))
+
+    def matrices(self, p):
+        l, c, r, g = p["inductance"], p["capacitance"], p["resistance"], p["conductance"]
+        z, one = torch.zeros_like(l), torch.ones_like(l)
+        a = torch.stack([torch.stack([-r / l, -1 / l]), torch.stack([1 / c, -g / c])])
+        return StateSpace(a, torch.stack([1 / l, z]).reshape(2, 1), torch.stack([z, one]).reshape(1, 2),
+                          l.new_zeros(1, 1))
+'''
+ROLL = {"inertia": 1.0e7, "damping": 1.0e6, "stiffness": 2.7e6}
+CIRCUIT = {"inductance": 0.01, "capacitance": 1e-6, "resistance": 20.0, "conductance": 1e-3}
+
+
+@pytest.fixture
+def user_systems(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    (tmp_path / "curved_systems.py").write_text(SYSTEMS)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    yield tmp_path
+    sys.modules.pop("curved_systems", None)
+
+
+def roll_truth(seed: int, hardening: float, minutes: float) -> dict[str, np.ndarray]:
+    """Waves of 6-20 s (filtered noise, linear between samples), roll up to about 0.3 rad, 2 mrad noise."""
+    dt, rng = 0.5, np.random.default_rng(seed)
+    n = int(minutes * 60 / dt)
+    t = np.arange(n) * dt
+    b, a = signal.butter(2, [0.05 / 1.0, 0.17 / 1.0], btype="band")
+    moment = signal.lfilter(b, a, rng.standard_normal(n + 200))[200:]
+    moment *= 1.3e5 / np.std(moment)  # [N m]
+    i, d, k = ROLL["inertia"], ROLL["damping"], ROLL["stiffness"]
+
+    def rhs(time: float, x: np.ndarray) -> np.ndarray:
+        return np.array([x[1], (np.interp(time, t, moment) - d * x[1] - k * x[0] * (1 + hardening * x[0] ** 2)) / i])
+
+    x = solve_ivp(rhs, (0, t[-1]), np.zeros(2), t_eval=t, rtol=1e-9, atol=1e-12, max_step=dt).y
+    return {"time": t, "moment": moment, "angle": x[0] + 0.002 * rng.standard_normal(n)}
+
+
+def circuit_truth(seed: int, cubic: float, seconds: float) -> dict[str, np.ndarray]:
+    """A multisine of 200 Hz-4 kHz whose amplitude sweeps (so the nonlinearity shows), 5 mV noise."""
+    rate, rng = 40_000.0, np.random.default_rng(seed)
+    n = int(seconds * rate)
+    t = np.arange(n) / rate
+    freqs, amps, phases = rng.uniform(200, 4000, 30), rng.uniform(0.5, 1.0, 30), rng.uniform(0, 2 * np.pi, 30)
+    sweep = rng.uniform(8, 16)
+
+    def source(time: float | np.ndarray) -> float | np.ndarray:
+        envelope = 1.0 + 0.8 * np.sin(2 * np.pi * sweep * np.asarray(time))
+        return 0.5 * envelope * np.sum(amps * np.sin(2 * np.pi * freqs * np.asarray(time)[..., None] + phases), -1)
+
+    l, c, r, g = (CIRCUIT[k] for k in ("inductance", "capacitance", "resistance", "conductance"))
+
+    def rhs(time: float, x: np.ndarray) -> np.ndarray:
+        return np.array([(source(time) - r * x[0] - x[1]) / l, (x[0] - g * x[1] - cubic * x[1] ** 3) / c])
+
+    x = solve_ivp(rhs, (0, t[-1]), np.zeros(2), t_eval=t, method="DOP853", rtol=1e-9, atol=1e-12).y
+    return {"time": t, "source": source(t), "voltage": x[1] + 0.005 * rng.standard_normal(n)}
+
+
+def diagnose(folder: Path, system: str, magnitude: float):
+    if system == "roll":
+        train, val = roll_truth(0, magnitude, 40.0), roll_truth(1, magnitude, 20.0)
+        dt, channels, block, values = 0.5, {"moment": ("input", "N m"), "angle": ("output", "rad")}, "ShipRoll", ROLL
+    else:
+        train, val = circuit_truth(0, magnitude, 0.25), circuit_truth(1, magnitude, 0.1)
+        dt, channels, block, values = 2.5e-5, {"source": ("input", "V"), "voltage": ("output", "V")}, "Circuit", CIRCUIT
+    _files(folder, {"train": train, "val": val})
+    dm = _datamodule(folder, dt, {k: {"role": role, "unit": unit} for k, (role, unit) in channels.items()},
+                     window=100, past=10)
+    inputs, outputs = [k for k, (r, _) in channels.items() if r == "input"], [k for k, (r, _) in channels.items()
+                                                                                if r == "output"]
+    spec = parse_model_spec({"name": system, "hold": "foh", "blocks": {"plant": {
+        "kind": "physics", "system": f"curved_systems:{block}", "inputs": inputs, "outputs": outputs,
+        "initial_state": "estimate"}}, "outputs": outputs})
+    return name_causes(spec, Problem(dm, values, hold="foh", horizon=100, workers=1), max_causes=1)
+
+
+CASES = [(system, seed) for system in ("roll", "circuit") for seed in range(3)]
+
+
+@pytest.mark.parametrize("system, seed", [
+    pytest.param(*case, marks=() if case[1] == 0 else pytest.mark.slow, id="-".join(map(str, case))) for case in CASES])
+def test_a_hidden_cubic_on_a_state_is_named_with_its_size(tmp_path: Path, user_systems: Path, system: str,
+                                                          seed: int) -> None:
+    rng = np.random.default_rng(100 + CASES.index((system, seed)))
+    if system == "roll":  # stiffening or softening: 18-45 % of the righting moment at 0.3 rad
+        magnitude = float(rng.choice([-1.0, 1.0]) * rng.uniform(2.0, 5.0))
+        state, row, linear = "angle", "rate", 1.0
+    else:  # the shunt's conductance grows by 50-200 % at 2 V
+        magnitude = float(rng.uniform(1.25e-4, 5e-4))
+        state, row, linear = "voltage", "voltage", CIRCUIT["conductance"]
+    search = diagnose(user_systems, system, magnitude)
+    first = search.rounds[0][:4] if search.rounds else []
+    assert search.named and search.named[0].cause == "cubic_state", [f.describe() for f in first]
+    named = search.named[0]
+    assert named.target == f"plant/{state}", named.describe()
+    block = search.spec.block("plant")
+    level, spread = block.parameters[f"{state}_level"], block.parameters[f"{state}_spread"]
+    assert abs(level) < 0.1 * spread  # the operating point: about 0
+    estimate = linear * named.values[f"plant/curve_{state}_on_{row}"] / spread**2
+    assert estimate == pytest.approx(magnitude, rel=0.15), (named.describe(), magnitude, spread)
+    assert named.gain > 0.5, named.describe()
