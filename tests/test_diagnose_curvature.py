@@ -26,6 +26,7 @@ from scipy.integrate import solve_ivp
 from hypa.diagnosis.problem import Problem
 from hypa.diagnosis.search import name_causes
 from hypa.models.spec import parse_model_spec
+
 from test_diagnose_time_scales import _datamodule, _files
 
 SYSTEMS = '''
@@ -105,10 +106,10 @@ def circuit_truth(seed: int, cubic: float, seconds: float) -> dict[str, np.ndarr
         envelope = 1.0 + 0.8 * np.sin(2 * np.pi * sweep * np.asarray(time))
         return 0.5 * envelope * np.sum(amps * np.sin(2 * np.pi * freqs * np.asarray(time)[..., None] + phases), -1)
 
-    l, c, r, g = (CIRCUIT[k] for k in ("inductance", "capacitance", "resistance", "conductance"))
+    ind, c, r, g = (CIRCUIT[k] for k in ("inductance", "capacitance", "resistance", "conductance"))
 
     def rhs(time: float, x: np.ndarray) -> np.ndarray:
-        return np.array([(source(time) - r * x[0] - x[1]) / l, (x[0] - g * x[1] - cubic * x[1] ** 3) / c])
+        return np.array([(source(time) - r * x[0] - x[1]) / ind, (x[0] - g * x[1] - cubic * x[1] ** 3) / c])
 
     x = solve_ivp(rhs, (0, t[-1]), np.zeros(2), t_eval=t, method="DOP853", rtol=1e-9, atol=1e-12).y
     return {"time": t, "source": source(t), "voltage": x[1] + 0.005 * rng.standard_normal(n)}
