@@ -152,6 +152,7 @@ def test_a_hidden_cubic_on_a_state_is_named_with_its_size(tmp_path: Path, user_s
     assert search.named and search.named[0].cause == "cubic_state", [f.describe() for f in first]
     named = search.named[0]
     assert named.target == f"plant/{state}", named.describe()
+    assert f"each coupling from {state} is (1 + w z²) times the linear one, z = ({state} " in named.describe()
     block = search.spec.block("plant")
     level, spread = block.parameters[f"{state}_level"], block.parameters[f"{state}_spread"]
     assert abs(level) < 0.1 * spread  # the operating point: about 0

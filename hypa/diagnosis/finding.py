@@ -118,11 +118,28 @@ def scored(candidate: Candidate, problem: Problem, values: Mapping[str, float], 
     units = dict(candidate.units) or {candidate.target: problem.dm.channels[candidate.target].unit
                                       if candidate.fit == AFFINE else ""}
     gain = 1.0 - value / base_score if base_score > 0 else 0.0
-    note = _scheduling_note(candidate, problem) if candidate.cause == "scheduling" else ""
+    note = _scheduling_note(candidate, problem) if candidate.cause == "scheduling" else _curved_note(candidate, problem)
     own = {k: v for k, v in values.items() if k in candidate.knobs or candidate.fit == AFFINE}
     refined = {k: v for k, v in values.items() if k not in own}
     return Finding(candidate.cause, candidate.target, own, units, value, gain, seconds, None, candidate, note=note,
                    refined=refined)
+
+
+def _curved_note(candidate: Candidate, problem: Problem) -> str:
+    """What a curved state's weights w mean (``hypa.physics.curved``): ``each coupling from
+    voltage is (1 + w z²) times the linear one, z = (voltage + 0.0011 V) / 1.67 V``; "" for any
+    other candidate."""
+    block, _, state = candidate.target.partition("/")
+    if not state or block not in candidate.spec.block_names:
+        return ""
+    b = candidate.spec.block(block)
+    if state not in b.curved:
+        return ""
+    level, spread = b.parameters.get(f"{state}_level", 0.0), b.parameters.get(f"{state}_spread", 1.0)
+    unit = problem.dm.channels[state].unit if state in problem.dm.channels else ""
+    sign, shift = ("+", -level) if level < 0 else ("-", level)
+    return (f"each coupling from {state} is (1 + w z{'²' if b.curved[state] == 3 else ''}) times the linear one, "
+            f"z = ({state} {sign} {format_value(shift, unit)}) / {format_value(spread, unit)}")
 
 
 def _scheduling_note(candidate: Candidate, problem: Problem) -> str:
