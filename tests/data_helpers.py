@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -131,6 +132,19 @@ blocks:
 outputs: [speed]
 stages: []
 """
+
+
+def importable(folder: Path, monkeypatch, modules: dict[str, str]) -> Iterator[Path]:
+    """A user's modules (name -> code) written into ``folder`` and importable while the test runs
+    (a fixture's body: ``yield from importable(...)``); forgotten again afterwards."""
+    import sys
+
+    for name, code in modules.items():
+        (folder / f"{name}.py").write_text(code)
+    monkeypatch.syspath_prepend(str(folder))
+    yield folder
+    for name in modules:
+        sys.modules.pop(name, None)
 
 
 def user_dataset(data: dict, vehicle: str = "none") -> str:

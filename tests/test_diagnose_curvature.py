@@ -15,7 +15,6 @@ the operating point μ is near 0.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -27,9 +26,11 @@ from hypa.diagnosis.problem import Problem
 from hypa.diagnosis.search import name_causes
 from hypa.models.spec import parse_model_spec
 
+from data_helpers import importable
 from test_diagnose_time_scales import _datamodule, _files
+from test_fast_circuit import SYSTEM as CIRCUIT_SYSTEM
 
-SYSTEMS = '''
+ROLL_SYSTEM = '''
 import torch
 from hypa.physics import LTIModel, ParameterSpec, StateSpace
 
@@ -49,21 +50,6 @@ class ShipRoll(LTIModel):
         return StateSpace(a, torch.stack([z, 1 / i]).reshape(2, 1), torch.stack([one, z]).reshape(1, 2),
                           i.new_zeros(1, 1))
 
-
-class Circuit(LTIModel):
-    """L di/dt = u - R i - v, C dv/dt = i - g v: the capacitor's voltage [V] from the source [V]."""
-    state_names = ("current", "voltage")
-    input_names = ("source",)
-    output_names = ("voltage",)
-    parameters = (ParameterSpec("inductance", 0.01, "H"), ParameterSpec("capacitance", 1e-6, "F"),
-                  ParameterSpec("resistance", 20.0, "Ohm"), ParameterSpec("conductance", 1e-3, "S"))
-
-    def matrices(self, p):
-        l, c, r, g = p["inductance"], p["capacitance"], p["resistance"], p["conductance"]
-        z, one = torch.zeros_like(l), torch.ones_like(l)
-        a = torch.stack([torch.stack([-r / l, -1 / l]), torch.stack([1 / c, -g / c])])
-        return StateSpace(a, torch.stack([1 / l, z]).reshape(2, 1), torch.stack([z, one]).reshape(1, 2),
-                          l.new_zeros(1, 1))
 '''
 ROLL = {"inertia": 1.0e7, "damping": 1.0e6, "stiffness": 2.7e6}
 CIRCUIT = {"inductance": 0.01, "capacitance": 1e-6, "resistance": 20.0, "conductance": 1e-3}
@@ -71,10 +57,8 @@ CIRCUIT = {"inductance": 0.01, "capacitance": 1e-6, "resistance": 20.0, "conduct
 
 @pytest.fixture
 def user_systems(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    (tmp_path / "curved_systems.py").write_text(SYSTEMS)
-    monkeypatch.syspath_prepend(str(tmp_path))
-    yield tmp_path
-    sys.modules.pop("curved_systems", None)
+    # the circuit is test_fast_circuit's user system; its nominal values do not matter here (given)
+    yield from importable(tmp_path, monkeypatch, {"ship_roll": ROLL_SYSTEM, "circuit_system": CIRCUIT_SYSTEM})
 
 
 def roll_truth(seed: int, hardening: float, minutes: float) -> dict[str, np.ndarray]:
@@ -118,17 +102,19 @@ def circuit_truth(seed: int, cubic: float, seconds: float) -> dict[str, np.ndarr
 def diagnose(folder: Path, system: str, magnitude: float):
     if system == "roll":
         train, val = roll_truth(0, magnitude, 40.0), roll_truth(1, magnitude, 20.0)
-        dt, channels, block, values = 0.5, {"moment": ("input", "N m"), "angle": ("output", "rad")}, "ShipRoll", ROLL
+        channels = {"moment": ("input", "N m"), "angle": ("output", "rad")}
+        dt, block, values = 0.5, "ship_roll:ShipRoll", ROLL
     else:
         train, val = circuit_truth(0, magnitude, 0.25), circuit_truth(1, magnitude, 0.1)
-        dt, channels, block, values = 2.5e-5, {"source": ("input", "V"), "voltage": ("output", "V")}, "Circuit", CIRCUIT
+        channels = {"source": ("input", "V"), "voltage": ("output", "V")}
+        dt, block, values = 2.5e-5, "circuit_system:LinearCircuit", CIRCUIT
     _files(folder, {"train": train, "val": val})
     dm = _datamodule(folder, dt, {k: {"role": role, "unit": unit} for k, (role, unit) in channels.items()},
                      window=100, past=10)
     inputs, outputs = [k for k, (r, _) in channels.items() if r == "input"], [k for k, (r, _) in channels.items()
                                                                                 if r == "output"]
     spec = parse_model_spec({"name": system, "hold": "foh", "blocks": {"plant": {
-        "kind": "physics", "system": f"curved_systems:{block}", "inputs": inputs, "outputs": outputs,
+        "kind": "physics", "system": block, "inputs": inputs, "outputs": outputs,
         "initial_state": "estimate"}}, "outputs": outputs})
     return name_causes(spec, Problem(dm, values, hold="foh", horizon=100, workers=1), max_causes=1)
 

@@ -15,7 +15,6 @@ the model and the data (:mod:`hypa.diagnosis.scales`).
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +26,8 @@ from hypa.diagnosis.problem import Problem
 from hypa.diagnosis.scales import Scales
 from hypa.diagnosis.search import name_causes
 from hypa.models.spec import parse_model_spec
+
+from data_helpers import importable
 
 THERMAL = '''
 """A two-mass thermal plant: heater power into mass 1, mass 2 coupled to it, both losing heat to the ambient."""
@@ -106,10 +107,7 @@ def stage_truth(seed: int, delay_s: float = 0.0, stiffness: float = 4.0e4, offse
 
 @pytest.fixture
 def thermal_system(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    (tmp_path / "thermal_plant.py").write_text(THERMAL)
-    monkeypatch.syspath_prepend(str(tmp_path))
-    yield tmp_path
-    sys.modules.pop("thermal_plant", None)
+    yield from importable(tmp_path, monkeypatch, {"thermal_plant": THERMAL})
 
 
 def diagnose_thermal(folder: Path, **effect: float):

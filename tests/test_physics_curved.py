@@ -92,3 +92,16 @@ def test_the_model_key_round_trips_and_bad_mappings_are_one_line() -> None:
             "curved": {"y": 3}}}})
     with pytest.raises(SystemContractError, match="has no state 'speed'"):
         build_system("mass_spring_damper", "spring", {"speed": 3})
+
+
+def test_a_nonlinear_system_keeps_its_own_feedback_beside_the_curved_one(u: torch.Tensor) -> None:
+    """Curving Duffing's velocity: zero weights are Duffing itself (its cubic spring kept), and
+    the feedback holds both columns, Duffing's first."""
+    model = Curved(DuffingOscillator(), {"velocity": 3}, "b")
+    check_system(model)
+    p = {s.name: torch.tensor(s.value, dtype=torch.float64) for s in model.parameter_specs(VALUES)}
+    assert model.feedback(p).shape == (2, 2)
+    duffing = run(DuffingOscillator(), u, hardening=5.0)
+    assert np.abs(run(model, u, hardening=5.0) - duffing).max() < 1e-12 * np.abs(duffing).max()
+    damped = run(model, u, hardening=5.0, **{"b/curve_velocity_on_velocity": 0.5})
+    assert np.abs(damped - duffing).max() > 0.01 * np.abs(duffing).max()
