@@ -171,7 +171,8 @@ def user_project(folder: Path, module: str, code: str, dataset: str, dataset_yam
     return folder
 
 
-def run_user_benchmark(user: Path, dataset: str, models: list[str], out: Path, timeout: int = 900) -> dict:
+def run_user_benchmark(user: Path, dataset: str, models: list[str], out: Path, timeout: int = 900,
+                       extra: list[str] | None = None) -> dict:
     """``python -m hypa.benchmark --config-dir`` on a :func:`user_project` (its data in data/, budget=full):
     benchmark.json's models of ``dataset`` (asserting the command succeeded)."""
     import json
@@ -181,7 +182,8 @@ def run_user_benchmark(user: Path, dataset: str, models: list[str], out: Path, t
 
     result = subprocess.run(
         [sys.executable, "-m", "hypa.benchmark", "--config-dir", str(user / "conf"), f"dataset={dataset}",
-         f"data.dir={user / 'data'}", "budget=full", f"models=[{','.join(models)}]", f"hydra.run.dir={out}"],
+         f"data.dir={user / 'data'}", "budget=full", f"models=[{','.join(models)}]", f"hydra.run.dir={out}",
+         *(extra or [])],
         cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=timeout,
         env={**os.environ, "PYTHONPATH": str(user)}, check=False)
     assert result.returncode == 0, result.stderr[-3000:]

@@ -4,7 +4,9 @@ cubic term shows), data from scipy's ODE solver, through ``python -m hypa.benchm
 
 - with no hold given, the data choose a first-order hold (the input is smooth): under a zero-order
   hold the same physics fits ten times worse;
-- the nonlinear physics beats its linearisation by far and comes near the sensor noise.
+- the nonlinear physics beats its linearisation by far and comes near the sensor noise;
+- the linearisation's diagnosis (``diagnose=linear``, its row ``diagnosed``) names the cubic on the
+  voltage, and the model it writes comes as near the noise.
 
 Only the voltage is measured, so (L, C, R, g1, g3) -> (L/a, aC, R/a, a g1, a g3) leaves it unchanged:
 the report must say the parameters cannot be told apart, and the checks read the invariants.
@@ -118,10 +120,14 @@ def user(tmp_path_factory) -> Path:
 
 def test_the_data_choose_the_hold_and_the_nonlinear_physics_comes_near_the_noise(user: Path, tmp_path: Path) -> None:
     out = tmp_path / "benchmark"
-    models = run_user_benchmark(user, "circuit", ["circuit", "linear"], out)
-    rms = {name: models[name]["test_sets"]["test"]["voltage"]["rms"] for name in ("circuit", "linear")}
+    models = run_user_benchmark(user, "circuit", ["circuit", "linear", "diagnosed"], out, extra=["diagnose=linear"])
+    rms = {name: models[name]["test_sets"]["test"]["voltage"]["rms"] for name in ("circuit", "linear", "diagnosed")}
     assert rms["circuit"] < 0.1 * rms["linear"], rms
     assert rms["circuit"] < 6 * NOISE, rms
+    # the linear model's diagnosis (a cubic on the voltage, hypa.physics.curved), identified: as good
+    assert rms["diagnosed"] < 6 * NOISE, rms
+    named = [(f["cause"], f["target"]) for f in json.loads((out / "diagnosis" / "diagnosis.json").read_text())["named"]]
+    assert ("cubic_state", "circuit/voltage") in named, named
     record = json.loads((out / "circuit" / "run.json").read_text())
     hold = record["hold"]
     assert hold["chosen"] == "foh" and hold["output_error"]["zoh"] > 10 * hold["output_error"]["foh"], hold

@@ -58,7 +58,8 @@ def test_user_system_evaluates_in_its_own_units(trained: Path, tmp_path: Path) -
 
 def test_a_users_own_data_set_and_model_are_benchmarked(tmp_path: Path) -> None:
     """python -m hypa.benchmark --config-dir DIR dataset=NAME models=[M]: no suite needed; without test
-    records it refuses (an empty table would be a silent non-result)."""
+    records it refuses (an empty table would be a silent non-result), and the diagnosis's rows
+    without a nominal model to diagnose (diagnose=M) or with one that does not exist."""
     data = tmp_path / "data"
     env = make_dc_motor_data(data, 10)
     command = [sys.executable, "-m", "hypa.benchmark", "--config-dir", str(EXAMPLE / "conf"), "dataset=dc_motor",
@@ -66,6 +67,11 @@ def test_a_users_own_data_set_and_model_are_benchmarked(tmp_path: Path) -> None:
     refused = subprocess.run([*command, f"hydra.run.dir={tmp_path / 'refused'}"], cwd=ROOT, capture_output=True,
                              text=True, timeout=300, env=env, check=False)
     assert refused.returncode == 1 and "has no test records" in refused.stderr, refused.stderr[-3000:]
+    written = [*(c for c in command if not c.startswith("models=")), "models=[dc_motor,diagnosed]"]
+    for extra, message in (([], "give diagnose=M"), (["diagnose=no_such_model"], "diagnose=no_such_model is not")):
+        refused = subprocess.run([*written, *extra, f"hydra.run.dir={tmp_path / 'refused'}"], cwd=ROOT,
+                                 capture_output=True, text=True, timeout=300, env=env, check=False)
+        assert refused.returncode == 1 and message in refused.stderr, refused.stderr[-3000:]
     (data / "test.csv").write_bytes((data / "val.csv").read_bytes())
     result = subprocess.run([*command, f"hydra.run.dir={tmp_path / 'run'}"], cwd=ROOT, capture_output=True, text=True,
                             timeout=600, env=env, check=False)

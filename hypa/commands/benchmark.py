@@ -5,6 +5,7 @@
     python -m hypa.benchmark dataset=emps budget=full seeds=[0,1,2]   # mean ± std over seeds
     python -m hypa.benchmark dataset=racecar data.dir=OTHER_LOG       # the suite on another log
     python -m hypa.benchmark --config-dir DIR dataset=mine models=[mine_physical,blackbox]   # your own
+    python -m hypa.benchmark --config-dir DIR dataset=mine models=[mine,diagnosed] diagnose=mine   # + its diagnosis
     make benchmark ARGS="dataset=racecar budget=full"
 
 Each model of the data set's suite (``conf/benchmark.yaml``; for a data set without one, the
@@ -30,6 +31,7 @@ from hypa.errors import UserError, hydra_command
 from hypa.launch import run_hypa
 
 log = logging.getLogger(__name__)
+WRITTEN = ("diagnosed", "diagnosed_hybrid")  # the models hypa.diagnose writes (model=...)
 
 
 def train_model(label: str, overrides: list[str], folder: Path, config_dirs: list[Path]) -> None:
@@ -62,7 +64,13 @@ def main(cfg: DictConfig) -> None:
     suite_models = suite.models if suite is not None else {}
     labels = list(config.models) if config.models else list(suite_models)
     configs = set(GlobalHydra.instance().config_loader().get_group_options("model"))  # --config-dir's too
-    unknown = [m for m in labels if m not in suite_models and m not in configs]
+    nominal = config.diagnose or (suite.diagnose if suite is not None else None)
+    if config.diagnose and config.diagnose not in configs:
+        raise UserError(f"diagnose={config.diagnose} is not a model config (conf/model/*.yaml or your --config-dir)")
+    if nominal is None and any(m in WRITTEN and m not in suite_models for m in labels):
+        raise UserError(f"models {[m for m in labels if m in WRITTEN]} are written by hypa.diagnose: give diagnose=M, "
+                        "the model it extends (models=[M,diagnosed] diagnose=M)")
+    unknown = [m for m in labels if m not in suite_models and m not in configs and not (nominal and m in WRITTEN)]
     if unknown:
         where = f"in the {dataset} suite ({', '.join(suite_models)}) nor " if suite is not None else ""
         raise UserError(f"models {unknown} are {'not ' + where if where else 'not '}model configs "
@@ -82,13 +90,13 @@ def main(cfg: DictConfig) -> None:
     # the models hypa.diagnose writes (model=diagnosed, diagnosed_hybrid) come from diagnosing the suite's
     # nominal model on the same data, once for all seeds
     written = [o for label in labels for o in suite_models.get(label, [f"model={label}"])
-               if o in ("model=diagnosed", "model=diagnosed_hybrid")]
+               if o.removeprefix("model=") in WRITTEN]
     searchpath = []
     if written:
-        nominal = suite.diagnose if suite is not None else None
         if nominal is None:
-            raise UserError(f"models {sorted(set(written))} are written by hypa.diagnose, but the {dataset} suite "
-                            "names no nominal model to diagnose (diagnose: M in conf/benchmark.yaml)")
+            raise UserError(f"models {sorted(set(written))} are written by hypa.diagnose, but no nominal model to "
+                            f"diagnose is named: give diagnose=M (the model the diagnosis extends)"
+                            + (f", or diagnose: M in the {dataset} suite of conf/benchmark.yaml" if suite else ""))
         conf = diagnose_suite(dataset, str(nominal), asked, out / "diagnosis", config_dirs)
         searchpath = [f"hydra.searchpath=[file://{conf}]"]
     scores, times = [], {}

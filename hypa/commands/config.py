@@ -311,6 +311,7 @@ class BenchmarkConfig:
     models: list[str] | None = None  # None: the suite's
     seeds: list[int] = field(default_factory=lambda: [0])
     train_overrides: list[str] = field(default_factory=list)
+    diagnose: str | None = None  # the nominal model whose hypa.diagnose extension model=diagnosed(_hybrid) trains
     budgets: dict[str, list[str]] = field(default_factory=dict)
     suites: dict[str, SuiteConfig] = field(default_factory=dict)
 
