@@ -145,3 +145,48 @@ def test_a_hidden_cubic_on_a_state_is_named_with_its_size(tmp_path: Path, user_s
     estimate = linear * named.values[f"plant/curve_{state}_on_{row}"] / spread**2
     assert estimate == pytest.approx(magnitude, rel=0.15), (named.describe(), magnitude, spread)
     assert named.gain > 0.5, named.describe()
+
+
+def test_a_cause_the_later_ones_made_unnecessary_is_dropped(tmp_path: Path, user_systems: Path) -> None:
+    """The search's last step (``search._prune``) on a final model of two causes: a parameter
+    "mismatch" at its nominal value (inert: what a stand-in becomes once later causes carry its
+    effect) is dropped, the cubic on the voltage that the data need is kept, and the model is
+    rebuilt without the dropped one."""
+    from hypa.diagnosis.catalogue import catalogue_candidates, load_catalogue
+    from hypa.diagnosis.edits import applied, frozen
+    from hypa.diagnosis.finding import Finding
+    from hypa.diagnosis.search import _prune, state_scales
+
+    _files(tmp_path, {"train": circuit_truth(0, 2.5e-4, 0.1), "val": circuit_truth(1, 2.5e-4, 0.05)})
+    dm = _datamodule(tmp_path, 2.5e-5, {"source": {"role": "input", "unit": "V"},
+                                        "voltage": {"role": "output", "unit": "V"}}, window=100, past=10)
+    nominal = parse_model_spec({"name": "c", "hold": "foh", "blocks": {"plant": {
+        "kind": "physics", "system": "circuit_system:LinearCircuit", "inputs": ["source"], "outputs": ["voltage"],
+        "initial_state": "estimate", "trainable": ["resistance"]}}, "outputs": ["voltage"]})
+    problem = Problem(dm, CIRCUIT, hold="foh", horizon=100, workers=1).scaled(frozen(nominal))
+    folds = problem.folds()
+    entries = [e for e in load_catalogue() if e.id in ("parameter_mismatch", "cubic_state")]
+    states = state_scales(problem.build(frozen(nominal)))
+
+    def candidates(spec):
+        return catalogue_candidates(entries, spec, dm.input_names, dm.output_names, dm.scheduling_names, CIRCUIT,
+                                    dm.dt, {"plant": ("resistance",)}, {}, states)
+
+    def pick(spec, key):
+        return next(c for c in candidates(spec) if c.key == key)
+
+    inert = pick(frozen(nominal), "parameter_mismatch:resistance")
+    base = applied(inert, {"resistance": CIRCUIT["resistance"]})
+    spread = states["plant/voltage"][1]
+    cubic = pick(base, "cubic_state:plant/voltage")
+    final = applied(cubic, {"plant/curve_voltage_on_voltage": 2.5e-4 * spread**2 / CIRCUIT["conductance"],
+                            "plant/curve_voltage_on_current": 0.0})
+    named = [Finding(c.cause, c.target, {}, {}, 0.0, 0.5, 0.0, candidate=c) for c in (inert, cubic)]
+    scores = [p.stretches("val").score(p.build(final)) for p in folds]
+    dropped = []
+    kept, bases, after = _prune(nominal, named, dropped, [final] * len(folds), scores, folds, candidates, 0.15, 1e-4,
+                                "error", lambda _: None)
+    assert [f.cause for f in kept] == ["cubic_state"] and [f.cause for f in dropped] == ["parameter_mismatch"]
+    assert dropped[0].note.startswith("dropped: ")
+    assert "plant" in bases[0].block_names and bases[0].block("plant").curved == {"voltage": 3}
+    assert after == pytest.approx(scores, rel=1e-4)  # the same model: the resistance was at its nominal value
