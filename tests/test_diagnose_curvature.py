@@ -1,16 +1,19 @@
 """A nonlinearity on a state of a system hypa never saw, hidden at random magnitudes: named by the
-generic ``cubic_state`` entry, with its size, at two time scales.
+generic ``cubic_state`` and ``square_state`` entries, with its size, at two time scales.
 
 - **slow**: a ship's roll (a user's class), its righting moment k φ (1 + h φ²) stiffening or
   softening at large angles, sampled every 0.5 s (a 12 s roll period), records of 40 min;
 - **fast**: a series RLC (a user's class) whose capacitor is shunted by i = g1 v + g3 v³ (a
-  varistor), sampled at 40 kHz (a 1.6 kHz resonance), records of a quarter second.
+  varistor), sampled at 40 kHz (a 1.6 kHz resonance), records of a quarter second;
+- **slow, one-sided**: a tank draining through an orifice, dh/dt = -K √h + B u, every 4 s for 3 h,
+  whose nominal model is its linearisation about the mean level: ``square_state`` must be named,
+  with w = -σ / (4 μ), the Taylor coefficient of √h about the level μ (σ: the level's spread).
 
 The truth comes from scipy's ODE solver, the nominal model is the linear class with the true
-linear parameters. The diagnosis must name ``cubic_state`` first, on the state the nonlinearity
-reads, and its weight must give back the hidden coefficient: the coupling from x_j bends as
-A_rj w (x_j - μ_j) ((x_j - μ_j) / σ_j)², so h = w / σ² (roll) and g3 = g1 w / σ² (circuit) where
-the operating point μ is near 0.
+linear parameters. The diagnosis must name ``cubic_state`` (the tank: ``square_state``) first,
+on the state the nonlinearity reads, and its weight must give back the hidden coefficient: the
+coupling from x_j bends as A_rj w (x_j - μ_j) ((x_j - μ_j) / σ_j)², so h = w / σ² (roll) and
+g3 = g1 w / σ² (circuit) where the operating point μ is near 0.
 """
 
 from __future__ import annotations
@@ -51,6 +54,24 @@ class ShipRoll(LTIModel):
                           i.new_zeros(1, 1))
 
 '''
+TANK_SYSTEM = '''
+import torch
+from hypa.physics import LTIModel, ParameterSpec, StateSpace
+
+
+class Tank(LTIModel):
+    """dh/dt = -h / tau + k u + e: a tank linearised about its level."""
+    state_names = ("level",)
+    input_names = ("inflow",)
+    output_names = ("level",)
+    parameters = (ParameterSpec("tau", 100.0, "s"), ParameterSpec("gain", 0.03, "m/(s V)"),
+                  ParameterSpec("drift", 0.0, "m/s", positive=False))
+
+    def matrices(self, p):
+        t = p["tau"]
+        return StateSpace((-1 / t).reshape(1, 1), p["gain"].reshape(1, 1), torch.ones(1, 1, dtype=t.dtype),
+                          t.new_zeros(1, 1), p["drift"].reshape(1))
+'''
 ROLL = {"inertia": 1.0e7, "damping": 1.0e6, "stiffness": 2.7e6}
 CIRCUIT = {"inductance": 0.01, "capacitance": 1e-6, "resistance": 20.0, "conductance": 1e-3}
 
@@ -58,7 +79,8 @@ CIRCUIT = {"inductance": 0.01, "capacitance": 1e-6, "resistance": 20.0, "conduct
 @pytest.fixture
 def user_systems(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     # the circuit is test_fast_circuit's user system; its nominal values do not matter here (given)
-    yield from importable(tmp_path, monkeypatch, {"ship_roll": ROLL_SYSTEM, "circuit_system": CIRCUIT_SYSTEM})
+    yield from importable(tmp_path, monkeypatch, {"ship_roll": ROLL_SYSTEM, "circuit_system": CIRCUIT_SYSTEM,
+                                                  "tank_system": TANK_SYSTEM})
 
 
 def roll_truth(seed: int, hardening: float, minutes: float) -> dict[str, np.ndarray]:
@@ -99,11 +121,31 @@ def circuit_truth(seed: int, cubic: float, seconds: float) -> dict[str, np.ndarr
     return {"time": t, "source": source(t), "voltage": x[1] + 0.005 * rng.standard_normal(n)}
 
 
+def tank_truth(seed: int, outflow: float, hours: float) -> dict[str, np.ndarray]:
+    """A pump level held for 4 min at a time (2-8 V, 0.03 m/s per V), 5 mm noise."""
+    dt, rng = 4.0, np.random.default_rng(seed)
+    n = int(hours * 3600 / dt)
+    t = np.arange(n) * dt
+    pump = np.repeat(rng.uniform(2, 8, n // 60 + 1), 60)[:n]
+
+    def rhs(time: float, h: np.ndarray) -> list[float]:
+        return [-outflow * np.sqrt(max(h[0], 0.0)) + 0.03 * pump[min(int(time // dt), n - 1)]]
+
+    level = solve_ivp(rhs, (0, t[-1]), [(0.15 / outflow) ** 2], t_eval=t, rtol=1e-9, atol=1e-11, max_step=dt).y[0]
+    return {"time": t, "inflow": pump, "level": level + 0.005 * rng.standard_normal(n)}
+
+
 def diagnose(folder: Path, system: str, magnitude: float):
     if system == "roll":
         train, val = roll_truth(0, magnitude, 40.0), roll_truth(1, magnitude, 20.0)
         channels = {"moment": ("input", "N m"), "angle": ("output", "rad")}
         dt, block, values = 0.5, "ship_roll:ShipRoll", ROLL
+    elif system == "tank":  # the nominal model: the tank linearised about the training record's mean level
+        train, val = tank_truth(0, magnitude, 3.0), tank_truth(1, magnitude, 1.5)
+        channels = {"inflow": ("input", "V"), "level": ("output", "m")}
+        mean = float(np.mean(train["level"]))
+        dt, block = 4.0, "tank_system:Tank"
+        values = {"tau": 2 * np.sqrt(mean) / magnitude, "gain": 0.03, "drift": -magnitude * np.sqrt(mean) / 2}
     else:
         train, val = circuit_truth(0, magnitude, 0.25), circuit_truth(1, magnitude, 0.1)
         channels = {"source": ("input", "V"), "voltage": ("output", "V")}
@@ -113,36 +155,47 @@ def diagnose(folder: Path, system: str, magnitude: float):
                      window=100, past=10)
     inputs, outputs = [k for k, (r, _) in channels.items() if r == "input"], [k for k, (r, _) in channels.items()
                                                                                 if r == "output"]
-    spec = parse_model_spec({"name": system, "hold": "foh", "blocks": {"plant": {
+    hold = "zoh" if system == "tank" else "foh"  # the pump is held; the others are smooth
+    spec = parse_model_spec({"name": system, "hold": hold, "blocks": {"plant": {
         "kind": "physics", "system": block, "inputs": inputs, "outputs": outputs,
         "initial_state": "estimate"}}, "outputs": outputs})
-    return name_causes(spec, Problem(dm, values, hold="foh", horizon=100, workers=1), max_causes=1)
+    return name_causes(spec, Problem(dm, values, hold=hold, horizon=100, workers=1), max_causes=1)
 
 
-CASES = [(system, seed) for system in ("roll", "circuit") for seed in range(3)]
+CASES = [(system, seed) for system in ("roll", "circuit", "tank") for seed in range(3)]
 
 
 @pytest.mark.parametrize("system, seed", [
     pytest.param(*case, marks=() if case[1] == 0 else pytest.mark.slow, id="-".join(map(str, case))) for case in CASES])
-def test_a_hidden_cubic_on_a_state_is_named_with_its_size(tmp_path: Path, user_systems: Path, system: str,
+def test_a_hidden_nonlinearity_on_a_state_is_named_with_its_size(tmp_path: Path, user_systems: Path, system: str,
                                                           seed: int) -> None:
     rng = np.random.default_rng(100 + CASES.index((system, seed)))
     if system == "roll":  # stiffening or softening: 18-45 % of the righting moment at 0.3 rad
         magnitude = float(rng.choice([-1.0, 1.0]) * rng.uniform(2.0, 5.0))
         state, row, linear = "angle", "rate", 1.0
-    else:  # the shunt's conductance grows by 50-200 % at 2 V
+    elif system == "circuit":  # the shunt's conductance grows by 50-200 % at 2 V
         magnitude = float(rng.uniform(1.25e-4, 5e-4))
         state, row, linear = "voltage", "voltage", CIRCUIT["conductance"]
+    else:  # the orifice's K [m^0.5/s]: mean levels of about 3-14 m
+        magnitude = float(rng.uniform(0.04, 0.08))
+        state, row, linear = "level", "level", None
     search = diagnose(user_systems, system, magnitude)
     first = search.rounds[0][:4] if search.rounds else []
-    assert search.named and search.named[0].cause == "cubic_state", [f.describe() for f in first]
+    cause = "square_state" if system == "tank" else "cubic_state"
+    assert search.named and search.named[0].cause == cause, [f.describe() for f in first]
     named = search.named[0]
     assert named.target == f"plant/{state}", named.describe()
-    assert f"each coupling from {state} is (1 + w z²) times the linear one, z = ({state} " in named.describe()
     block = search.spec.block("plant")
     level, spread = block.parameters[f"{state}_level"], block.parameters[f"{state}_spread"]
+    weight = named.values[f"plant/curve_{state}_on_{row}"]
+    if system == "tank":  # √h = √μ (1 + (h - μ) / 2μ - (h - μ)² / 8μ² ...): the coupling's w = -σ / 4μ
+        assert "is (1 + w z) times the linear one" in named.describe()
+        assert weight == pytest.approx(-spread / (4 * level), rel=0.15), (named.describe(), level, spread)
+        assert named.gain > 0.5, named.describe()
+        return
+    assert f"each coupling from {state} is (1 + w z²) times the linear one, z = ({state} " in named.describe()
     assert abs(level) < 0.1 * spread  # the operating point: about 0
-    estimate = linear * named.values[f"plant/curve_{state}_on_{row}"] / spread**2
+    estimate = linear * weight / spread**2
     assert estimate == pytest.approx(magnitude, rel=0.15), (named.describe(), magnitude, spread)
     assert named.gain > 0.5, named.describe()
 

@@ -268,10 +268,11 @@ def _contexts(entry: Entry, spec: ModelSpec, inputs: Sequence[str], outputs: Seq
         for b in spec.blocks:
             if b.kind != "physics":
                 continue
-            for p in build_system(b.system, b.name, b.curved).parameter_specs({**values, **spec.parameters}):
+            system = build_system(b.system, b.name, b.curved)
+            for p in system.parameter_specs({**values, **spec.parameters}):
                 local = p.name.split("/", 1)[-1]
-                if local in b.scheduling:
-                    continue
+                if local in b.scheduling or p.name in getattr(system, "added", ()):
+                    continue  # a curved state's level, spread and weights belong to that cause, not the physics
                 if entry.for_each == "scheduling" and local in scheduling:
                     yield local, {"block": b.name, "parameter": local, "channel": local, "qualified": p.name}
                 elif (entry.for_each == "parameter" and local not in scheduling

@@ -64,6 +64,7 @@ class Curved(LTIModel):
             own += [ParameterSpec(level, 0.0, "", positive=False), ParameterSpec(spread, 1.0, "")]
             own += [ParameterSpec(w, 0.0, "-", positive=False) for w in weights]
         self.parameters = (*base.parameters, *own)
+        self.added = frozenset(spec.name for spec in own)  # the parameters the curving adds (not the physics')
 
     def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
         return self.base.matrices(p)
