@@ -30,6 +30,7 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -99,20 +100,29 @@ def polynomials(values: Tensor) -> Tensor:
     return inverse[torch.searchsorted(shifts, offset)].to(values.device) @ stencil
 
 
+class Built(NamedTuple):
+    """What :func:`build` made: the table (None: none), a line on it, and whether the dtype itself
+    is refused (no table within ``MAX_POINTS`` meets its tolerance, whatever the call's values)."""
+
+    table: ScheduleTable | None
+    line: str
+    refused: bool = False
+
+
 def build(exact: Callable[[Tensor], Tensor], lo: float, hi: float, dtype: torch.dtype,
-          device: torch.device | str = "cpu") -> tuple[ScheduleTable | None, str]:
+          device: torch.device | str = "cpu") -> Built:
     """A table of ``exact`` over [lo, hi] verified to ``TOLERANCE`` in ``dtype``, or None, and a line on it.
 
     ``exact`` maps ρ (K,) float64 to the rows (K, E) float64. The line says the points and the
     error found, or why there is no table.
     """
     if not (math.isfinite(lo) and math.isfinite(hi)) or hi < lo:
-        return None, f"no table over [{lo:g}, {hi:g}]: the scheduling signal is not finite"
+        return Built(None, f"no table over [{lo:g}, {hi:g}]: the scheduling signal is not finite")
     if hi == lo:  # one value: the table is that value's rows, exact
         values = exact(torch.tensor([lo], dtype=torch.float64, device=device))
         ok = bool(torch.isfinite(values).all())
-        return (ScheduleTable(lo, hi, values[:, None].to(dtype), 0.0) if ok else None,
-                f"one point at {lo:g}" if ok else f"no table: the rows at {lo:g} are not finite")
+        return Built(ScheduleTable(lo, hi, values[:, None].to(dtype), 0.0) if ok else None,
+                     f"one point at {lo:g}" if ok else f"no table: the rows at {lo:g} are not finite")
     tol = TOLERANCE * torch.finfo(dtype).eps
     points = FIRST_POINTS
     grid = torch.linspace(lo, hi, points, dtype=torch.float64, device=device)
@@ -121,17 +131,17 @@ def build(exact: Callable[[Tensor], Tensor], lo: float, hi: float, dtype: torch.
         mid = (grid[:-1] + grid[1:]) / 2
         reference = exact(mid)
         if not (bool(torch.isfinite(values).all()) and bool(torch.isfinite(reference).all())):
-            return None, f"no table over [{lo:g}, {hi:g}]: the rows are not finite there"
+            return Built(None, f"no table over [{lo:g}, {hi:g}]: the rows are not finite there")
         table = ScheduleTable(lo, hi, polynomials(values).to(dtype), 0.0)
         got = table(mid.to(dtype)).to(torch.float64)
         scale = max(float(values.abs().max()), float(reference.abs().max()), torch.finfo(torch.float64).tiny)
         error = float((got - reference).abs().max()) / scale
         if error <= tol:
-            return (dataclasses.replace(table, error=error),
-                    f"{points} points over [{lo:g}, {hi:g}], largest deviation {error:.1e} of the largest entry")
+            return Built(dataclasses.replace(table, error=error),
+                         f"{points} points over [{lo:g}, {hi:g}], largest deviation {error:.1e} of the largest entry")
         if 2 * points - 1 > MAX_POINTS:
-            return None, (f"no table over [{lo:g}, {hi:g}]: {points} points still deviate {error:.1e} "
-                          f"(allowed {tol:.1e}); the rows are computed per sample")
+            return Built(None, f"no table over [{lo:g}, {hi:g}]: {points} points still deviate {error:.1e} "
+                               f"(allowed {tol:.1e}); the rows are computed per sample", refused=True)
         grid = torch.cat([torch.stack([grid[:-1], mid], 1).reshape(-1), grid[-1:]])
         values = torch.cat([torch.stack([values[:-1], reference], 1).reshape(-1, values.shape[1]), values[-1:]])
         points = 2 * points - 1
@@ -163,10 +173,10 @@ class ScheduleTables:
             if self.last[1].covers(lo, hi):
                 return self.last[1]
             lo, hi = min(lo, self.last[1].lo), max(hi, self.last[1].hi)
-        table, line = build(exact, lo, hi, rho.dtype, rho.device)
+        table, line, refused = build(exact, lo, hi, rho.dtype, rho.device)
         self.lines = [*self.lines[-15:], line]
         if table is None:
-            if "deviate" in line:  # the tolerance, not this call's values: the dtype keeps its per-sample rows
+            if refused:  # the tolerance, not this call's values: the dtype keeps its per-sample rows
                 self.refused[rho.dtype] = line
                 _LOG.warning("%s (%s): %s", self.name, rho.dtype, line)
             return None
