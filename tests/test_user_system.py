@@ -78,3 +78,36 @@ def test_a_users_own_data_set_and_model_are_benchmarked(tmp_path: Path) -> None:
     assert result.returncode == 0, result.stderr[-3000:]
     scores = json.loads((tmp_path / "run" / "benchmark.json").read_text())["dc_motor"]["models"]["dc_motor"]
     assert scores["test_sets"]["test"]["speed"]["r2"] > 0.999
+
+
+def test_a_null_past_is_chosen_for_the_model_and_recorded(tmp_path: Path) -> None:
+    """data.past=null (the default of a data set that sets none): the motor's current is estimated
+    from the measured speed, 2 states from 1 output, so each window sees 4 x 2 - 1 = 7 past samples;
+    hypa.train says so and records 7 (what hypa.evaluate rebuilds), hypa.simulate chooses the same,
+    and a model that estimates nothing keeps 0."""
+    import yaml
+
+    data = tmp_path / "data"
+    env = make_dc_motor_data(data, 10)
+    common = ["--config-dir", str(EXAMPLE / "conf"), "dataset=dc_motor", f"data.dir={data}", "data.past=null"]
+
+    def run(*args: str) -> str:
+        result = subprocess.run([sys.executable, "-m", *args], cwd=ROOT, capture_output=True, text=True, timeout=600,
+                                env=env, check=False)
+        assert result.returncode == 0, result.stderr[-3000:]
+        return result.stdout
+
+    out = run("hypa.train", *common, "model=dc_motor", "trainer.max_epochs=1", "trainer.enable_progress_bar=false",
+              f"hydra.run.dir={tmp_path / 'train'}")
+    assert "data.past: 7 samples before each window (0.007 s), chosen for the model" in out, out[-2000:]
+    assert yaml.safe_load((tmp_path / "train" / "config.yaml").read_text())["data"]["past"] == 7
+    out = run("hypa.simulate", *common, "model=dc_motor", "plot=false", f"hydra.run.dir={tmp_path / 'simulate'}")
+    assert "data.past: 7 samples" in out, out[-2000:]
+    measured = {"name": "measured", "outputs": ["speed"], "blocks": {"motor": {
+        "kind": "physics", "system": "dc_motor:DCMotor", "inputs": ["voltage"], "outputs": ["speed"],
+        "initial_state": "steady", "scale_as": ["speed"]}}}
+    (tmp_path / "conf" / "model").mkdir(parents=True)
+    (tmp_path / "conf" / "model" / "steady.yaml").write_text("# @package model\n" + yaml.safe_dump(measured))
+    out = run("hypa.simulate", *common, "model=steady", "plot=false", f"hydra.searchpath=[file://{tmp_path / 'conf'}]",
+              f"hydra.run.dir={tmp_path / 'steady'}")
+    assert "data.past:" not in out

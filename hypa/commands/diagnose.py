@@ -28,13 +28,20 @@ from hypa.errors import hydra_command
 @record_failures("hypa.diagnose")  # -m over many logs: a bad log is reported in the fleet summary, the others run
 def main(cfg: DictConfig) -> None:
     from hypa.commands.config import DiagnoseConfig, typed
-    from hypa.commands.entry import data_overrides, datamodule, from_cwd, user_config_dirs, vehicle_from_config
+    from hypa.commands.entry import (
+        data_dir_from_config,
+        data_overrides,
+        from_cwd,
+        model_datamodule,
+        user_config_dirs,
+        vehicle_from_config,
+    )
     from hypa.diagnosis.catalogue import load_catalogue
     from hypa.diagnosis.problem import Problem, format_change, nominal_hold
     from hypa.diagnosis.system import diagnose_system
     from hypa.errors import UserError
     from hypa.models.schema import plain_model
-    from hypa.models.spec import parse_model_spec
+    from hypa.models.spec import parse_model_spec, spec_config
 
     config = typed(cfg, DiagnoseConfig)  # every value checked (hypa.commands.config)
     if config.model is None:
@@ -45,8 +52,7 @@ def main(cfg: DictConfig) -> None:
     catalogue = load_catalogue([from_cwd(p) for p in config.diagnosis.catalogue])
     values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.get("vehicle") else {}
     print("reading the data", flush=True)
-    dm = datamodule(cfg)
-    dm.setup()
+    dm = model_datamodule(cfg, data_dir_from_config(cfg), spec_config(spec), values)  # data.past null: for the model
     diagnosis = config.diagnosis
     workers = {} if diagnosis.workers is None else {"workers": diagnosis.workers}
     problem = Problem(dm, values, hold=hold, horizon=config.data.window,

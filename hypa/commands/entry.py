@@ -41,6 +41,33 @@ def datamodule(cfg: DictConfig) -> HypaDataModule:
     return datamodule_from_config(cfg.data, data_dir_from_config(cfg))
 
 
+def model_datamodule(cfg: DictConfig, data_dir: Path, model_config: Mapping[str, Any],
+                     physical_values: Mapping[str, float]) -> HypaDataModule:
+    """The data node's DataModule, set up, for the model ``model_config``: where ``data.past`` is
+    null, with as many past samples as the model's estimated starts want
+    (:meth:`~hypa.models.ComposedModel.suggested_past`; 0 where none is estimated), written into
+    ``cfg`` (the run's recorded configuration) and said on one line."""
+    from hypa.models import ComposedModel
+
+    dm = datamodule_from_config(cfg.data, data_dir)
+    dm.setup()
+    if cfg.data.past is not None:
+        return dm
+    model = ComposedModel.from_data(dm, dict(model_config), physical_values)
+    past = model.suggested_past()
+    OmegaConf.update(cfg, "data.past", past)
+    if not past:
+        return dm
+    needed = model.past_needed()
+    print(f"data.past: {past} samples before each window ({past * dm.dt:.3g} s), chosen for the model: "
+          + ", ".join(f"block {name!r} estimates its {model.blocks[name].model.n_states} states from the "
+                      f"outputs it observes, {n + 1} sample(s) at least" for name, n in needed.items())
+          + "; set data.past to choose", flush=True)
+    dm = datamodule_from_config(cfg.data, data_dir)
+    dm.setup()
+    return dm
+
+
 def data_overrides(overrides: Sequence[str]) -> list[str]:
     """The command-line overrides that choose the data and the vehicle (``dataset``, ``data``,
     ``testbench``, ``vehicle`` groups and their keys): what ``hypa.train`` needs to see the same data."""

@@ -25,8 +25,7 @@ from hypa.errors import hydra_command, settings
 
 @hydra_command("hypa.simulate", "simulate")
 def main(cfg: DictConfig) -> float:
-    from hypa.commands.entry import data_dir_from_config, vehicle_from_config
-    from hypa.data import datamodule_from_config
+    from hypa.commands.entry import data_dir_from_config, model_datamodule, vehicle_from_config
     from hypa.evaluation.nominal import nominal_module, report, simulate_nominal
     from hypa.models.building import model_hold
     from hypa.models.schema import plain_model
@@ -40,8 +39,7 @@ def main(cfg: DictConfig) -> float:
         values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.vehicle else {}
     with settings("testbench"):  # the test bench's settings build its data (files: a folder only)
         data_dir = data_dir_from_config(cfg)
-    dm = datamodule_from_config(cfg.data, data_dir)
-    dm.setup()
+    dm = model_datamodule(cfg, data_dir, model_config, values)  # data.past null: chosen for the model
     module = nominal_module(model_config, values, dm, hold)
     out = Path(HydraConfig.get().runtime.output_dir)
     out.mkdir(parents=True, exist_ok=True)

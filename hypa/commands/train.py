@@ -59,11 +59,11 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         data_dir_from_config,
         flat_hparams,
         from_cwd,
+        model_datamodule,
         network_settings,
         user_callbacks,
         vehicle_from_config,
     )
-    from hypa.data import datamodule_from_config
     from hypa.metadata import run_metadata
     from hypa.models import parse_model_spec
     from hypa.models.building import model_hold
@@ -131,8 +131,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         os.environ.setdefault("OMP_NUM_THREADS", str(config.torch_threads))  # else Lightning's ddp sets cores / ranks
         with settings("testbench"):  # the test bench's settings build its data (files: a folder only)
             data_dir = data_dir_from_config(cfg)
-        dm = datamodule_from_config(cfg.data, data_dir)
-        dm.setup()
+        dm = model_datamodule(cfg, data_dir, model_config, physical_values)  # data.past null: chosen for the model
         # the settings left null: an end-to-end network's from its training data, the fixed defaults otherwise;
         # written into the run's configuration (what was trained, for hypa.evaluate and TensorBoard)
         ann, weight_decay, epochs, patience = network_defaults(model_config, ann_name, ann, dm, lr, weight_decay,

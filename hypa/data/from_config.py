@@ -56,7 +56,7 @@ def datamodule_from_config(
         splits=splits_from_config(cfg.splits),
         select=list(cfg.select),
         window=cfg.window,
-        past=cfg.past,
+        past=0 if cfg.past is None else cfg.past,  # null: chosen for a model (hypa.commands.entry.model_datamodule)
         stride=cfg.stride,
         eval_stride=cfg.eval_stride,
         batch_size=cfg.batch_size,

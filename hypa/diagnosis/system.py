@@ -251,17 +251,15 @@ def _write(path: Path, spec: ModelSpec, named: Sequence[Finding]) -> Path:
     return path
 
 
-PAST_MARGIN = 4  # an estimated start sees this many times as many measured values as the block has states
-
-
 def with_past(overrides: Sequence[str], problem: Problem, spec: ModelSpec) -> list[str]:
     """``overrides`` with ``data.past`` raised where the extended model estimates states (a cause
     that added some, e.g. the slips of tire relaxation) from fewer past samples than it needs:
-    :data:`PAST_MARGIN` times the fewest that determine them."""
-    needed = problem.build(spec).past_needed()
+    :meth:`~hypa.models.ComposedModel.suggested_past`."""
+    model = problem.build(spec)
+    needed = model.past_needed()
     if not needed or problem.dm.past >= max(needed.values()):
         return list(overrides)
-    past = PAST_MARGIN * (max(needed.values()) + 1) - 1
+    past = model.suggested_past()
     return [*(o for o in overrides if o.split("=", 1)[0].lstrip("+~") != "data.past"), f"data.past={past}"]
 
 

@@ -27,6 +27,9 @@ if TYPE_CHECKING:
 Signal = tuple[Tensor, int]  # (B, T, 1) normalized values, index of the first sample
 
 
+PAST_MARGIN = 4  # an estimated start sees this many times as many measured values as the block has states
+
+
 class ComposedModel(nn.Module):
     """A HyPA-Net: the blocks of ``spec`` in dependency order.
 
@@ -104,6 +107,13 @@ class ComposedModel(nn.Module):
         return cls(spec, physical_values, data.input_names, data.output_names, data.scale(data.input_names),
                    data.scale(data.output_names), data.dt, data.window if horizon is None else horizon, hold,
                    ann_name, ann_hparams, data.scheduling_names, data.scale(data.scheduling_names))
+
+    def suggested_past(self) -> int:
+        """The past samples (``data.past``) this model's estimated starts should see: ``PAST_MARGIN``
+        times the fewest that determine the states (:meth:`past_needed`), in measured values; 0
+        where no block estimates its start."""
+        needed = self.past_needed()
+        return PAST_MARGIN * (max(needed.values()) + 1) - 1 if needed else 0
 
     def past_needed(self) -> dict[str, int]:
         """Per physics block started from an estimate: the fewest past samples (``data.past``)
