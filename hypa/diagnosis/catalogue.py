@@ -25,7 +25,7 @@ it), ``{channel}`` (scheduling), ``{block_input}`` (the block's first input), ``
 (its i-th output), ``{block_scheduling}`` (a whole value: the block's scheduling mapping, so that a
 new block is scheduled like it), ``{system}`` (the
 replacement of the matched block's system, when ``where.system`` is a mapping), ``{state}`` and
-``{couplings}`` (``for_each: state``: a state of a linear physics block, and as a whole value the
+``{couplings}`` (``for_each: state``: a state of a physics block, and as a whole value the
 names of the ``curve_<state>_on_<row>`` weights of its nonzero couplings, ``hypa.physics.curved``).
 A parameter value may be an expression of ``dt`` [s], the sample time; ``for_each: state`` adds
 ``level`` and ``spread``, the state's operating point and spread in the nominal model's scaling.
