@@ -190,9 +190,17 @@ def test_the_scales_follow_the_model_and_the_data() -> None:
     assert fast.period_s == pytest.approx(2 * np.pi / 6245) and fast.band_edges_hz[-1] == pytest.approx(1e4)
     assert all(a < b for a, b in zip(fast.band_edges_hz, fast.band_edges_hz[1:]))
     integrating = Scales.of([0.0, -2.0], 1e-3, [20000], [20000], 200)
-    assert integrating.integrating and integrating.slowest_s == pytest.approx(0.5) and integrating.stretch == 20000
+    # 50 decay times (25000 samples) exceed the record: a quarter of it (4 blocks to cross-validate on)
+    assert integrating.integrating and integrating.slowest_s == pytest.approx(0.5) and integrating.stretch == 5000
+    # short records of a slow system (1024 samples every 4 s, decay time 87 s): stretches of a quarter
+    # of the data (256 samples, 12 decay times), not one per record
+    short = Scales.of([-1 / 87.3], 4.0, [819, 205], [819], 100)
+    assert short.stretch == 256 and short.fit_window == 100
+    # never below 10 decay times: where a quarter of the data is less, the whole record, as before
+    assert Scales.of([-1 / 87.3], 4.0, [300, 100], [300], 20).stretch == 300
     lightly_damped = Scales.of([complex(-0.1, 1.0), complex(-0.1, -1.0)], 0.01, [100000], [100000], 100)
-    assert lightly_damped.stretch == 50000  # 50 decay times (500 s) beat 10 periods (62.8 s)
+    # 50 decay times (500 s) beat 10 periods (62.8 s), but would leave 2 blocks: a quarter of the data
+    assert lightly_damped.stretch == 25000
     resonant = Scales.of([complex(-10.0, 1.0), complex(-10.0, -1.0)], 0.01, [100000], [100000], 100)
     assert resonant.stretch == 6284  # 10 periods (62.8 s) beat 50 decay times (5 s)
     static = Scales.of([], 0.01, [1000], [1000], 100)

@@ -210,3 +210,42 @@ def test_cubic_friction_against_scipy_its_pivot_and_zero_share_is_the_coulomb_ax
     at_pivot_coulomb = coulomb.nonlinearity(torch.tensor([0.0, vc], dtype=torch.float64), torch.zeros(1),
                                             coulomb.prepare(p))
     assert torch.allclose(at_pivot, at_pivot_coulomb, atol=1e-12, rtol=0)  # the share pivots the law about v_c
+
+
+class _Tanks(LTIModel):
+    """Two tanks draining through orifices: no linear part at all, dx/dt = B u + F sqrt(x)."""
+    state_names, input_names, output_names = ("upper", "lower"), ("pump",), ("lower",)
+    parameters = (ParameterSpec("k1", 0.05, "V^0.5/s"), ParameterSpec("k2", 0.04, "V^0.5/s"),
+                  ParameterSpec("k3", 0.06, "V^0.5/s"), ParameterSpec("k4", 0.03, "1/s"))
+
+    def matrices(self, p):
+        z, one = torch.zeros_like(p["k4"]), torch.ones_like(p["k4"])
+        return StateSpace(torch.stack([torch.stack([z, z]), torch.stack([z, z])]),
+                          torch.stack([p["k4"], z]).reshape(2, 1), torch.stack([z, one]).reshape(1, 2),
+                          z.reshape(1, 1))
+
+    def feedback(self, p):
+        z = torch.zeros_like(p["k1"])
+        return torch.stack([torch.stack([-p["k1"], z]), torch.stack([p["k2"], -p["k3"]])])
+
+    def nonlinearity(self, x, u, p):
+        return torch.sqrt(x.clamp_min(1e-6))
+
+
+def test_nonlinear_physics_is_linearised_about_its_operating_point() -> None:
+    """The modes the diagnosis reads its time scales from (``ComposedModel.eigenvalues``): of A
+    + F ∂φ/∂x at the scaling's state means, not of the linear part (here empty: all zeros, an
+    "integrator" with no time constant), and A itself for a linear system."""
+    from hypa.physics.normalized import Scaling
+
+    tanks = _Tanks()
+    sim = LTIBlock(tanks, PhysicalParameters(tanks.parameter_specs({})), dt=4.0, horizon=10)
+    t = lambda *v: torch.tensor(v, dtype=torch.float64)  # noqa: E731
+    sim.set_scaling(Scaling(t(4.0, 9.0), t(1.0, 1.0), t(5.0), t(1.0), t(9.0), t(1.0)))
+    with torch.no_grad():
+        a = sim.linearised_a()
+    expected = torch.tensor([[-0.05 / (2 * 2.0), 0.0], [0.04 / (2 * 2.0), -0.06 / (2 * 3.0)]], dtype=torch.float64)
+    assert torch.allclose(a, expected, rtol=1e-12, atol=0)
+    assert torch.count_nonzero(sim.state_space().a) == 0
+    linear = block(SingleTrack(rear_steering=False), 1 / 32)
+    assert torch.equal(linear.linearised_a(), linear.state_space().a)

@@ -162,6 +162,14 @@ class Problem:
             cache[split] = cut
         return cache[split]
 
+    @property
+    def fit_window(self) -> int:
+        """[samples] predicted by a fit window here: the scales' (:attr:`Scales.fit_window`), at most
+        what the longest of this problem's training records holds after ``data.past`` (a fold's
+        training blocks are one scoring stretch each, which a user's ``data.window`` may exceed)."""
+        longest = max((len(r) for r in self.records("train")), default=0)
+        return max(1, min(self.time_scales.fit_window, longest - self.dm.past - 1))
+
     def windows(self) -> dict[str, torch.Tensor]:
         """The training windows the gradient fits draw from (made once, then cached): the data
         module's own where the scales' fit window is ``data.window``, else the training records
@@ -169,7 +177,7 @@ class Problem:
         module's."""
         cache = self.__dict__
         if "_windows" not in cache:
-            dm, length = self.dm, self.time_scales.fit_window
+            dm, length = self.dm, self.fit_window
             if length == dm.window and self.fold is None:
                 cache["_windows"] = training_windows(dm)
             else:
@@ -182,7 +190,7 @@ class Problem:
         cache = self.__dict__
         if "_evidence" not in cache:
             dm = self.dm
-            span = dm.past + self.time_scales.fit_window + 1
+            span = dm.past + self.fit_window + 1
             records = self.records("train")
             cache["_evidence"] = Evidence(
                 seconds=sum(len(r) for r in records) * dm.dt, records=len(records),

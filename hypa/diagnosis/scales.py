@@ -12,12 +12,15 @@ the nominal model's own modes (:meth:`hypa.models.ComposedModel.eigenvalues`, th
   ``STRETCH_SPAN`` slowest decay times or ``STRETCH_PERIODS`` periods of the slowest
   oscillation, whichever is longer, so that the transient of each restart (a few decay times
   from an estimated state, which also absorbs a part of any offset) is a small share of the score
-  and a wrong gain, time constant or resonance has settled into the error; at least
-  ``MIN_STRETCH`` samples, at most the longest record (then one stretch per record: the whole
-  record's free run);
+  and a wrong gain, time constant or resonance has settled into the error. Where all records
+  together hold fewer than ``BLOCKS`` such stretches (short records of a slow system), ``BLOCKS``
+  shorter ones where they are still ``1 / STRETCH_SHRINK`` of that (10 decay times, 2 periods), so
+  that the cross-validation fits each candidate on more than one block; at least ``MIN_STRETCH``
+  samples, at most the longest record (then one stretch per record: the whole record's free run);
 - **fit windows** (a candidate's gradient fit): ``FIT_SPAN`` slowest decay times, at least
   ``data.window`` (the user's training windows) and at most an eighth of the longest training
-  record, so that the records still hold several windows without overlap;
+  record, so that the records still hold several windows without overlap (and at most what a
+  cross-validation fold's training blocks hold, :attr:`hypa.diagnosis.problem.Problem.fit_window`);
 - **residual analysis** (:mod:`hypa.diagnosis.structure`): cross-correlation lags up to
   ``LAG_SPAN`` decay times; the envelope (an oscillation's amplitude) over the longer of one
   decay time and ``ENVELOPE_PERIODS`` periods; Welch segments of ``SEGMENT_SPAN`` decay times (a
@@ -39,6 +42,8 @@ import numpy as np
 
 STRETCH_SPAN = 50.0  # slowest decay times per scoring stretch ...
 STRETCH_PERIODS = 10.0  # ... or periods of the slowest oscillation, whichever is longer
+STRETCH_SHRINK = 5.0  # ... or down to 1/5 of that where the records hold fewer than BLOCKS stretches
+BLOCKS = 4  # stretches wanted over all records (cross-validation: 2 folds of 2 blocks)
 MIN_STRETCH = 50  # [samples] a stretch is at least this long
 FIT_SPAN = 3.0  # slowest decay times per fit window
 LAG_SPAN = 3.0  # slowest decay times of cross-correlation lags
@@ -80,7 +85,11 @@ class Scales:
         period = float(2 * math.pi / np.min(np.abs(oscillating.imag))) if oscillating.size else 0.0
         longest = max(record_lengths) if record_lengths else MIN_STRETCH
         longest_train = max(train_lengths) if train_lengths else longest
-        stretch = min(max(math.ceil(max(STRETCH_SPAN * slowest, STRETCH_PERIODS * period) / dt), MIN_STRETCH), longest)
+        wanted = max(STRETCH_SPAN * slowest, STRETCH_PERIODS * period) / dt
+        shared = sum(record_lengths) / BLOCKS if record_lengths else wanted
+        if wanted / STRETCH_SHRINK <= shared < wanted:  # BLOCKS shorter stretches (else the data hold too few)
+            wanted = shared
+        stretch = min(max(math.ceil(wanted), MIN_STRETCH), longest)
         fit_window = max(window, min(math.ceil(FIT_SPAN * slowest / dt), longest_train // 8))
         shortest = min(record_lengths) if record_lengths else longest
         max_lag = max(1, min(math.ceil(LAG_SPAN * slowest / dt), shortest // 4))

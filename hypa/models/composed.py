@@ -199,11 +199,12 @@ class ComposedModel(nn.Module):
 
     @torch.no_grad()
     def eigenvalues(self) -> Tensor:
-        """The modes [1/s] of the physics blocks' linear parts at the current parameter values
-        (complex, every block's eigenvalues of A together; a scheduled block's at its parameters'
-        nominal values, a nonlinear block's of its linear part). What the model's own time scales
-        are read from (:class:`hypa.diagnosis.scales.Scales`); empty for a model without states."""
-        modes = [torch.linalg.eigvals(self.blocks[b.name].state_space(torch.float64).a)
+        """The modes [1/s] of the physics blocks at the current parameter values (complex, every
+        block's eigenvalues of A together; a scheduled block's at its parameters' nominal values, a
+        nonlinear block's linearised about its operating point, :meth:`LTIBlock.linearised_a`). What
+        the model's own time scales are read from (:class:`hypa.diagnosis.scales.Scales`); empty for
+        a model without states."""
+        modes = [torch.linalg.eigvals(self.blocks[b.name].linearised_a(torch.float64))
                  for b in self.order if b.kind == "physics" and self.blocks[b.name].model.n_states]
         return torch.cat(modes) if modes else torch.zeros(0, dtype=torch.complex128)
 

@@ -111,6 +111,20 @@ class LTIBlock(BlockSimulation, nn.Module):
         """Continuous matrices from the current parameter values, in ``dtype``."""
         return self.model.matrices(self.parameters_.values(self.model.parameter_names, dtype))
 
+    def linearised_a(self, dtype: torch.dtype = torch.float64) -> Tensor:
+        """The continuous A of the system linearised about its operating point: A itself for a
+        linear system; for nonlinear physics (Lur'e form) A + F ∂φ/∂x at the scaling's state and
+        input means (a measured state's from the data), so a system whose linear part is empty
+        (tanks draining through orifices: all dynamics in φ) still has its time constants."""
+        ss = self.state_space(dtype)
+        if not self.model.is_nonlinear:
+            return ss.a
+        p = self.parameters_.values(self.model.parameter_names, dtype)
+        f, prepared = self.model.feedback(p), self.model.prepare(p)
+        x, u = self.state_mean.to(dtype), self.input_mean.to(dtype)
+        slope = torch.func.jacrev(lambda s: self.model.nonlinearity(s, u, prepared))(x)  # (r, n)
+        return ss.a + f.reshape(ss.a.shape[0], -1) @ slope.reshape(-1, ss.a.shape[0])
+
     def discrete(self, dtype: torch.dtype = torch.float64) -> DiscreteLTI:
         ss = self.state_space(dtype)
         return discretize(ss.a, ss.b, self.dt, self.hold, ss.e)
