@@ -311,8 +311,9 @@ def _warnings(estimates: Sequence[Estimate], limits: Sequence[tuple[float, float
                        f"{'zero' if z[j] - lo < hi - z[j] else 'infinity'}, so the model cannot fit them with a "
                        "physical value; it is no estimate")
         if e.std is None or e.std > abs(e.value):
-            spread = "no finite" if e.std is None else f"± {e.std:.3g} {e.unit}, a larger"
-            out.append(f"{e.name} is not determined by the data ({spread} uncertainty than its value)")
+            spread = ("its uncertainty is not finite: the data do not see it, alone or with others" if e.std is None
+                      else f"± {e.std:.3g} {e.unit}, a larger uncertainty than its value")
+            out.append(f"{e.name} is not determined by the data ({spread})")
     # parameters linked by |ρ| > correlated, directly or through others: one group, one warning
     group = list(range(len(estimates)))
 
