@@ -83,7 +83,10 @@ def test_the_model_key_round_trips_and_bad_mappings_are_one_line() -> None:
     spec = parse_model_spec(config)
     assert spec.block("spring").curved == {"position": 3}
     assert spec_config(spec)["blocks"]["spring"]["curved"] == {"position": 3}
-    assert isinstance(build_system("mass_spring_damper", "spring", {"position": 3}), Curved)
+    built = build_system("mass_spring_damper", "spring", {"position": 3})
+    assert isinstance(built, Curved) and built.display_name == "MassSpringDamper (curved on position)"
+    with pytest.raises(ValueError, match=r"^MassSpringDamper \(curved on position\) needs parameters"):
+        LTIBlock(built, PhysicalParameters(MassSpringDamper().parameter_specs({})), dt=0.01)  # named, not "Curved"
     with pytest.raises(ModelSpecError, match="power, 2 or 3"):
         parse_model_spec({**config, "blocks": {"spring": {**config["blocks"]["spring"], "curved": {"position": 4}}}})
     with pytest.raises(ModelSpecError, match="only physics blocks"):

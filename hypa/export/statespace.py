@@ -83,7 +83,7 @@ def refusal(model: ComposedModel) -> str | None:
             return (f"block {b.name!r} is scheduled by {', '.join(b.scheduling.values())}: its matrices are not "
                     "constant (use onnx or fmu)")
         if block.model.is_nonlinear:
-            return (f"block {b.name!r} is nonlinear ({type(block.model).__name__}): no linear state space "
+            return (f"block {b.name!r} is nonlinear ({block.model.display_name}): no linear state space "
                     "(use onnx or fmu)")
     return None
 

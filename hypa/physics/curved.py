@@ -66,6 +66,10 @@ class Curved(LTIModel):
         self.parameters = (*base.parameters, *own)
         self.added = frozenset(spec.name for spec in own)  # the parameters the curving adds (not the physics')
 
+    @property
+    def display_name(self) -> str:
+        return f"{self.base.display_name} (curved on {', '.join(self.curved)})"
+
     def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
         return self.base.matrices(p)
 

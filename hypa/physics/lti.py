@@ -66,15 +66,15 @@ class LTIBlock(BlockSimulation, nn.Module):
             raise ValueError(f"horizon must be at least 1, got {horizon}")
         missing = set(model.parameter_names) - set(parameters.names)
         if missing:
-            raise ValueError(f"{type(model).__name__} needs parameters {sorted(missing)}")
+            raise ValueError(f"{model.display_name} needs parameters {sorted(missing)}")
         self.model, self.parameters_, self.dt, self.horizon, self.hold = model, parameters, dt, horizon, hold
         self.scheduled = tuple(scheduled)
         unknown = [s for s in self.scheduled if s not in model.parameter_names]
         if unknown or len(set(self.scheduled)) != len(self.scheduled):
-            raise SchedulingError(f"{type(model).__name__}: cannot schedule {list(scheduled)}; its parameters are "
+            raise SchedulingError(f"{model.display_name}: cannot schedule {list(scheduled)}; its parameters are "
                                   f"{list(model.parameter_names)} (each at most once)")
         if table and len(self.scheduled) != 1:
-            raise SchedulingError(f"{type(model).__name__}: a table needs one scheduled parameter, got "
+            raise SchedulingError(f"{model.display_name}: a table needs one scheduled parameter, got "
                                   f"{list(self.scheduled) or 'none'}")
         self._fixed_names = tuple(k for k in model.parameter_names if k not in self.scheduled)
         with torch.no_grad():  # feedthrough decides how many inputs a window takes (``extra_inputs``)
@@ -87,7 +87,7 @@ class LTIBlock(BlockSimulation, nn.Module):
             self.register_buffer(name, getattr(scaling, name).detach().to(torch.float64).clone())
         self._cache: tuple[tuple, LiftedMatrices, NormalizedLTI] | None = None
         self._maps: tuple[tuple, NormalizingMaps] | None = None
-        self.tables = ScheduleTables(type(model).__name__) if table else None
+        self.tables = ScheduleTables(model.display_name) if table else None
 
     # -- the physics, step by step -------------------------------------------------------
     @property
@@ -168,12 +168,12 @@ class LTIBlock(BlockSimulation, nn.Module):
             if a.numel() == 0:
                 return
             if not bool(torch.isfinite(a).all()):
-                raise UnstablePhysicsError(f"{type(self.model).__name__}: A is not finite: {a.tolist()}")
+                raise UnstablePhysicsError(f"{self.model.display_name}: A is not finite: {a.tolist()}")
             eig = torch.linalg.eigvals(a)
             tol = rtol * float(torch.linalg.matrix_norm(a))
         if float(eig.real.max()) > tol:
             raise UnstablePhysicsError(
-                f"{type(self.model).__name__} is unstable with parameters "
+                f"{self.model.display_name} is unstable with parameters "
                 + ", ".join(f"{k}={v:.5g}" for k, v in self.parameters_.as_floats().items())
                 + f": eigenvalues of A {', '.join(f'{e:.4g}' for e in eig.tolist())} 1/s (a real part > 0). "
                 "Check the nominal parameters (e.g. cf*lf vs cr*lr at this velocity)."

@@ -88,7 +88,7 @@ def _vmapped(model: LTIModel, fixed: Mapping[str, Tensor], scheduled: Sequence[s
     try:
         return torch.func.vmap(one)(flat)
     except Exception as error:  # a user's code: say which call failed, in one line
-        raise SchedulingError(f"{type(model).__name__}.matrices cannot be evaluated per sample with "
+        raise SchedulingError(f"{model.display_name}.matrices cannot be evaluated per sample with "
                               f"torch.func.vmap for scheduled {list(scheduled)}: {type(error).__name__}: "
                               f"{str(error).splitlines()[0] if str(error) else ''}") from error
 
@@ -224,7 +224,7 @@ def _forget(model: LTIModel, fixed: Mapping[str, Tensor], scheduled: Sequence[st
             error: Exception) -> None:
     """vmap from now on for this key: the batched call failed after its verification."""
     _LOG.debug("%s.matrices: the batched call failed for scheduled %s (%s), vmap from now on: %s: %s",
-               type(model).__name__, list(scheduled), flat.dtype, type(error).__name__, error)
+               model.display_name, list(scheduled), flat.dtype, type(error).__name__, error)
     decisions = _decisions(model)
     if decisions is not None:
         decisions[_key(fixed, scheduled, flat)] = None
@@ -240,9 +240,9 @@ def _decide(model: LTIModel, fixed: Mapping[str, Tensor], scheduled: Sequence[st
             layout = _verify(model, fixed, scheduled, flat)
     except Exception as error:  # noqa: BLE001 -- whatever the user's code raises means vmap
         _LOG.debug("%s.matrices is evaluated per sample with vmap for scheduled %s (%s): %s: %s",
-                   type(model).__name__, list(scheduled), flat.dtype, type(error).__name__, error)
+                   model.display_name, list(scheduled), flat.dtype, type(error).__name__, error)
         return None
-    _LOG.debug("%s.matrices is batch-safe for scheduled %s (%s): %s", type(model).__name__, list(scheduled),
+    _LOG.debug("%s.matrices is batch-safe for scheduled %s (%s): %s", model.display_name, list(scheduled),
                flat.dtype, dict(zip(_MATRICES, layout.places)))
     return layout
 

@@ -118,7 +118,7 @@ class BlockSimulation:
         scheduling: (..., q) physical values at those samples (a scheduled block only).
         """
         if scheduling is not None and scheduling.shape[:-1] != u.shape[:-1]:
-            raise SchedulingError(f"{type(self.model).__name__}: scheduling {tuple(scheduling.shape)} must match "
+            raise SchedulingError(f"{self.model.display_name}: scheduling {tuple(scheduling.shape)} must match "
                                   f"the inputs {tuple(u.shape)} but for its last dim")
         rho = self._check_scheduling(scheduling, u)
         if rho is None:
@@ -142,7 +142,7 @@ class BlockSimulation:
         try:
             x = -torch.linalg.solve(ss.a, force[..., None]).squeeze(-1)  # (B, n)
         except RuntimeError as error:  # torch's singular-matrix error: name the block instead
-            raise ValueError(f"{type(self.model).__name__} has no unique equilibrium (A is singular, e.g. an "
+            raise ValueError(f"{self.model.display_name} has no unique equilibrium (A is singular, e.g. an "
                              "integrator): start it from a measured or estimated state") from error
         return (x - self.state_mean.to(dtype)) / self.state_std.to(dtype)
 
@@ -159,7 +159,7 @@ class BlockSimulation:
         past, (batch, n, p) = y.shape[1] - 1, (y.shape[0], self.model.n_states, len(self.model.output_names))
         observed = torch.as_tensor(observed, dtype=torch.bool, device=y.device)
         if past < 0 or u.shape[1] <= past or y.shape[-1] != p or observed.shape != (p,):
-            raise ValueError(f"{type(self.model).__name__}.estimate_state needs y (B, P+1, {p}), u (B, >= P+1, m) "
+            raise ValueError(f"{self.model.display_name}.estimate_state needs y (B, P+1, {p}), u (B, >= P+1, m) "
                              f"and observed ({p},); got y {tuple(y.shape)}, u {tuple(u.shape)}, observed "
                              f"{tuple(observed.shape)}")
         if not n:
@@ -167,7 +167,7 @@ class BlockSimulation:
         u = u[:, : past + 1]
         rho = self._check_scheduling(scheduling, u, past + 1)
         if rho is not None and self.model.is_nonlinear:
-            raise SchedulingError(f"{type(self.model).__name__}: a nonlinear system cannot be scheduled yet")
+            raise SchedulingError(f"{self.model.display_name}: a nonlinear system cannot be scheduled yet")
         if rho is None:
             norm = self._norm(u.dtype)
             phi = norm.a.expand(1, past, n, n)
@@ -249,14 +249,14 @@ class BlockSimulation:
         """States x̂_{k+1..k+S} and the output matrices of those samples (None when y = x)."""
         n = self.model.n_states
         if x0 is None or x0.shape[-1] != n or x0.shape[0] != u.shape[0]:
-            raise ValueError(f"{type(self.model).__name__} has {n} states: give an initial state (B, {n}), "
+            raise ValueError(f"{self.model.display_name} has {n} states: give an initial state (B, {n}), "
                              f"got {None if x0 is None else tuple(x0.shape)} for u {tuple(u.shape)}")
         rho = self._check_scheduling(scheduling, u, steps)
         same = self.model.outputs_are_states
         u_states = u[:, : steps + self.n_taps - 1]
         if self.model.is_nonlinear:
             if rho is not None:
-                raise SchedulingError(f"{type(self.model).__name__}: a nonlinear system cannot be scheduled yet")
+                raise SchedulingError(f"{self.model.display_name}: a nonlinear system cannot be scheduled yet")
             norm = self._norm(u.dtype)
             return self._simulate_nonlinear(x0, u_states, steps), None if same else (norm.c, norm.d, norm.g)
         if rho is None:
@@ -352,7 +352,7 @@ class BlockSimulation:
     def _steps(self, u: Tensor) -> int:
         steps = u.shape[1] - self.extra_inputs
         if u.dim() != 3 or steps < 1:
-            raise ValueError(f"{type(self.model).__name__} needs inputs (B, S + {self.extra_inputs}, m) with S >= 1, "
+            raise ValueError(f"{self.model.display_name} needs inputs (B, S + {self.extra_inputs}, m) with S >= 1, "
                              f"got {tuple(u.shape)}")
         return steps
 
@@ -363,7 +363,7 @@ class BlockSimulation:
 
     def _check_scheduling(self, scheduling: Tensor | None, like: Tensor, samples: int = 0) -> Tensor | None:
         """``scheduling`` in ``like``'s dtype, checked against the block (None for an unscheduled block)."""
-        name = type(self.model).__name__
+        name = self.model.display_name
         if not self.scheduled:
             if scheduling is not None:
                 raise SchedulingError(f"{name} has no scheduled parameters but got scheduling signals")

@@ -89,6 +89,11 @@ class LTIModel(ABC):
         raise NotImplementedError(f"{type(self).__name__} defines feedback but no nonlinearity")
 
     @property
+    def display_name(self) -> str:
+        """The system's name in messages: its class name (a wrapper, ``Curved``, names what it wraps)."""
+        return type(self).__name__
+
+    @property
     def is_nonlinear(self) -> bool:
         """Whether the system has a nonlinear feedback (``feedback`` overridden)."""
         return type(self).feedback is not LTIModel.feedback
