@@ -196,7 +196,7 @@ def test_the_scales_follow_the_model_and_the_data() -> None:
     # of the data (256 samples, 12 decay times), not one per record
     short = Scales.of([-1 / 87.3], 4.0, [819, 205], [819], 100)
     assert short.stretch == 256 and short.fit_window == 100
-    # never below 10 decay times: where a quarter of the data is less, the whole record, as before
+    # never below 5 decay times: where a quarter of the data is less, the whole record, as before
     assert Scales.of([-1 / 87.3], 4.0, [300, 100], [300], 20).stretch == 300
     lightly_damped = Scales.of([complex(-0.1, 1.0), complex(-0.1, -1.0)], 0.01, [100000], [100000], 100)
     # 50 decay times (500 s) beat 10 periods (62.8 s), but would leave 2 blocks: a quarter of the data

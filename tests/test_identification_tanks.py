@@ -137,10 +137,11 @@ def test_the_nonlinear_tanks_reach_the_noise_and_their_linearisation_does_not(us
 def test_the_diagnosis_of_the_nonlinear_tanks_fits_at_the_benchmarks_size(user: Path, tmp_path: Path) -> None:
     """``hypa.diagnose`` on the nonlinear tanks (nominal values 10-30 % off) at 1024 samples every
     4 s. Its linear part is empty (all the dynamics are in √h), so its time scales come from the
-    model linearised about the data's operating point (95 s, not "no mode": before, stretches of
-    50 samples and fit windows of 106 crashed the search with "no training record holds a fit
-    window"), and the short records are cut into 4 blocks of 12 decay times, so each fold fits on
-    two of them: the mismatch is named."""
+    model linearised about its operating point (the upper tank, which no sensor reads, where it
+    settles under the mean pump voltage): 117 s, not "no mode" (before, stretches of 50 samples and
+    fit windows of 106 crashed the search with "no training record holds a fit window"). The short
+    records are cut into 4 blocks of 9 decay times, so each fold fits on two of them: the mismatch
+    is named and nothing is left unexplained."""
     import os
     import subprocess
     import sys
@@ -154,7 +155,7 @@ def test_the_diagnosis_of_the_nonlinear_tanks_fits_at_the_benchmarks_size(user: 
     assert result.returncode == 0, result.stderr[-3000:]
     diagnosis = json.loads((run / "diagnosis.json").read_text())
     scales = diagnosis["data"]["scales"]
-    assert 60 < scales["slowest_s"] < 150 and scales["stretch"] == 256, scales
+    assert 100 < scales["slowest_s"] < 150 and scales["stretch"] == 256 and not scales["integrating"], scales
     assert "4 blocks" in result.stdout
     assert diagnosis["named"][0]["cause"] == "parameter_mismatch", diagnosis["named"]
-    assert diagnosis["score"]["extended"] < 0.01 * diagnosis["score"]["nominal"], diagnosis["score"]
+    assert diagnosis["score"]["extended"] < 0.001 * diagnosis["score"]["nominal"], diagnosis["score"]

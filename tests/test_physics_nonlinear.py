@@ -249,3 +249,23 @@ def test_nonlinear_physics_is_linearised_about_its_operating_point() -> None:
     assert torch.count_nonzero(sim.state_space().a) == 0
     linear = block(SingleTrack(rear_steering=False), 1 / 32)
     assert torch.equal(linear.linearised_a(), linear.state_space().a)
+
+
+def test_a_state_no_output_reads_takes_the_level_it_settles_to() -> None:
+    """``settled_state_scales``: the upper tank settles to (k4 ū / k1)² under the mean pump voltage,
+    the measured lower one keeps the data's operating point, spreads are kept; a system that does
+    not settle (a frictionless mass pushed by a mean force: its speed grows) keeps 0."""
+    from hypa.models.building import settled_state_scales
+
+    tanks = _Tanks()
+    params = PhysicalParameters(tanks.parameter_specs({}))
+    settled = settled_state_scales(tanks, params, 4.0, [(5.0, 1.0)], [(0.0, 2.0), (6.0, 0.5)], [0])
+    assert settled[0][0] == pytest.approx((0.03 * 5.0 / 0.05) ** 2, rel=1e-4) and settled[0][1] == 2.0
+    assert settled[1] == (6.0, 0.5)
+
+    class Pushed(_Tanks):
+        def feedback(self, p):
+            return torch.zeros(2, 2, dtype=p["k1"].dtype)
+
+    pushed = Pushed()
+    assert settled_state_scales(pushed, params, 4.0, [(5.0, 1.0)], [(0.0, 2.0), (6.0, 0.5)], [0])[0] == (0.0, 2.0)

@@ -14,7 +14,7 @@ the nominal model's own modes (:meth:`hypa.models.ComposedModel.eigenvalues`, th
   from an estimated state, which also absorbs a part of any offset) is a small share of the score
   and a wrong gain, time constant or resonance has settled into the error. Where all records
   together hold fewer than ``BLOCKS`` such stretches (short records of a slow system), ``BLOCKS``
-  shorter ones where they are still ``1 / STRETCH_SHRINK`` of that (10 decay times, 2 periods), so
+  shorter ones where they are still ``1 / STRETCH_SHRINK`` of that (5 decay times, a period), so
   that the cross-validation fits each candidate on more than one block; at least ``MIN_STRETCH``
   samples, at most the longest record (then one stretch per record: the whole record's free run);
 - **fit windows** (a candidate's gradient fit): ``FIT_SPAN`` slowest decay times, at least
@@ -42,7 +42,7 @@ import numpy as np
 
 STRETCH_SPAN = 50.0  # slowest decay times per scoring stretch ...
 STRETCH_PERIODS = 10.0  # ... or periods of the slowest oscillation, whichever is longer
-STRETCH_SHRINK = 5.0  # ... or down to 1/5 of that where the records hold fewer than BLOCKS stretches
+STRETCH_SHRINK = 10.0  # ... or down to 1/10 of that where the records hold fewer than BLOCKS stretches
 BLOCKS = 4  # stretches wanted over all records (cross-validation: 2 folds of 2 blocks)
 MIN_STRETCH = 50  # [samples] a stretch is at least this long
 FIT_SPAN = 3.0  # slowest decay times per fit window

@@ -200,7 +200,11 @@ class BlockBuilder:
             else:
                 std = default_state_std(ss, self.dt, torch.tensor([s for _, s in inputs], dtype=torch.float64),
                                         self.horizon)
-                states = self._observed_state_scales(ss, start, inputs, [(0.0, float(s)) for s in std])
+                free = [(0.0, float(s)) for s in std]
+                states = self._observed_state_scales(ss, start, inputs, free)
+                if system.is_nonlinear:  # the operating point of a state no output reads alone: where it settles
+                    unread = [j for j, (a, b) in enumerate(zip(free, states)) if a is b]
+                    states = settled_state_scales(system, self.params, self.dt, inputs, states, unread)
         self.scales.update(zip(b.outputs, outputs))
         t = lambda pairs, i: torch.tensor([p[i] for p in pairs], dtype=torch.float64)  # noqa: E731
         scaling = Scaling(t(states, 0), t(states, 1), t(inputs, 0), t(inputs, 1), t(outputs, 0), t(outputs, 1))
@@ -306,3 +310,41 @@ class BlockBuilder:
             raise ModelSpecError(f"block {b.name!r}: its gain is zero at the nominal parameters; "
                                  "give scale_as to fix the output scaling")
         return image
+
+
+SETTLE_CHUNK = 200  # [samples] simulated between the checks whether the states settled ...
+SETTLE_CHUNKS = 50  # ... at most this many times (10,000 samples)
+SETTLE_TOLERANCE = 1e-6  # a change below this share of a state's scale: settled
+
+
+def settled_state_scales(system: LTIModel, params: PhysicalParameters, dt: float, inputs: Sequence[Scale],
+                         states: list[Scale], unread: Sequence[int]) -> list[Scale]:
+    """``states`` with the operating point of each ``unread`` state of nonlinear physics: where the
+    nominal system settles under the inputs' mean, started from the other states' operating points
+    (those from the data) and 0 for these. Tanks draining through orifices: the upper tank, which
+    no output reads, fills to (k4 ū / k1)², not 0 V, where √h has no slope (its linearisation,
+    :meth:`LTIBlock.linearised_a`, had no time constant there, and the initial-state estimate's
+    ridge pulled toward it). Kept at 0 where the system does not settle within ``SETTLE_CHUNKS``
+    chunks of ``SETTLE_CHUNK`` samples (it drifts, oscillates or diverges); the spreads are kept."""
+    if not unread:
+        return states
+    block = LTIBlock(system, params, dt, horizon=SETTLE_CHUNK, hold="zoh")  # identity scaling: physical units
+    x = torch.tensor([m for m, _ in states], dtype=torch.float64)[None]
+    u = torch.tensor([m for m, _ in inputs], dtype=torch.float64).expand(1, SETTLE_CHUNK, len(inputs))
+    scale = torch.tensor([s for _, s in states], dtype=torch.float64)[list(unread)]
+    with torch.no_grad():
+        for _ in range(SETTLE_CHUNKS):
+            try:
+                new = block.states(x, u)[:, -1]
+            except (ArithmeticError, ValueError, RuntimeError):
+                return states
+            if not bool(torch.isfinite(new).all()):
+                return states
+            change = (new - x)[0, list(unread)].abs()
+            x = new
+            if bool((change <= SETTLE_TOLERANCE * torch.maximum(scale, x[0, list(unread)].abs())).all()):
+                settled = list(states)
+                for j in unread:
+                    settled[j] = (float(x[0, j]), states[j][1])
+                return settled
+    return states
