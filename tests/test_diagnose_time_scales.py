@@ -23,7 +23,7 @@ from scipy import signal
 
 from hypa.data import datamodule_from_config
 from hypa.diagnosis.problem import Problem
-from hypa.diagnosis.scales import Scales
+from hypa.diagnosis.scales import Scales, fold_windows
 from hypa.diagnosis.search import name_causes
 from hypa.models.spec import parse_model_spec
 
@@ -190,17 +190,22 @@ def test_the_scales_follow_the_model_and_the_data() -> None:
     assert fast.period_s == pytest.approx(2 * np.pi / 6245) and fast.band_edges_hz[-1] == pytest.approx(1e4)
     assert all(a < b for a, b in zip(fast.band_edges_hz, fast.band_edges_hz[1:]))
     integrating = Scales.of([0.0, -2.0], 1e-3, [20000], [20000], 200)
-    # 50 decay times (25000 samples) exceed the record: a quarter of it (4 blocks to cross-validate on)
-    assert integrating.integrating and integrating.slowest_s == pytest.approx(0.5) and integrating.stretch == 5000
-    # short records of a slow system (1024 samples every 4 s, decay time 87 s): stretches of a quarter
-    # of the data (256 samples, 12 decay times), not one per record
+    # 50 decay times (25000 samples) exceed the record: one stretch, its 13 fit windows enough
+    assert integrating.integrating and integrating.slowest_s == pytest.approx(0.5) and integrating.stretch == 20000
+    # short records of a slow system (1024 samples every 4 s, decay time 87 s): one block per record
+    # would fit one fold on the 205 validation samples (2 fit windows): a quarter of the data each
+    # (256 samples, 12 decay times), so each fold fits on 4 or 5
     short = Scales.of([-1 / 87.3], 4.0, [819, 205], [819], 100)
     assert short.stretch == 256 and short.fit_window == 100
+    assert (fold_windows([819, 205], 819, 100), fold_windows([819, 205], 256, 100)) == (2, 4)
+    # EMPS' records (a long training record, a short validation one; decay time 0.47 s at 1 kHz):
+    # 3 windows of 1.4 s in the short fold, 7 with blocks of 6.2 s
+    emps = Scales.of([0.0, -1 / 0.467], 1e-3, [19852, 4990], [19852], 100)
+    assert emps.stretch == 6211 and fold_windows([19852, 4990], 19852, emps.fit_window) == 3
     # never below 5 decay times: where a quarter of the data is less, the whole record, as before
     assert Scales.of([-1 / 87.3], 4.0, [300, 100], [300], 20).stretch == 300
     lightly_damped = Scales.of([complex(-0.1, 1.0), complex(-0.1, -1.0)], 0.01, [100000], [100000], 100)
-    # 50 decay times (500 s) beat 10 periods (62.8 s), but would leave 2 blocks: a quarter of the data
-    assert lightly_damped.stretch == 25000
+    assert lightly_damped.stretch == 50000  # 50 decay times (500 s) beat 10 periods (62.8 s)
     resonant = Scales.of([complex(-10.0, 1.0), complex(-10.0, -1.0)], 0.01, [100000], [100000], 100)
     assert resonant.stretch == 6284  # 10 periods (62.8 s) beat 50 decay times (5 s)
     static = Scales.of([], 0.01, [1000], [1000], 100)

@@ -31,6 +31,7 @@ import torch
 
 from hypa.data import HypaDataModule, Record
 from hypa.data.units import readable
+from hypa.diagnosis.scales import FOLDS as SCALE_FOLDS
 from hypa.diagnosis.scales import Scales
 from hypa.diagnosis.workers import default_workers
 from hypa.errors import UserError
@@ -39,7 +40,7 @@ from hypa.models import ComposedModel
 from hypa.models.building import model_hold
 from hypa.models.spec import ModelSpec
 
-FOLDS = 2  # cross-validation folds: each candidate is fitted twice (once per fold)
+FOLDS = SCALE_FOLDS  # cross-validation folds: each candidate is fitted twice (once per fold)
 
 
 NOMINAL_HOLD = "foh"  # the diagnosis' hold for a model that fixes none: with zoh a real dead time comes out dt/2 short

@@ -13,9 +13,10 @@ the nominal model's own modes (:meth:`hypa.models.ComposedModel.eigenvalues`, th
   oscillation, whichever is longer, so that the transient of each restart (a few decay times
   from an estimated state, which also absorbs a part of any offset) is a small share of the score
   and a wrong gain, time constant or resonance has settled into the error. Where all records
-  together hold fewer than ``BLOCKS`` such stretches (short records of a slow system), ``BLOCKS``
-  shorter ones where they are still ``1 / STRETCH_SHRINK`` of that (5 decay times, a period), so
-  that the cross-validation fits each candidate on more than one block; at least ``MIN_STRETCH``
+  together hold fewer than ``BLOCKS`` such stretches and a cross-validation fold would be fitted
+  on fewer than ``FOLD_WINDOWS`` fit windows (short records of a slow system; a long training
+  record beside a short validation one), ``BLOCKS`` shorter ones where they are still
+  ``1 / STRETCH_SHRINK`` of that (5 decay times, a period) and give the folds more; at least ``MIN_STRETCH``
   samples, at most the longest record (then one stretch per record: the whole record's free run);
 - **fit windows** (a candidate's gradient fit): ``FIT_SPAN`` slowest decay times, at least
   ``data.window`` (the user's training windows) and at most an eighth of the longest training
@@ -43,7 +44,10 @@ import numpy as np
 STRETCH_SPAN = 50.0  # slowest decay times per scoring stretch ...
 STRETCH_PERIODS = 10.0  # ... or periods of the slowest oscillation, whichever is longer
 STRETCH_SHRINK = 10.0  # ... or down to 1/10 of that where the records hold fewer than BLOCKS stretches
-BLOCKS = 4  # stretches wanted over all records (cross-validation: 2 folds of 2 blocks)
+BLOCKS = 4  # stretches wanted over all records (cross-validation: 2 folds of 2 blocks) ...
+FOLD_WINDOWS = 8  # ... where a fold's training blocks would hold fewer fit windows than this (the most
+                  # numbers a candidate fits, 7, and one more: the evidence one such fit needs)
+FOLDS = 2  # cross-validation folds (hypa.diagnosis.problem)
 MIN_STRETCH = 50  # [samples] a stretch is at least this long
 FIT_SPAN = 3.0  # slowest decay times per fit window
 LAG_SPAN = 3.0  # slowest decay times of cross-correlation lags
@@ -85,12 +89,15 @@ class Scales:
         period = float(2 * math.pi / np.min(np.abs(oscillating.imag))) if oscillating.size else 0.0
         longest = max(record_lengths) if record_lengths else MIN_STRETCH
         longest_train = max(train_lengths) if train_lengths else longest
-        wanted = max(STRETCH_SPAN * slowest, STRETCH_PERIODS * period) / dt
-        shared = sum(record_lengths) / BLOCKS if record_lengths else wanted
-        if wanted / STRETCH_SHRINK <= shared < wanted:  # BLOCKS shorter stretches (else the data hold too few)
-            wanted = shared
-        stretch = min(max(math.ceil(wanted), MIN_STRETCH), longest)
         fit_window = max(window, min(math.ceil(FIT_SPAN * slowest / dt), longest_train // 8))
+        wanted = max(STRETCH_SPAN * slowest, STRETCH_PERIODS * period) / dt
+        stretch = min(max(math.ceil(wanted), MIN_STRETCH), longest)
+        shared = sum(record_lengths) / BLOCKS if record_lengths else wanted
+        if wanted / STRETCH_SHRINK <= shared < wanted:  # a fold fitted on too little: BLOCKS shorter stretches?
+            shorter = min(max(math.ceil(shared), MIN_STRETCH), longest)
+            windows = [fold_windows(record_lengths, s, fit_window) for s in (stretch, shorter)]
+            if windows[0] < FOLD_WINDOWS and windows[1] > windows[0]:
+                stretch = shorter
         shortest = min(record_lengths) if record_lengths else longest
         max_lag = max(1, min(math.ceil(LAG_SPAN * slowest / dt), shortest // 4))
         envelope = max(3, min(round(max(slowest, ENVELOPE_PERIODS * period) / dt), max(3, shortest // 8)))
@@ -116,6 +123,21 @@ class Scales:
                 + (", and it integrates" if self.integrating else "")
                 + f"; scored on free runs of {duration(self.stretch_s)}, fitted on windows of "
                 f"{duration(self.fit_window * self.dt)}")
+
+
+def fold_windows(record_lengths: Sequence[int], stretch: int, fit_window: int) -> int:
+    """The fewest fit windows without overlap that a cross-validation fold is fitted on, with the
+    records cut into blocks of ``stretch`` samples as :meth:`hypa.diagnosis.problem.Problem.blocks`
+    cuts them (a remainder under half a stretch joins the block before it; ``data.past`` left out);
+    with fewer blocks than folds, there is no cross-validation: the windows of all records."""
+    blocks = []
+    for n in record_lengths:
+        starts = list(range(0, max(1, n - stretch // 2), stretch))
+        blocks += [b - a for a, b in zip(starts, [*starts[1:], n])]
+    counts = [b // max(fit_window, 1) for b in blocks]
+    if len(blocks) < FOLDS:
+        return sum(counts)
+    return min(sum(c for i, c in enumerate(counts) if i % FOLDS != k) for k in range(FOLDS))
 
 
 def duration(value: float) -> str:
