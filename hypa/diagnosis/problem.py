@@ -31,17 +31,13 @@ import torch
 
 from hypa.data import HypaDataModule, Record
 from hypa.data.units import readable
-from hypa.diagnosis.scales import FOLDS as SCALE_FOLDS
-from hypa.diagnosis.scales import Scales
+from hypa.diagnosis.scales import FOLDS, Scales, block_bounds  # FOLDS: each candidate is fitted once per fold
 from hypa.diagnosis.workers import default_workers
 from hypa.errors import UserError
 from hypa.identification.stretches import Stretches
 from hypa.models import ComposedModel
 from hypa.models.building import model_hold
 from hypa.models.spec import ModelSpec
-
-FOLDS = SCALE_FOLDS  # cross-validation folds: each candidate is fitted twice (once per fold)
-
 
 NOMINAL_HOLD = "foh"  # the diagnosis' hold for a model that fixes none: with zoh a real dead time comes out dt/2 short
 
@@ -116,9 +112,7 @@ class Problem:
             first, stretch = self.dm.past + 1, self.time_scales.stretch
             size, blocks = first + stretch, []
             for record in [*self.dm.records("train"), *self.dm.records("val")]:
-                starts = list(range(0, max(1, len(record) - size // 2), size))
-                blocks += [record.piece(a, b) for a, b in zip(starts, [*starts[1:], len(record)])
-                           if b - a > first]
+                blocks += [record.piece(a, b) for a, b in block_bounds(len(record), size) if b - a > first]
             cache["_blocks"] = blocks
         return cache["_blocks"]
 

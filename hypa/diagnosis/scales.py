@@ -125,15 +125,19 @@ class Scales:
                 f"{duration(self.fit_window * self.dt)}")
 
 
+def block_bounds(length: int, size: int) -> list[tuple[int, int]]:
+    """A record of ``length`` samples cut into blocks of ``size`` (start, stop), a remainder shorter
+    than half a block joined to the block before it."""
+    starts = list(range(0, max(1, length - size // 2), size))
+    return list(zip(starts, [*starts[1:], length]))
+
+
 def fold_windows(record_lengths: Sequence[int], stretch: int, fit_window: int) -> int:
     """The fewest fit windows without overlap that a cross-validation fold is fitted on, with the
     records cut into blocks of ``stretch`` samples as :meth:`hypa.diagnosis.problem.Problem.blocks`
     cuts them (a remainder under half a stretch joins the block before it; ``data.past`` left out);
     with fewer blocks than folds, there is no cross-validation: the windows of all records."""
-    blocks = []
-    for n in record_lengths:
-        starts = list(range(0, max(1, n - stretch // 2), stretch))
-        blocks += [b - a for a, b in zip(starts, [*starts[1:], n])]
+    blocks = [b - a for n in record_lengths for a, b in block_bounds(n, stretch)]
     counts = [b // max(fit_window, 1) for b in blocks]
     if len(blocks) < FOLDS:
         return sum(counts)

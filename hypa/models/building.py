@@ -200,10 +200,9 @@ class BlockBuilder:
             else:
                 std = default_state_std(ss, self.dt, torch.tensor([s for _, s in inputs], dtype=torch.float64),
                                         self.horizon)
-                free = [(0.0, float(s)) for s in std]
-                states = self._observed_state_scales(ss, start, inputs, free)
+                states, read = self._observed_state_scales(ss, start, inputs, [(0.0, float(s)) for s in std])
                 if system.is_nonlinear:  # the operating point of a state no output reads alone: where it settles
-                    unread = [j for j, (a, b) in enumerate(zip(free, states)) if a is b]
+                    unread = [j for j in range(n) if j not in read]
                     states = settled_state_scales(system, self.params, self.dt, inputs, states, unread)
         self.scales.update(zip(b.outputs, outputs))
         t = lambda pairs, i: torch.tensor([p[i] for p in pairs], dtype=torch.float64)  # noqa: E731
@@ -271,8 +270,9 @@ class BlockBuilder:
         return scales
 
     def _observed_state_scales(self, ss, start: PhysicsStart, inputs: list[Scale], states: list[Scale]
-                               ) -> list[Scale]:
-        """``states`` with the data's scale for each state that an observed output reads alone.
+                               ) -> tuple[list[Scale], set[int]]:
+        """``states`` with the data's scale for each state that an observed output reads alone, and
+        the indices of those states.
 
         Where row i of C (at the nominal parameters) has a single nonzero entry c_j, the
         measured output y_i = c_j x_j + (D u)_i tells state j's operating point and spread:
@@ -283,8 +283,8 @@ class BlockBuilder:
         ridge would pull it toward 0 V.
         """
         if start.mode != ESTIMATE or not start.observed:
-            return states
-        states = list(states)
+            return states, set()
+        states, read = list(states), set()
         mean_in = torch.tensor([m for m, _ in inputs], dtype=torch.float64)
         for row, measured in enumerate(start.observed):
             if measured is None:
@@ -296,7 +296,8 @@ class BlockBuilder:
             mean_y, std_y = self.measured[measured]
             feedthrough = float(ss.d[row] @ mean_in) if ss.d.numel() else 0.0
             states[j] = ((mean_y - feedthrough) / gain, std_y / abs(gain))
-        return states
+            read.add(j)
+        return states, read
 
     def _gain_scale(self, b: BlockSpec, inputs: list[Scale], d: torch.Tensor) -> list[Scale]:
         if b.scale_as:
