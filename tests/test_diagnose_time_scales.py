@@ -194,10 +194,14 @@ def test_the_scales_follow_the_model_and_the_data() -> None:
     assert integrating.integrating and integrating.slowest_s == pytest.approx(0.5) and integrating.stretch == 20000
     # short records of a slow system (1024 samples every 4 s, decay time 87 s): one block per record
     # would fit one fold on the 205 validation samples (2 fit windows): a quarter of the data each
-    # (256 samples, 12 decay times), so each fold fits on 4 or 5
+    # (256 samples, 12 decay times), so each fold fits on 4 or 5 of data.window (100 samples); still
+    # under 8, the fit windows are the model's own 3 decay times (66 samples): 6 or 7
     short = Scales.of([-1 / 87.3], 4.0, [819, 205], [819], 100)
-    assert short.stretch == 256 and short.fit_window == 100
+    assert short.stretch == 256 and short.fit_window == 66
     assert (fold_windows([819, 205], 819, 100), fold_windows([819, 205], 256, 100)) == (2, 4)
+    assert fold_windows([819, 205], 256, 66) == 6
+    # where data.window leaves the folds enough windows, it stays (the data module's own windows)
+    assert Scales.of([-1 / 87.3], 4.0, [8190, 2050], [8190], 100).fit_window == 100
     # EMPS' records (a long training record, a short validation one; decay time 0.47 s at 1 kHz):
     # 3 windows of 1.4 s in the short fold, 7 with blocks of 6.2 s
     emps = Scales.of([0.0, -1 / 0.467], 1e-3, [19852, 4990], [19852], 100)

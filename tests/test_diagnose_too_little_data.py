@@ -62,8 +62,8 @@ def test_records_too_short_for_any_fit_are_refused_in_one_line(folders, tmp_path
     assert "Traceback" not in result.stderr
     errors = [line for line in result.stderr.splitlines() if line.startswith("hypa.diagnose: error:")]
     assert len(errors) == 1 and errors[0] == result.stderr.strip().splitlines()[-1], result.stderr[-2000:]
-    assert "1 s of training data in 1 record: 1 window of 21 samples" in errors[0]
-    assert "too short to fit even one number" in errors[0] and "give at least 1.31 s" in errors[0]
+    assert "1 s of training data in 1 record: 1 window of 17 samples" in errors[0]
+    assert "too short to fit even one number" in errors[0] and "give at least 1.06 s" in errors[0]
     assert "step 1/4" not in result.stdout  # refused before any work is announced
     assert not (tmp_path / "run" / "diagnosis.json").exists()
 
@@ -87,11 +87,12 @@ def test_no_standard_error_from_fewer_stretches_than_offsets(folders, tmp_path: 
     assert why in line and "not named as a small bias" in line
     assert "## Too little data" in report and "output_offset on side_slip lowers the cross-validated error" in report
     assert why in report
-    # a candidate of 4 numbers (the rear steering) is not fitted from 2 windows; 1-number fits are
-    assert any(re.match(r"too little data: unmodeled_input on single_track not fitted: 4 numbers to fit from [2-4] "
-                        "training windows", line) for line in result.stdout.splitlines()), result.stdout
+    # the fit windows are the model's 3 decay times (16 samples), not data.window (20), as the folds
+    # would hold too few of those: the rear steering's 4 numbers are fitted, and not named
+    assert diagnosis["data"]["scales"]["fit_window"] == 16
     first = {f["cause"] + ":" + f["target"]: f for f in diagnosis["rounds"][0]}
-    assert first["unmodeled_input:single_track"]["error"].startswith("too little data")
+    assert first["unmodeled_input:single_track"]["error"] is None
+    assert first["unmodeled_input:single_track"]["gain"] < 0.15
     assert first["parameter_mismatch:cf"]["error"] is None
 
 

@@ -26,9 +26,14 @@ it), ``{channel}`` (scheduling), ``{block_input}`` (the block's first input), ``
 new block is scheduled like it), ``{system}`` (the
 replacement of the matched block's system, when ``where.system`` is a mapping), ``{state}`` and
 ``{couplings}`` (``for_each: state``: a state of a physics block, and as a whole value the
-names of the ``curve_<state>_on_<row>`` weights of its nonzero couplings, ``hypa.physics.curved``).
+names of the ``curve_<state>_on_<row>`` weights of its nonzero couplings, ``hypa.physics.curved``;
+an entry whose trainable list comes out empty does not apply to that state), ``{spills}`` (the
+names of the ``spill_<state>_to_<row>`` shares into the other states, ``hypa.physics.limited``).
+A list placeholder among a list's items is spliced in: ``trainable: ["{state}_limit", "{spills}"]``.
 A parameter value may be an expression of ``dt`` [s], the sample time; ``for_each: state`` adds
-``level`` and ``spread``, the state's operating point and spread in the nominal model's scaling.
+``level`` and ``spread``, the state's operating point and spread in the round's model's scaling,
+and ``low`` and ``high``, the 10th and 90th percentiles of the state in that model's free runs
+over the training data.
 ``for_each: state`` visits the states of the physics blocks whose system no ``for_each: block``
 entry names (the catalogue's own physics of a system comes first), other than a cause's own
 ``diagnosed_`` blocks and scheduled ones. Which
@@ -50,7 +55,7 @@ import yaml
 from hypa.diagnosis.edits import AFFINE, GRADIENT, NONE, Candidate, frozen
 from hypa.errors import UserError
 from hypa.models.spec import ELEMENT_PARAMETER, ModelSpec, ModelSpecError, parse_model_spec
-from hypa.physics.systems import PHYSICS_SYSTEMS, build_system
+from hypa.physics.systems import PHYSICS_SYSTEMS
 
 GENERIC = Path(__file__).with_name("catalogue.yaml")
 FOR_EACH = ("input", "output", "parameter", "scheduling", "block", "state")
@@ -154,8 +159,12 @@ def _format(value: Any, context: Mapping[str, Any]) -> Any:
         if whole in context and not isinstance(context[whole], str):  # a mapping or list placeholder, itself
             return copy.deepcopy(context[whole])
         return value.format(**context)
-    if isinstance(value, list):
-        return [_format(v, context) for v in value]
+    if isinstance(value, list):  # a list placeholder among other items is spliced in: [a, "{couplings}"]
+        out: list[Any] = []
+        for v in value:
+            formatted = _format(v, context)
+            out += formatted if isinstance(formatted, list) and not isinstance(v, list) else [formatted]
+        return out
     if isinstance(value, dict):
         return {_format(k, context): _format(v, context) for k, v in value.items()}
     return value
@@ -219,30 +228,48 @@ def specific_systems(entries: Sequence[Entry]) -> set[str]:
     return named
 
 
+def _state_block(b: Any, specific: set[str]) -> bool:
+    """Whether ``for_each: state`` entries visit the states of the block ``b`` (see below)."""
+    return (b.kind == "physics" and b.system not in specific and not b.scheduling
+            and not b.name.startswith("diagnosed_"))
+
+
+def state_blocks(entries: Sequence[Entry], spec: ModelSpec) -> set[str]:
+    """The blocks of ``spec`` whose states the ``for_each: state`` entries of ``entries`` visit."""
+    if not any(e.for_each == "state" for e in entries):
+        return set()
+    specific = specific_systems(entries)
+    return {b.name for b in spec.blocks if _state_block(b, specific)}
+
+
 def _state_contexts(spec: ModelSpec, values: Mapping[str, float], specific: set[str]
                     ) -> Iterator[tuple[str, dict[str, Any]]]:
     """Each state of a physics block that the catalogue has no own physics for (not scheduled,
-    not a cause's own ``diagnosed_`` block, not curved yet) with a nonzero coupling into some
-    state derivative at the current values."""
+    not a cause's own ``diagnosed_`` block, not curved or limited yet), with the weights of its
+    nonzero couplings into the state derivatives at the current values (``{couplings}``: none
+    where its dynamics are all in a nonlinearity) and the shares of a spill into the others
+    (``{spills}``)."""
     import torch
 
     from hypa.physics.curved import curve_name
+    from hypa.physics.limited import spill_name
 
     for b in spec.blocks:
-        if b.kind != "physics" or b.system in specific or b.scheduling or b.name.startswith("diagnosed_"):
+        if not _state_block(b, specific):
             continue
-        system = build_system(b.system, b.name, b.curved)
+        system = b.system_model()
         if not system.n_states:
             continue
         given = {p.name: torch.tensor(p.value, dtype=torch.float64)
                  for p in system.parameter_specs({**values, **spec.parameters})}
         a = system.matrices(given).a
         for j, state in enumerate(system.state_names):
-            rows = [r for i, r in enumerate(system.state_names) if float(a[i, j]) != 0.0]
-            if state in b.curved or not rows:
+            if state in b.curved or state in b.limited:
                 continue
+            rows = [r for i, r in enumerate(system.state_names) if float(a[i, j]) != 0.0]
             yield f"{b.name}/{state}", {"block": b.name, "state": state,
-                                        "couplings": [curve_name(state, r) for r in rows]}
+                                        "couplings": [curve_name(state, r) for r in rows],
+                                        "spills": [spill_name(state, r) for r in system.state_names if r != state]}
 
 
 def _contexts(entry: Entry, spec: ModelSpec, inputs: Sequence[str], outputs: Sequence[str],
@@ -268,7 +295,7 @@ def _contexts(entry: Entry, spec: ModelSpec, inputs: Sequence[str], outputs: Seq
         for b in spec.blocks:
             if b.kind != "physics":
                 continue
-            system = build_system(b.system, b.name, b.curved)
+            system = b.system_model()
             for p in system.parameter_specs({**values, **spec.parameters}):
                 local = p.name.split("/", 1)[-1]
                 if local in b.scheduling or p.name in getattr(system, "added", ()):
@@ -292,7 +319,7 @@ def _knobs(edited: ModelSpec, values: Mapping[str, float],
             unit = "s" if b.kind == "delay" else channels.get(b.inputs[0], (0.0, ""))[1]
             knobs.update({f"{b.name}/{own}": unit} if own in b.trainable else {})
             continue
-        system = build_system(b.system, b.name, b.curved)
+        system = b.system_model()
         specs = {s.name: s for s in system.parameter_specs({**values, **edited.parameters})}
         for t in b.trainable:
             name = f"{b.name}/{t}" if f"{b.name}/{t}" in specs else t
@@ -307,7 +334,7 @@ def _parameter_values(spec: ModelSpec, known: Mapping[str, float], block: str | 
     for b in spec.blocks:
         if b.kind != "physics":
             continue
-        for p in build_system(b.system, b.name, b.curved).parameter_specs(known):
+        for p in b.system_model().parameter_specs(known):
             local = p.name.split("/", 1)[-1]
             if (p.name == local or b.name == block) and local.isidentifier():
                 values[local] = p.value
@@ -329,7 +356,8 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
     earlier round; ``dt`` and ``peak`` win over a parameter of the same name. ``states``: per
     state of a physics block (``<block>/<state>``), its operating point and spread [SI] in the
     nominal model's scaling (``level`` and ``spread`` for ``for_each: state``; without them the
-    state entries are not expanded)."""
+    state entries are not expanded), and where given its 10th and 90th percentiles in the model's
+    free runs over the training data (``low``, ``high``)."""
     channels, states = channels or {}, states or {}
     specific = specific_systems(entries)
     uncertain = {b.name: b.trainable for b in spec.blocks} if uncertain is None else uncertain
@@ -352,12 +380,15 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
             channel = context.get("input") or context.get("output") or context.get("channel")
             variables = {**_parameter_values(base, known, context.get("block")),
                          **({"peak": channels[channel][0]} if channel in channels else {}),
-                         **(dict(zip(("level", "spread"), states[target])) if entry.for_each == "state" else {})}
+                         **(dict(zip(("level", "spread", "low", "high"), states[target]))
+                            if entry.for_each == "state" else {})}
             patch = _format(dict(entry.patch), context)
             if any(name.startswith("diagnosed_") and name in existing for name in patch.get("blocks", {})):
                 continue  # the model has this cause's block already: named in an earlier round
             edited = apply_patch(base, patch, dt, where, variables)
             knobs = _knobs(edited, physical_values, channels) if entry.fit == GRADIENT else {}
+            if entry.fit == GRADIENT and not knobs and entry.for_each == "state":
+                continue  # nothing of this state to fit (no coupling to bend): the entry does not apply
             if entry.fit == GRADIENT and not knobs:
                 raise CatalogueError(f"{where}: fit: gradient but the patch makes nothing trainable")
             out.append(Candidate(entry.id, target, edited, entry.fit, tuple(knobs), knobs,

@@ -25,6 +25,8 @@ from hypa.models.spec import ModelSpec
 
 # a gradient fit goes on to the other folds from this share of what it needs on the first (evaluate_folds)
 CONTENDER = 0.8
+# ... and the first fold's best few go on whatever the margin: one fold's best can be its own fluke
+RUNNERS_UP = 3
 
 
 def evaluate_folds(candidates: Callable[[ModelSpec], list[Candidate]], folds: Sequence[Problem],
@@ -40,8 +42,10 @@ def evaluate_folds(candidates: Callable[[ModelSpec], list[Candidate]], folds: Se
     All run the first fold. A gradient fit goes on to the others only where it could be named or
     listed beside the one named: its gain there at least ``CONTENDER`` (a margin for the folds'
     spread) of ``min_gain`` and of what :func:`~hypa.diagnosis.finding.alternatives` asks beside
-    the fold's best. The rest stop at it (``screened``, listed after the others with the first
-    fold's gain). Offsets and structural candidates (cheap) run every fold.
+    the fold's best; the ``RUNNERS_UP`` best of the first fold go on wherever their gain reaches
+    ``CONTENDER`` of ``min_gain``, as one fold's best may fit that fold alone (an input limit that
+    clips one fold's peaks). The rest stop at it (``screened``, listed after the others with the
+    first fold's gain). Offsets and structural candidates (cheap) run every fold.
     """
     def listed(k: int) -> list[Candidate]:
         return [c for c in candidates(bases[k]) if keep(c)]
@@ -60,7 +64,9 @@ def evaluate_folds(candidates: Callable[[ModelSpec], list[Candidate]], folds: Se
         share = SIMPLER if f.numbers < best.numbers else ALTERNATIVE
         return f.gain >= CONTENDER * max(min_gain, share * best.gain)
 
-    going = {f.key for f in first if contends(f)}
+    fits = [f for f in fitted if f.candidate is not None and f.candidate.fit == GRADIENT]
+    leading = sorted(fits, key=lambda f: -f.gain)[:RUNNERS_UP]
+    going = {f.key for f in first if contends(f)} | {f.key for f in leading if f.gain >= CONTENDER * min_gain}
     per_fold = [{f.key: f for f in first}]
     for k in range(1, len(folds)):
         found = evaluate_round([c for c in listed(k) if c.key in going], folds[k], windows[k], scores[k], refine,

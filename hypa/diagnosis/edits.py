@@ -50,7 +50,6 @@ def frozen(spec: ModelSpec) -> ModelSpec:
 def set_free(spec: ModelSpec, names: Sequence[str]) -> ModelSpec:
     """The model with the parameters ``names`` (qualified: ``<block>/<name>`` for a block's own)
     trainable as well, in the blocks that own or read them."""
-    from hypa.physics.systems import build_system
 
     free: dict[str, list[str]] = {b.name: list(b.trainable) for b in spec.blocks}
     for name in names:
@@ -60,7 +59,7 @@ def set_free(spec: ModelSpec, names: Sequence[str]) -> ModelSpec:
         else:
             local = name
             owners = [b.name for b in spec.blocks if b.kind == "physics"
-                      and name in build_system(b.system, b.name, b.curved).parameter_names]
+                      and name in b.system_model().parameter_names]
         for owner in owners:
             if local not in free[owner]:
                 free[owner].append(local)

@@ -61,7 +61,9 @@ class Finding:
             return f"{self.cause} on {self.target}: not fitted ({self.error})"
         parts = [f"{k.split('/')[-1]} {format_value(v, self.units.get(k, ''))}" for k, v in self.values.items()
                  if k != self.target] + [format_value(v, self.units.get(k, "")) for k, v in self.values.items()
-                                         if k == self.target] + ([self.note] if self.note else [])
+                                         if k == self.target]
+        note = self.note or _limited_note(self.candidate, self.values, self.units)
+        parts += [note] if note else []
         return f"{self.cause} on {self.target}" + (f": {', '.join(parts)}" if parts else "")
 
     def to_dict(self) -> dict:
@@ -140,6 +142,27 @@ def _curved_note(candidate: Candidate, problem: Problem) -> str:
     sign, shift = ("+", -level) if level < 0 else ("-", level)
     return (f"each coupling from {state} is (1 + w z{'²' if b.curved[state] == 3 else ''}) times the linear one, "
             f"z = ({state} {sign} {format_value(shift, unit)}) / {format_value(spread, unit)}")
+
+
+def _limited_note(candidate: Candidate | None, values: Mapping[str, float], units: Mapping[str, str]) -> str:
+    """What a limited state's values mean (``hypa.physics.limited``): ``upper stops below 9.06:
+    what would carry it further spills, 51 % of it reaching lower, the rest lost``; "" for any
+    other candidate."""
+    block, _, state = (candidate.target if candidate else "").partition("/")
+    if not state or block not in candidate.spec.block_names:
+        return ""
+    side = candidate.spec.block(block).limited.get(state)
+    key = f"{block}/{state}_limit"
+    if side is None or key not in values:
+        return ""
+    from hypa.physics.limited import spill_name
+
+    prefix = f"{block}/{spill_name(state, '')}"
+    shares = {k[len(prefix):]: v for k, v in values.items() if k.startswith(prefix)}
+    spilled = "".join(f", {100 * v:.2g} % of it reaching {row}" for row, v in shares.items())
+    rest = ", the rest lost" if shares and sum(shares.values()) < 0.995 else ""
+    return (f"{state} stops {'above' if side == 'lower' else 'below'} {format_value(values[key], units.get(key, ''))}: "
+            f"what would carry it further spills{spilled}{rest}")
 
 
 def _scheduling_note(candidate: Candidate, problem: Problem) -> str:

@@ -19,8 +19,9 @@ the nominal model's own modes (:meth:`hypa.models.ComposedModel.eigenvalues`, th
   ``1 / STRETCH_SHRINK`` of that (5 decay times, a period) and give the folds more; at least ``MIN_STRETCH``
   samples, at most the longest record (then one stretch per record: the whole record's free run);
 - **fit windows** (a candidate's gradient fit): ``FIT_SPAN`` slowest decay times, at least
-  ``data.window`` (the user's training windows) and at most an eighth of the longest training
-  record, so that the records still hold several windows without overlap (and at most what a
+  ``data.window`` (the user's training windows) unless that is longer and leaves a
+  cross-validation fold fewer than ``FOLD_WINDOWS`` of them, and at most an eighth of the longest
+  training record, so that the records still hold several windows without overlap (and at most what a
   cross-validation fold's training blocks hold, :attr:`hypa.diagnosis.problem.Problem.fit_window`);
 - **residual analysis** (:mod:`hypa.diagnosis.structure`): cross-correlation lags up to
   ``LAG_SPAN`` decay times; the envelope (an oscillation's amplitude) over the longer of one
@@ -89,7 +90,8 @@ class Scales:
         period = float(2 * math.pi / np.min(np.abs(oscillating.imag))) if oscillating.size else 0.0
         longest = max(record_lengths) if record_lengths else MIN_STRETCH
         longest_train = max(train_lengths) if train_lengths else longest
-        fit_window = max(window, min(math.ceil(FIT_SPAN * slowest / dt), longest_train // 8))
+        span = math.ceil(FIT_SPAN * slowest / dt)
+        fit_window = max(window, min(span, longest_train // 8))
         wanted = max(STRETCH_SPAN * slowest, STRETCH_PERIODS * period) / dt
         stretch = min(max(math.ceil(wanted), MIN_STRETCH), longest)
         shared = sum(record_lengths) / BLOCKS if record_lengths else wanted
@@ -98,6 +100,8 @@ class Scales:
             windows = [fold_windows(record_lengths, s, fit_window) for s in (stretch, shorter)]
             if windows[0] < FOLD_WINDOWS and windows[1] > windows[0]:
                 stretch = shorter
+        if span < fit_window and fold_windows(record_lengths, stretch, fit_window) < FOLD_WINDOWS:
+            fit_window = span  # data.window is longer than the model needs and leaves a fold too few windows
         shortest = min(record_lengths) if record_lengths else longest
         max_lag = max(1, min(math.ceil(LAG_SPAN * slowest / dt), shortest // 4))
         envelope = max(3, min(round(max(slowest, ENVELOPE_PERIODS * period) / dt), max(3, shortest // 8)))

@@ -28,14 +28,15 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
 from functools import partial
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
-from hypa.diagnosis.catalogue import Entry, catalogue_candidates, load_catalogue
+from hypa.diagnosis.catalogue import Entry, catalogue_candidates, load_catalogue, state_blocks
 from hypa.diagnosis.cross_validation import evaluate_folds, evaluate_generic, pool, pooled_z
 from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, averaged, frozen
 from hypa.diagnosis.finding import SIMPLER, Finding, alternatives
@@ -46,8 +47,12 @@ from hypa.diagnosis.problem import Problem
 from hypa.diagnosis.race import append_result
 from hypa.diagnosis.scales import duration
 from hypa.models import ComposedModel
+from hypa.models.rollout import model_inputs
 from hypa.models.spec import ModelSpec
 from hypa.physics import LTIBlock
+
+if TYPE_CHECKING:
+    from hypa.data import HypaDataModule
 
 OFFSET_Z = 5.0  # an offset below min_gain is still named this many standard errors away from zero ...
 OFFSET_GAIN = 0.005  # ... when it lowers the validation error by at least this share (a small sensor bias)
@@ -111,9 +116,10 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
         channels = {n: (max(float(np.max(np.abs(r[n]))) for r in dm.records("train")), dm.channels[n].unit)
                     for n in measured}
 
-        states = state_scales(problem.build(frozen(nominal)))
-
         def candidates(spec: ModelSpec) -> list[Candidate]:
+            # the states' operating points, spreads and free-run ranges in this round's model: a state
+            # no sensor reads moves with the values fitted so far (the tanks' upper level with k4 / k1)
+            states = state_scales(problem.build(frozen(spec)), dm, state_blocks(entries, spec))
             return catalogue_candidates(entries, spec, dm.input_names, dm.output_names, dm.scheduling_names,
                                         problem.physical_values, dm.dt, uncertain, channels, states)
     torch.manual_seed(problem.seed)
@@ -199,14 +205,38 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
                   blocks=len(problem.blocks()) if len(folds) > 1 else 0)
 
 
-def state_scales(model: ComposedModel) -> dict[str, tuple[float, float]]:
+def state_scales(model: ComposedModel, dm: HypaDataModule | None = None,
+                 blocks: Collection[str] | None = None) -> dict[str, tuple[float, float, float, float]]:
     """Each physics block's states (``<block>/<state>``) -> (operating point, spread) [SI]: the
-    scaling the model gave them (a measured state's from the data, another's from the physics)."""
-    out = {}
+    scaling the model gave them (a measured state's from the data, another's from the physics);
+    then (``low``, ``high``) [SI]: with ``dm``, for the states of ``blocks`` (all: None), their 10th
+    and 90th percentiles in the model's free runs over the training records (where a state that
+    no sensor reads actually goes, which its scaling's spread may miss by a factor), else the
+    operating point ∓ the spread."""
+    out: dict[str, tuple[float, float, float, float]] = {}
     for name, block in model.blocks.items():
         if isinstance(block, LTIBlock):
             for state, mean, std in zip(block.model.state_names, block.state_mean.tolist(), block.state_std.tolist()):
-                out[f"{name}/{state}"] = (float(mean), float(std))
+                out[f"{name}/{state}"] = (float(mean), float(std), float(mean - std), float(mean + std))
+    started = [n for n in model.started_blocks() if blocks is None or n in blocks]
+    if dm is None or not started:
+        return out
+    runs: dict[str, list[np.ndarray]] = {n: [] for n in started}
+    with torch.no_grad():
+        for record in dm.records("train"):
+            states: dict[str, torch.Tensor] = {}
+            model.signals(*model_inputs(dm, record), states=states)
+            for name in started:
+                block = model.blocks[name]
+                physical = states[name][0].double() * block.state_std + block.state_mean
+                runs[name].append(physical.numpy())
+    for name, parts in runs.items():
+        values = np.concatenate(parts)
+        for j, state in enumerate(model.blocks[name].model.state_names):
+            finite = values[:, j][np.isfinite(values[:, j])]
+            low, high = np.percentile(finite, [10, 90]) if finite.size else (0.0, 0.0)
+            if high > low:  # else (a state the free runs never move) the scaling's
+                out[f"{name}/{state}"] = (*out[f"{name}/{state}"][:2], float(low), float(high))
     return out
 
 

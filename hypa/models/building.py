@@ -22,7 +22,6 @@ from hypa.ann import build_ann
 from hypa.models.spec import ELEMENT_PARAMETER, BlockSpec, ModelSpec, ModelSpecError
 from hypa.physics import HOLDS, LTIBlock, LTIModel, ParameterSpec, PhysicalParameters, Scaling, default_state_std
 from hypa.physics.elements import DeadTime, Saturation, local_name
-from hypa.physics.systems import build_system
 
 Scale = tuple[float, float]  # (mean, std) in SI units
 
@@ -76,7 +75,7 @@ def collect_parameters(spec: ModelSpec, values: Mapping[str, float]
             continue
         local = {local_name(b.name, k): v for k, v in b.parameters.items()}
         own = ELEMENT_PARAMETER.get(b.kind)  # an element's one parameter, else a system's
-        system = None if own else build_system(b.system, b.name, b.curved)
+        system = None if own else b.system_model()
         if system is not None:
             systems[b.name] = system
         names = (local_name(b.name, own),) if system is None else tuple(system.parameter_names)

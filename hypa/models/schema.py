@@ -37,6 +37,7 @@ class BlockConfig:
     observe: Any = None  # physics: block output -> measured output
     table: Any = None  # physics scheduled by one signal: its matrices off a verified table where no gradient needs them
     curved: Any = None  # physics: state -> power (2, 3), couplings from the state bent (hypa.physics.curved)
+    limited: Any = None  # physics: state -> upper | lower, the state held at a limit (hypa.physics.limited)
 
 
 @dataclass

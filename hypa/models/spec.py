@@ -15,7 +15,8 @@ from typing import Any
 
 from hypa.errors import UserError
 from hypa.models.schema import BlockConfig, ModelConfig, StageConfig, keys, unknown_keys
-from hypa.physics.systems import PHYSICS_SYSTEMS, is_import_path
+from hypa.physics.statespace import LTIModel
+from hypa.physics.systems import PHYSICS_SYSTEMS, build_system, is_import_path
 
 BLOCK_KINDS = ("physics", "ann", "delay", "saturation")
 # elements: blocks that map each input to one output through one own parameter (not a state space)
@@ -76,6 +77,10 @@ class BlockSpec:
         / σ_j, with the block's own parameters ``<state>_level`` μ_j, ``<state>_spread`` σ_j and
         ``curve_<state>_on_<row>`` w_r (``hypa.physics.curved``; named by ``hypa.diagnose``'s
         ``cubic_state`` and ``square_state``).
+    limited: physics only, states that cannot pass a level, state -> upper or lower: what would
+        carry the state past its limit ``<state>_limit`` spills within ``<state>_limit_time``, a
+        share ``spill_<state>_to_<row>`` of it into each other state (``hypa.physics.limited``;
+        named by ``hypa.diagnose``'s ``upper_state_limit`` and ``lower_state_limit``).
     """
 
     name: str
@@ -92,6 +97,11 @@ class BlockSpec:
     observe: Mapping[str, str] = field(default_factory=dict)
     table: bool = False
     curved: Mapping[str, int] = field(default_factory=dict)
+    limited: Mapping[str, str] = field(default_factory=dict)
+
+    def system_model(self) -> LTIModel:
+        """A physics block's system as built for it: ``system`` with its ``curved`` and ``limited`` states."""
+        return build_system(self.system or "", self.name, self.curved, self.limited)
 
     @property
     def steady(self) -> bool:
@@ -202,6 +212,15 @@ def _powers(value: Any, where: str) -> dict[str, int]:
     return {str(k): int(v) for k, v in value.items()}
 
 
+def _sides(value: Any, where: str) -> dict[str, str]:
+    """A mapping state -> upper | lower (None: empty)."""
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping) or any(v not in ("upper", "lower") for v in value.values()):
+        raise ModelSpecError(f"{where} must map state names to upper or lower (e.g. {{level: upper}}), got {value!r}")
+    return {str(k): str(v) for k, v in value.items()}
+
+
 def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
     """Parse and check the ``model`` config (a plain mapping) into a :class:`ModelSpec`."""
     name = str(config.get("name", "model"))
@@ -245,9 +264,12 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
             observe=_signal_map(b.get("observe"), f"{block_name}.observe"),
             table=_flag(b.get("table"), f"{block_name}.table"),
             curved=_powers(b.get("curved"), f"{block_name}.curved"),
+            limited=_sides(b.get("limited"), f"{block_name}.limited"),
         ))
-        if kind != "physics" and (blocks[-1].scheduling or blocks[-1].observe or blocks[-1].curved):
-            raise ModelSpecError(f"block {block_name!r}: only physics blocks take scheduling, observe or curved")
+        if kind != "physics" and (blocks[-1].scheduling or blocks[-1].observe or blocks[-1].curved
+                                  or blocks[-1].limited):
+            raise ModelSpecError(f"block {block_name!r}: only physics blocks take scheduling, observe, curved or "
+                                 "limited")
         if blocks[-1].table and len(blocks[-1].scheduling) != 1:
             raise ModelSpecError(f"block {block_name!r}: table: true needs a physics block scheduled by one signal, "
                                  f"got scheduling {dict(blocks[-1].scheduling) or 'none'}")
@@ -283,7 +305,7 @@ def spec_config(spec: ModelSpec, name: str | None = None) -> dict[str, Any]:
     for b in spec.blocks:
         entry: dict[str, Any] = {"kind": b.kind, "inputs": list(b.inputs), "outputs": list(b.outputs)}
         for key in ("system", "trainable", "residual_of", "scale_as", "initial_state", "parameters", "scheduling",
-                    "observe", "curved"):
+                    "observe", "curved", "limited"):
             value = getattr(b, key)
             if value:
                 entry[key] = dict(value) if isinstance(value, Mapping) else (

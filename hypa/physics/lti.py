@@ -228,7 +228,7 @@ class LTIBlock(BlockSimulation, nn.Module):
 
     def extra_repr(self) -> str:
         m = self.model
-        return (f"{type(m).__name__}: {list(m.input_names)} -> {list(m.output_names)}, "
+        return (f"{m.display_name}: {list(m.input_names)} -> {list(m.output_names)}, "
                 f"dt={self.dt:g} s, horizon={self.horizon}, hold={self.hold}"
                 + (f", scheduled={list(self.scheduled)}" if self.scheduled else "")
                 + (", table" if self.tables is not None else ""))

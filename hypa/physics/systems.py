@@ -17,6 +17,7 @@ from hypa.physics.contract import SystemContractError, check_system
 from hypa.physics.curved import Curved, CurvedError
 from hypa.physics.elements import FirstOrderLag, GainLag, LeadLag, SecondOrder, StaticGain
 from hypa.physics.friction import MassWithCoulombFriction, MassWithCubicFriction, MassWithFriction
+from hypa.physics.limited import Limited, LimitedError
 from hypa.physics.lti import LTIModel
 from hypa.physics.mass_spring_damper import DuffingOscillator, MassSpringDamper
 
@@ -102,15 +103,16 @@ def resolve_system(name: str, block: str = "") -> LTIModel:
     return system
 
 
-def build_system(name: str, block: str = "", curved: Mapping[str, int] | None = None) -> LTIModel:
+def build_system(name: str, block: str = "", curved: Mapping[str, int] | None = None,
+                 limited: Mapping[str, str] | None = None) -> LTIModel:
     """The system ``name`` for the block ``block`` (``resolve_system``), its couplings from the
-    states of ``curved`` (state -> power, a block's ``curved:``) bent (``hypa.physics.curved``)."""
+    states of ``curved`` (state -> power, a block's ``curved:``) bent (``hypa.physics.curved``)
+    and the states of ``limited`` (state -> upper | lower) held at a limit (``hypa.physics.limited``)."""
     system = resolve_system(name, block)
-    if not curved:
-        return system
     try:
-        return Curved(system, curved, block)
-    except CurvedError as error:
+        system = Curved(system, curved, block) if curved else system
+        return Limited(system, limited, block) if limited else system
+    except (CurvedError, LimitedError) as error:
         raise SystemContractError(f"block {block!r} ({name}): {error}") from None
 
 
