@@ -255,7 +255,7 @@ def test_a_state_no_output_reads_takes_the_level_it_settles_to() -> None:
     """``settled_state_scales``: the upper tank settles to (k4 ū / k1)² under the mean pump voltage,
     the measured lower one keeps the data's operating point, spreads are kept; a system that does
     not settle (a frictionless mass pushed by a mean force: its speed grows) keeps 0."""
-    from hypa.models.building import settled_state_scales
+    from hypa.physics.operating_point import settled_state_scales
 
     tanks = _Tanks()
     params = PhysicalParameters(tanks.parameter_specs({}))
