@@ -22,6 +22,7 @@ import pytest
 
 from hypa.diagnosis.catalogue import catalogue_candidates, load_catalogue
 from hypa.models import parse_model_spec
+from hypa.models.spec import spec_config
 
 from data_helpers import user_dataset
 
@@ -112,3 +113,35 @@ def test_names_a_partly_cubic_friction_at_its_share(tmp_path: Path, seed: int) -
     assert (named[0]["cause"], named[0]["target"]) == ("cubic_friction", "axis"), result.stdout[-2000:]
     assert named[0]["values"]["cubic_share"] == pytest.approx(share, abs=0.05)
     assert named[0]["values"]["viscous_friction"] == pytest.approx(TRUE["viscous_friction"], rel=0.05)
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1.0, 1e3])
+def test_the_core_entries_start_from_the_data_not_from_constants(scale: float) -> None:
+    """The Coulomb force starts at a tenth of the largest drive force (of the measured input, or of
+    a force between blocks by its scaling), the Duffing hardening where the spring is 1 % stiffer at
+    one spread of the position: a stage of millinewtons and one of kilonewtons start alike."""
+    friction = parse_model_spec({
+        "name": "axis", "outputs": ["position"], "stages": [],
+        "blocks": {"axis": {"kind": "physics", "system": "mass_with_friction", "inputs": ["force"],
+                            "outputs": ["position"]}}})
+    channels = {"force": (150.0 * scale, "N"), "position": (0.1, "m")}
+    coulomb = next(c for c in catalogue_candidates(load_catalogue(), friction, ["force"], ["position"], [], {}, 1e-3,
+                                                   channels=channels) if c.cause == "coulomb_friction")
+    assert coulomb.spec.parameters["coulomb_friction"] == pytest.approx(15.0 * scale)
+    between = {"force": (0.0, "N"), "drive": (150.0 * scale, "")}  # a drive force written by a block before it
+    rewired = parse_model_spec({**spec_config(friction), "blocks": {"axis": {
+        **spec_config(friction)["blocks"]["axis"], "inputs": ["drive"]}, "amplifier": {
+        "kind": "physics", "system": "gain", "inputs": ["force"], "outputs": ["drive"]}}})
+    coulomb = next(c for c in catalogue_candidates(load_catalogue(), rewired, ["force"], ["position"], [], {}, 1e-3,
+                                                   channels=between) if c.cause == "coulomb_friction")
+    assert coulomb.spec.parameters["coulomb_friction"] == pytest.approx(15.0 * scale)
+    spring = parse_model_spec({
+        "name": "oscillator", "outputs": ["position"], "stages": [],
+        "blocks": {"oscillator": {"kind": "physics", "system": "mass_spring_damper", "inputs": ["force"],
+                                  "outputs": ["position"]}}})
+    states = {"oscillator/position": (0.0, 0.04 * scale, -0.05 * scale, 0.05 * scale),
+              "oscillator/velocity": (0.0, 1.0, -1.0, 1.0)}
+    hardening = next(c for c in catalogue_candidates(load_catalogue(), spring, ["force"], ["position"], [], {}, 1e-3,
+                                                     channels=channels, states=states)
+                     if c.cause == "stiffening_spring")
+    assert hardening.spec.parameters["hardening"] == pytest.approx(0.01 / (0.04 * scale) ** 2)

@@ -30,7 +30,11 @@ names of the ``curve_<state>_on_<row>`` weights of its nonzero couplings, ``hypa
 an entry whose trainable list comes out empty does not apply to that state), ``{spills}`` (the
 names of the ``spill_<state>_to_<row>`` shares into the other states, ``hypa.physics.limited``).
 A list placeholder among a list's items is spliced in: ``trainable: ["{state}_limit", "{spills}"]``.
-A parameter value may be an expression of ``dt`` [s], the sample time; ``for_each: state`` adds
+A parameter value may be an expression of ``dt`` [s], the sample time, of ``peak`` (the largest
+|value| in the training data of the entry's measured channel, or of the matched block's first
+input; of a signal between blocks, |mean| + 3 spreads in the model's scaling), of the model's
+parameters by name, and for ``for_each: block`` of the block's states'
+``<state>_level`` and ``<state>_spread`` (their operating point and spread); ``for_each: state`` adds
 ``level`` and ``spread``, the state's operating point and spread in the round's model's scaling,
 and ``low`` and ``high``, the 10th and 90th percentiles of the state in that model's free runs
 over the training data.
@@ -350,14 +354,16 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
     """Every entry expanded over the model and the data's channels, as edits of the frozen model.
 
     ``channels``: per measured channel, its largest |value| in the training data [SI] (``peak``
-    in an entry's expressions) and its unit (of a limit on it). An entry's expressions may also
+    in an entry's expressions: of the entry's input, output or scheduling channel, or of a matched
+    block's first input where that is measured) and its unit (of a limit on it). An entry's expressions may also
     read the model's parameters by name (``viscous_friction``), the shared ones and the matched
     block's own (by their local names), at their values in this round: nominal, or fitted by an
     earlier round; ``dt`` and ``peak`` win over a parameter of the same name. ``states``: per
     state of a physics block (``<block>/<state>``), its operating point and spread [SI] in the
     nominal model's scaling (``level`` and ``spread`` for ``for_each: state``; without them the
     state entries are not expanded), and where given its 10th and 90th percentiles in the model's
-    free runs over the training data (``low``, ``high``)."""
+    free runs over the training data (``low``, ``high``); a ``for_each: block`` entry reads the
+    matched block's states' as ``<state>_level`` and ``<state>_spread`` (``position_spread``)."""
     channels, states = channels or {}, states or {}
     specific = specific_systems(entries)
     uncertain = {b.name: b.trainable for b in spec.blocks} if uncertain is None else uncertain
@@ -377,8 +383,12 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
                 out.append(Candidate(entry.id, _format(entry.offset, context), base, AFFINE,
                                      (_format(entry.offset, context),)))
                 continue
-            channel = context.get("input") or context.get("output") or context.get("channel")
-            variables = {**_parameter_values(base, known, context.get("block")),
+            channel = (context.get("input") or context.get("output") or context.get("channel")
+                       or context.get("block_input"))
+            own = {} if entry.for_each != "block" else {  # the matched block's states: position_spread
+                f"{key.split('/', 1)[1]}_{name}": value for key, scales in states.items()
+                if key.startswith(f"{target}/") for name, value in zip(("level", "spread"), scales)}
+            variables = {**own, **_parameter_values(base, known, context.get("block")),
                          **({"peak": channels[channel][0]} if channel in channels else {}),
                          **(dict(zip(("level", "spread", "low", "high"), states[target]))
                             if entry.for_each == "state" else {})}

@@ -119,9 +119,13 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
         def candidates(spec: ModelSpec) -> list[Candidate]:
             # the states' operating points, spreads and free-run ranges in this round's model: a state
             # no sensor reads moves with the values fitted so far (the tanks' upper level with k4 / k1)
-            states = state_scales(problem.build(frozen(spec)), dm, state_blocks(entries, spec))
+            model = problem.build(frozen(spec))
+            states = state_scales(model, dm, state_blocks(entries, spec))
+            # a signal between blocks: its peak, |mean| + 3 spreads in the model's scaling (a block's input)
+            internal = {name: (abs(float(mean)) + 3 * float(std), "") for name, (mean, std) in model.scales.items()
+                        if name not in channels}
             return catalogue_candidates(entries, spec, dm.input_names, dm.output_names, dm.scheduling_names,
-                                        problem.physical_values, dm.dt, uncertain, channels, states)
+                                        problem.physical_values, dm.dt, uncertain, {**internal, **channels}, states)
     torch.manual_seed(problem.seed)
     folds = problem.folds()
     windows = [p.windows() for p in folds]
