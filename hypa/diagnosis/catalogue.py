@@ -401,6 +401,10 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
                 continue  # nothing of this state to fit (no coupling to bend): the entry does not apply
             if entry.fit == GRADIENT and not knobs:
                 raise CatalogueError(f"{where}: fit: gradient but the patch makes nothing trainable")
+            state = context.get("state") if entry.for_each == "state" else None
+            if state in channels:  # a state named like a measured channel: its level (a limit) in that unit
+                own_level = f"{context['block']}/{state}_"
+                knobs = {k: u or (channels[state][1] if k.startswith(own_level) else u) for k, u in knobs.items()}
             out.append(Candidate(entry.id, target, edited, entry.fit, tuple(knobs), knobs,
                                  tuple(_format(b, context) for b in entry.learn)))
     return out

@@ -162,7 +162,7 @@ def _limited_note(candidate: Candidate | None, values: Mapping[str, float], unit
     spilled = "".join(f", {100 * v:.2g} % of it reaching {row}" for row, v in shares.items())
     rest = ", the rest lost" if shares and sum(shares.values()) < 0.995 else ""
     return (f"{state} stops {'above' if side == 'lower' else 'below'} {format_value(values[key], units.get(key, ''))}: "
-            f"what would carry it further spills{spilled}{rest}")
+            f"what would carry it further spills{spilled}{rest}" + ("" if shares else " away"))
 
 
 def _scheduling_note(candidate: Candidate, problem: Problem) -> str:
