@@ -117,7 +117,10 @@ def refine_first_state(simulate: Callable[[Tensor], tuple[Tensor, Tensor]], x0: 
         if not bool(finite.all()):  # (LAPACK refuses a non-finite matrix outright)
             rows, target = rows * finite[:, None, None], torch.where(finite[:, None], target, 0.0)
             rows = torch.nan_to_num(rows, nan=0.0, posinf=0.0, neginf=0.0)
-        step = torch.linalg.lstsq(rows, target[..., None]).solution.squeeze(-1)  # (B, n)
+        # in double precision: single-precision LAPACK gives run-to-run differences of its round-off
+        # (5e-8, with the buffers' alignment) that these iterations, on a state the outputs barely see
+        # (the tanks' upper level), carried to 7e-5 of its spread: the same record started elsewhere
+        step = torch.linalg.lstsq(rows.double(), target[..., None].double()).solution.squeeze(-1).to(x0.dtype)
         if not bool(torch.isfinite(step).all()) or float(step.abs().max()) <= tolerance:
             break  # converged: a step below the dtype's resolution of a state of unit spread
         candidate = x0 + step
