@@ -30,7 +30,8 @@ from torch import Tensor
 
 from hypa.physics.elements import local_name
 from hypa.physics.parameters import ParameterSpec
-from hypa.physics.statespace import LTIModel, StateSpace
+from hypa.physics.statespace import LTIModel
+from hypa.physics.wrapped import StateFeedback
 
 POWERS = (2, 3)
 
@@ -44,51 +45,34 @@ class CurvedError(ValueError):
     """A ``curved`` mapping that does not fit the system (a state it lacks, a power not 2 or 3)."""
 
 
-class Curved(LTIModel):
+class Curved(StateFeedback):
     """``base`` with the couplings from the states of ``curved`` (state -> power) bent (module docstring)."""
 
+    key, error = "curved", CurvedError
+
     def __init__(self, base: LTIModel, curved: Mapping[str, int], block: str = "") -> None:
+        super().__init__(base, curved, POWERS, "power")
+        self.curved = self.options
         states = list(base.state_names)
-        for state, power in curved.items():
-            if state not in states:
-                raise CurvedError(f"curved: {type(base).__name__} has no state {state!r}; its states: "
-                                  f"{', '.join(states) or 'none'}")
-            if power not in POWERS:
-                raise CurvedError(f"curved: the power of {state!r} must be 2 or 3, got {power!r}")
-        self.base, self.curved = base, dict(curved)
-        self.state_names, self.input_names, self.output_names = base.state_names, base.input_names, base.output_names
         self._columns = [(states.index(s), p, local_name(block, f"{s}_level"), local_name(block, f"{s}_spread"),
                           [local_name(block, curve_name(s, r)) for r in states]) for s, p in curved.items()]
         own = []
         for _, _, level, spread, weights in self._columns:
             own += [ParameterSpec(level, 0.0, "", positive=False), ParameterSpec(spread, 1.0, "")]
             own += [ParameterSpec(w, 0.0, "-", positive=False) for w in weights]
-        self.parameters = (*base.parameters, *own)
-        self.added = frozenset(spec.name for spec in own)  # the parameters the curving adds (not the physics')
+        self.add(own)
 
-    @property
-    def display_name(self) -> str:
-        return f"{self.base.display_name} (curved on {', '.join(self.curved)})"
-
-    def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
-        return self.base.matrices(p)
-
-    def feedback(self, p: Mapping[str, Tensor]) -> Tensor:
+    def own_feedback(self, p: Mapping[str, Tensor]) -> Tensor:
         a = self.base.matrices(p).a
-        columns = [a[:, j] * torch.stack([p[w] for w in weights]) for j, _, _, _, weights in self._columns]
-        own = torch.stack(columns, 1)  # (n, curved states)
-        return torch.cat([self.base.feedback(p), own], 1) if self.base.is_nonlinear else own
+        return torch.stack([a[:, j] * torch.stack([p[w] for w in weights]) for j, _, _, _, weights in self._columns], 1)
 
-    def prepare(self, p: Mapping[str, Tensor]) -> Mapping[str, Tensor]:
-        prepared = dict(self.base.prepare(p)) if self.base.is_nonlinear else dict(p)
-        prepared["_curved"] = [(p[level], 1.0 / p[spread]) for _, _, level, spread, _ in self._columns]
-        return prepared
+    def own_prepare(self, p: Mapping[str, Tensor]) -> list[tuple[Tensor, Tensor]]:
+        return [(p[level], 1.0 / p[spread]) for _, _, level, spread, _ in self._columns]
 
-    def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
+    def own_signals(self, x: Tensor, prepared: list[tuple[Tensor, Tensor]]) -> list[Tensor]:
         signals = []
-        for (j, power, *_), (level, inverse) in zip(self._columns, p["_curved"]):
+        for (j, power, *_), (level, inverse) in zip(self._columns, prepared):
             d = x[..., j] - level
             z = d * inverse
             signals.append(d * z if power == 2 else d * z * z)
-        own = torch.stack(signals, -1)
-        return torch.cat([self.base.nonlinearity(x, u, p), own], -1) if self.base.is_nonlinear else own
+        return signals

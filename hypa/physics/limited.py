@@ -31,7 +31,8 @@ from torch import Tensor
 
 from hypa.physics.elements import local_name
 from hypa.physics.parameters import ParameterSpec
-from hypa.physics.statespace import LTIModel, StateSpace
+from hypa.physics.statespace import LTIModel
+from hypa.physics.wrapped import StateFeedback
 
 SIDES = ("upper", "lower")
 
@@ -45,19 +46,15 @@ class LimitedError(ValueError):
     """A ``limited`` mapping that does not fit the system (a state it lacks, a side not upper/lower)."""
 
 
-class Limited(LTIModel):
+class Limited(StateFeedback):
     """``base`` with the states of ``limited`` (state -> upper | lower) held at a limit (module docstring)."""
 
+    key, error = "limited", LimitedError
+
     def __init__(self, base: LTIModel, limited: Mapping[str, str], block: str = "") -> None:
+        super().__init__(base, limited, SIDES, "side")
+        self.limited = self.options
         states = list(base.state_names)
-        for state, side in limited.items():
-            if state not in states:
-                raise LimitedError(f"limited: {base.display_name} has no state {state!r}; its states: "
-                                   f"{', '.join(states) or 'none'}")
-            if side not in SIDES:
-                raise LimitedError(f"limited: the side of {state!r} must be upper or lower, got {side!r}")
-        self.base, self.limited = base, dict(limited)
-        self.state_names, self.input_names, self.output_names = base.state_names, base.input_names, base.output_names
         self._columns = []
         own = []
         for state, side in limited.items():
@@ -67,34 +64,18 @@ class Limited(LTIModel):
             own += [ParameterSpec(names[0], 0.0, "", positive=False), ParameterSpec(names[1], 1.0, "s"),
                     ParameterSpec(names[2], 1.0, "")]
             own += [ParameterSpec(w, 0.0, "-", positive=False) for w in spills.values()]
-        self.parameters = (*base.parameters, *own)
-        self.added = frozenset(spec.name for spec in own) | getattr(base, "added", frozenset())
+        self.add(own)
 
-    @property
-    def display_name(self) -> str:
-        return f"{self.base.display_name} (limited on {', '.join(self.limited)})"
-
-    def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
-        return self.base.matrices(p)
-
-    def feedback(self, p: Mapping[str, Tensor]) -> Tensor:
-        n = len(self.state_names)
-        columns = []
+    def own_feedback(self, p: Mapping[str, Tensor]) -> Tensor:
+        n, columns = len(self.state_names), []
         for j, _, _, time, _, spills in self._columns:
             one = p[time].new_ones(())
-            entries = [-one if r == j else p[spills[r]] for r in range(n)]
-            columns.append(torch.stack(entries) / p[time])
-        own = torch.stack(columns, 1)  # (n, limited states)
-        return torch.cat([self.base.feedback(p), own], 1) if self.base.is_nonlinear else own
+            columns.append(torch.stack([-one if r == j else p[spills[r]] for r in range(n)]) / p[time])
+        return torch.stack(columns, 1)
 
-    def prepare(self, p: Mapping[str, Tensor]) -> Mapping[str, Tensor]:
-        prepared = dict(self.base.prepare(p)) if self.base.is_nonlinear else dict(p)
-        prepared["_limited"] = [(p[limit], p[width]) for _, _, limit, _, width, _ in self._columns]
-        return prepared
+    def own_prepare(self, p: Mapping[str, Tensor]) -> list[tuple[Tensor, Tensor]]:
+        return [(p[limit], p[width]) for _, _, limit, _, width, _ in self._columns]
 
-    def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
-        signals = []
-        for (j, sign, *_), (limit, width) in zip(self._columns, p["_limited"]):
-            signals.append(sign * width * torch.nn.functional.softplus(sign * (x[..., j] - limit) / width))
-        own = torch.stack(signals, -1)
-        return torch.cat([self.base.nonlinearity(x, u, p), own], -1) if self.base.is_nonlinear else own
+    def own_signals(self, x: Tensor, prepared: list[tuple[Tensor, Tensor]]) -> list[Tensor]:
+        return [sign * width * torch.nn.functional.softplus(sign * (x[..., j] - limit) / width)
+                for (j, sign, *_), (limit, width) in zip(self._columns, prepared)]
