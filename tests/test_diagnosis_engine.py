@@ -146,8 +146,10 @@ def test_an_entry_that_breaks_the_model_names_itself(tmp_path: Path) -> None:
 
 def test_candidates_are_edits_of_the_model_and_apply_their_values() -> None:
     spec = parse_model_spec(MODEL)
+    states = {"spring/position": (0.0, 0.1, -0.1, 0.1), "spring/velocity": (0.0, 2.0, -2.0, 2.0)}  # the scales
     found = {c.key: c for c in catalogue_candidates(load_catalogue(), spec, ("force",), ("position",), (), NOMINAL,
-                                                    0.01, channels={"force": (200.0, "N"), "position": (0.5, "m")})}
+                                                    0.01, channels={"force": (200.0, "N"), "position": (0.5, "m")},
+                                                    states=states)}
     assert set(found) == {"input_delay:force", "input_lag:force", "input_offset:force", "output_offset:position",
                           "input_saturation:force", "parameter_mismatch:stiffness",
                           "parameter_mismatch:damping",  # mass is not declared uncertain
@@ -164,6 +166,8 @@ def test_candidates_are_edits_of_the_model_and_apply_their_values() -> None:
     limit = found["input_saturation:force"]  # starts at 1.5 x the peak (the catalogue's expression of peak)
     assert limit.spec.block("diagnosed_limit_force").parameters == {"limit": 1.5 * 200.0}
     assert limit.units == {"diagnosed_limit_force/limit": "N"}
+    # the hardening starts where the spring is 1 % stiffer at one spread of the position (0.1 m)
+    assert found["stiffening_spring:spring"].spec.parameters["hardening"] == pytest.approx(1.0)
 
 
 def test_a_limit_is_linear_below_and_bounded_above() -> None:

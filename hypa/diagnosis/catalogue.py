@@ -361,7 +361,8 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
     earlier round; ``dt`` and ``peak`` win over a parameter of the same name. ``states``: per
     state of a physics block (``<block>/<state>``), its operating point and spread [SI] in the
     nominal model's scaling (``level`` and ``spread`` for ``for_each: state``; without them the
-    state entries are not expanded), and where given its 10th and 90th percentiles in the model's
+    state entries are not expanded, and an entry whose expressions read a block's states is an
+    error), and where given its 10th and 90th percentiles in the model's
     free runs over the training data (``low``, ``high``); a ``for_each: block`` entry reads the
     matched block's states' as ``<state>_level`` and ``<state>_spread`` (``position_spread``)."""
     channels, states = channels or {}, states or {}
