@@ -208,7 +208,8 @@ def test_a_cause_the_later_ones_made_unnecessary_is_dropped(tmp_path: Path, user
     from hypa.diagnosis.catalogue import catalogue_candidates, load_catalogue
     from hypa.diagnosis.edits import applied, frozen
     from hypa.diagnosis.finding import Finding
-    from hypa.diagnosis.search import _prune, state_scales
+    from hypa.diagnosis.search import _prune
+    from hypa.diagnosis.states import state_scales
 
     _files(tmp_path, {"train": circuit_truth(0, 2.5e-4, 0.1), "val": circuit_truth(1, 2.5e-4, 0.05)})
     dm = _datamodule(tmp_path, 2.5e-5, {"source": {"role": "input", "unit": "V"},

@@ -28,10 +28,9 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Callable, Collection, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -46,13 +45,8 @@ from hypa.diagnosis.generic import GenericFit
 from hypa.diagnosis.problem import Problem
 from hypa.diagnosis.race import append_result
 from hypa.diagnosis.scales import duration
-from hypa.models import ComposedModel
-from hypa.models.rollout import model_inputs
+from hypa.diagnosis.states import state_scales
 from hypa.models.spec import ModelSpec
-from hypa.physics import LTIBlock
-
-if TYPE_CHECKING:
-    from hypa.data import HypaDataModule
 
 OFFSET_Z = 5.0  # an offset below min_gain is still named this many standard errors away from zero ...
 OFFSET_GAIN = 0.005  # ... when it lowers the validation error by at least this share (a small sensor bias)
@@ -207,41 +201,6 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
     return Search(nominal_score, rounds, named, averaged(bases), pool(folds, scores), time.perf_counter() - started,
                   dropped, too_short, generic, standin, folds=len(folds),
                   blocks=len(problem.blocks()) if len(folds) > 1 else 0)
-
-
-def state_scales(model: ComposedModel, dm: HypaDataModule | None = None,
-                 blocks: Collection[str] | None = None) -> dict[str, tuple[float, float, float, float]]:
-    """Each physics block's states (``<block>/<state>``) -> (operating point, spread) [SI]: the
-    scaling the model gave them (a measured state's from the data, another's from the physics);
-    then (``low``, ``high``) [SI]: with ``dm``, for the states of ``blocks`` (all: None), their 10th
-    and 90th percentiles in the model's free runs over the training records (where a state that
-    no sensor reads actually goes, which its scaling's spread may miss by a factor), else the
-    operating point ∓ the spread."""
-    out: dict[str, tuple[float, float, float, float]] = {}
-    for name, block in model.blocks.items():
-        if isinstance(block, LTIBlock):
-            for state, mean, std in zip(block.model.state_names, block.state_mean.tolist(), block.state_std.tolist()):
-                out[f"{name}/{state}"] = (float(mean), float(std), float(mean - std), float(mean + std))
-    started = [n for n in model.started_blocks() if blocks is None or n in blocks]
-    if dm is None or not started:
-        return out
-    runs: dict[str, list[np.ndarray]] = {n: [] for n in started}
-    with torch.no_grad():
-        for record in dm.records("train"):
-            states: dict[str, torch.Tensor] = {}
-            model.signals(*model_inputs(dm, record), states=states)
-            for name in started:
-                block = model.blocks[name]
-                physical = states[name][0].double() * block.state_std + block.state_mean
-                runs[name].append(physical.numpy())
-    for name, parts in runs.items():
-        values = np.concatenate(parts)
-        for j, state in enumerate(model.blocks[name].model.state_names):
-            finite = values[:, j][np.isfinite(values[:, j])]
-            low, high = np.percentile(finite, [10, 90]) if finite.size else (0.0, 0.0)
-            if high > low:  # else (a state the free runs never move) the scaling's
-                out[f"{name}/{state}"] = (*out[f"{name}/{state}"][:2], float(low), float(high))
-    return out
 
 
 def _not_fitted(rounds: Sequence[Sequence[Finding]]) -> list[str]:
