@@ -283,13 +283,45 @@ def test_a_jointly_trained_hybrid_starts_its_networks_on_identified_physics(data
     record = json.loads((run / "run.json").read_text())
     for name, value in TRUE.items():
         assert record["identification"]["parameters"][name]["value"] == pytest.approx(value, rel=0.02)
-    assert record["best_checkpoint"]["path"].startswith("checkpoints/best-epoch")
     from hypa.training.checkpoints import load_module
 
     sys.path.insert(0, str(USER_EXAMPLE))  # the system class, for loading the checkpoint here
-    trained = load_module(run / record["best_checkpoint"]["path"]).model.parameters_.as_floats()
+    trained = load_module(run / record["last_checkpoint"]).model.parameters_.as_floats()  # after the epoch
     for name, value in TRUE.items():  # the epochs started from the identified values (and barely moved them)
         assert trained[name] == pytest.approx(value, rel=0.02)
+
+
+def test_a_hybrid_whose_network_only_adds_error_keeps_its_identified_physics(data: Path, tmp_path: Path) -> None:
+    """The model before the networks' first epoch (the identified physics, the correction's output zero) is
+    the best checkpoint until an epoch beats it on validation: here the data are the physics' own and a
+    far too large learning rate makes every epoch of the correction worse, so the run keeps the physics."""
+    env = make_dc_motor_data(tmp_path / "unused", 1)
+    (tmp_path / "conf" / "model").mkdir(parents=True)
+    (tmp_path / "conf" / "model" / "dc_motor_hybrid.yaml").write_text(DC_MOTOR_HYBRID)
+    run = tmp_path / "run"
+    command = [sys.executable, "-m", "hypa.train", "--config-dir", str(USER_EXAMPLE / "conf"), "dataset=dc_motor",
+               f"hydra.searchpath=[file://{tmp_path / 'conf'}]", "model=dc_motor_hybrid", "ann=lstm",
+               "ann.hidden_size=4", f"data.dir={data}", "trainer.max_epochs=2", "trainer.limit_train_batches=3",
+               "trainer.enable_progress_bar=false", "figures.enabled=false", "optimizer.lr=0.5",
+               "optimizer.physics_lr=1e-9", f"hydra.run.dir={run}"]
+    result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, env=env, check=False)
+    assert result.returncode == 0, result.stderr[-3000:]
+    record = json.loads((run / "run.json").read_text())
+    assert record["best_checkpoint"]["path"] == "checkpoints/best-start.ckpt"
+    assert "no epoch beat the model it started from" in result.stdout
+    start = float(next(line for line in (result.stdout + result.stderr).splitlines()
+                       if "before the networks' first epoch" in line)
+                  .rsplit(" ", 1)[1])
+    assert record["best_val_loss"] == pytest.approx(start, rel=1e-4)
+    assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["best-start.ckpt", "last.ckpt"]
+    from hypa.training.checkpoints import load_module
+
+    sys.path.insert(0, str(USER_EXAMPLE))
+    kept = load_module(run / record["best_checkpoint"]["path"]).model
+    head = kept.blocks["correction"].head
+    assert not head.weight.detach().any() and not head.bias.detach().any()  # the correction's start: output zero
+    for name, value in TRUE.items():
+        assert kept.parameters_.as_floats()[name] == pytest.approx(value, rel=0.02)
 
 
 @pytest.mark.parametrize("override, message", [

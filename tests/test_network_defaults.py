@@ -1,7 +1,7 @@
 """The end-to-end network's defaults follow from its training data (hypa.training.baseline): an LSTM
 with about as many weights as training values, weight decay 1 / training values, an epoch budget of 5 / lr optimizer
-steps and a patience of 2 / lr steps; a value set explicitly is kept, a model with physics keeps the
-fixed defaults."""
+steps and a patience of 2 / lr steps; a value set explicitly is kept; a model with physics keeps the
+paper's settings, with no fewer epochs and no shorter patience than the same optimizer steps."""
 
 from __future__ import annotations
 
@@ -67,14 +67,14 @@ def data(tmp_path_factory) -> Path:
     return make_data_dir(tmp_path_factory.mktemp("defaults") / "data", duration_s=12.0)  # 384 samples at 32 Hz
 
 
-def defaults(data: Path, *overrides: str) -> tuple[dict, float, int, int, object]:
+def defaults(data: Path, *overrides: str, lr: float = LR) -> tuple[dict, float, int, int, object]:
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         cfg = compose(config_name="train", overrides=["dataset=files", f"data.dir={data}", *overrides])
     dm = datamodule_from_config(cfg.data, data)
     dm.setup()
     ann = OmegaConf.to_container(cfg.ann, resolve=True)
     name = ann.pop("name")
-    return (*network_defaults(OmegaConf.to_container(cfg.model, resolve=True), name, ann, dm, LR,
+    return (*network_defaults(OmegaConf.to_container(cfg.model, resolve=True), name, ann, dm, lr,
                               cfg.optimizer.weight_decay, cfg.trainer.max_epochs, cfg.early_stopping.patience,
                               cfg.trainer.limit_train_batches), dm)
 
@@ -98,8 +98,20 @@ def test_a_value_set_explicitly_is_kept(data: Path) -> None:
     assert (ann["hidden_size"], weight_decay, epochs, patience) == (128, 0.0, 3, 2)
 
 
-def test_a_model_with_physics_keeps_the_fixed_defaults(data: Path) -> None:
-    ann, weight_decay, epochs, patience, _ = defaults(data, "model=v1", "ann=lstm")
+def test_a_model_with_physics_keeps_the_papers_settings_but_not_fewer_optimizer_steps(data: Path) -> None:
+    # where 50 epochs hold 5 / lr optimizer steps (here a large lr), the paper's settings
+    ann, weight_decay, epochs, patience, dm = defaults(data, "model=v1", "ann=lstm", lr=1.0)
     assert ann["hidden_size"] == 64
     assert (weight_decay, epochs, patience) == tuple(FIXED_DEFAULTS[k] for k in ("weight_decay", "max_epochs",
                                                                                   "patience"))
+    # a short record (a few batches per epoch): the correction gets the end-to-end network's steps,
+    # not its width or weight decay
+    batches = math.ceil(len(dm.dataset("train")) / dm.batch_size)
+    assert batches < 5 / (LR * FIXED_DEFAULTS["max_epochs"])  # the case: 50 epochs are too few steps
+    ann, weight_decay, epochs, patience, _ = defaults(data, "model=v1", "ann=lstm")
+    assert (ann["hidden_size"], weight_decay) == (64, 0.0)
+    assert (epochs, patience) == (math.ceil(5 / (LR * batches)), math.ceil(2 / (LR * batches)))
+    # a value set is kept, and a model without networks has nothing to derive
+    assert defaults(data, "model=v1", "trainer.max_epochs=7", "early_stopping.patience=2")[2:4] == (7, 2)
+    assert defaults(data, "model=physical")[1:4] == tuple(FIXED_DEFAULTS[k] for k in ("weight_decay", "max_epochs",
+                                                                                       "patience"))

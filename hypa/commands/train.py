@@ -20,6 +20,7 @@ import math
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -208,8 +209,15 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             result = fit_by_identification(trainer, module, dm, folder, identification, logger, identified)
             ended = "identification"
         else:
+            kept_start = how in ("stage", "first") and ckpt_path is None and not distributed
+            if kept_start:
+                start = checkpoint.keep_the_start(trainer, module, dm)  # the networks must beat the physics
+                log.info("before the networks' first epoch (the identified physics): val/loss %.5g", start)
             try:
-                trainer.fit(module, datamodule=dm, ckpt_path=ckpt_path, weights_only=True)
+                with warnings.catch_warnings():
+                    if kept_start:  # Lightning's warning of a folder it did not write: best-start.ckpt is this run's
+                        warnings.filterwarnings("ignore", message="Checkpoint directory .* exists and is not empty")
+                    trainer.fit(module, datamodule=dm, ckpt_path=ckpt_path, weights_only=True)
             except DivergedError as error:
                 best = folder.record.get("best_checkpoint")
                 kept = (f"the best checkpoint before it (epoch {best['epoch']}, val/loss {best['val_loss']:.5g}) "
@@ -225,6 +233,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
                       "checkpoint": checkpoint.best_model_path, "last_checkpoint": checkpoint.last_model_path,
                       "epochs": trainer.current_epoch}
             ended = f"{result['epochs']} epochs"
+            if Path(checkpoint.best_model_path).name == "best-start.ckpt":
+                ended += "; no epoch beat the model it started from (the identified physics), which the run keeps"
         result.update(tensorboard=str(out / "tensorboard"), training_time_s=time.perf_counter() - started)
         folder.update_record(training_time_s=result["training_time_s"], best_val_loss=result["best_val_loss"])
         logger.log_hyperparams(flat_hparams(OmegaConf.to_container(cfg, resolve=True)),

@@ -5,6 +5,8 @@
 - :class:`RecordedCheckpoint` is Lightning's ``ModelCheckpoint`` that records the best checkpoint
   (path, validation loss, epoch, SHA-256) in the run folder's ``run.json`` each time it changes:
   ``hypa.evaluate`` and every other reader take that record, never "the last ``best-*`` by name".
+  A hybrid's training starts with its identified physics as the best so far
+  (:meth:`RecordedCheckpoint.keep_the_start`): an epoch must beat it on validation to replace it.
 - :func:`load_module` reads a checkpoint with ``torch.load(weights_only=True)``: a hypa checkpoint
   holds only tensors, numbers, strings and containers, so a crafted file cannot run code.
 """
@@ -14,6 +16,7 @@ from __future__ import annotations
 import inspect
 import io
 import logging
+import math
 import pickle
 import re
 from pathlib import Path
@@ -73,6 +76,27 @@ class RecordedCheckpoint(ModelCheckpoint):
                                                    "epoch": trainer.current_epoch, "sha256": sha256(path)},
                                   last_checkpoint=self.folder.relative(self.folder.checkpoints / "last.ckpt"))
         self._recorded = self.best_model_path
+
+    def keep_the_start(self, trainer: L.Trainer, module: L.LightningModule, datamodule: L.LightningDataModule) -> float:
+        """Validate ``module`` before its first epoch, save it (``best-start.ckpt``) and make it the best
+        checkpoint so far, so that the run's best is never worse on validation than where training
+        started: a hybrid whose correction only overfits keeps its identified physics (the correction's
+        output still zero). An epoch that beats it replaces it, as any better epoch does. Returns its
+        validation loss."""
+        loop = trainer.validate_loop  # no_grad, not inference mode: what it caches (the physics' matrices, the
+        inference, loop.inference_mode = loop.inference_mode, False  # metrics' states) must serve training next
+        try:
+            val_loss = float(trainer.validate(module, datamodule=datamodule, verbose=False)[0][self.monitor])
+        finally:
+            loop.inference_mode = inference
+        path = Path(self.dirpath) / "best-start.ckpt"
+        trainer.save_checkpoint(path, False)  # the full checkpoint, as ModelCheckpoint writes it
+        score = torch.tensor(val_loss if math.isfinite(val_loss) else math.inf)
+        self.best_k_models = {str(path): score}
+        self.best_model_path = self.kth_best_model_path = str(path)
+        self.best_model_score = self.kth_value = score
+        self._record(trainer)
+        return val_loss
 
 
 def load_checkpoint(checkpoint: Path) -> tuple[dict[str, Any], bytes]:

@@ -18,6 +18,7 @@ from typing import Any
 import lightning as L
 import torch
 from lightning.pytorch.callbacks import Callback, EarlyStopping
+from lightning.pytorch.trainer.states import TrainerFn
 
 from hypa.models import StageSpec
 
@@ -50,7 +51,8 @@ class StagedTraining(Callback):
         module.log("stage", float(self.stage), on_step=False, on_epoch=True, sync_dist=True)
 
     def on_validation_end(self, trainer: L.Trainer, module: L.LightningModule) -> None:
-        if trainer.sanity_checking or self.monitor not in trainer.callback_metrics:
+        if (trainer.sanity_checking or trainer.state.fn != TrainerFn.FITTING
+                or self.monitor not in trainer.callback_metrics):  # trainer.validate before fit: no epoch spent
             return
         value = float(trainer.callback_metrics[self.monitor])
         if value < self._best:
