@@ -3,7 +3,7 @@
 - two integrators, the first limited and spilling all of what would raise it further into the
   second: the sum of the states is the integral of the input, exactly (the limit only moves
   water between them), and the first stays at its limit;
-- a spill share of 0 loses what spills: the second state stays at 0;
+- a tiny spill share loses what spills (the second state stays at 0), and a share is positive;
 - against scipy's ODE solver on the same equations (a limit time of ten samples), and a state well
   inside its limit is the system as it was;
 - a lower limit, the spec's checks (a side that is not upper or lower, a state the system lacks)
@@ -68,10 +68,12 @@ def test_a_full_spill_moves_what_would_pass_the_limit_into_the_other_state_exact
     assert x[-1, 1] == pytest.approx(integral[-1] - 1.0 - over, abs=1e-3)
 
 
-def test_a_spill_share_of_zero_is_lost_and_a_state_inside_its_limit_is_the_system_as_it_was() -> None:
+def test_a_tiny_spill_share_is_lost_and_a_state_inside_its_limit_is_the_system_as_it_was() -> None:
     u = np.full(200, 0.2)
-    lost = _run(_block(share=0.0), u)
-    assert np.abs(lost[:, 1]).max() < 1e-12 and lost[-1, 0] == pytest.approx(1.0 + 0.2 * DT, abs=1e-3)
+    lost = _run(_block(share=1e-12), u)
+    assert np.abs(lost[:, 1]).max() < 1e-12 * DT * u.sum() and lost[-1, 0] == pytest.approx(1.0 + 0.2 * DT, abs=1e-3)
+    with pytest.raises(ValueError, match=r"spill_top_to_bottom.* must be positive, got 0"):  # adds, never drains
+        _block(share=0.0)
     inside = _run(_block(limit=1e3), u)
     np.testing.assert_allclose(inside[:, 0], DT * np.cumsum(u), rtol=1e-12)
 

@@ -7,16 +7,18 @@ would carry the state x_j past its limit L_j leaves it at a rate of the excess o
     e = s softplus((x_j - L_j) / s)   (upper),      e = -s softplus((L_j - x_j) / s)   (lower),
 
 so that the state settles at its limit within about τ_j (a sample time: what flows in beyond it
-spills) and a share v_r of the spill reaches the state r (an upper tank overflowing into the
-lower one: v = 1 where the tanks have the same cross-section, 0 where it is lost). The width s
+spills) and a share v_r > 0 of the spill reaches the state r (an upper tank overflowing into the
+lower one: v = 1 where the tanks have the same cross-section, near 0 where it is lost). The width s
 rounds the corner so that a fit sees the limit from both sides; well inside the limit e is
 about 0 and the system is its old self.
 
 The new parameters are the block's own (``<block>/...``): ``<state>_limit`` L_j in the state's
 unit (fitted), ``<state>_limit_time`` τ_j [s] and ``<state>_limit_width`` s (fixed: how fast and
 how sharply the state stops, set from the sample time and the state's spread by whoever adds the
-limit), and one ``spill_<state>_to_<row>`` v_r per other state (fitted; 0 is a spill that is
-lost). The generic catalogue's ``upper_state_limit`` and ``lower_state_limit`` entries
+limit), and one ``spill_<state>_to_<row>`` v_r per other state (fitted; positive, stored in log
+scale like every positive parameter, 0.5 unless given: what spills adds to the other state, never
+drains it; a share free to change sign went negative where an overflow is rarely reached, and the
+fit missed the limit). The generic catalogue's ``upper_state_limit`` and ``lower_state_limit`` entries
 (``hypa/diagnosis/catalogue.yaml``) fit them for any system the catalogue knows nothing
 specific about. The wrapped system is nonlinear and simulated like any other (Lur'e form,
 ``hypa.physics.simulation``): the feedback F's column for x_j is (v - e_j) / τ_j with v_j = 0.
@@ -63,7 +65,7 @@ class Limited(StateFeedback):
             self._columns.append((states.index(state), 1.0 if side == "upper" else -1.0, *names, spills))
             own += [ParameterSpec(names[0], 0.0, "", positive=False), ParameterSpec(names[1], 1.0, "s"),
                     ParameterSpec(names[2], 1.0, "")]
-            own += [ParameterSpec(w, 0.0, "-", positive=False) for w in spills.values()]
+            own += [ParameterSpec(w, 0.5, "-") for w in spills.values()]  # positive: a spill adds to the other state
         self.add(own)
 
     def own_feedback(self, p: Mapping[str, Tensor]) -> Tensor:
