@@ -263,29 +263,32 @@ def test_hypa_train_identifies_a_physics_only_model(data: Path, tmp_path: Path) 
     assert "## Identification" in (tmp_path / "eval" / "summary.md").read_text()  # the run's report says how
 
 
-
-
-def test_a_jointly_trained_hybrid_starts_its_networks_on_identified_physics(data: Path, tmp_path: Path) -> None:
-    """A hybrid without a physics-only stage: its physics is identified with the network bypassed,
-    then the configured training (physics and network together, by epochs) starts from there."""
+def train_hybrid(data: Path, tmp_path: Path, *overrides: str) -> tuple[subprocess.CompletedProcess, Path, dict]:
+    """``python -m hypa.train`` on the DC motor's hybrid (a tiny LSTM correction); the result, the run
+    folder and its run.json."""
     env = make_dc_motor_data(tmp_path / "unused", 1)
     (tmp_path / "conf" / "model").mkdir(parents=True)
     (tmp_path / "conf" / "model" / "dc_motor_hybrid.yaml").write_text(DC_MOTOR_HYBRID)
     run = tmp_path / "run"
     command = [sys.executable, "-m", "hypa.train", "--config-dir", str(USER_EXAMPLE / "conf"), "dataset=dc_motor",
                f"hydra.searchpath=[file://{tmp_path / 'conf'}]", "model=dc_motor_hybrid", "ann=lstm",
-               "ann.hidden_size=4", f"data.dir={data}", "trainer.max_epochs=1", "trainer.limit_train_batches=2",
-               "trainer.enable_progress_bar=false", "figures.enabled=false", "optimizer.physics_lr=1e-9",
-               f"hydra.run.dir={run}"]
+               "ann.hidden_size=4", f"data.dir={data}", "trainer.enable_progress_bar=false", "figures.enabled=false",
+               "optimizer.physics_lr=1e-9", *overrides, f"hydra.run.dir={run}"]
     result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, env=env, check=False)
     assert result.returncode == 0, result.stderr[-3000:]
+    sys.path.insert(0, str(USER_EXAMPLE))  # the system class, for loading its checkpoints here
+    return result, run, json.loads((run / "run.json").read_text())
+
+
+def test_a_jointly_trained_hybrid_starts_its_networks_on_identified_physics(data: Path, tmp_path: Path) -> None:
+    """A hybrid without a physics-only stage: its physics is identified with the network bypassed,
+    then the configured training (physics and network together, by epochs) starts from there."""
+    result, run, record = train_hybrid(data, tmp_path, "trainer.max_epochs=1", "trainer.limit_train_batches=2")
     assert "identified 3 parameter(s)" in result.stdout and "after 1 epochs" in result.stdout
-    record = json.loads((run / "run.json").read_text())
     for name, value in TRUE.items():
         assert record["identification"]["parameters"][name]["value"] == pytest.approx(value, rel=0.02)
     from hypa.training.checkpoints import load_module
 
-    sys.path.insert(0, str(USER_EXAMPLE))  # the system class, for loading the checkpoint here
     trained = load_module(run / record["last_checkpoint"]).model.parameters_.as_floats()  # after the epoch
     for name, value in TRUE.items():  # the epochs started from the identified values (and barely moved them)
         assert trained[name] == pytest.approx(value, rel=0.02)
@@ -295,18 +298,8 @@ def test_a_hybrid_whose_network_only_adds_error_keeps_its_identified_physics(dat
     """The model before the networks' first epoch (the identified physics, the correction's output zero) is
     the best checkpoint until an epoch beats it on validation: here the data are the physics' own and a
     far too large learning rate makes every epoch of the correction worse, so the run keeps the physics."""
-    env = make_dc_motor_data(tmp_path / "unused", 1)
-    (tmp_path / "conf" / "model").mkdir(parents=True)
-    (tmp_path / "conf" / "model" / "dc_motor_hybrid.yaml").write_text(DC_MOTOR_HYBRID)
-    run = tmp_path / "run"
-    command = [sys.executable, "-m", "hypa.train", "--config-dir", str(USER_EXAMPLE / "conf"), "dataset=dc_motor",
-               f"hydra.searchpath=[file://{tmp_path / 'conf'}]", "model=dc_motor_hybrid", "ann=lstm",
-               "ann.hidden_size=4", f"data.dir={data}", "trainer.max_epochs=2", "trainer.limit_train_batches=3",
-               "trainer.enable_progress_bar=false", "figures.enabled=false", "optimizer.lr=0.5",
-               "optimizer.physics_lr=1e-9", f"hydra.run.dir={run}"]
-    result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, env=env, check=False)
-    assert result.returncode == 0, result.stderr[-3000:]
-    record = json.loads((run / "run.json").read_text())
+    result, run, record = train_hybrid(data, tmp_path, "trainer.max_epochs=2", "trainer.limit_train_batches=3",
+                                       "optimizer.lr=0.5")
     assert record["best_checkpoint"]["path"] == "checkpoints/best-start.ckpt"
     assert "no epoch beat the model it started from" in result.stdout
     start = float(next(line for line in (result.stdout + result.stderr).splitlines()
@@ -316,7 +309,6 @@ def test_a_hybrid_whose_network_only_adds_error_keeps_its_identified_physics(dat
     assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["best-start.ckpt", "last.ckpt"]
     from hypa.training.checkpoints import load_module
 
-    sys.path.insert(0, str(USER_EXAMPLE))
     kept = load_module(run / record["best_checkpoint"]["path"]).model
     head = kept.blocks["correction"].head
     assert not head.weight.detach().any() and not head.bias.detach().any()  # the correction's start: output zero
