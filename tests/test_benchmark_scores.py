@@ -77,3 +77,18 @@ def test_a_file_written_before_the_typed_result_reads_back(tmp_path: Path) -> No
     row = result.rows[("physical", "test", "position")]
     assert row.seeds == {0: (0.004, 0.99), 1: (0.006, 0.98)} and result.units == UNITS
     assert "| test | position | 5 ± 1.4 mm | 0.9850 ± 0.0070 | 5.53 mm |" in result.markdown()
+
+
+def test_a_hybrid_that_kept_its_identified_physics_is_said_under_the_table(tmp_path: Path) -> None:
+    """hypa.benchmark passes the seeds whose run kept the model before its networks' first epoch."""
+    result = benchmark("emps", scores(), {"physical": 80.0, "hybrid": 300.0}, PUBLISHED, UNITS,
+                       kept_physics={"hybrid": [1, 0], "physical": []})
+    table = result.markdown()
+    assert "hybrid: no epoch of its networks beat its identified physics on validation (seed 0, 1)" in table
+    assert "physical: no epoch" not in table
+    path = tmp_path / "benchmark.json"
+    result.to_json(path)
+    models = json.loads(path.read_text())["emps"]["models"]
+    assert models["hybrid"]["kept_physics_seeds"] == [0, 1] and models["physical"]["kept_physics_seeds"] == []
+    assert Benchmark.from_json(path, "emps") == result
+    assert "no epoch" not in benchmark("emps", scores(), {}, PUBLISHED, UNITS).markdown()

@@ -54,6 +54,7 @@ def main(cfg: DictConfig) -> None:
     from hypa.data import datamodule_from_config
     from hypa.evaluation.benchmark import benchmark, score_run
     from hypa.evaluation.runs import load_run
+    from hypa.training.checkpoints import START_CHECKPOINT
 
     config = typed(cfg, BenchmarkConfig)  # every value checked (hypa.commands.config)
     dataset = HydraConfig.get().runtime.choices["dataset"]
@@ -99,7 +100,7 @@ def main(cfg: DictConfig) -> None:
                             + (f", or diagnose: M in the {dataset} suite of conf/benchmark.yaml" if suite else ""))
         conf = diagnose_suite(dataset, str(nominal), asked, out / "diagnosis", config_dirs)
         searchpath = [f"hydra.searchpath=[file://{conf}]"]
-    scores, times = [], {}
+    scores, times, kept = [], {}, {}
     jobs = [(label, seed) for label in labels for seed in seeds]
     for i, (label, seed) in enumerate(jobs, 1):
         print(f"[{i}/{len(jobs)}] {dataset}: {label}" + (f", seed {seed}" if len(seeds) > 1 else ""), flush=True)
@@ -114,13 +115,15 @@ def main(cfg: DictConfig) -> None:
         if trained_on != expected:
             raise UserError(f"{label} trained on {trained_on}, not on the data asked for ({expected}); "
                             f"its run: {folder}")
+        if run.checkpoint.name == START_CHECKPOINT:  # hypa.train kept the identified physics: said under the table
+            kept.setdefault(label, []).append(seed)
         dm = run_datamodule(run)
         scores += score_run(run, dm, label, seed)
         seconds = float(run.info.get("training_time_s", float("nan")))
         times[label] = times.get(label, 0.0) + seconds / len(seeds)
     units = {n: (dm.channels[n].display_unit, dm.channels[n].display_factor) for n in dm.output_names}
     published = suite.published if suite is not None else {}
-    result = benchmark(dataset, scores, times, published, units)
+    result = benchmark(dataset, scores, times, published, units, kept)
     table = result.markdown()
     (out / "benchmark.md").write_text(table + "\n")
     result.to_json(out / "benchmark.json")

@@ -71,7 +71,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     from hypa.models.schema import plain_model
     from hypa.training import HybridModule, StagedTraining, ValidationFigures
     from hypa.training.baseline import network_defaults
-    from hypa.training.checkpoints import AtomicCheckpointIO, RecordedCheckpoint, load_module
+    from hypa.training.checkpoints import START_CHECKPOINT, AtomicCheckpointIO, RecordedCheckpoint, load_module
     from hypa.training.distributed import (
         SameModelOnEveryRank,
         join_rank_zero_log,
@@ -233,7 +233,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
                       "checkpoint": checkpoint.best_model_path, "last_checkpoint": checkpoint.last_model_path,
                       "epochs": trainer.current_epoch}
             ended = f"{result['epochs']} epochs"
-            if Path(checkpoint.best_model_path).name == "best-start.ckpt":
+            if Path(checkpoint.best_model_path).name == START_CHECKPOINT:
                 ended += "; no epoch beat the model it started from (the identified physics), which the run keeps"
         result.update(tensorboard=str(out / "tensorboard"), training_time_s=time.perf_counter() - started)
         folder.update_record(training_time_s=result["training_time_s"], best_val_loss=result["best_val_loss"])

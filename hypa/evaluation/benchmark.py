@@ -60,15 +60,19 @@ def score_run(run: TrainedRun, dm: HypaDataModule, label: str, seed: int = 0) ->
 
 
 def benchmark(dataset: str, scores: Sequence[Score], training_time_s: Mapping[str, float],
-              published: Mapping[str, Mapping], units: Mapping[str, tuple[str, float]]) -> Benchmark:
+              published: Mapping[str, Mapping], units: Mapping[str, tuple[str, float]],
+              kept_physics: Mapping[str, Sequence[int]] | None = None) -> Benchmark:
     """The data set's :class:`~hypa.evaluation.benchmark_result.Benchmark` (written by its
     ``to_json`` and ``markdown``): per model, test set and output the scores' mean ± std over seeds.
 
     ``units``: output -> (display unit, factor from SI); ``published``: test set -> output ->
-    {label: RMS in the output's display unit}; ``training_time_s``: model -> mean seconds per seed.
+    {label: RMS in the output's display unit}; ``training_time_s``: model -> mean seconds per seed;
+    ``kept_physics``: model -> the seeds whose hybrid run kept its identified physics (its best checkpoint
+    the model before its networks' first epoch).
     """
     rows = summarize(scores)
     models = dict.fromkeys(k[0] for k in rows)
     return Benchmark(dataset, rows, {m: training_time_s.get(m) for m in models},
                      {k: {o: dict(f) for o, f in v.items()} for k, v in published.items()},
-                     {k: (u, f) for k, (u, f) in units.items()})
+                     {k: (u, f) for k, (u, f) in units.items()},
+                     {m: sorted(s) for m, s in (kept_physics or {}).items() if s})

@@ -3,8 +3,8 @@
 What it holds is computed by :mod:`hypa.evaluation.benchmark` (free-run scores, mean ± std over
 seeds); this module only writes and reads it. ``benchmark.json`` (RMS in SI units)::
 
-    {dataset: {"models": {model: {"training_time_s", "test_sets": {set: {output: {"rms", "rms_std",
-     "r2", "r2_std", "samples", "seeds": {seed: {"rms", "r2"}}}}}}},
+    {dataset: {"models": {model: {"training_time_s", "kept_physics_seeds", "test_sets": {set: {output: {"rms",
+     "rms_std", "r2", "r2_std", "samples", "seeds": {seed: {"rms", "r2"}}}}}}},
      "published": {set: {output: {label: RMS in display units}}},
      "display_units": {output: {"unit", "factor"}}}}
 """
@@ -56,6 +56,8 @@ class Benchmark:
     training_time_s: dict[str, float | None] = field(default_factory=dict)  # model -> mean seconds per seed
     published: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)  # set -> output -> label -> RMS
     units: dict[str, tuple[str, float]] = field(default_factory=dict)  # output -> (display unit, factor from SI)
+    # model -> the seeds whose run kept its identified physics (no epoch of its networks beat it on validation)
+    kept_physics: dict[str, list[int]] = field(default_factory=dict)
 
     @property
     def models(self) -> list[str]:
@@ -65,7 +67,9 @@ class Benchmark:
         """This data set's entry of ``benchmark.json``."""
         models: dict[str, dict] = {}
         for (model, test_set, output), s in self.rows.items():
-            entry = models.setdefault(model, {"training_time_s": self.training_time_s.get(model), "test_sets": {}})
+            entry = models.setdefault(model, {"training_time_s": self.training_time_s.get(model),
+                                              "kept_physics_seeds": list(self.kept_physics.get(model, [])),
+                                              "test_sets": {}})
             entry["test_sets"].setdefault(test_set, {})[output] = s.to_dict()
         return {"models": models,
                 "published": {k: {o: dict(f) for o, f in v.items()} for k, v in self.published.items()},
@@ -78,7 +82,9 @@ class Benchmark:
                 for test_set, outputs in (entry.get("test_sets") or {}).items() for output, s in outputs.items()}
         return cls(dataset, rows, {m: e.get("training_time_s") for m, e in models.items()},
                    {k: {o: dict(f) for o, f in v.items()} for k, v in (data.get("published") or {}).items()},
-                   {k: (str(u["unit"]), float(u["factor"])) for k, u in (data.get("display_units") or {}).items()})
+                   {k: (str(u["unit"]), float(u["factor"])) for k, u in (data.get("display_units") or {}).items()},
+                   {m: [int(s) for s in e["kept_physics_seeds"]] for m, e in models.items()
+                    if e.get("kept_physics_seeds")})
 
     def to_json(self, path: Path) -> None:
         """Write this data set's entry into ``benchmark.json``, keeping the other data sets' entries."""
@@ -118,6 +124,11 @@ class Benchmark:
         times = {m: self.training_time_s.get(m) for m in models}
         lines += ["", "training time: " + ", ".join(f"{m} {math.nan if t is None else t:.0f} s"
                                                     for m, t in times.items())]
+        for m in models:
+            if self.kept_physics.get(m):
+                seeds = ", ".join(map(str, self.kept_physics[m]))
+                lines.append(f"{m}: no epoch of its networks beat its identified physics on validation (seed {seeds}), "
+                             "so its row is that physics")
         seeds = {m: sorted(next(s for k, s in self.rows.items() if k[0] == m).seeds) for m in models}
         if any(len(v) > 1 for v in seeds.values()):
             lines += ["mean ± standard deviation over seeds " + ", ".join(f"{m} {v}" for m, v in seeds.items())

@@ -35,6 +35,8 @@ from hypa.training.run_folder import RunFolder, write_atomic
 
 log = logging.getLogger(__name__)
 
+START_CHECKPOINT = "best-start.ckpt"  # a hybrid's model before its networks' first epoch (keep_the_start)
+
 
 class AtomicCheckpointIO(TorchCheckpointIO):
     """Lightning's checkpoint writer with the write made atomic (temporary name, then rename)."""
@@ -89,7 +91,7 @@ class RecordedCheckpoint(ModelCheckpoint):
             val_loss = float(trainer.validate(module, datamodule=datamodule, verbose=False)[0][self.monitor])
         finally:
             loop.inference_mode = inference
-        path = Path(self.dirpath) / "best-start.ckpt"
+        path = Path(self.dirpath) / START_CHECKPOINT
         trainer.save_checkpoint(path, False)  # the full checkpoint, as ModelCheckpoint writes it
         score = torch.tensor(val_loss if math.isfinite(val_loss) else math.inf)
         self.best_k_models = {str(path): score}
