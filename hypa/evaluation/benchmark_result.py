@@ -126,8 +126,8 @@ class Benchmark:
                                                     for m, t in times.items())]
         for m in models:
             if self.kept_physics.get(m):
-                seeds = ", ".join(map(str, self.kept_physics[m]))
-                lines.append(f"{m}: no epoch of its networks beat its identified physics on validation (seed {seeds}), "
+                kept = ", ".join(map(str, self.kept_physics[m]))
+                lines.append(f"{m}: no epoch of its networks beat its identified physics on validation (seed {kept}), "
                              "so its row is that physics")
         seeds = {m: sorted(next(s for k, s in self.rows.items() if k[0] == m).seeds) for m in models}
         if any(len(v) > 1 for v in seeds.values()):
