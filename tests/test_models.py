@@ -48,7 +48,7 @@ def normalized_window(length: int = 101, batch: int = 3, seed: int = 0):
     return swa, x0, u, torch.tensor((x0 - mean) / std, dtype=torch.float64), mean, std
 
 
-@pytest.mark.parametrize("hold", ["zoh", "foh"])
+@pytest.mark.parametrize("hold", ["zoh", "foh", "cubic"])
 @pytest.mark.parametrize("length", [101, 345])
 def test_physical_composition_equals_the_physics_chain(hold: str, length: int) -> None:
     """Normalized signals through gains and the single track, de-normalized, equal the SI physics."""

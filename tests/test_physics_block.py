@@ -53,7 +53,7 @@ def test_steady_state_yaw_gain_is_physical() -> None:
     assert yaw == pytest.approx(expected, rel=1e-6)
 
 
-@pytest.mark.parametrize("hold", ["zoh", "foh"])
+@pytest.mark.parametrize("hold", ["zoh", "foh", "cubic"])
 @pytest.mark.parametrize("length", [100, 37, 257])
 def test_normalized_simulation_denormalized_equals_physical(hold: str, length: int) -> None:
     """Eq. 5-8: simulating in the ANN's scale and scaling back is the physical simulation."""
@@ -61,10 +61,10 @@ def test_normalized_simulation_denormalized_equals_physical(hold: str, length: i
     block = LTIBlock(SingleTrack(), params, DT, horizon=100, hold=hold, scaling=vehicle_scaling())
     g = torch.Generator().manual_seed(0)
     x0 = torch.randn(3, 2, generator=g, dtype=torch.float64) * torch.tensor([0.1, 0.01], dtype=torch.float64)
-    u = torch.randn(3, length + block.n_taps - 1, 2, generator=g, dtype=torch.float64) * 0.02
+    u = torch.randn(3, length + block.extra_inputs, 2, generator=g, dtype=torch.float64) * 0.02
     physical = block.simulate_physical(x0, u)
-    d = block.discrete()
-    reference = simulate_recursive(d.phi, d.taps, torch.zeros(2, dtype=torch.float64), x0, u)
+    d = block.discrete()  # the step-by-step recursion over what the taps read (a cubic hold's ends extrapolated)
+    reference = simulate_recursive(d.phi, d.taps, torch.zeros(2, dtype=torch.float64), x0, block.tap_inputs(u, length))
     torch.testing.assert_close(physical, reference, rtol=1e-12, atol=1e-14)
     assert physical.shape == (3, length, 2)
 
@@ -195,7 +195,7 @@ def test_float32_block_matches_float64() -> None:
     assert ((out.double() - ref).norm() / ref.norm()).item() < 1e-5
 
 
-@pytest.mark.parametrize("hold", ["zoh", "foh"])
+@pytest.mark.parametrize("hold", ["zoh", "foh", "cubic"])
 def test_normalizing_before_the_hold_equals_eq_5_to_8(hold: str) -> None:
     """One exponential of the rescaled generator (``NormalizingMaps``) = discretize, then eq. 6-8."""
     g = torch.Generator().manual_seed(4)
@@ -204,7 +204,7 @@ def test_normalizing_before_the_hold_equals_eq_5_to_8(hold: str) -> None:
     scaling = Scaling(r(3), r(3).abs() + 0.1, r(2), r(2).abs() + 0.1, r(4), r(4).abs() + 0.1)
     e = r(3)
     expected = normalize(discretize(a, b, 0.05, hold, e), c, d, scaling)
-    maps = NormalizingMaps.build(scaling, 0.05, 1 if hold == "zoh" else 2, torch.float64)
+    maps = NormalizingMaps.build(scaling, 0.05, hold, torch.float64)
     rows, out = maps.state_rows(a, b, e), maps.output_rows(c, d)
     batched = maps.state_rows(torch.stack([a, a]), torch.stack([b, b]), torch.stack([e, e]))  # one matrix_exp
     torch.testing.assert_close(batched, torch.stack([rows, rows]), rtol=1e-13, atol=1e-14)
@@ -214,14 +214,14 @@ def test_normalizing_before_the_hold_equals_eq_5_to_8(hold: str) -> None:
         torch.testing.assert_close(ours, ref, rtol=1e-13, atol=1e-14)
 
 
-@pytest.mark.parametrize("hold", ["zoh", "foh"])
+@pytest.mark.parametrize("hold", ["zoh", "foh", "cubic"])
 def test_trainable_one_node_window_equals_cached_frozen_path(hold: str) -> None:
     """The trainable window (``simulate_from_rows``) and the frozen cached product agree, gradients too."""
     trained = LTIBlock(SingleTrack(), vehicle_parameters(VP, trainable=["cf"]), DT, horizon=20, hold=hold,
                        scaling=vehicle_scaling())
     frozen = LTIBlock(SingleTrack(), vehicle_parameters(VP), DT, horizon=20, hold=hold, scaling=vehicle_scaling())
     x0 = torch.randn(3, 2, dtype=torch.float64, requires_grad=True)
-    u = torch.randn(3, 20 + trained.n_taps - 1, 2, dtype=torch.float64, requires_grad=True)
+    u = torch.randn(3, 20 + trained.extra_inputs, 2, dtype=torch.float64, requires_grad=True)
     weights = torch.randn(3, 20, 2, dtype=torch.float64)
     ours, ref = trained(x0, u), frozen(x0, u)
     torch.testing.assert_close(ours, ref, rtol=1e-12, atol=1e-12)

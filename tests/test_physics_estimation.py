@@ -119,7 +119,7 @@ def test_only_samples_up_to_p_are_read(scheduled: bool) -> None:
                                estimate.detach(), rtol=0, atol=0)
 
 
-@pytest.mark.parametrize("hold", ["zoh", "foh"])
+@pytest.mark.parametrize("hold", ["zoh", "foh", "cubic"])
 def test_scheduled_estimate_recovers_the_side_slip_from_the_yaw_rate(hold: str) -> None:
     """A velocity-scheduled single track seen through its yaw rate only: the state at P, exactly."""
     block = LTIBlock(SingleTrack(), vehicle_parameters(VehicleParameters()), 1 / 32, horizon=10, hold=hold,

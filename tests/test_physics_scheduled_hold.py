@@ -154,7 +154,7 @@ def test_forced_terms_per_step_equal_the_sum() -> None:
     torch.testing.assert_close(ours, torch.einsum("bsij,bsj->bsi", v, window), rtol=1e-14, atol=1e-14)
 
 
-@pytest.mark.parametrize("hold", ["zoh", "foh"])
+@pytest.mark.parametrize("hold", ["zoh", "foh", "cubic"])
 def test_float32_per_sample_rows_are_float64_to_float32_precision(hold: str) -> None:
     """The race car trains in float32: its per-sample rows (degree-7 series) against float64's (degree 14)."""
     block = LTIBlock(SingleTrack(), vehicle_parameters(VP), DT, horizon=10, hold=hold, scaling=vehicle_scaling(),
@@ -162,4 +162,5 @@ def test_float32_per_sample_rows_are_float64_to_float32_precision(hold: str) -> 
     v = 5.0 + 30.0 * torch.rand(3, 40, 1, generator=torch.Generator().manual_seed(1), **F64)
     exact = block.normalized_rows(v)
     single = block.normalized_rows(v.float()).double()
-    assert float((single - exact).abs().max()) < 2e-6 * float(exact.abs().max())
+    tolerance = 5e-6 if hold == "cubic" else 2e-6  # the cubic's taps are differences of larger terms
+    assert float((single - exact).abs().max()) < tolerance * float(exact.abs().max())

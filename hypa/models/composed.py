@@ -302,7 +302,7 @@ class ComposedModel(nn.Module):
             observed = getattr(self, self._observed[b.name])  # (p_block,) bool
             y = y_past[:, start:, list(how.index)].to(u.dtype)  # (B, past-start+1, p_block)
             lead = past - start + 1
-            x0 = block.estimate_state(u[:, :lead], y, observed,
+            x0 = block.estimate_state(u[:, : lead + 1], y, observed,  # a cubic hold's x̂_P reads one more
                                       scheduling=None if rho is None else rho[:, :lead])
             if how.encoder:  # the network sees the same past; unmeasured outputs are zeros
                 past_seq = torch.cat([u[:, :lead], y * observed.to(y.dtype)], dim=-1)  # (B, lead, m + p)

@@ -57,7 +57,7 @@ class ModelConfig:
     blocks: dict[str, BlockConfig] = field(default_factory=dict)
     outputs: Any = None
     stages: list[StageConfig] = field(default_factory=list)
-    hold: str | None = None  # zoh | foh, overriding physics.hold of the run
+    hold: str | None = None  # zoh | foh | cubic, overriding physics.hold of the run
     parameters: Any = None  # shared physical parameters [SI], overriding the vehicle config
     sensor_offsets: Any = None  # measured - true [SI]
 

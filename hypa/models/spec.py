@@ -15,6 +15,7 @@ from typing import Any
 
 from hypa.errors import UserError
 from hypa.models.schema import BlockConfig, ModelConfig, StageConfig, keys, unknown_keys
+from hypa.physics.discretization import HOLDS
 from hypa.physics.statespace import LTIModel
 from hypa.physics.systems import PHYSICS_SYSTEMS, build_system, is_import_path
 
@@ -24,7 +25,6 @@ ELEMENT_PARAMETER = {"delay": "delay_s", "saturation": "limit"}
 STEADY = "steady"  # initial_state of a block that starts in equilibrium with its first input
 ESTIMATE = "estimate"  # initial_state estimated by least squares from the past samples
 ENCODER = "encoder"  # the least-squares estimate corrected by a network over the past samples
-HOLDS = ("zoh", "foh")
 DIAGNOSED = "diagnosed_"  # the prefix of the blocks and signals a diagnosis adds to a model (hypa.diagnosis)
 
 
@@ -130,7 +130,7 @@ class StageSpec:
 class ModelSpec:
     """A composition. Besides blocks, outputs and stages, a model may fix:
 
-    hold: the physics' hold (``zoh`` | ``foh``), overriding ``physics.hold`` of the run.
+    hold: the physics' hold (``zoh`` | ``foh`` | ``cubic``), overriding ``physics.hold`` of the run.
     parameters: values [SI] of shared physical parameters, overriding the ``vehicle`` config
         (e.g. a stiffness re-fitted by ``hypa.diagnose``).
     sensor_offsets: constant biases [SI] of measured signals (measured - true): subtracted from

@@ -1,7 +1,11 @@
 """Exact discretization of continuous LTI systems by the matrix exponential (differentiable).
 
-Both holds come from one matrix exponential of an augmented matrix, so gradients flow back
-through ``expm`` to the physical parameters.
+Every hold comes from one matrix exponential of an augmented matrix, so gradients flow back
+through ``expm`` to the physical parameters. A hold is how the input moves between samples,
+a polynomial through its taps (``HoldForm``): constant (``zoh``), a line to the next sample
+(``foh``), or a cubic through u_{k-1}..u_{k+2} (``cubic``, Catmull-Rom: a smooth, band-limited
+input such as a generator's output behind its reconstruction filter, what MATLAB calls a
+band-limited intersample behaviour).
 """
 
 from __future__ import annotations
@@ -15,15 +19,69 @@ from typing import Literal
 import torch
 from torch import Tensor
 
-Hold = Literal["zoh", "foh"]
-HOLDS: tuple[str, ...] = ("zoh", "foh")
+Hold = Literal["zoh", "foh", "cubic"]
+HOLDS: tuple[str, ...] = ("zoh", "foh", "cubic")
+
+
+@dataclass(frozen=True)
+class HoldForm:
+    """How a hold reads the input samples: the input over sample k, u(t_k + s dt) for 0 <= s <= 1,
+    is a polynomial through T taps u_{k-P}, ..., u_{k+T-1-P} (P = ``past``).
+
+    ``basis`` (T rows of T): its value and derivatives d^j u / ds^j at s = 0 from the taps, so
+    the derivatives move by the shift S (d q_j / ds = q_{j+1}, the last constant), and in the
+    taps' own basis by N = K⁻¹ S K (``dynamics``; N^T = 0): what the augmented exponential of
+    ``discretize`` integrates.
+    """
+
+    past: int
+    basis: tuple[tuple[float, ...], ...]
+
+    @property
+    def n_taps(self) -> int:
+        return len(self.basis)
+
+    @property
+    def lead(self) -> int:
+        """Taps after u_k: input samples a step reads beyond its own."""
+        return self.n_taps - 1 - self.past
+
+    def dynamics(self, m: int, dtype: torch.dtype = torch.float64, device: torch.device | None = None) -> Tensor:
+        """N ⊗ I_m (T m, T m): the taps' dynamics over a sample, for m inputs."""
+        return torch.kron(_tap_dynamics(self), torch.eye(m, dtype=torch.float64)).to(dtype=dtype, device=device)
+
+
+@functools.cache
+def _tap_dynamics(form: HoldForm) -> Tensor:
+    """N = K⁻¹ S K (T, T) of a hold, in float64 (exact small rationals: K's inverse is the taps from the
+    derivatives)."""
+    k = torch.tensor(form.basis, dtype=torch.float64)
+    shift = torch.diag(torch.ones(form.n_taps - 1, dtype=torch.float64), 1)
+    return torch.linalg.solve(k, shift @ k).contiguous()
+
+
+HOLD_FORMS: dict[str, HoldForm] = {
+    "zoh": HoldForm(0, ((1.0,),)),
+    "foh": HoldForm(0, ((1.0, 0.0), (-1.0, 1.0))),
+    # Catmull-Rom: through u_k and u_{k+1} with the slopes (u_{k+1} - u_{k-1}) / 2 and (u_{k+2} - u_k) / 2
+    "cubic": HoldForm(1, ((0.0, 1.0, 0.0, 0.0), (-0.5, 0.0, 0.5, 0.0), (2.0, -5.0, 4.0, -1.0),
+                          (-3.0, 9.0, -9.0, 3.0))),
+}
+
+
+def hold_form(hold: str) -> HoldForm:
+    """The ``HoldForm`` of a hold's name (a one-line error for an unknown one)."""
+    if hold not in HOLD_FORMS:
+        raise ValueError(f"unknown hold {hold!r}; choose one of {', '.join(HOLDS)}")
+    return HOLD_FORMS[hold]
 
 
 @dataclass(frozen=True)
 class DiscreteLTI:
-    """x_{k+1} = Φ x_k + Γ_0 u_k + Γ_1 u_{k+1} + γ  (Γ_1 = 0 for a zero-order hold).
+    """x_{k+1} = Φ x_k + Σ_t Γ_t u_{k+t-P} + γ  (P = ``past``).
 
-    ``taps[t]`` multiplies u_{k+t}; a zero-order hold has one tap, a first-order hold two.
+    ``taps[t]`` multiplies u_{k+t-P}: a zero-order hold has one tap (u_k), a first-order hold
+    two (u_k, u_{k+1}), a cubic hold four (u_{k-1}..u_{k+2}, P = 1).
     ``drift`` γ = ∫_0^dt e^{Aτ} dτ e is the constant drift e over one sample (None: e = 0).
     """
 
@@ -31,6 +89,10 @@ class DiscreteLTI:
     taps: tuple[Tensor, ...]  # each (n, m)
     hold: str
     drift: Tensor | None = None  # (n,)
+
+    @property
+    def past(self) -> int:
+        return hold_form(self.hold).past
 
     @property
     def input_gain(self) -> Tensor:
@@ -41,37 +103,38 @@ class DiscreteLTI:
 def discretize(a: Tensor, b: Tensor, dt: float, hold: Hold = "zoh", e: Tensor | None = None) -> DiscreteLTI:
     """Discretize dx/dt = A x + B u + e with sample time ``dt`` [s].
 
-    zoh: u is held constant over a sample;  expm([[A, B], [0, 0]] dt) = [[Φ, Γ], [0, I]].
+    With the taps v = (u_{k-P}, ..., u_{k+T-1-P}) held as states that move by N over the sample
+    (``HoldForm``) and u(s) = u_k + ... their polynomial, one exponential gives every tap's Γ:
 
-    foh: u is linear between samples (a smooth input sampled fast is much closer to this);
-    with F = A dt, G = B dt,  expm([[F, G, 0], [0, 0, I], [0, 0, 0]]) = [[Φ, E_1, E_2], ...]
-    where E_1 = ∫_0^dt e^{Aτ} dτ B and E_2 = (1/dt) ∫_0^dt e^{Aτ} (dt - τ) dτ B, so
-    x_{k+1} = Φ x_k + (E_1 - E_2) u_k + E_2 u_{k+1}.
+        expm([[A dt, B dt E_P], [0, N]]) = [[Φ, Γ_0, ..., Γ_{T-1}], [0, e^N]]
 
-    A drift e (n,) is an input held at 1, the same under either hold: it is discretized as one
-    more input column, whose taps sum to γ = ∫_0^dt e^{Aτ} dτ e. Both holds are the top rows of
+    (E_P puts B on the tap of u_k). zoh: N = 0, Γ_0 = ∫_0^dt e^{Aτ} dτ B. foh: N = [[-1, 1],
+    [-1, 1]] (the ramp from u_k to u_{k+1}), so Γ_0 = E_1 - E_2 and Γ_1 = E_2 with E_1 = ∫_0^dt
+    e^{Aτ} dτ B, E_2 = (1/dt) ∫_0^dt e^{Aτ} (dt - τ) dτ B. cubic: the Catmull-Rom cubic (a
+    smooth input: an error of order dt⁴ between samples where the first-order hold's is dt²).
+
+    A drift e (n,) is an input held at 1, the same under every hold: it is discretized as one
+    more input column, whose taps sum to γ = ∫_0^dt e^{Aτ} dτ e. Every hold is the top rows of
     those exponentials: ``hold_exponential``, the one place a hold is computed.
     """
     if e is not None:
         system = discretize(a, torch.cat([b, e[:, None]], dim=-1), dt, hold)
         taps = tuple(t[:, :-1] for t in system.taps)
         return DiscreteLTI(system.phi, taps, hold, drift=sum(t[:, -1] for t in system.taps))
-    if hold not in HOLDS:
-        raise ValueError(f"unknown hold {hold!r}; choose one of {', '.join(HOLDS)}")
+    form = hold_form(hold)
     if not dt > 0:
         raise ValueError(f"sample time must be positive, got {dt}")
     n, m = b.shape[-2], b.shape[-1]
     if a.shape[-2:] != (n, n):
         raise ValueError(f"A must be ({n}, {n}) to match B {tuple(b.shape)}, got {tuple(a.shape)}")
-    opts = {"dtype": a.dtype, "device": a.device}
-    if hold == "zoh":
-        top = hold_exponential(torch.cat([a, b], dim=-1) * dt, torch.zeros(m, n + m, **opts))
-        return DiscreteLTI(phi=top[:, :n], taps=(top[:, n:],), hold=hold)
-    bottom = torch.zeros(2 * m, n + 2 * m, **opts)  # the input's (value, slope) over a sample: value' = slope
-    bottom[:m, n + m :] = torch.eye(m, **opts)
-    top = hold_exponential(torch.cat([a * dt, b * dt, torch.zeros_like(b)], dim=-1), bottom)
-    e1, e2 = top[:, n : n + m], top[:, n + m :]
-    return DiscreteLTI(phi=top[:, :n], taps=(e1 - e2, e2), hold=hold)
+    width = form.n_taps * m
+    held = torch.zeros(n, width, dtype=a.dtype, device=a.device)
+    held[:, form.past * m : (form.past + 1) * m] = b * dt
+    bottom = torch.cat([torch.zeros(width, n, dtype=a.dtype, device=a.device),
+                        form.dynamics(m, a.dtype, a.device)], dim=1)
+    top = hold_exponential(torch.cat([a * dt, held], dim=-1), bottom)
+    return DiscreteLTI(phi=top[:, :n], taps=tuple(top[:, n + t * m : n + (t + 1) * m] for t in range(form.n_taps)),
+                       hold=hold)
 
 
 def hold_exponential(generator: Tensor, bottom: Tensor) -> Tensor:
@@ -79,9 +142,9 @@ def hold_exponential(generator: Tensor, bottom: Tensor) -> Tensor:
 
     generator [F, G] (n, k): F = A dt (n, n) and G (n, r), the system's and its held inputs'
     generator (rates times dt, dimensionless); bottom [0, N] (r, k): N the hold's input
-    dynamics, a constant with N² = 0 (a ramp's value moves with its slope, the slope is
-    constant; N = 0 when every input is held). Because N² = 0, M^j = [[F^j, F^{j-1} G +
-    F^{j-2} G N], [0, N^j]], so
+    dynamics, a nilpotent constant. For a zero- or first-order hold N² = 0 (a ramp's value
+    moves with its slope, the slope is constant; N = 0 when every input is held), so M^j =
+    [[F^j, F^{j-1} G + F^{j-2} G N], [0, N^j]] and
 
         Φ = e^F = φ_0(F),        Ψ = Σ_{j>=1} (F^{j-1} G + F^{j-2} G N) / j! = φ_1(F) G + φ_2(F) G N
 
@@ -95,7 +158,8 @@ def hold_exponential(generator: Tensor, bottom: Tensor) -> Tensor:
       result too): the φ-functions of F and the two products above (``_HoldExponential``).
       n x n products only, where every op runs over all K samples so flops do count: for 2
       states and 2 inputs under a first-order hold (k = 7) about 40x fewer than exponentiating
-      the stack of M, and the scaling reads ‖F‖ only.
+      the stack of M, and the scaling reads ‖F‖ only. A hold with N² ≠ 0 (``cubic``) takes the
+      stack of M itself (``_stacked``).
     """
     n, k = generator.shape[:2]
     if generator.dim() not in (2, 3) or k < n or bottom.shape != (k - n, k):
@@ -104,7 +168,15 @@ def hold_exponential(generator: Tensor, bottom: Tensor) -> Tensor:
     if generator.dim() == 2:
         return expm(torch.cat([generator, bottom]))[:n]
     ramp = bottom[:, n:]
+    if bool((ramp @ ramp).any()):
+        return _PhiFunctions.apply(_stacked(generator, bottom), 0)[0][:n]
     return _HoldExponential.apply(generator, ramp if bool(ramp.any()) else None)  # N = 0: no φ_2 to compute
+
+
+def _stacked(generator: Tensor, bottom: Tensor) -> Tensor:
+    """The stack of M (k, k, K) from its top rows (n, k, K) and its constant bottom rows (k - n, k)."""
+    rows = bottom.to(generator.dtype)[..., None].expand(*bottom.shape, generator.shape[-1])
+    return torch.cat([generator, rows]).contiguous()
 
 
 def hold_exponential_steps(generator: Tensor, bottom: Tensor, squarings: int) -> Tensor:
@@ -117,6 +189,8 @@ def hold_exponential_steps(generator: Tensor, bottom: Tensor, squarings: int) ->
     """
     n = generator.shape[0]
     ramp = bottom[:, n:]
+    if bool((ramp @ ramp).any()):
+        return _phi_forward(_stacked(generator, bottom), 0, squarings)[0][0][:n]
     return _hold_forward(generator, ramp if bool(ramp.any()) else None, squarings)[0]
 
 

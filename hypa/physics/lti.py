@@ -14,7 +14,7 @@ import torch
 from torch import Tensor, nn
 
 from hypa.errors import UserError
-from hypa.physics.discretization import HOLDS, DiscreteLTI, Hold, discretize
+from hypa.physics.discretization import HOLDS, DiscreteLTI, Hold, HoldForm, discretize, hold_form
 from hypa.physics.lifted import LiftedMatrices, lifted_from_rows
 from hypa.physics.normalized import NormalizedLTI, NormalizingMaps, Scaling
 from hypa.physics.parameters import PhysicalParameters
@@ -91,8 +91,13 @@ class LTIBlock(BlockSimulation, nn.Module):
 
     # -- the physics, step by step -------------------------------------------------------
     @property
+    def form(self) -> HoldForm:
+        """How the block's hold reads its input samples (its taps)."""
+        return hold_form(self.hold)
+
+    @property
     def n_taps(self) -> int:
-        return 1 if self.hold == "zoh" else 2
+        return self.form.n_taps
 
     @property
     def scaling(self) -> Scaling:
@@ -153,7 +158,7 @@ class LTIBlock(BlockSimulation, nn.Module):
         key = (dtype, device, *((id(t), t._version) for t in buffers))
         if self._maps is None or self._maps[0] != key:
             scaling = Scaling(*(t.to(device) for t in buffers))
-            self._maps = (key, NormalizingMaps.build(scaling, self.dt, self.n_taps, dtype))
+            self._maps = (key, NormalizingMaps.build(scaling, self.dt, self.hold, dtype))
         return self._maps[1]
 
     def check_stable(self, rtol: float = 1e-6) -> None:

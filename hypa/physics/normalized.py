@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import torch
 from torch import Tensor
 
-from hypa.physics.discretization import DiscreteLTI, discretize, hold_exponential, hold_exponential_steps
+from hypa.physics.discretization import DiscreteLTI, discretize, hold_exponential, hold_exponential_steps, hold_form
 
 if TYPE_CHECKING:
     from hypa.physics.lti import StateSpace
@@ -103,8 +103,9 @@ class NormalizingMaps:
     input ramp is written in the basis of its end points (û_k, û_{k+1}) by the similarity
     T = blockdiag(I, [[I, 0], [-I, I]], 1), which leaves the top rows e^M[:n] T =
     [Φ̂, E_1 - E_2, E_2, Ĥ] = [Â, B̂_0, B̂_1, Ĥ] and turns the ramp's dynamics [[0, I], [0, 0]]
-    into N = [[-I, I], [-I, I]] (still N² = 0). Only e^M's top rows are needed, and
-    ``hold_exponential`` computes them from M's top rows and N with n x n products.
+    into N = [[-I, I], [-I, I]] (still N² = 0). Every hold is this with its own taps' basis
+    and N (``HoldForm``: the B columns on the tap of û_k, N ⊗ I below). Only e^M's top rows are
+    needed, and ``hold_exponential`` computes them from M's top rows and N.
 
     ``state_rows`` and ``output_rows`` also take stacks of matrices (..., n, n) (one system per
     sample of a scheduled block): then the exponentials are one batched ``hold_exponential``.
@@ -119,20 +120,20 @@ class NormalizingMaps:
     output_rest: Tensor  # (p, n+m+1): [0, 0, -μy/σy]
 
     @staticmethod
-    def build(scaling: Scaling, dt: float, n_taps: int, dtype: torch.dtype) -> NormalizingMaps:
+    def build(scaling: Scaling, dt: float, hold: str, dtype: torch.dtype) -> NormalizingMaps:
         s = Scaling(*(t.to(dtype) for t in dataclasses.astuple(scaling)))
         n, m, p = s.state_mean.numel(), s.input_mean.numel(), s.output_mean.numel()
-        k = n + n_taps * m + 1
+        form = hold_form(hold)
+        k = n + form.n_taps * m + 1
         w = torch.zeros(n + m, n + m + 1, dtype=dtype, device=s.state_mean.device)
         w[:n, :n], w[n:, n : n + m] = torch.diag(s.state_std), torch.diag(s.input_std)
         w[:, -1] = torch.cat([s.state_mean, s.input_mean])
-        w_hold = torch.cat([w[:, :-1], w.new_zeros(n + m, k - n - m - 1), w[:, -1:]], dim=1)
+        before, after = w.new_zeros(n + m, form.past * m), w.new_zeros(n + m, form.lead * m)
+        w_hold = torch.cat([w[:, :n], before, w[:, n : n + m], after, w[:, -1:]], dim=1)  # B on the tap of û_k
         drift_row = w.new_zeros(1, k)
         drift_row[0, -1] = 1.0
         bottom = w.new_zeros(k - n, k)
-        if n_taps == 2:
-            eye = torch.eye(m, dtype=dtype, device=w.device)
-            bottom[: 2 * m, n : n + 2 * m] = torch.cat([torch.cat([-eye, eye], 1)] * 2)
+        bottom[: k - n - 1, n : k - 1] = form.dynamics(m, dtype, w.device)
         rest_out = torch.cat([w.new_zeros(p, n + m), (-s.output_mean / s.output_std)[:, None]], 1)
         right = torch.cat([w_hold, drift_row])
         state_map = (dt / s.state_std)[:, None, None] * right.T

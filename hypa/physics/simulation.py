@@ -1,16 +1,18 @@
 """Running an ``LTIBlock``: its outputs, states, steady and estimated states (the block's simulation half).
 
-Output convention, with k the window start, S predicted samples and T input taps (1 ZOH, 2 FOH):
-``forward(x̂_k, û)`` with û (B, S + extra_inputs, m) holding samples k, k+1, ... returns
-ŷ (B, S, p) at samples k+1..k+S,
+Output convention, with k the window start, S predicted samples and T input taps (1 ZOH, 2 FOH,
+4 cubic, P = 1 of them before the step's own sample): ``forward(x̂_k, û)`` with û (B, S +
+extra_inputs, m) holding samples k, k+1, ... returns ŷ (B, S, p) at samples k+1..k+S,
 
-    x̂_{j+1} = Â x̂_j + Σ_t B̂_t û_{j+t} + Ĥ                 (eq. 5)
+    x̂_{j+1} = Â x̂_j + Σ_t B̂_t û_{j+t-P} + Ĥ               (eq. 5)
     ŷ_j = Ĉ x̂_j + D̂ û_j + Ĝ                                  (D pairs with its own sample's input)
 
-The states use û_k..û_{k+S+T-2}; the output at k+S also reads û_{k+S} when D ≠ 0, hence
-``extra_inputs`` = T - 1 without feedthrough (D = 0 at the parameters the block is built with)
-and max(T - 1, 1) with it. A block without states is a gain, ŷ_j = D̂ û_j + Ĝ at every given
-sample (S = L). Constant blocks simulate in the lifted form (eq. 9-11): cached while frozen, one
+The states use û_{k-P}..û_{k+S+T-2-P}; the output at k+S also reads û_{k+S} when D ≠ 0, hence
+``extra_inputs`` = 1 for a hold that reads the next sample (FOH, cubic) or with feedthrough (D ≠ 0
+at the parameters the block is built with), else 0. A cubic hold's taps before û_k and after
+û_{k+S} are extrapolated by a line through the two nearest samples (``tap_inputs``): the
+first and last step of a window, an error of the order of a first-order hold's. A block without
+states is a gain, ŷ_j = D̂ û_j + Ĝ at every given sample (S = L). Constant blocks simulate in the lifted form (eq. 9-11): cached while frozen, one
 fused graph node for a horizon-long window of trainable physics, horizon-long windows chained
 otherwise. Scheduled blocks rebuild their matrices per sample (``scheduled``).
 """
@@ -23,7 +25,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import torch
 from torch import Tensor
 
-from hypa.physics.discretization import discretize, squarings_for
+from hypa.physics.discretization import HoldForm, discretize, squarings_for
 from hypa.physics.estimation import estimate_last_state, refine_first_state
 from hypa.physics.lifted import simulate_chunked, simulate_from_rows
 from hypa.physics.normalized import NormalizedLTI, NormalizingMaps
@@ -77,15 +79,33 @@ class BlockSimulation:
     model: LTIModel
     scheduled: tuple[str, ...]
     feedthrough: bool
+    form: HoldForm
     n_taps: int
     horizon: int
 
     @property
     def extra_inputs(self) -> int:
-        """Input samples beyond the S outputs that ``forward`` needs: T - 1, or max(T - 1, 1) with D ≠ 0."""
+        """Input samples beyond the S outputs that ``forward`` needs: 1 for a hold that reads the next
+        sample or with D ≠ 0, else 0."""
         if not self.model.n_states:
             return 0
-        return max(self.n_taps - 1, 1) if self.feedthrough else self.n_taps - 1
+        return max(min(self.form.lead, 1), int(self.feedthrough))
+
+    def tap_inputs(self, u: Tensor, steps: int) -> Tensor:
+        """What the hold's taps read over ``steps`` steps from û_k: û_{k-P}..û_{k+steps+T-2-P}
+        (B, steps + T - 1, m), from u (B, >= 1, m) holding samples k, k+1, ... A tap outside the
+        given samples is extrapolated by the line through the two nearest ones (held where only one
+        is given)."""
+        form = self.form
+        u = u[:, : steps + form.lead]
+        after = steps + form.lead - u.shape[1]
+        if not form.past and not after:
+            return u
+        first = u[:, :1] - u[:, 1:2] if u.shape[1] > 1 else torch.zeros_like(u[:, :1])  # û_k - û_{k+1}
+        last = u[:, -1:] - u[:, -2:-1] if u.shape[1] > 1 else torch.zeros_like(u[:, :1])
+        steps_back = torch.arange(form.past, 0, -1, dtype=u.dtype, device=u.device)[None, :, None]
+        steps_on = torch.arange(1, after + 1, dtype=u.dtype, device=u.device)[None, :, None]
+        return torch.cat([u[:, :1] + steps_back * first, u, u[:, -1:] + steps_on * last], 1)
 
     def forward(self, x0: Tensor | None, u: Tensor, scheduling: Tensor | None = None) -> Tensor:
         """Normalized outputs ŷ (B, S, p) at samples k+1..k+S from x̂_k (B, n) and û (B, S + extra_inputs, m).
@@ -153,10 +173,12 @@ class BlockSimulation:
 
         u: (B, >= P+1, m) normalized inputs from sample 0; y: (B, P+1, p) normalized outputs at
         samples 0..P (its length sets P; unobserved channels are never read); observed: (p,)
-        bool; scheduling: (B, >= P+1, q) (a scheduled block). Only samples 0..P are read.
+        bool; scheduling: (B, >= P+1, q) (a scheduled block). Only samples 0..P are read, and
+        under a cubic hold û_{P+1} where given (else extrapolated, ``tap_inputs``).
         Differentiable in u, y and the trainable parameters.
         """
         past, (batch, n, p) = y.shape[1] - 1, (y.shape[0], self.model.n_states, len(self.model.output_names))
+        given = u  # a cubic hold's x̂_P also reads û_{P+1}: taken where given
         observed = torch.as_tensor(observed, dtype=torch.bool, device=y.device)
         if past < 0 or u.shape[1] <= past or y.shape[-1] != p or observed.shape != (p,):
             raise ValueError(f"{self.model.display_name}.estimate_state needs y (B, P+1, {p}), u (B, >= P+1, m) "
@@ -165,28 +187,31 @@ class BlockSimulation:
         if not n:
             return y.new_zeros(batch, 0)
         u = u[:, : past + 1]
+        taps = self.tap_inputs(given, past) if n and past else u
         rho = self._check_scheduling(scheduling, u, past + 1)
         if rho is not None and self.model.is_nonlinear:
             raise SchedulingError(f"{self.model.display_name}: a nonlinear system cannot be scheduled yet")
         if rho is None:
             norm = self._norm(u.dtype)
             phi = norm.a.expand(1, past, n, n)
-            forced = forced_terms(torch.cat([*norm.b_taps, norm.h[:, None]], -1), self.n_taps, u, past)
+            forced = forced_terms(torch.cat([*norm.b_taps, norm.h[:, None]], -1), self.n_taps, taps, past)
             c, offset = norm.c[None, None], u @ norm.d.T + norm.g  # (1, 1, p, n), (B, P+1, p)
         else:
             ss = self._per_sample(rho[:, : past + 1])  # (B, P+1, ...)
             rows = self._state_rows(ss, past)  # (B, P, n, n + T m + 1)
-            phi, forced = rows[..., :n], forced_terms(rows[..., n:], self.n_taps, u, past)
+            phi, forced = rows[..., :n], forced_terms(rows[..., n:], self.n_taps, taps, past)
             c, d, g = self._output_rows(ss)
             offset = (d @ u[..., None]).squeeze(-1) + g
         if not self.model.is_nonlinear or past == 0:
             return estimate_last_state(phi, forced, c, offset, y, observed, ridge)
         # a Lur'e block: the linear part's x̂_0, refined on the block's own steps over the past
 
+        ahead = given[:, : past + 1 + self.form.lead]
+
         def run(starts: Tensor) -> tuple[Tensor, Tensor]:  # (K, n), K windows' starts -> ŷ_0..ŷ_P, x̂_P
-            inputs = u.repeat_interleave(starts.shape[0] // u.shape[0], 0)  # each window's starts are adjacent
+            inputs = ahead.repeat_interleave(starts.shape[0] // u.shape[0], 0)  # each window's starts are adjacent
             states = torch.cat([starts[:, None], self._simulate_nonlinear(starts, inputs, past)], 1)
-            return apply_output(norm.c, norm.d, norm.g, states, inputs), states[:, -1]
+            return apply_output(norm.c, norm.d, norm.g, states, inputs[:, : past + 1]), states[:, -1]
 
         start = estimate_last_state(phi, forced, c, offset, y, observed, ridge, first=True)
         return refine_first_state(run, start, y, observed, ridge)
@@ -253,12 +278,12 @@ class BlockSimulation:
                              f"got {None if x0 is None else tuple(x0.shape)} for u {tuple(u.shape)}")
         rho = self._check_scheduling(scheduling, u, steps)
         same = self.model.outputs_are_states
-        u_states = u[:, : steps + self.n_taps - 1]
         if self.model.is_nonlinear:
             if rho is not None:
                 raise SchedulingError(f"{self.model.display_name}: a nonlinear system cannot be scheduled yet")
             norm = self._norm(u.dtype)
-            return self._simulate_nonlinear(x0, u_states, steps), None if same else (norm.c, norm.d, norm.g)
+            return self._simulate_nonlinear(x0, u, steps), None if same else (norm.c, norm.d, norm.g)
+        u_states = self.tap_inputs(u, steps)
         if rho is None:
             rebuild = self._rebuilds()
             if rebuild and steps == self.horizon:  # a training window of trainable physics: one graph node
@@ -288,8 +313,10 @@ class BlockSimulation:
         dtype = u.dtype
         lure = self.lure_parts(dtype)
         mean_x, std_x = self.state_mean.to(dtype), self.state_std.to(dtype)
-        u_phys = u * self.input_std.to(dtype) + self.input_mean.to(dtype)  # (B, S + T - 1, m)
-        forced = sum(u_phys[:, t : t + steps] @ g.T for t, g in enumerate(lure.taps))  # (B, S, n)
+        mean_u, std_u = self.input_mean.to(dtype), self.input_std.to(dtype)
+        u_phys = u[:, : steps + 1] * std_u + mean_u  # (B, S or S + 1, m): the feedback reads u_k and u_{k+1}
+        held = self.tap_inputs(u, steps) * std_u + mean_u  # (B, S + T - 1, m)
+        forced = sum(held[:, t : t + steps] @ g.T for t, g in enumerate(lure.taps))  # (B, S, n)
         if lure.drift is not None:
             forced = forced + lure.drift
         x = x0 * std_x + mean_x
