@@ -49,7 +49,7 @@ CASES = [
     ("train-unknown-hold", "hypa.train", [*FILES, "physics.hold=xyz"], "physics.hold=xyz is not one of zoh, foh"),
     ("train-hold-against-the-model", "hypa.train",
      ["dataset=silverbox", "model=silverbox_physical", "physics.hold=zoh"],
-     "model 'silverbox_physical' fixes hold: foh, but physics.hold=zoh was given"),
+     "model 'silverbox_physical' fixes hold: cubic, but physics.hold=zoh was given"),
     ("diagnose-hold-against-the-model", "hypa.diagnose",
      ["dataset=silverbox", "model=silverbox_physical", "physics.hold=zoh"], "but physics.hold=zoh was given"),
     ("train-ann-size", "hypa.train", [*FILES, "model=v1", "ann.hidden_size=-2"],

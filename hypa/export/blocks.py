@@ -41,6 +41,19 @@ class ExportError(UserError):
     """A model, or a block of it, that has no exact one-step form (yet), or an export that fails its check."""
 
 
+def hold_refusal(model) -> str | None:
+    """Why a block of ``model`` (a ``ComposedModel``) cannot step causally (one line), or None.
+
+    A step reads the inputs up to its own sample: a zero- or first-order hold does (the state
+    holds x_{k-1} and u_{k-1} for the latter), a cubic hold reads one sample after that."""
+    for b in model.order:
+        block = model.blocks[b.name]
+        if b.kind == "physics" and block.model.n_states and block.form.lead > 1:
+            return (f"block {b.name!r} holds its inputs by a {block.hold} hold, which reads the input a sample "
+                    "ahead of its output: no causal step (train it with physics.hold=foh to export it)")
+    return None
+
+
 @dataclass(frozen=True)
 class StateSlot:
     """One entry of the state vector: ``block``'s ``name`` (``kind``: physics, held_input,

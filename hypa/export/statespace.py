@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from hypa.export.blocks import ExportError
+from hypa.export.blocks import ExportError, hold_refusal
 from hypa.export.reference import Reference
 from hypa.models.composed import ComposedModel
 
@@ -85,7 +85,7 @@ def refusal(model: ComposedModel) -> str | None:
         if block.model.is_nonlinear:
             return (f"block {b.name!r} is nonlinear ({block.model.display_name}): no linear state space "
                     "(use onnx or fmu)")
-    return None
+    return hold_refusal(model)
 
 
 def block_parts(block, discrete: bool) -> Parts:

@@ -12,9 +12,9 @@ The states use û_{k-P}..û_{k+S+T-2-P}; the output at k+S also reads û_{k+S} w
 at the parameters the block is built with), else 0. A cubic hold's taps before û_k and after
 û_{k+S} are extrapolated by a line through the two nearest samples (``tap_inputs``): the
 first and last step of a window, an error of the order of a first-order hold's. A block without
-states is a gain, ŷ_j = D̂ û_j + Ĝ at every given sample (S = L). Constant blocks simulate in the lifted form (eq. 9-11): cached while frozen, one
-fused graph node for a horizon-long window of trainable physics, horizon-long windows chained
-otherwise. Scheduled blocks rebuild their matrices per sample (``scheduled``).
+states is a gain, ŷ_j = D̂ û_j + Ĝ at every given sample (S = L). Constant blocks simulate in the
+lifted form (eq. 9-11): cached while frozen, one fused graph node for a horizon-long window of
+trainable physics, horizon-long windows chained otherwise. Scheduled blocks rebuild their matrices per sample (``scheduled``).
 """
 
 from __future__ import annotations

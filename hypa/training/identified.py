@@ -102,14 +102,14 @@ class HoldChoice:
         other = next(h for h in self.errors if h != self.chosen)
         return (f"hold: {self.chosen}, chosen by the data: the identified physics' output error is "
                 f"{100 * self.errors[self.chosen]:.3g} % of the output variance under {_HOLD_NAMES[self.chosen]}, "
-                f"{100 * self.errors[other]:.3g} % under {_HOLD_NAMES[other]} (physics.hold=zoh|foh, or the "
+                f"{100 * self.errors[other]:.3g} % under {_HOLD_NAMES[other]} (physics.hold=zoh|foh|cubic, or the "
                 "model's hold:, fixes it and saves the second fit)")
 
     def to_dict(self) -> dict[str, Any]:
         return {"chosen": self.chosen, "by": "identification", "output_error": dict(self.errors)}
 
 
-_HOLD_NAMES = {"zoh": "a zero-order hold", "foh": "a first-order hold"}
+_HOLD_NAMES = {"zoh": "a zero-order hold", "foh": "a first-order hold", "cubic": "a cubic hold"}
 
 
 def choose_hold(build: Callable[[str], HybridModule], how: Plan, stages: Sequence[StageSpec], dm: HypaDataModule,
