@@ -26,6 +26,7 @@ from hypa.export.blocks import (
     PhysicsStep,
     SaturationStep,
     StateSlot,
+    hold_refusal,
 )
 from hypa.models.building import STEADY
 from hypa.models.composed import ComposedModel
@@ -58,6 +59,9 @@ class ModelStep(nn.Module):
     def __init__(self, model: ComposedModel, units: Mapping[str, str] | None = None,
                  squarings: Mapping[str, int] | None = None) -> None:
         super().__init__()
+        why = hold_refusal(model)
+        if why:
+            raise ExportError(why)
         self.model, units, squarings = model, dict(units or {}), dict(squarings or {})
         self.input_names, self.scheduling_names = model.input_names, model.scheduling_names
         self.output_names = tuple(model.spec.outputs)

@@ -14,7 +14,8 @@ at the parameters the block is built with), else 0. A cubic hold's taps before �
 first and last step of a window, an error of the order of a first-order hold's. A block without
 states is a gain, ŷ_j = D̂ û_j + Ĝ at every given sample (S = L). Constant blocks simulate in the
 lifted form (eq. 9-11): cached while frozen, one fused graph node for a horizon-long window of
-trainable physics, horizon-long windows chained otherwise. Scheduled blocks rebuild their matrices per sample (``scheduled``).
+trainable physics, horizon-long windows chained otherwise. Scheduled blocks rebuild their
+matrices per sample (``scheduled``).
 """
 
 from __future__ import annotations
