@@ -8,6 +8,7 @@ and integrated by scipy's ODE solver; the continuous system driven by the smooth
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -39,7 +40,7 @@ def test_the_taps_integrate_the_catmull_rom_input_exactly() -> None:
     rng = np.random.default_rng(3)
     for _ in range(3):
         u, x0 = rng.normal(size=4), rng.normal(size=2)
-        exact = solve_ivp(lambda t, x: A @ x + B[:, 0] * catmull_rom(u, 1, t / dt), (0, dt), x0,
+        exact = solve_ivp(lambda t, x, u=u: A @ x + B[:, 0] * catmull_rom(u, 1, t / dt), (0, dt), x0,
                           rtol=1e-12, atol=1e-14, method="DOP853").y[:, -1]
         ours = d.phi.numpy() @ x0 + sum(g.numpy()[:, 0] * u[t] for t, g in enumerate(d.taps))
         np.testing.assert_allclose(ours, exact, rtol=1e-9, atol=1e-12)
@@ -81,8 +82,8 @@ def _block(hold: str = "cubic", horizon: int = 16, trainable: bool = False, duff
     values = {"mass": 0.5, "stiffness": 200.0, "damping": 1.5, "offset_force": 0.3}
     if duffing:
         values["hardening"] = 0.0
-    specs = [dataclasses.replace(s, trainable=trainable and s.name == "stiffness") for s in model.parameter_specs(values)]
-    params = PhysicalParameters(specs)
+    specs = model.parameter_specs(values)
+    params = PhysicalParameters(dataclasses.replace(s, trainable=trainable and s.name == "stiffness") for s in specs)
     return LTIBlock(model, params, 0.01, horizon=horizon, hold=hold)
 
 
@@ -129,9 +130,8 @@ def test_a_cubic_physics_model_is_refused_by_every_export_in_one_line() -> None:
     from hypa.export.statespace import refusal
     from hypa.models.composed import ComposedModel
     from hypa.models.spec import parse_model_spec
-    from test_export import ROOT
 
-    spec = parse_model_spec(OmegaConf.to_container(OmegaConf.load(ROOT / "conf" / "model" / "physical.yaml")))
+    spec = parse_model_spec(OmegaConf.to_container(OmegaConf.load(Path(__file__).parents[1] / "conf/model/physical.yaml")))
     scale = dict.fromkeys(("steering_wheel_angle", "yaw_rate", "side_slip"), (0.0, 1.0))
     for hold, refused in (("foh", False), ("cubic", True)):
         model = ComposedModel(spec, None, ["steering_wheel_angle"], ["yaw_rate", "side_slip"], scale, scale, 0.01,
