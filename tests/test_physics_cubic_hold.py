@@ -131,7 +131,8 @@ def test_a_cubic_physics_model_is_refused_by_every_export_in_one_line() -> None:
     from hypa.models.composed import ComposedModel
     from hypa.models.spec import parse_model_spec
 
-    spec = parse_model_spec(OmegaConf.to_container(OmegaConf.load(Path(__file__).parents[1] / "conf/model/physical.yaml")))
+    config = OmegaConf.load(Path(__file__).parents[1] / "conf" / "model" / "physical.yaml")
+    spec = parse_model_spec(OmegaConf.to_container(config))
     scale = dict.fromkeys(("steering_wheel_angle", "yaw_rate", "side_slip"), (0.0, 1.0))
     for hold, refused in (("foh", False), ("cubic", True)):
         model = ComposedModel(spec, None, ["steering_wheel_angle"], ["yaw_rate", "side_slip"], scale, scale, 0.01,
