@@ -103,6 +103,10 @@ def test_every_path_of_a_cubic_block_is_the_step_by_step_recursion() -> None:
     d = block.discrete()
     reference = simulate_recursive(d.phi, d.taps, d.drift, x0, taps)
     torch.testing.assert_close(block(x0, u), reference[..., :1], rtol=1e-12, atol=1e-12)  # chained (horizon 16)
+    later = block.tap_inputs(u[:, 1:], steps - 1, before=u[:, :1])  # the sample before the window, known
+    torch.testing.assert_close(later, taps[:, 1:])
+    torch.testing.assert_close(block(x0, u[:, 1:], before=u[:, :1]),
+                               simulate_recursive(d.phi, d.taps, d.drift, x0, later)[..., :1], rtol=1e-12, atol=1e-12)
     window = u[:, :17]  # one horizon of a trainable block: the one-node path
     trained = _block(trainable=True)
     torch.testing.assert_close(trained(x0, window), block(x0, window), rtol=1e-12, atol=1e-12)

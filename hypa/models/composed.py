@@ -311,9 +311,10 @@ class ComposedModel(nn.Module):
         take = steps + block.extra_inputs
         u_k = u[:, past - start : past - start + take]
         rho_k = None if rho is None else rho[:, past - start : past - start + take]
+        before = u[:, : past - start] if block.form.past else None  # what a cubic hold reads before the start
         if states is None:
-            return block(x0, u_k, scheduling=rho_k), past + 1
-        y, x = block.run(x0, u_k, scheduling=rho_k)
+            return block(x0, u_k, scheduling=rho_k, before=before), past + 1
+        y, x = block.run(x0, u_k, scheduling=rho_k, before=before)
         states[b.name] = torch.cat([x0[:, None], x], 1)
         return y, past + 1
 

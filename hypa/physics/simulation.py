@@ -92,11 +92,11 @@ class BlockSimulation:
             return 0
         return max(min(self.form.lead, 1), int(self.feedthrough))
 
-    def tap_inputs(self, u: Tensor, steps: int) -> Tensor:
+    def tap_inputs(self, u: Tensor, steps: int, before: Tensor | None = None) -> Tensor:
         """What the hold's taps read over ``steps`` steps from û_k: û_{k-P}..û_{k+steps+T-2-P}
-        (B, steps + T - 1, m), from u (B, >= 1, m) holding samples k, k+1, ... A tap outside the
-        given samples is extrapolated by the line through the two nearest ones (held where only one
-        is given)."""
+        (B, steps + T - 1, m), from u (B, >= 1, m) holding samples k, k+1, ... and ``before``
+        (B, >= P, m), the samples before û_k where known. A tap outside the given samples is
+        extrapolated by the line through the two nearest ones (held where only one is given)."""
         form = self.form
         u = u[:, : steps + form.lead]
         after = steps + form.lead - u.shape[1]
@@ -106,23 +106,29 @@ class BlockSimulation:
         last = u[:, -1:] - u[:, -2:-1] if u.shape[1] > 1 else torch.zeros_like(u[:, :1])
         steps_back = torch.arange(form.past, 0, -1, dtype=u.dtype, device=u.device)[None, :, None]
         steps_on = torch.arange(1, after + 1, dtype=u.dtype, device=u.device)[None, :, None]
-        return torch.cat([u[:, :1] + steps_back * first, u, u[:, -1:] + steps_on * last], 1)
+        known = before is not None and form.past and before.shape[1] >= form.past
+        head = before[:, before.shape[1] - form.past :].to(u.dtype) if known else u[:, :1] + steps_back * first
+        return torch.cat([head, u, u[:, -1:] + steps_on * last], 1)
 
-    def forward(self, x0: Tensor | None, u: Tensor, scheduling: Tensor | None = None) -> Tensor:
+    def forward(self, x0: Tensor | None, u: Tensor, scheduling: Tensor | None = None,
+                before: Tensor | None = None) -> Tensor:
         """Normalized outputs ŷ (B, S, p) at samples k+1..k+S from x̂_k (B, n) and û (B, S + extra_inputs, m).
 
         scheduling: (B, L, q) physical values of the scheduled parameters, aligned with u (a
         scheduled block only). A block without states takes x0 None and returns (B, L, p).
+        before: (B, >= P, m) the normalized inputs before û_k, read by a hold with taps before
+        its step's sample (``cubic``; extrapolated where not given, ``tap_inputs``).
         """
         if not self.model.n_states:
             rho = None if scheduling is None else scheduling[:, : u.shape[1]]
             return self.output(u.new_zeros(*u.shape[:-1], 0), u, rho)
-        return self.run(x0, u, scheduling)[0]
+        return self.run(x0, u, scheduling, before)[0]
 
-    def run(self, x0: Tensor, u: Tensor, scheduling: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    def run(self, x0: Tensor, u: Tensor, scheduling: Tensor | None = None,
+            before: Tensor | None = None) -> tuple[Tensor, Tensor]:
         """``forward``'s outputs ŷ (B, S, p) and the states x̂_{k+1..k+S} (B, S, n) behind them, from one simulation."""
         steps = self._steps(u)
-        states, out = self._simulate(x0, u, scheduling, steps)
+        states, out = self._simulate(x0, u, scheduling, steps, before)
         if out is None:  # y = x: the outputs share the states' names and scaling
             return states, states
         return apply_output(*out, states, u[:, 1 : steps + 1] if self.feedthrough else None), states
@@ -270,8 +276,8 @@ class BlockSimulation:
         return ss, self._normalizing_maps(rho.dtype, rho.device)
 
     # -- the two engines -------------------------------------------------------------------
-    def _simulate(self, x0: Tensor | None, u: Tensor, scheduling: Tensor | None, steps: int
-                  ) -> tuple[Tensor, Output | None]:
+    def _simulate(self, x0: Tensor | None, u: Tensor, scheduling: Tensor | None, steps: int,
+                  before: Tensor | None = None) -> tuple[Tensor, Output | None]:
         """States x̂_{k+1..k+S} and the output matrices of those samples (None when y = x)."""
         n = self.model.n_states
         if x0 is None or x0.shape[-1] != n or x0.shape[0] != u.shape[0]:
@@ -283,8 +289,8 @@ class BlockSimulation:
             if rho is not None:
                 raise SchedulingError(f"{self.model.display_name}: a nonlinear system cannot be scheduled yet")
             norm = self._norm(u.dtype)
-            return self._simulate_nonlinear(x0, u, steps), None if same else (norm.c, norm.d, norm.g)
-        u_states = self.tap_inputs(u, steps)
+            return self._simulate_nonlinear(x0, u, steps, before), None if same else (norm.c, norm.d, norm.g)
+        u_states = self.tap_inputs(u, steps, before)
         if rho is None:
             rebuild = self._rebuilds()
             if rebuild and steps == self.horizon:  # a training window of trainable physics: one graph node
@@ -301,7 +307,7 @@ class BlockSimulation:
         rows, output = self._scheduled_rows(rho, steps)
         return simulate_scheduled(rows, self.n_taps, x0, u_states), output
 
-    def _simulate_nonlinear(self, x0: Tensor, u: Tensor, steps: int) -> Tensor:
+    def _simulate_nonlinear(self, x0: Tensor, u: Tensor, steps: int, before: Tensor | None = None) -> Tensor:
         """States x̂_{k+1..k+S} of a Lur'e system, step by step in physical units.
 
         The linear part is exact under the block's hold; the nonlinearity's output w is taken
@@ -316,7 +322,7 @@ class BlockSimulation:
         mean_x, std_x = self.state_mean.to(dtype), self.state_std.to(dtype)
         mean_u, std_u = self.input_mean.to(dtype), self.input_std.to(dtype)
         u_phys = u[:, : steps + 1] * std_u + mean_u  # (B, S or S + 1, m): the feedback reads u_k and u_{k+1}
-        held = self.tap_inputs(u, steps) * std_u + mean_u  # (B, S + T - 1, m)
+        held = self.tap_inputs(u, steps, before) * std_u + mean_u  # (B, S + T - 1, m)
         forced = sum(held[:, t : t + steps] @ g.T for t, g in enumerate(lure.taps))  # (B, S, n)
         if lure.drift is not None:
             forced = forced + lure.drift
