@@ -6,7 +6,7 @@ import torch
 from scipy.signal import cont2discrete, dlsim, lsim
 
 from hypa.physics import discretize, simulate_recursive
-from hypa.physics.discretization import expm
+from hypa.physics.exponential import expm
 
 
 def random_stable(n: int, m: int, seed: int) -> tuple[np.ndarray, np.ndarray]:

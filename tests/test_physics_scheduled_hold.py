@@ -7,7 +7,7 @@ import scipy.linalg
 import torch
 
 from hypa.physics import LTIBlock
-from hypa.physics.discretization import hold_exponential, phi_functions
+from hypa.physics.exponential import hold_exponential, phi_functions
 from hypa.physics.scan import _AffineStates
 from hypa.physics.scheduled import (
     forced_terms,

@@ -22,7 +22,8 @@ from typing import TYPE_CHECKING
 import torch
 from torch import Tensor
 
-from hypa.physics.discretization import DiscreteLTI, discretize, hold_exponential, hold_exponential_steps, hold_form
+from hypa.physics.discretization import DiscreteLTI, discretize, hold_form
+from hypa.physics.exponential import hold_exponential, hold_exponential_steps
 
 if TYPE_CHECKING:
     from hypa.physics.lti import StateSpace

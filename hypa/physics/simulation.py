@@ -26,8 +26,9 @@ from typing import TYPE_CHECKING, NamedTuple
 import torch
 from torch import Tensor
 
-from hypa.physics.discretization import HoldForm, discretize, squarings_for
+from hypa.physics.discretization import HoldForm, discretize
 from hypa.physics.estimation import estimate_last_state, refine_first_state
+from hypa.physics.exponential import squarings_for
 from hypa.physics.lifted import simulate_chunked, simulate_from_rows
 from hypa.physics.normalized import NormalizedLTI, NormalizingMaps
 from hypa.physics.parallel import solve_recursion
