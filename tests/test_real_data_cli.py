@@ -71,6 +71,7 @@ def test_silverbox_state_estimated_from_the_past_starts_the_nominal_physics_righ
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
+    import hypa.commands  # noqa: F401  (registers the schemas conf/train.yaml extends; alone, nothing else has)
     from hypa.data import datamodule_from_config
     from hypa.models import ComposedModel
     from hypa.models.rollout import free_run
