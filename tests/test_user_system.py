@@ -84,7 +84,8 @@ def test_a_null_past_is_chosen_for_the_model_and_recorded(tmp_path: Path) -> Non
     """data.past=null (the default of a data set that sets none): the motor's current is estimated
     from the measured speed, 2 states from 1 output, so each window sees 4 x 2 - 1 = 7 past samples;
     hypa.train says so and records 7 (what hypa.evaluate rebuilds), hypa.simulate chooses the same,
-    and a model that estimates nothing keeps 0."""
+    and a model that estimates nothing keeps 0. The end-to-end LSTM, which starts from the measured
+    outputs over the past, gets 4 times the order of the data's linear predictor (``linear_memory``)."""
     import yaml
 
     data = tmp_path / "data"
@@ -103,6 +104,11 @@ def test_a_null_past_is_chosen_for_the_model_and_recorded(tmp_path: Path) -> Non
     assert yaml.safe_load((tmp_path / "train" / "config.yaml").read_text())["data"]["past"] == 7
     out = run("hypa.simulate", *common, "model=dc_motor", "plot=false", f"hydra.run.dir={tmp_path / 'simulate'}")
     assert "data.past: 7 samples" in out, out[-2000:]
+    out = run("hypa.train", *common, "model=blackbox", "trainer.max_epochs=1", "trainer.limit_train_batches=2",
+              "trainer.limit_val_batches=2", "trainer.enable_progress_bar=false", f"hydra.run.dir={tmp_path / 'lstm'}")
+    assert "network 'network' starts from the measured outputs over the past" in out, out[-2000:]
+    past = yaml.safe_load((tmp_path / "lstm" / "config.yaml").read_text())["data"]["past"]
+    assert 7 <= past <= 100 and (past == 100 or (past + 1) % 4 == 0), past  # 4 x the order - 1, at most a window
     measured = {"name": "measured", "outputs": ["speed"], "blocks": {"motor": {
         "kind": "physics", "system": "dc_motor:DCMotor", "inputs": ["voltage"], "outputs": ["speed"],
         "initial_state": "steady", "scale_as": ["speed"]}}}

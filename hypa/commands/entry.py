@@ -45,24 +45,38 @@ def model_datamodule(cfg: DictConfig, data_dir: Path, model_config: Mapping[str,
                      physical_values: Mapping[str, float]) -> HypaDataModule:
     """The data node's DataModule, set up, for the model ``model_config``: where ``data.past`` is
     null, with as many past samples as the model's estimated starts want
-    (:meth:`~hypa.models.ComposedModel.suggested_past`; 0 where none is estimated), written into
-    ``cfg`` (the run's recorded configuration) and said on one line."""
+    (:meth:`~hypa.models.ComposedModel.suggested_past`) and, for a network that starts from the
+    measured outputs over the past, ``PAST_MARGIN`` times the past the training data's outputs
+    depend on (:func:`~hypa.data.memory.linear_memory`; at most a window), 0 where nothing reads a
+    past: written into ``cfg`` (the run's recorded configuration) and said on one line."""
+    from hypa.data.memory import linear_memory
     from hypa.models import ComposedModel
+    from hypa.models.composed import PAST_MARGIN
 
     dm = datamodule_from_config(cfg.data, data_dir)
     dm.setup()
     if cfg.data.past is not None:
         return dm
     model = ComposedModel.from_data(dm, dict(model_config), physical_values)
-    past = model.suggested_past()
+    past, reasons = model.suggested_past(), []
+    for name, n in model.past_needed().items():
+        reasons.append(f"block {name!r} estimates its {model.blocks[name].model.n_states} states from the "
+                       f"outputs it observes, {n + 1} sample(s) at least")
+    networks = model.networks_reading_outputs()
+    if networks:
+        memory = linear_memory(dm.records("train"), (*dm.input_names, *dm.scheduling_names), dm.output_names,
+                               int(cfg.data.window))
+        past = max(past, min(PAST_MARGIN * memory.samples - 1, int(cfg.data.window)))
+        which = f"network {networks[0]!r} starts" if len(networks) == 1 else \
+            f"networks {', '.join(repr(n) for n in networks)} start"
+        reasons.append(f"{which} from the measured outputs over the past, and a linear predictor of the next output "
+                       f"on the training data needs {memory.samples} past sample(s) (its order by BIC; "
+                       f"{PAST_MARGIN}x that, at most a window)")
     OmegaConf.update(cfg, "data.past", past)
     if not past:
         return dm
-    needed = model.past_needed()
     print(f"data.past: {past} samples before each window ({past * dm.dt:.3g} s), chosen for the model: "
-          + ", ".join(f"block {name!r} estimates its {model.blocks[name].model.n_states} states from the "
-                      f"outputs it observes, {n + 1} sample(s) at least" for name, n in needed.items())
-          + "; set data.past to choose", flush=True)
+          + "; ".join(reasons) + "; set data.past to choose", flush=True)
     dm = datamodule_from_config(cfg.data, data_dir)
     dm.setup()
     return dm

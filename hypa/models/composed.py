@@ -115,6 +115,11 @@ class ComposedModel(nn.Module):
         needed = self.past_needed()
         return PAST_MARGIN * (max(needed.values()) + 1) - 1 if needed else 0
 
+    def networks_reading_outputs(self) -> tuple[str, ...]:
+        """The networks that start from the measured outputs over the past (their ``initial_state``):
+        how many past samples they need, only the data can say (:func:`hypa.data.memory.linear_memory`)."""
+        return tuple(name for name, index in self._ann_measured.items() if index)
+
     def past_needed(self) -> dict[str, int]:
         """Per physics block started from an estimate: the fewest past samples (``data.past``)
         whose measured outputs, with the window start, are as many values as the block has states."""
