@@ -9,9 +9,10 @@ extra_inputs, m) holding samples k, k+1, ... returns ŷ (B, S, p) at samples k+1
 
 The states use û_{k-P}..û_{k+S+T-2-P}; the output at k+S also reads û_{k+S} when D ≠ 0, hence
 ``extra_inputs`` = 1 for a hold that reads the next sample (FOH, cubic) or with feedthrough (D ≠ 0
-at the parameters the block is built with), else 0. A cubic hold's taps before û_k and after
-û_{k+S} are extrapolated by a line through the two nearest samples (``tap_inputs``): the
-first and last step of a window, an error of the order of a first-order hold's. A block without
+at the parameters the block is built with), else 0. A cubic hold's tap before û_k is the input
+given before the window (``before``: a composed model's past) or, as its tap after û_{k+S}, the
+line through the two nearest samples (``tap_inputs``): an error of the order of a first-order
+hold's on the first and last step of a window. A block without
 states is a gain, ŷ_j = D̂ û_j + Ĝ at every given sample (S = L). Constant blocks simulate in the
 lifted form (eq. 9-11): cached while frozen, one fused graph node for a horizon-long window of
 trainable physics, horizon-long windows chained otherwise. Scheduled blocks rebuild their
@@ -195,7 +196,7 @@ class BlockSimulation:
         if not n:
             return y.new_zeros(batch, 0)
         u = u[:, : past + 1]
-        taps = self.tap_inputs(given, past) if n and past else u
+        taps = self.tap_inputs(given, past) if past else u
         rho = self._check_scheduling(scheduling, u, past + 1)
         if rho is not None and self.model.is_nonlinear:
             raise SchedulingError(f"{self.model.display_name}: a nonlinear system cannot be scheduled yet")
