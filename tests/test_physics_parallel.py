@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 
-from hypa.physics import simulation
+from hypa.physics import lure
 from hypa.physics.friction import MassWithCoulombFriction, MassWithCubicFriction
 from hypa.physics.lti import LTIBlock
 from hypa.physics.mass_spring_damper import DuffingOscillator
@@ -26,12 +26,12 @@ def _runs(model, values: dict, u: torch.Tensor, dt: float, monkeypatch) -> tuple
     """The states of one run solved at once and of the same run stepped sample by sample."""
     block = LTIBlock(model, PhysicalParameters(model.parameter_specs(values)), dt=dt, horizon=100, hold="foh")
     x0 = torch.zeros(u.shape[0], model.n_states, dtype=u.dtype)
-    threshold = simulation.PARALLEL_STEPS
+    threshold = lure.PARALLEL_STEPS
     with torch.no_grad():
         solved = block.states(x0, u)
-        monkeypatch.setattr(simulation, "PARALLEL_STEPS", 10**9)
+        monkeypatch.setattr(lure, "PARALLEL_STEPS", 10**9)
         stepped = block.states(x0, u)
-        monkeypatch.setattr(simulation, "PARALLEL_STEPS", threshold)
+        monkeypatch.setattr(lure, "PARALLEL_STEPS", threshold)
     return solved, stepped
 
 
@@ -59,7 +59,7 @@ def test_a_hard_duffing_spring_matches_the_loop_and_single_precision_keeps_the_l
     solved, stepped = _runs(DuffingOscillator(), values, u, 2e-3, monkeypatch)
     assert float(((solved - stepped).abs() / stepped.std(dim=(0, 1))).max()) < 1e-9
     calls = []
-    monkeypatch.setattr(simulation, "solve_recursion", lambda *args: calls.append(1))
+    monkeypatch.setattr(lure, "solve_recursion", lambda *args: calls.append(1))
     _runs(DuffingOscillator(), values, u.float(), 2e-3, monkeypatch)
     assert not calls  # float32: the loop, bit for bit what the exported step computes
 
