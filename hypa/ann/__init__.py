@@ -4,18 +4,18 @@ A network is named by its config name (``lstm``, ``transformer``, ``s4``, ``mamb
 import path of a :class:`SequenceBlock` subclass in any importable module (``mypkg.nets.MyBlock``
 or ``mypkg.nets:MyBlock``): a user's own network plugs in the way a user's own system does.
 ``conf/ann/*.yaml`` are Hydra ``_target_`` configs; ``build_ann(name, d_in, d_out, **hparams)``
-builds a block with ``hydra.utils.instantiate``, its hyperparameters the explicit keyword
-arguments of the block's class (a misspelt one is named with the accepted ones).
+builds a block by calling its class with its hyperparameters, the explicit keyword arguments of
+the block's class (a misspelt one is named with the accepted ones). The hyperparameters are plain
+values (numbers, strings, true/false, null, lists of those), checked before the call: they may come
+from a checkpoint someone sent, and a nested ``_target_`` node there must never be built.
 """
 
 from __future__ import annotations
 
 import importlib
 import inspect
+from collections.abc import Mapping
 from typing import Any
-
-from hydra.errors import InstantiationException
-from hydra.utils import instantiate
 
 from hypa.ann.base import SequenceBlock
 from hypa.ann.lstm import LSTMBlock
@@ -77,25 +77,43 @@ def ann_hyperparameters(name: str) -> dict[str, Any]:
 
 def build_ann(name: str, d_in: int, d_out: int, **hparams: Any) -> SequenceBlock:
     """Build the block ``name`` (a config name or an import path) mapping (B, L, d_in) -> (B, L, d_out),
-    by ``hydra.utils.instantiate`` of its ``_target_`` with ``hparams``.
+    its class called with ``hparams`` (plain values only: see :func:`check_hyperparameters`).
 
     Raises:
         ValueError: ``name`` is not a known block (the message lists the known names).
-        TypeError: a hyperparameter the block does not accept (the message lists the accepted).
+        TypeError: a hyperparameter the block does not accept (the message lists the accepted),
+            or one that is not a plain value of its default's type.
     """
+    check_hyperparameters(name, hparams)
+    return network_class(name)(d_in, d_out, **hparams)
+
+
+_PLAIN = (bool, int, float, str, type(None))
+
+
+def check_hyperparameters(name: str, hparams: Mapping[str, Any]) -> None:
+    """Check ``hparams`` for the block ``name``: keys it accepts, each value a plain one (a number, a
+    string, true/false, null or a list of those) of its default's kind (a number where the default
+    is a number). Raises ``TypeError`` naming the first that is not."""
     accepted = ann_hyperparameters(name)
-    unknown = sorted(set(hparams) - set(accepted))
+    unknown = sorted(set(map(str, hparams)) - set(accepted))
     if unknown:
         raise TypeError(
             f"ANN block {name!r} got unknown hyperparameter(s) {', '.join(unknown)}; "
             f"accepted: {', '.join(accepted)}"
         )
-    try:
-        return instantiate({"_target_": target(name), "_convert_": "all", **hparams}, d_in, d_out)
-    except InstantiationException as error:  # the block's own check (a size < 1), as the block raised it
-        if isinstance(error.__cause__, (ValueError, TypeError)):
-            raise error.__cause__ from None
-        raise
+    for key, value in hparams.items():
+        default = accepted[key]
+        plain = isinstance(value, _PLAIN) or (isinstance(value, (list, tuple)) and len(value) <= 1024
+                                              and all(isinstance(v, _PLAIN) for v in value))
+        number = isinstance(default, (int, float)) and not isinstance(default, bool)
+        kind_ok = value is None or default is None or default is inspect.Parameter.empty or (
+            isinstance(value, (int, float)) and not isinstance(value, bool) if number else
+            isinstance(value, type(default)))
+        if not plain or not kind_ok:
+            expected = "a number" if number else type(default).__name__
+            raise TypeError(f"ANN block {name!r}: hyperparameter {key} must be {expected}, got "
+                            f"{type(value).__name__} {str(value)[:60]!r}")
 
 
 __all__ = [
@@ -108,6 +126,7 @@ __all__ = [
     "TransformerBlock",
     "ann_hyperparameters",
     "build_ann",
+    "check_hyperparameters",
     "network_class",
     "selective_scan",
     "target",

@@ -20,6 +20,7 @@ ConfigStore; importing :mod:`hypa.commands` calls it.
 from __future__ import annotations
 
 import copy
+import re
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -35,6 +36,16 @@ if TYPE_CHECKING:
 
 SCHEMA_GROUP = "hypa"  # /hypa/<command>_schema, beside /hypa/data_schema
 C = TypeVar("C")
+
+
+def trust_list(key: str, value: Any) -> list[str]:
+    """``trust``: the import paths (``mypkg.motors:DCMotor``, ``mypkg.nets.MyBlock``) or packages
+    (``mypkg``) whose code a run folder, checkpoint or model file may name (:mod:`hypa.trust`); ``*``: any."""
+    items = [value] if isinstance(value, str) else list(value or [])
+    for item in items:
+        if not isinstance(item, str) or not re.fullmatch(r"\*|[A-Za-z_][\w.]*(:[A-Za-z_][\w.]*)?", item):
+            raise UserError(f"{key}={item} is not an import path (package.module:Class) or a package name")
+    return [str(i) for i in items]
 
 
 @dataclass
@@ -162,8 +173,11 @@ class TrainConfig:
     callbacks: dict[str, Any] = field(default_factory=dict)  # name -> {_target_: ..., its arguments}
     logger: dict[str, Any] = field(default_factory=dict)  # _target_: a Lightning logger
     figures: FiguresConfig = field(default_factory=FiguresConfig)
+    model_file: str | None = None  # a model YAML read as data (a diagnosis's diagnosed.yaml): replaces model
+    trust: list[str] = field(default_factory=list)  # import paths a model file or a resumed checkpoint may name
 
     def __post_init__(self) -> None:
+        self.trust = trust_list("trust", self.trust)
         checked("torch_threads", self.torch_threads, int, minimum=1)
         self.patience: int | None = checked("early_stopping.patience", self.early_stopping.get("patience"), int,
                                             optional=True, minimum=0)  # None: see network_defaults
@@ -236,6 +250,10 @@ class EvaluateConfig:
     run: str = MISSING  # a hypa.train run folder or one of its checkpoints
     out: str | None = None  # None: <run>/evaluation
     tensorboard: bool = True
+    trust: list[str] = field(default_factory=list)  # import paths the run's model may name (hypa.trust)
+
+    def __post_init__(self) -> None:
+        self.trust = trust_list("trust", self.trust)
 
 
 @dataclass
@@ -246,8 +264,10 @@ class ExportConfig:
     format: str = "onnx"  # onnx | fmu | statespace (physics-only models) | all (every format the model allows)
     record: int = 0  # the validation record of reference.csv and the check
     tolerance: float = 1e-5  # of each output's standard deviation
+    trust: list[str] = field(default_factory=list)  # import paths the run's model may name (hypa.trust)
 
     def __post_init__(self) -> None:
+        self.trust = trust_list("trust", self.trust)
         checked("record", self.record, int, minimum=0)
         checked("tolerance", self.tolerance, float, positive=True)
 
@@ -265,8 +285,10 @@ class ExplainConfig:
     max_lag: float = 2.0  # [s]
     max_delay: float = 0.25  # [s]
     plot: bool = True
+    trust: list[str] = field(default_factory=list)  # import paths the runs' models may name (hypa.trust)
 
     def __post_init__(self) -> None:
+        self.trust = trust_list("trust", self.trust)
         for key in ("penalty", "margin", "max_lag", "max_delay"):
             checked(key, getattr(self, key), float)
         if self.extra is not None:

@@ -36,10 +36,20 @@ from hypa.errors import UserError, hydra_command, settings
 log = logging.getLogger(__name__)
 
 
-def run_name(model: str, ann: str, blocks: Any) -> str:
-    """Folder name of a run: the model, and its network where it has one."""
-    has_ann = any(b.get("kind") == "ann" for b in (blocks or {}).values())
-    return f"{model}-{ann}" if has_ann else model
+def run_name(model: str, ann: str, blocks: Any, model_file: str | None = None) -> str:
+    """Folder name of a run: the model, and its network where it has one (``model_file``: the model
+    that file holds; its own checks come when the run reads it)."""
+    if model_file:
+        from hypa.trust import read_yaml
+
+        try:
+            read = read_yaml(Path(model_file).expanduser())
+            model, blocks = str(read.get("name", Path(model_file).stem)), read.get("blocks")
+        except Exception:  # noqa: BLE001 -- a folder name only: the run reads the file and names what is wrong
+            model, blocks = Path(str(model_file)).stem, None
+    has_ann = any(isinstance(b, dict) and b.get("kind") == "ann" for b in (blocks or {}).values())
+    name = f"{model}-{ann}" if has_ann else model
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in name)[:100] or "model"
 
 
 def channels(*roles: str, _root_: DictConfig) -> list[str]:
@@ -69,6 +79,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     from hypa.models import parse_model_spec
     from hypa.models.building import model_hold
     from hypa.models.schema import plain_model
+    from hypa.models.spec import model_imports, read_model_file
     from hypa.training import HybridModule, StagedTraining, ValidationFigures
     from hypa.training.baseline import network_defaults
     from hypa.training.checkpoints import START_CHECKPOINT, AtomicCheckpointIO, RecordedCheckpoint, load_module
@@ -93,7 +104,11 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     lr, physics_lr, weight_decay = config.optimizer.lr, config.optimizer.physics_lr, config.optimizer.weight_decay
     epochs, patience = config.trainer.max_epochs, config.patience  # None: see network_defaults
     hold, horizon = config.physics.hold, config.horizon
-    model_config = plain_model(OmegaConf.to_container(cfg.model, resolve=True))
+    if config.model_file:  # a model file is data: read through the model schema, it replaces model=
+        model_config = read_model_file(from_cwd(config.model_file), config.trust)
+        OmegaConf.update(cfg, "model", model_config, merge=False)  # what the run records as trained
+    else:
+        model_config = plain_model(OmegaConf.to_container(cfg.model, resolve=True))
     model_hold(parse_model_spec(model_config), hold, "physics.hold")  # against the model's own: refused before the data
     ann_name, ann = network_settings(cfg.ann)
     with settings("vehicle"):
@@ -113,7 +128,8 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         ckpt_path = from_cwd(config.ckpt_path)
         if not ckpt_path.is_file():
             raise FileNotFoundError(f"ckpt_path={ckpt_path} does not exist")
-        resumed = load_module(ckpt_path).hparams.model_config.get("name")  # no hypa checkpoint: one line
+        own = [*config.trust, *model_imports(model_config, ann_name).values()]  # what this command names is code
+        resumed = load_module(ckpt_path, own).hparams.model_config.get("name")  # no hypa checkpoint: one line
         if resumed != model_config.get("name"):
             raise UserError(f"ckpt_path={ckpt_path} holds model {resumed}, not model={model_config.get('name')}; "
                             f"resume with model={resumed}")

@@ -43,7 +43,7 @@ from hypa.diagnosis.structure import analyze_output
 from hypa.diagnosis.trained import TrainedExtension
 from hypa.metrics import correlation, errors, rms
 from hypa.models.rollout import Prediction, free_run, free_run_metrics
-from hypa.models.spec import DIAGNOSED, ModelSpec, spec_config
+from hypa.models.spec import DIAGNOSED, ModelSpec, model_imports, read_model_file, spec_config
 from hypa.plots import time_series
 
 
@@ -265,11 +265,15 @@ def with_past(overrides: Sequence[str], problem: Problem, spec: ModelSpec) -> li
 
 def train_arguments(written: Path, model: str, overrides: Sequence[str], with_ann: bool,
                     config_dir: Path | None = None) -> list[str]:
-    """``python -m hypa.train`` arguments that train a written model on the same data: the
-    written folder joins Hydra's search path, so a user's own ``--config-dir`` (their dataset)
-    still applies."""
-    return [*(["--config-dir", str(config_dir)] if config_dir else []), f"hydra.searchpath=[file://{written}]",
-            f"model={model}", *overrides, *(["ann=lstm"] if with_ann else [])]
+    """``python -m hypa.train`` arguments that train a written model on the same data: the model is
+    read as data (``model_file=``, through the model schema only), so following the command from a
+    diagnosis folder someone sent runs none of its YAML as configuration; a user's own
+    ``--config-dir`` (their dataset) still applies. The user's own systems that the model names
+    are trusted by name (``trust=[...]``): they came from the user's own configuration."""
+    path = written / "model" / f"{model}.yaml"
+    imports = sorted(set(model_imports(read_model_file(path, ("*",))).values())) if path.is_file() else []
+    return [*(["--config-dir", str(config_dir)] if config_dir else []), f"model_file={path}",
+            *([f"trust=[{','.join(imports)}]"] if imports else []), *overrides, *(["ann=lstm"] if with_ann else [])]
 
 
 def train_command(written: Path, model: str, overrides: Sequence[str], with_ann: bool,

@@ -48,7 +48,7 @@ def train_extension(arguments: Sequence[str], run_dir: Path, dm: HypaDataModule,
     ``hypa.train`` overrides (e.g. a shorter training: ``trainer.max_epochs=5``)."""
     run_hypa("train", [*arguments, f"hydra.run.dir={run_dir}", *extra_overrides], "training the extended model",
              error=ExtensionTrainingError)
-    run = load_run(run_dir)
+    run = load_run(run_dir, trust=("*",))  # the run it trained just now, from its own model
     model = run.module.model
     if run.config.data.past != dm.past:  # raised for the extension (hypa.diagnosis.system.with_past)
         dm = run_datamodule(run)

@@ -9,8 +9,10 @@ never sees a measured state again).
 from __future__ import annotations
 
 import logging
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -23,6 +25,7 @@ from hypa.models.rollout import Prediction, free_run, free_run_metrics, model_in
 from hypa.training import HybridModule
 from hypa.training.checkpoints import load_module
 from hypa.training.run_folder import CONFIG_FILE, RECORD_FILE, read_record
+from hypa.trust import check_links, inside, read_yaml
 
 log = logging.getLogger(__name__)
 
@@ -49,30 +52,50 @@ def recorded_checkpoint(folder: Path, record: dict) -> Path:
     """The best checkpoint that a run folder's ``run.json`` records, checked against its SHA-256.
 
     Never "the last ``best-*`` by name": a checkpoint that is not the recorded one (another run's,
-    a damaged or replaced file) would be scored under this run's settings without a word.
+    a damaged or replaced file) would be scored under this run's settings without a word. The
+    record is data: its path must stay inside the folder (:func:`hypa.trust.inside`), and a record
+    without a checksum is refused, with the way to take the file anyway (name it).
     """
     best = record.get("best_checkpoint")
     if not isinstance(best, dict) or "path" not in best:
         if not (folder / RECORD_FILE).is_file() and not (folder / "checkpoints").is_dir():
             raise FileNotFoundError(f"no checkpoint in {folder / 'checkpoints'} (is {folder} a hypa.train run folder?)")
-        files = sorted(p.name for p in (folder / "checkpoints").glob("*.ckpt"))
-        choice = f"give one of its checkpoints: run={folder / 'checkpoints'}/<{' | '.join(files)}>" if files else \
-            "it has no checkpoint"
         raise UserError(f"{folder / RECORD_FILE} records no best checkpoint (a run of an older hypa, or one that "
-                        f"stopped before its first validation); {choice}")
-    path = Path(str(best["path"]))
-    path = path if path.is_absolute() else folder / path
+                        f"stopped before its first validation); {_choice(folder)}")
+    path = inside(folder, best["path"], f"{folder / RECORD_FILE}: best_checkpoint.path")
     if not path.is_file():
-        raise FileNotFoundError(f"{path}, the best checkpoint that {folder / RECORD_FILE} records, is missing")
-    if "sha256" in best and sha256(path) != best["sha256"]:
+        raise FileNotFoundError(f"{path}, the best checkpoint that {folder / RECORD_FILE} records, is missing; "
+                                f"{_choice(folder)}")
+    checksum = best.get("sha256")
+    if not isinstance(checksum, str):
+        raise UserError(f"{folder / RECORD_FILE} records no checksum of {path.name}, so nothing shows that it is this "
+                        f"run's checkpoint; to use it anyway, name the file itself: run={path}")
+    if sha256(path) != checksum:
         raise UserError(f"{path} is not the checkpoint that {folder / RECORD_FILE} records (its checksum differs: "
                         "replaced or damaged); give the checkpoint file itself to use it anyway")
     return path
 
 
-def load_run(path: Path | str) -> TrainedRun:
-    """Load a run from its folder (its recorded best checkpoint) or from one of its checkpoints (CPU)."""
-    path = Path(path).expanduser().resolve()
+def _choice(folder: Path) -> str:
+    """What to give instead: the folder's checkpoints, the newest first (a run killed while it replaced its
+    best keeps the new one)."""
+    checkpoints = folder / "checkpoints"
+    files = sorted((p for p in checkpoints.glob("*.ckpt") if p.is_file() and not p.is_symlink()),
+                   key=lambda p: p.stat().st_mtime, reverse=True) if checkpoints.is_dir() else []
+    best = [p for p in files if p.name.startswith("best")]
+    if best:
+        return f"its newest best checkpoint is {best[0].name}: give run={best[0]} to evaluate it"
+    if files:
+        return f"give one of its checkpoints: run={checkpoints}/<{' | '.join(p.name for p in files)}>"
+    return "it has no checkpoint"
+
+
+def load_run(path: Path | str, trust: Collection[str] = ()) -> TrainedRun:
+    """Load a run from its folder (its recorded best checkpoint) or from one of its checkpoints (CPU).
+
+    The folder is data (:mod:`hypa.trust`): ``trust`` names the import paths (a user's system or
+    network) its model may import."""
+    path = Path(path).expanduser().absolute()
     if not path.exists():
         raise FileNotFoundError(f"{path} does not exist: give a hypa.train run folder or a .ckpt file")
     if path.is_file():
@@ -81,34 +104,51 @@ def load_run(path: Path | str) -> TrainedRun:
     else:
         folder, info = path, read_record(path)
         checkpoint = recorded_checkpoint(folder, info)
-    module = load_module(checkpoint)
+    module = load_module(checkpoint, trust)
     config = run_config(folder)
     trained, configured = module.hparams.model_config.get("name"), OmegaConf.select(config, "model.name")
     if configured is not None and trained != configured:
         raise UserError(f"{checkpoint} holds model {trained}, but its run folder {folder} trained model "
                         f"{configured}; give the run folder (or a checkpoint) of the run to evaluate")
-    data_dir = Path(info["data_dir"]) if "data_dir" in info else None
+    data_dir = Path(info["data_dir"]) if isinstance(info.get("data_dir"), str) and info["data_dir"] else None
     return TrainedRun(folder=folder, checkpoint=checkpoint, config=config, module=module, data_dir=data_dir,
                       info=info)
 
 
 def run_config(folder: Path) -> DictConfig:
     """A run folder's configuration: the ``config.yaml`` that hypa.train wrote while it held the
-    folder (Hydra's ``.hydra/config.yaml`` for runs of older versions). A broken file is one line."""
+    folder (Hydra's ``.hydra/config.yaml`` for runs of older versions), read as data
+    (:func:`hypa.trust.read_yaml`: bounded, plain values, no aliases expanded, no interpolation
+    resolved). A broken file is one line."""
     config_file = folder / CONFIG_FILE
     if not config_file.is_file():
         config_file = folder / ".hydra" / "config.yaml"
     if not config_file.is_file():
         raise FileNotFoundError(f"{folder / CONFIG_FILE} is missing: {folder} is not a hypa.train run folder")
-    try:
-        config = OmegaConf.load(config_file)
-    except Exception as error:  # noqa: BLE001 -- YAML's scanner and parser errors, an unreadable byte
-        raise UserError(f"{config_file}: not a readable run configuration ({one_line(error)[:200]}); "
-                        "the run folder is damaged") from None
-    if not isinstance(config, DictConfig) or not isinstance(config.get("data"), DictConfig):
+    check_links(config_file, folder)
+    values = read_yaml(config_file, "run configuration")
+    if not isinstance(values, dict) or not isinstance(values.get("data"), dict):
         raise UserError(f"{config_file}: not a hypa.train run configuration (no data settings); the run folder "
                         "is damaged")
+    if _interpolations(values):
+        raise UserError(f"{config_file}: holds an interpolation (${{...}}), which hypa.train never writes there "
+                        "(it records resolved values); the run folder is damaged or crafted")
+    try:
+        config = OmegaConf.create(values)
+    except Exception as error:  # noqa: BLE001 -- OmegaConf refuses a key or value it cannot hold
+        raise UserError(f"{config_file}: not a readable run configuration ({one_line(error)[:200]}); "
+                        "the run folder is damaged") from None
     return config
+
+
+def _interpolations(value: Any) -> bool:
+    if isinstance(value, str):
+        return "${" in value
+    if isinstance(value, dict):
+        return any(_interpolations(k) or _interpolations(v) for k, v in value.items())
+    if isinstance(value, list):
+        return any(_interpolations(v) for v in value)
+    return False
 
 
 @torch.no_grad()

@@ -9,8 +9,9 @@ pure networks are YAML files in ``conf/model/``, not Python classes.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from hypa.errors import UserError
@@ -297,6 +298,48 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
             if not spec.block(block_name).residual_of:
                 raise ModelSpecError(f"stage {stage.name!r} bypasses {block_name!r}, which has no residual_of")
     return spec
+
+
+def model_imports(config: Mapping[str, Any], ann_name: str | None = None) -> dict[str, str]:
+    """The import paths a model config names that are not built into hypa (its blocks' user systems,
+    and ``ann_name`` where a block is or starts from a network and ``ann_name`` is not a built-in
+    network): what -> import path. They are code: a model read from a file (a checkpoint's, a
+    written ``diagnosed.yaml``) imports them only when the user trusts them (:mod:`hypa.trust`)."""
+    from hypa.ann import ANN_BLOCKS
+
+    found, networks = {}, False
+    for name, block in (config.get("blocks") or {}).items():
+        if not isinstance(block, Mapping):
+            continue
+        system = block.get("system")
+        if isinstance(system, str) and is_import_path(system):
+            found[f"block {name!r} system"] = system
+        start = block.get("initial_state")
+        networks = networks or block.get("kind") == "ann" or start in (ENCODER, [ENCODER])
+    if networks and ann_name is not None and ann_name not in ANN_BLOCKS:
+        found["network"] = ann_name
+    return found
+
+
+def read_model_file(path: Path, trust: Collection[str] = ()) -> dict[str, Any]:
+    """A model YAML read as data (``hypa.train model_file=...``, e.g. a diagnosis's
+    ``conf/model/diagnosed.yaml``): bounded plain YAML (:func:`hypa.trust.read_yaml`), the model
+    schema's keys only (no ``_target_``, no ``# @package`` that reaches other settings), no
+    interpolation, and no import path that ``trust`` does not name. Returns the checked mapping."""
+    from hypa.trust import check_imports, read_yaml
+
+    config = read_yaml(path, "model file")
+    if not isinstance(config, Mapping):
+        raise ModelSpecError(f"{path}: a model file maps model keys ({', '.join(keys(ModelConfig))}) to values")
+    if "${" in repr(config):
+        raise ModelSpecError(f"{path}: holds an interpolation (${{...}}); a model file is read as data, with "
+                             "values only")
+    try:
+        parse_model_spec(config)
+    except ModelSpecError as error:
+        raise ModelSpecError(f"{path}: {error}") from None
+    check_imports(model_imports(config), trust, path)
+    return dict(config)
 
 
 def spec_config(spec: ModelSpec, name: str | None = None) -> dict[str, Any]:

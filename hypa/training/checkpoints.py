@@ -7,18 +7,21 @@
   ``hypa.evaluate`` and every other reader take that record, never "the last ``best-*`` by name".
   A hybrid's training starts with its identified physics as the best so far
   (:meth:`RecordedCheckpoint.keep_the_start`): an epoch must beat it on validation to replace it.
-- :func:`load_module` reads a checkpoint with ``torch.load(weights_only=True)``: a hypa checkpoint
-  holds only tensors, numbers, strings and containers, so a crafted file cannot run code.
+- :func:`load_module` reads a checkpoint as data (:mod:`hypa.trust`): bounded before it is read
+  (torch's zip format, no compressed member), ``torch.load(weights_only=True)`` (only tensors,
+  numbers, strings and containers), its settings checked by the schema of :class:`HybridModule`'s
+  arguments before anything is built, and no import path in it imported unless the user trusts it.
 """
 
 from __future__ import annotations
 
 import inspect
-import io
 import logging
 import math
 import pickle
 import re
+import zipfile
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
@@ -27,11 +30,15 @@ import torch
 from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.plugins.io import TorchCheckpointIO
 
-from hypa.ann import ann_hyperparameters
+from hypa.ann import ann_hyperparameters, check_hyperparameters
 from hypa.errors import UserError, one_line
 from hypa.metadata import sha256
+from hypa.models import ModelSpecError, parse_model_spec
+from hypa.models.spec import model_imports
+from hypa.physics.discretization import HOLDS
 from hypa.training.module import HybridModule
 from hypa.training.run_folder import RunFolder, write_atomic
+from hypa.trust import check_imports, count_nodes
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +56,10 @@ class AtomicCheckpointIO(TorchCheckpointIO):
         except OSError as error:  # a full disk, a read-only folder: the previous checkpoints stay whole
             raise type(error)(error.errno, f"{error.strerror or error} while writing the checkpoint {path}; "
                                            "the checkpoints written before it are intact") from None
+
+    def load_checkpoint(self, path: Any, map_location: Any | None = None, weights_only: bool | None = None) -> Any:
+        """A checkpoint to resume from, read as :func:`read_checkpoint` reads one (bounded, no code)."""
+        return read_checkpoint(Path(path))
 
 
 class RecordedCheckpoint(ModelCheckpoint):
@@ -68,6 +79,12 @@ class RecordedCheckpoint(ModelCheckpoint):
     def on_train_epoch_end(self, trainer: L.Trainer, module: L.LightningModule) -> None:
         super().on_train_epoch_end(trainer, module)
         self._record(trainer)
+
+    def _remove_checkpoint(self, trainer: L.Trainer, filepath: str) -> None:
+        # the rotation saves the new best, then removes the old one: run.json names the new one first,
+        # so a process killed in between leaves a record of a checkpoint that exists
+        self._record(trainer)
+        super()._remove_checkpoint(trainer, filepath)
 
     def _record(self, trainer: L.Trainer) -> None:
         path = Path(self.best_model_path) if self.best_model_path else None
@@ -101,16 +118,23 @@ class RecordedCheckpoint(ModelCheckpoint):
         return val_loss
 
 
-def load_checkpoint(checkpoint: Path) -> tuple[dict[str, Any], bytes]:
-    """A checkpoint file's content (``torch.load(weights_only=True)``: no code runs) and its bytes.
+def read_checkpoint(checkpoint: Path) -> dict[str, Any]:
+    """A checkpoint file's content, read as data: bounded before it is read, no code run.
+
+    - It must be torch's zip format with every member stored, as ``torch.save`` writes it: a
+      compressed member (a zip bomb) is refused before anything is unpacked, so what is read is
+      never more than the file.
+    - ``torch.load(weights_only=True, mmap=True)``: only tensors, numbers, strings and containers,
+      the tensors mapped from the file rather than read (the model decides what is copied).
+    - The nested values are counted before any is walked (:func:`hypa.trust.count_nodes`).
 
     A file that is no checkpoint (a text file, a truncated download, a pickle that would run
     code) or one of another program is the user's error, named by the file.
     """
     checkpoint = Path(checkpoint)
-    content = checkpoint.read_bytes()  # read once, unpickled twice: checked here, then by Lightning
+    _check_archive(checkpoint)
     try:
-        state = torch.load(io.BytesIO(content), map_location="cpu", weights_only=True)
+        state = torch.load(checkpoint, map_location="cpu", weights_only=True, mmap=True)
     except pickle.UnpicklingError as error:  # torch's advice (to load it unrestricted) would run the code
         found = re.search(r"GLOBAL ([\w.]+)|global: ([\w.]+)", str(error))
         what = f" ({next(g for g in found.groups() if g)})" if found else ""
@@ -120,34 +144,171 @@ def load_checkpoint(checkpoint: Path) -> tuple[dict[str, Any], bytes]:
     except Exception as error:  # noqa: BLE001 -- a zip or EOF error: a text file, a truncated download
         raise UserError(f"{checkpoint}: not a readable checkpoint ({type(error).__name__}: {one_line(error)[:200]}); "
                         "give a .ckpt written by hypa.train") from None
-    hparams = state.get("hyper_parameters") if isinstance(state, dict) else None
-    if not isinstance(hparams, dict) or "model_config" not in hparams or "state_dict" not in state:
-        raise UserError(f"{checkpoint}: not a checkpoint of hypa.train (it holds no hypa model configuration)")
-    return state, content
+    if not isinstance(state, dict) or not isinstance(state.get("state_dict"), dict):
+        raise UserError(f"{checkpoint}: not a checkpoint of hypa.train (it holds no model weights)")
+    count_nodes({k: v for k, v in state.items() if k != "state_dict"}, str(checkpoint))
+    return state
 
 
-def load_module(checkpoint: Path) -> HybridModule:
-    """The trained module of a ``hypa.train`` checkpoint, on the CPU, in eval mode.
+def _check_archive(checkpoint: Path) -> None:
+    """Refuse a file that is not torch's zip format, or one whose members are compressed or add up to
+    more than the file: what ``torch.load`` unpacks is then never more than the file itself."""
+    try:
+        size = checkpoint.stat().st_size
+        with zipfile.ZipFile(checkpoint) as archive:
+            members = archive.infolist()
+    except FileNotFoundError:
+        raise
+    except (OSError, zipfile.BadZipFile, ValueError) as error:
+        raise UserError(f"{checkpoint}: not a readable checkpoint ({one_line(error)[:200]}); give a .ckpt written "
+                        "by hypa.train") from None
+    if len(members) > MAX_MEMBERS:
+        raise UserError(f"{checkpoint}: {len(members):,} members, more than a checkpoint of hypa.train holds; not read")
+    compressed = [m.filename for m in members if m.compress_type != zipfile.ZIP_STORED]
+    if compressed:
+        raise UserError(f"{checkpoint}: {compressed[0]} is compressed, which torch.save never does (a zip bomb?); "
+                        "not read: give a .ckpt written by hypa.train")
+    unpacked = sum(m.file_size for m in members)
+    if unpacked > size:
+        raise UserError(f"{checkpoint}: its members add up to {unpacked:,} bytes, more than the file's {size:,}; "
+                        "the file is damaged or crafted; not read")
 
-    A checkpoint whose weights do not fit its model, or one written by another version of hypa,
-    is the user's error too (checked here, where the file is read, not by catching everything
-    around it).
-    """
-    state, content = load_checkpoint(checkpoint)
-    hparams = state["hyper_parameters"]
+
+def checked_settings(state: dict[str, Any], source: Path | str, trust: Collection[str] = ()) -> dict[str, Any]:
+    """The stored settings (``hyper_parameters``) of a checkpoint, checked against the schema of
+    :class:`HybridModule`'s arguments before anything is built from them: every value of its type
+    and range, the model through the model schema, the network's hyperparameters plain values it
+    accepts, and no import path that ``trust`` does not name (:func:`~hypa.models.spec.model_imports`).
+    Returns them as plain Python values."""
+    hparams = state.get("hyper_parameters")
+    if not isinstance(hparams, dict) or "model_config" not in hparams:
+        raise UserError(f"{source}: not a checkpoint of hypa.train (it holds no hypa model configuration)")
     accepted = inspect.signature(HybridModule.__init__).parameters
-    unknown = sorted(set(hparams) - set(accepted))
+    unknown = sorted(set(map(str, hparams)) - set(accepted))
     missing = sorted(n for n, p in accepted.items() if n != "self" and p.default is p.empty and n not in hparams)
     if unknown or missing:
-        raise UserError(f"{checkpoint}: written by another version of hypa (settings {unknown or missing} "
+        raise UserError(f"{source}: written by another version of hypa (settings {unknown or missing} "
                         f"{'unknown' if unknown else 'missing'} here); evaluate it with that version or retrain")
-    _warn_new_network_settings(checkpoint, hparams)
+    out = {key: _plain(value, f"{source}: its setting {key}") for key, value in hparams.items()}
+
+    def bad(key: str, expected: str) -> UserError:
+        return UserError(f"{source}: its setting {key} is {str(out[key])[:80]!r}, not {expected}; the checkpoint is "
+                         "damaged or was not written by hypa.train")
+
+    if not isinstance(out["model_config"], dict):
+        raise bad("model_config", "a model (blocks wired by signals)")
     try:
-        module = HybridModule.load_from_checkpoint(io.BytesIO(content), map_location="cpu", weights_only=True)
-    except RuntimeError as error:
-        if "state_dict" not in str(error):
+        parse_model_spec(out["model_config"])
+    except ModelSpecError as error:
+        raise UserError(f"{source}: its model: {error}") from None
+    for key in ("input_names", "output_names", "eval_names", "scheduling_names"):
+        if key in out and not (isinstance(out[key], list) and all(isinstance(n, str) for n in out[key])):
+            raise bad(key, "a list of channel names")
+    for key, positive in (("dt", True), ("lr", False), ("physics_lr", False), ("weight_decay", False)):
+        value = out.get(key, 0.0)
+        if not _number(value) or not math.isfinite(value) or value < 0 or (positive and value == 0):
+            raise bad(key, "a positive finite number" if positive else "a finite number >= 0")
+    for key, low in (("horizon", 1), ("past", 0)):
+        value = out.get(key, low)
+        if not (isinstance(value, int) and not isinstance(value, bool) and low <= value <= MAX_STEPS):
+            raise bad(key, f"an integer from {low} to {MAX_STEPS:,}")
+    if out.get("hold") is not None and out["hold"] not in HOLDS:
+        raise bad("hold", f"one of {', '.join(HOLDS)} or null")
+    values = out.get("physical_values")
+    if values is not None and not (isinstance(values, dict) and all(
+            isinstance(k, str) and _number(v) and math.isfinite(v) for k, v in values.items())):
+        raise bad("physical_values", "a mapping of parameter names to finite numbers")
+    _check_normalization(out["normalization"], source)
+    if not isinstance(out.get("ann_name", "lstm"), str) or not out.get("ann_name", "lstm"):
+        raise bad("ann_name", "a network's name")
+    check_imports(model_imports(out["model_config"], out.get("ann_name", "lstm")), trust, source)
+    ann = out.get("ann_hparams")
+    if ann is not None:
+        if not isinstance(ann, dict):
+            raise bad("ann_hparams", "a mapping of the network's settings")
+        if _uses_networks(out["model_config"]):
+            try:
+                check_hyperparameters(out.get("ann_name", "lstm"), ann)
+            except (TypeError, ValueError) as error:
+                raise UserError(f"{source}: its network: {one_line(error)}") from None
+    return out
+
+
+MAX_MEMBERS = 100_000  # files in a checkpoint's archive (torch.save writes one per tensor storage, plus five)
+MAX_STEPS = 10_000_000  # a window's steps (horizon, past) a checkpoint may ask for
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _plain(value: Any, where: str) -> Any:
+    """``value`` as plain Python (dict with string keys, list, str, int, float, bool, None); a tensor
+    or any other object among a checkpoint's settings is the file's error."""
+    if isinstance(value, (str, bool, int, float)) or value is None:
+        return value
+    if isinstance(value, dict):
+        if not all(isinstance(k, str) for k in value):
+            raise UserError(f"{where}: a mapping whose keys are not all names; the checkpoint is damaged or crafted")
+        return {k: _plain(v, where) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v, where) for v in value]
+    raise UserError(f"{where}: holds a {type(value).__name__}, which hypa never stores there; the checkpoint is "
+                    "damaged or crafted")
+
+
+def _check_normalization(state: Any, source: Path | str) -> None:
+    """``normalization``: names, and a finite mean and a positive finite std for each."""
+    ok = isinstance(state, dict) and isinstance(state.get("names"), list) and all(
+        isinstance(n, str) for n in state["names"])
+    for key in ("mean", "std"):
+        ok = ok and isinstance(state.get(key), list) and len(state[key]) == len(state["names"]) and all(
+            _number(v) and math.isfinite(v) for v in state[key])
+    if not ok or any(v <= 0 for v in state["std"]):
+        raise UserError(f"{source}: its normalization is not names with finite means and positive scales; the "
+                        "checkpoint is damaged or crafted")
+
+
+def _uses_networks(model_config: dict[str, Any]) -> bool:
+    return any(isinstance(b, dict) and (b.get("kind") == "ann" or b.get("initial_state") in ("encoder", ["encoder"]))
+               for b in (model_config.get("blocks") or {}).values())
+
+
+def load_module(checkpoint: Path, trust: Collection[str] = ()) -> HybridModule:
+    """The trained module of a ``hypa.train`` checkpoint, on the CPU, in eval mode.
+
+    The file is read as data (:func:`read_checkpoint`), its settings checked
+    (:func:`checked_settings`; ``trust``: the import paths the user trusts), the module built from
+    them and its weights copied in. A checkpoint whose weights do not fit its model, or one written
+    by another version of hypa, is the user's error too.
+    """
+    state = read_checkpoint(checkpoint)
+    hparams = checked_settings(state, checkpoint, trust)
+    _warn_new_network_settings(checkpoint, hparams)
+    weights = state["state_dict"]
+    if not all(isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in weights.items()):
+        raise UserError(f"{checkpoint}: its weights are not named tensors; the checkpoint is damaged or crafted")
+    stored = sum(v.numel() * v.element_size() for v in weights.values())
+    try:
+        with torch.device("meta"):  # sizes only, nothing allocated: settings that ask for a huge network fail here
+            needed = sum(v.numel() * v.element_size() for v in HybridModule(**hparams).state_dict().values())
+    except UserError:
+        raise
+    except Exception:  # noqa: BLE001 -- a model that cannot be sized without its values: built below
+        needed = 0
+    if needed > 2 * stored + 2**20:
+        raise UserError(f"{checkpoint}: its settings make a model of {needed / 2**20:.1f} MiB, but it holds "
+                        f"{stored / 2**20:.1f} MiB of weights; the checkpoint is damaged or crafted; not built")
+    try:
+        module = HybridModule(**hparams)
+    except (TypeError, ValueError) as error:
+        if isinstance(error, UserError):
             raise
-        raise UserError(f"{checkpoint}: its weights do not fit its model ({one_line(error)[:300]})") from error
+        raise UserError(f"{checkpoint}: its settings do not build a model ({one_line(error)[:300]})") from None
+    try:
+        module.load_state_dict(weights)
+    except RuntimeError as error:
+        raise UserError(f"{checkpoint}: its weights do not fit its model ({one_line(error)[:300]})") from None
     module.eval()
     return module
 
