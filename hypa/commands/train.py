@@ -78,7 +78,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     from hypa.metadata import run_metadata
     from hypa.models import parse_model_spec
     from hypa.models.building import model_hold
-    from hypa.models.schema import plain_model
+    from hypa.models.schema import ModelConfig, plain_model
     from hypa.models.spec import model_imports, read_model_file
     from hypa.training import HybridModule, StagedTraining, ValidationFigures
     from hypa.training.baseline import network_defaults
@@ -106,7 +106,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     hold, horizon = config.physics.hold, config.horizon
     if config.model_file:  # a model file is data: read through the model schema, it replaces model=
         model_config = read_model_file(from_cwd(config.model_file), config.trust)
-        OmegaConf.update(cfg, "model", model_config, merge=False)  # what the run records as trained
+        cfg.model = OmegaConf.merge(OmegaConf.structured(ModelConfig), model_config)  # what the run records
     else:
         model_config = plain_model(OmegaConf.to_container(cfg.model, resolve=True))
     model_hold(parse_model_spec(model_config), hold, "physics.hold")  # against the model's own: refused before the data

@@ -69,7 +69,7 @@ def recorded_checkpoint(folder: Path, record: dict) -> Path:
     checksum = best.get("sha256")
     if not isinstance(checksum, str):
         raise UserError(f"{folder / RECORD_FILE} records no checksum of {path.name}, so nothing shows that it is this "
-                        f"run's checkpoint; to use it anyway, name the file itself: run={path}")
+                        f"run's checkpoint; to use it anyway, name the file itself: run='{path}'")
     if sha256(path) != checksum:
         raise UserError(f"{path} is not the checkpoint that {folder / RECORD_FILE} records (its checksum differs: "
                         "replaced or damaged); give the checkpoint file itself to use it anyway")
@@ -84,9 +84,9 @@ def _choice(folder: Path) -> str:
                    key=lambda p: p.stat().st_mtime, reverse=True) if checkpoints.is_dir() else []
     best = [p for p in files if p.name.startswith("best")]
     if best:
-        return f"its newest best checkpoint is {best[0].name}: give run={best[0]} to evaluate it"
+        return f"its newest best checkpoint is {best[0].name}: give run='{best[0]}' to evaluate it"
     if files:
-        return f"give one of its checkpoints: run={checkpoints}/<{' | '.join(p.name for p in files)}>"
+        return f"give one of its checkpoints: run='{checkpoints}/<{' | '.join(p.name for p in files)}>'"
     return "it has no checkpoint"
 
 

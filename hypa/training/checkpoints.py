@@ -30,7 +30,7 @@ import torch
 from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.plugins.io import TorchCheckpointIO
 
-from hypa.ann import ann_hyperparameters, check_hyperparameters
+from hypa.ann import ann_hyperparameters, build_ann, check_hyperparameters
 from hypa.errors import UserError, one_line
 from hypa.metadata import sha256
 from hypa.models import ModelSpecError, parse_model_spec
@@ -269,6 +269,19 @@ def _check_normalization(state: Any, source: Path | str) -> None:
                         "checkpoint is damaged or crafted")
 
 
+def _network_bytes(hparams: dict[str, Any]) -> int:
+    """The bytes of the smallest network the settings ask for (one input, one output), sized on the
+    ``meta`` device (nothing allocated); 0 for a model without networks or one that cannot be sized so."""
+    if not _uses_networks(hparams["model_config"]):
+        return 0
+    try:
+        with torch.device("meta"):
+            network = build_ann(hparams.get("ann_name", "lstm"), 1, 1, **(hparams.get("ann_hparams") or {}))
+    except Exception:  # noqa: BLE001 -- a network whose construction needs values: built with the module
+        return 0
+    return sum(p.numel() * p.element_size() for p in network.state_dict().values())
+
+
 def _uses_networks(model_config: dict[str, Any]) -> bool:
     return any(isinstance(b, dict) and (b.get("kind") == "ann" or b.get("initial_state") in ("encoder", ["encoder"]))
                for b in (model_config.get("blocks") or {}).values())
@@ -289,15 +302,9 @@ def load_module(checkpoint: Path, trust: Collection[str] = ()) -> HybridModule:
     if not all(isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in weights.items()):
         raise UserError(f"{checkpoint}: its weights are not named tensors; the checkpoint is damaged or crafted")
     stored = sum(v.numel() * v.element_size() for v in weights.values())
-    try:
-        with torch.device("meta"):  # sizes only, nothing allocated: settings that ask for a huge network fail here
-            needed = sum(v.numel() * v.element_size() for v in HybridModule(**hparams).state_dict().values())
-    except UserError:
-        raise
-    except Exception:  # noqa: BLE001 -- a model that cannot be sized without its values: built below
-        needed = 0
-    if needed > 2 * stored + 2**20:
-        raise UserError(f"{checkpoint}: its settings make a model of {needed / 2**20:.1f} MiB, but it holds "
+    needed = _network_bytes(hparams)
+    if needed > 2 * stored + 2**20:  # the weights hold every parameter: sizes that ask for more are not built
+        raise UserError(f"{checkpoint}: its settings make a network of {needed / 2**20:,.1f} MiB, but it holds "
                         f"{stored / 2**20:.1f} MiB of weights; the checkpoint is damaged or crafted; not built")
     try:
         module = HybridModule(**hparams)
