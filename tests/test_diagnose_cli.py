@@ -83,7 +83,7 @@ def test_extended_model_is_a_hypa_model_that_trains(delay_run, tmp_path: Path) -
     # nothing is left unexplained here, and the hybrid on the extension is written all the same (the benchmark's row)
     hybrid = yaml.safe_load(Path(diagnosis["extended"]["config"]["diagnosed_hybrid"]).read_text())
     assert hybrid["name"] == "diagnosed_hybrid" and hybrid["blocks"][DELAY_BLOCK] == model["blocks"][DELAY_BLOCK]
-    assert "model=diagnosed_hybrid" in diagnosis["extended"]["train_command"]["diagnosed_hybrid"]
+    assert "diagnosed_hybrid.yaml" in diagnosis["extended"]["train_command"]["diagnosed_hybrid"]
     command = diagnosis["extended"]["train_command"]["diagnosed"]
     assert command in (run / "diagnosis.md").read_text()
     words = shlex.split(command)

@@ -74,7 +74,7 @@ def test_rear_steering_is_named_with_its_ratio_and_lag(tmp_path: Path) -> None:
     assert block["outputs"] == ["diagnosed_rear_wheel_angle"] and block["scale_as"] == ["front_wheel_angle"]
     assert all(not b.get("trainable") for b in learned["blocks"].values())
     assert learned["blocks"]["single_track"]["system"] == "single_track" and learned["hold"] == "foh"
-    assert "model=diagnosed_learned" in result["extended"]["train_command"]["diagnosed_learned"]
+    assert "diagnosed_learned.yaml" in result["extended"]["train_command"]["diagnosed_learned"]
 
 
 def test_tire_relaxation_is_named_and_no_dead_time_stands_in(tmp_path: Path) -> None:

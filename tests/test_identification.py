@@ -255,6 +255,7 @@ def test_hypa_train_identifies_a_physics_only_model(data: Path, tmp_path: Path) 
     assert "identification/text_summary" in board.Tags()["tensors"]
     assert board.Scalars("physics/torque_constant")[0].value == pytest.approx(0.065, rel=0.02)
     evaluated = subprocess.run([sys.executable, "-m", "hypa.evaluate", f"run={run}", f"out={tmp_path / 'eval'}",
+                                "trust=[dc_motor]",
                                 "tensorboard=false", f"hydra.run.dir={tmp_path / 'hydra'}"],
                                cwd=ROOT, capture_output=True, text=True, timeout=300, env=env, check=False)
     assert evaluated.returncode == 0, evaluated.stderr[-3000:]
@@ -289,7 +290,7 @@ def test_a_jointly_trained_hybrid_starts_its_networks_on_identified_physics(data
         assert record["identification"]["parameters"][name]["value"] == pytest.approx(value, rel=0.02)
     from hypa.training.checkpoints import load_module
 
-    trained = load_module(run / record["last_checkpoint"]).model.parameters_.as_floats()  # after the epoch
+    trained = load_module(run / record["last_checkpoint"], ["dc_motor"]).model.parameters_.as_floats()  # after it
     for name, value in TRUE.items():  # the epochs started from the identified values (and barely moved them)
         assert trained[name] == pytest.approx(value, rel=0.02)
 
@@ -309,7 +310,7 @@ def test_a_hybrid_whose_network_only_adds_error_keeps_its_identified_physics(dat
     assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["best-start.ckpt", "last.ckpt"]
     from hypa.training.checkpoints import load_module
 
-    kept = load_module(run / record["best_checkpoint"]["path"]).model
+    kept = load_module(run / record["best_checkpoint"]["path"], ["dc_motor"]).model
     head = kept.blocks["correction"].head
     assert not head.weight.detach().any() and not head.bias.detach().any()  # the correction's start: output zero
     for name, value in TRUE.items():

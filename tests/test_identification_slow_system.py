@@ -116,6 +116,7 @@ def train(user: Path, model: str, run: Path) -> dict:
     assert result.returncode == 0, result.stderr[-3000:]
     assert "after identification" in result.stdout
     evaluated = subprocess.run([sys.executable, "-m", "hypa.evaluate", f"run={run}", f"out={run / 'eval'}",
+                                "trust=[heated_body]",
                                 "tensorboard=false", f"hydra.run.dir={run / 'hydra-eval'}"],
                                cwd=ROOT, capture_output=True, text=True, timeout=300, env=env, check=False)
     assert evaluated.returncode == 0, evaluated.stderr[-3000:]

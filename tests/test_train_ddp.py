@@ -81,7 +81,7 @@ def test_a_hybrid_identified_once_trains_on_its_physics_across_two_processes(tmp
     from hypa.training.checkpoints import load_module
 
     sys.path.insert(0, str(USER_EXAMPLE))  # the system class, for loading the checkpoint here
-    trained = load_module(run / record["best_checkpoint"]["path"]).model.parameters_.as_floats()
+    trained = load_module(run / record["best_checkpoint"]["path"], ["dc_motor"]).model.parameters_.as_floats()
     for name, value in TRUE.items():
         assert record["identification"]["parameters"][name]["value"] == pytest.approx(value, rel=0.02)
         assert trained[name] == pytest.approx(value, rel=0.02)

@@ -68,7 +68,7 @@ def test_a_users_network_and_callback_plug_in_by_target(tmp_path):
     try:
         from hypa.evaluation.runs import load_run
 
-        run = load_run(tmp_path / "run")
+        run = load_run(tmp_path / "run", trust=["mynets.TinyGRU"])
     finally:
         sys.path.remove(str(tmp_path))
     assert run.module.hparams.ann_name == "mynets.TinyGRU"

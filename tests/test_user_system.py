@@ -36,7 +36,7 @@ def test_user_system_trains_and_finds_the_true_parameters(trained: Path) -> None
     try:
         from hypa.evaluation.runs import load_run
 
-        fitted = load_run(trained).module.model.parameters_.as_floats()
+        fitted = load_run(trained, trust=["dc_motor"]).module.model.parameters_.as_floats()
     finally:
         sys.path.remove(str(EXAMPLE))
     assert fitted["torque_constant"] == pytest.approx(0.065, rel=0.02)
@@ -46,6 +46,7 @@ def test_user_system_trains_and_finds_the_true_parameters(trained: Path) -> None
 def test_user_system_evaluates_in_its_own_units(trained: Path, tmp_path: Path) -> None:
     env = {**os.environ, "PYTHONPATH": str(EXAMPLE)}
     result = subprocess.run([sys.executable, "-m", "hypa.evaluate", f"run={trained}", f"out={tmp_path}",
+                             "trust=[dc_motor]",
                              "tensorboard=false", f"hydra.run.dir={tmp_path / 'hydra'}"],
                             cwd=ROOT, capture_output=True, text=True, timeout=300, env=env, check=False)
     assert result.returncode == 0, result.stderr[-3000:]
