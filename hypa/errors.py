@@ -7,7 +7,8 @@ file, a bad checkpoint, a configuration Hydra cannot compose, an output folder t
 written or a full disk) into ``hypa.train: error: <message>`` (one line) on stderr and exit
 status 1, wherever they happen: in hypa's code or in Hydra's own set-up of the run folder.
 Anything else is a bug and keeps its traceback; ``HYDRA_FULL_ERROR=1`` (or ``HYPA_FULL_ERROR=1``)
-keeps the traceback for user errors too.
+keeps the traceback for user errors too. Ctrl-C ends a command with ``hypa.train: interrupted`` and
+exit status 130 (as a shell reports SIGINT), without a traceback unless those ask for it.
 
 A bad value of an override is reported in the words of the setting to fix: a value of the wrong
 type, or a misspelt key, while Hydra composes the typed configuration (:mod:`hypa.commands.config`;
@@ -20,6 +21,7 @@ elsewhere stay bugs.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import functools
 import math
@@ -141,7 +143,7 @@ def _schema_message(error: BaseException) -> str | None:
 
 def user_errors(command: str) -> Callable[[F], F]:
     """Decorate a command's ``main``, above ``@hydra.main``: a user error ends it with one line and
-    exit status 1 (see the module docstring)."""
+    exit status 1, Ctrl-C with ``<command>: interrupted`` and exit status 130 (see the module docstring)."""
     def decorate(main: F) -> F:
         @functools.wraps(main)
         def wrapped(*args: Any, **kwargs: Any) -> Any:
@@ -150,6 +152,15 @@ def user_errors(command: str) -> Callable[[F], F]:
             os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing its own report
             try:
                 return main(*args, **kwargs)
+            except KeyboardInterrupt:  # Ctrl-C: the user's wish, not a bug
+                if full:
+                    raise
+                _interrupted(command)
+            except SystemExit as exit_:
+                # Lightning ends a fit, validation or prediction that Ctrl-C stopped with its own exit status 1
+                if full or exit_.code != 1 or not isinstance(exit_.__context__, KeyboardInterrupt):
+                    raise
+                _interrupted(command)
             except Exception as error:
                 if full or not (is_user_error(error) or _raised_composing(error)):
                     raise
@@ -159,6 +170,20 @@ def user_errors(command: str) -> Callable[[F], F]:
         return wrapped  # type: ignore[return-value]
 
     return decorate
+
+
+INTERRUPTED = 130  # the shell's status of a command ended by SIGINT (128 + 2)
+
+
+def _interrupted(command: str) -> None:
+    """Ctrl-C: one line ``<command>: interrupted`` on stderr and exit status 130, no traceback. A
+    second Ctrl-C while it ends is ignored (it would print the traceback this line replaces)."""
+    import signal
+
+    with contextlib.suppress(ValueError):  # not the main thread: nothing to ignore there
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    print(f"{command}: interrupted", file=sys.stderr, flush=True)
+    sys.exit(INTERRUPTED)
 
 
 def _raised_composing(error: BaseException) -> bool:

@@ -288,7 +288,8 @@ def test_same_cause_on_two_targets_and_an_unreadable_report(tmp_path: Path) -> N
     logs = fleet.collect(tmp_path).logs
     assert logs[0].estimates == {"input_lag: tau": fleet.Estimate(pytest.approx(20.0), "ms"),
                                  "input_lag on u2: tau": fleet.Estimate(pytest.approx(30.0), "ms")}
-    assert logs[1].failed and "diagnosis.json cannot be read (KeyError: 'causes')" in (logs[1].error or "")
+    assert logs[1].failed
+    assert "diagnosis.json: not a diagnosis.json of hypa.diagnose (causes is missing)" in (logs[1].error or "")
 
 
 def test_a_summary_that_cannot_be_written_ends_the_sweep_with_one_line(tmp_path: Path, capsys) -> None:

@@ -29,7 +29,6 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
-import yaml
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
@@ -38,6 +37,7 @@ from hypa.data.units import readable
 from hypa.diagnosis.result import Diagnosis, FindingRow
 from hypa.errors import UserError, full_error_requested, is_user_error, one_line
 from hypa.metrics import mean_std
+from hypa.trust import read_bounded, read_yaml
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -164,8 +164,14 @@ def estimates(named: FindingRow) -> dict[str, Estimate]:
 def read_log(folder: Path) -> LogDiagnosis:
     """One job folder: its diagnosis.json, else its error.json, else a job that did not finish.
     A report without ``named`` rows (written before the one-engine diagnosis) gives its causes
-    but no estimates."""
-    overrides = tuple(str(o) for o in (_yaml(folder / ".hydra" / "overrides.yaml") or []))
+    but no estimates. A file of the folder that cannot be read (too large, not what hypa writes, a
+    ``!!python`` tag in its YAML) is that job's error: the folder is data, read as such
+    (:mod:`hypa.trust`), and the other jobs are summarized."""
+    try:
+        job_name(folder / ".hydra" / "hydra.yaml")
+        overrides = read_overrides(folder / ".hydra" / "overrides.yaml")
+    except UserError as error:
+        return LogDiagnosis(folder, (), error=one_line(error))
     if (folder / DIAGNOSIS_FILE).is_file():
         try:
             result = Diagnosis.from_json(folder / DIAGNOSIS_FILE)
@@ -178,25 +184,76 @@ def read_log(folder: Path) -> LogDiagnosis:
             trained = result.extended.trained
             change = {"all": result.change, "trained": trained.change if trained else None}
             causes = tuple(result.causes)
+        except UserError as error:  # Diagnosis.from_json: a file that is not a diagnosis.json, in one line
+            return LogDiagnosis(folder, overrides, error=one_line(error))
         except (ValueError, KeyError, TypeError, AttributeError) as error:
             return LogDiagnosis(folder, overrides, error=f"{folder / DIAGNOSIS_FILE} cannot be read "
                                                          f"({type(error).__name__}: {error})")
         return LogDiagnosis(folder, overrides, causes=causes, estimates=values, mse_change=change)
     if (folder / ERROR_FILE).is_file():
-        return LogDiagnosis(folder, overrides, error=str(json.loads((folder / ERROR_FILE).read_text())["error"]))
+        return LogDiagnosis(folder, overrides, error=read_error(folder / ERROR_FILE))
     return LogDiagnosis(folder, overrides, error=f"no {DIAGNOSIS_FILE}: the job did not finish "
                                                  f"(see {folder / (JOB_NAME + '.log')})")
 
 
-def _yaml(path: Path) -> Any:
-    return yaml.safe_load(path.read_text()) if path.is_file() else None
+def read_error(path: Path) -> str:
+    """The one-line error that :func:`record_failures` wrote, or why the file is not one."""
+    try:
+        error = json.loads(read_bounded(path, what=ERROR_FILE))
+    except UserError as refused:
+        return one_line(refused)
+    except (ValueError, RecursionError) as bad:  # not JSON, not UTF-8, nested without end
+        return f"{path}: not an {ERROR_FILE} of hypa.diagnose ({type(bad).__name__}); the job failed"
+    if not isinstance(error, dict) or not isinstance(error.get("error"), str):
+        return f"{path}: not an {ERROR_FILE} of hypa.diagnose (no one-line error in it); the job failed"
+    return " ".join(error["error"].split())[:2000]
+
+
+def read_overrides(path: Path) -> tuple[str, ...]:
+    """A job's command-line overrides (``.hydra/overrides.yaml``, a list of strings; none without the
+    file), read as data (:func:`hypa.trust.read_yaml`); anything else is one line."""
+    if not path.is_file():
+        return ()
+    overrides = read_yaml(path, "Hydra overrides file")
+    if overrides is None:
+        return ()
+    if not isinstance(overrides, list) or not all(isinstance(o, (str, int, float, bool)) for o in overrides):
+        raise UserError(f"{path}: not a Hydra overrides file (a list of key=value strings)")
+    return tuple(str(o) for o in overrides)
+
+
+def job_name(path: Path) -> str | None:
+    """``hydra.job.name`` of a job folder's ``.hydra/hydra.yaml`` (``None`` without one), read as data
+    (:func:`hypa.trust.read_yaml`); a file that cannot be read is one line."""
+    if not path.is_file():
+        return None
+    config = read_yaml(path, "Hydra configuration file")
+    name = _at(config, "hydra", "job", "name")
+    return name if isinstance(name, str) else None
+
+
+def _at(node: Any, *keys: str) -> Any:
+    for key in keys:
+        if not isinstance(node, dict):
+            return None
+        node = node.get(key)
+    return node
 
 
 def find_jobs(sweep_dir: Path) -> list[Path]:
     """The ``hypa.diagnose`` job folders under ``sweep_dir`` (by their ``.hydra/hydra.yaml``; a
-    trained extension's ``hypa.train`` run inside a job is not one), in natural order (2 < 10)."""
-    folders = [p.parent.parent for p in Path(sweep_dir).rglob("hydra.yaml") if p.parent.name == ".hydra"
-               and ((_yaml(p) or {}).get("hydra", {}).get("job", {}).get("name") == JOB_NAME)]
+    trained extension's ``hypa.train`` run inside a job is not one), in natural order (2 < 10).
+    A folder whose ``hydra.yaml`` cannot be read is a job too: its summary row says why."""
+    folders = []
+    for path in Path(sweep_dir).rglob("hydra.yaml"):
+        if path.parent.name != ".hydra":
+            continue
+        try:
+            if job_name(path) != JOB_NAME:
+                continue
+        except UserError:  # a damaged or hostile file: reported in the job's row (read_log)
+            pass
+        folders.append(path.parent.parent)
     return sorted(folders, key=lambda p: [int(t) if t.isdigit() else t
                                           for t in re.split(r"(\d+)", _relative(p, Path(sweep_dir)))])
 

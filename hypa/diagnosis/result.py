@@ -9,6 +9,7 @@ All values are in SI units; the Markdown report shows them in the units given to
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
@@ -21,6 +22,8 @@ from hypa.diagnosis.generic import GenericFit
 from hypa.diagnosis.problem import format_change
 from hypa.diagnosis.scales import Scales, duration
 from hypa.diagnosis.structure import OutputStructure
+from hypa.errors import UserError
+from hypa.trust import read_bounded
 
 WRITTEN = {"diagnosed": "the named causes at their fitted values, the uncertain ones trainable",
            "diagnosed_hybrid": "the same with a correction network on the outputs",
@@ -294,7 +297,25 @@ class Diagnosis:
 
     @classmethod
     def from_json(cls, path: Path) -> Diagnosis:
-        return cls.from_dict(json.loads(Path(path).read_text()))
+        """A ``diagnosis.json`` read back: bounded in size (:func:`hypa.trust.read_bounded`), every value
+        checked against the fields' types first, so that a file hypa did not write (a wrong type, a
+        missing key, not JSON) is one line naming the file and the value, never a traceback later."""
+        path = Path(path)
+        try:
+            data = json.loads(read_bounded(path, what="diagnosis.json"))
+        except (ValueError, RecursionError) as error:  # not JSON, not UTF-8, nested without end
+            if isinstance(error, UserError):
+                raise
+            raise UserError(f"{path}: not a diagnosis.json of hypa.diagnose ({type(error).__name__}: "
+                            f"{' '.join(str(error).split())[:200]})") from None
+        try:
+            _conform(data, Diagnosis, "")
+            return cls.from_dict(data)
+        except _Mismatch as error:
+            raise UserError(f"{path}: not a diagnosis.json of hypa.diagnose ({error})") from None
+        except (KeyError, TypeError, AttributeError, ValueError) as error:  # what the types do not say
+            raise UserError(f"{path}: not a diagnosis.json of hypa.diagnose ({type(error).__name__}: "
+                            f"{' '.join(str(error).split())[:200]})") from None
 
     def headline(self) -> dict[str, str]:
         """The headline figures as printed, for diagnosis.md and the command's last line alike (one
@@ -310,6 +331,105 @@ class Diagnosis:
         """diagnosis.md: the engineer's report. ``units``: channel -> (unit shown, factor from SI)
         (SI where not given); ``min_gain``: the search's floor, as it ran."""
         return _markdown(self, units or {}, min_gain)
+
+
+class _Mismatch(Exception):
+    """A value of diagnosis.json that is not of its field's type: ``where`` and what it should be."""
+
+
+# The classes whose fields Diagnosis.from_dict reads with ``or``: null there reads as empty, as a missing key does.
+_NULL_AS_EMPTY = {"Diagnosis", "Extension", "TrainedSummary"}
+
+
+def _conform(value: Any, hint: Any, where: str) -> None:
+    """Raise :class:`_Mismatch` where ``value`` (parsed JSON) is not of the type ``hint`` (a field's
+    annotation: a dataclass of this module's, ``float``, ``list[...]``, ``X | None``, ...)."""
+    import types
+    import typing
+    from numbers import Integral, Real
+
+    if hint is Any:
+        return
+    if dataclasses.is_dataclass(hint):
+        if not isinstance(value, Mapping):
+            raise _Mismatch(f"{where or 'the file'} is {_kind(value)}, not an object of {hint.__name__}'s keys")
+        hints = _hints(hint)
+        for f in fields(hint):
+            key = f"{where}.{f.name}" if where else f.name
+            if f.name not in value:
+                if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                    raise _Mismatch(f"{key} is missing")
+                continue
+            item = value[f.name]
+            if item is None and hint.__name__ in _NULL_AS_EMPTY:
+                continue
+            _conform(item, hints[f.name], key)
+        return
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return
+        problems = []
+        for option in (a for a in args if a is not type(None)):
+            try:
+                _conform(value, option, where)
+                return
+            except _Mismatch as mismatch:  # noqa: PERF203 -- the next option may fit
+                problems.append(mismatch)
+        raise problems[0]
+    if hint is type(None):
+        if value is not None:
+            raise _Mismatch(f"{where} is {_kind(value)}, not null")
+        return
+    if origin in (list, tuple):
+        if not isinstance(value, (list, tuple)):
+            raise _Mismatch(f"{where} is {_kind(value)}, not a list")
+        items = args if origin is tuple and args and args[-1] is not Ellipsis else None
+        if items is not None and len(items) != len(value):
+            raise _Mismatch(f"{where} has {len(value)} values, not {len(items)}")
+        for i, item in enumerate(value):
+            _conform(item, items[i] if items is not None else (args[0] if args else Any), f"{where}[{i}]")
+        return
+    if origin is dict:
+        if not isinstance(value, Mapping):
+            raise _Mismatch(f"{where} is {_kind(value)}, not an object")
+        for key, item in value.items():
+            if not isinstance(key, str):
+                raise _Mismatch(f"{where} has the key {key!r}, not a string")
+            _conform(item, args[1] if args else Any, f"{where}.{key}")
+        return
+    expected = {float: (Real, "a number"), int: (Integral, "an integer"), str: (str, "a string"),
+                bool: (bool, "true or false")}.get(hint)
+    if expected is None:
+        raise _Mismatch(f"{where} cannot be checked")  # a field of a type this function does not know: a bug
+    if not isinstance(value, expected[0]) or (hint is not bool and isinstance(value, bool)):
+        raise _Mismatch(f"{where} is {_kind(value)}, not {expected[1]}")
+
+
+def _hints(cls: type) -> dict[str, Any]:
+    """The resolved annotations of a dataclass (its module's names: ``float | None``, ``list[FindingRow]``)."""
+    import typing
+
+    hints = _HINTS.get(cls)
+    if hints is None:
+        hints = _HINTS[cls] = typing.get_type_hints(cls)
+    return hints
+
+
+_HINTS: dict[type, dict[str, Any]] = {}
+
+
+def _kind(value: Any) -> str:
+    """A value of parsed JSON as a reader names it: ``the string 'abc'``, ``a list``, ``null``."""
+    if value is None:
+        return "null"
+    if isinstance(value, str):
+        return f"the string {value[:40]!r}"
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, (int, float)):
+        return f"the number {value:g}"
+    return "a list" if isinstance(value, list) else "an object" if isinstance(value, Mapping) else type(value).__name__
 
 
 def _make(cls: type, data: Mapping[str, Any]) -> Any:

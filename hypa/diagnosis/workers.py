@@ -16,8 +16,9 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import os
+import signal
 import traceback
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from multiprocessing.connection import wait
 from typing import Any
 
@@ -52,13 +53,14 @@ class Workers:
         self.runners, self.owner = runners, {}
         context = multiprocessing.get_context("fork")
         self.pipes, self.processes = [], []
-        for _ in range(count):
-            mine, theirs = context.Pipe()
-            process = context.Process(target=_serve, args=(theirs, runners, val), daemon=True)
-            process.start()
-            theirs.close()
-            self.pipes.append(mine)
-            self.processes.append(process)
+        with _sigint_held():  # a Ctrl-C meanwhile reaches this process once the workers ignore it
+            for _ in range(count):
+                mine, theirs = context.Pipe()
+                process = context.Process(target=_serve, args=(theirs, runners, val), daemon=True)
+                process.start()
+                theirs.close()
+                self.pipes.append(mine)
+                self.processes.append(process)
 
     def run(self, shares: Mapping[int, float], jobs: Sequence[Callable[[], None]] = ()) -> None:
         """Advance runner i to ``shares[i]`` of its steps on the workers; run ``jobs`` meanwhile."""
@@ -99,7 +101,10 @@ class Workers:
     def __enter__(self) -> Workers:  # noqa: PYI034 -- never subclassed; typing.Self needs 3.11
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, kind: type[BaseException] | None, *exc: object) -> None:
+        if kind is not None:  # Ctrl-C or an error in the round: the workers' fits are not wanted any more
+            for process in self.processes:
+                process.kill()
         for pipe in self.pipes:
             with contextlib.suppress(BrokenPipeError, OSError):
                 pipe.send(None)
@@ -108,6 +113,22 @@ class Workers:
             process.join(timeout=5)
             if process.is_alive():
                 process.kill()
+                process.join(timeout=5)
+
+
+@contextlib.contextmanager
+def _sigint_held() -> Iterator[None]:
+    """SIGINT blocked (held pending, not lost) in this thread while the workers are forked: a worker
+    inherits the mask and ignores the signal before it unblocks it, so Ctrl-C never interrupts one
+    before it can ignore it; this process gets a held Ctrl-C when the block ends."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 def _cost(runner: Any, share: float) -> float:
@@ -117,7 +138,13 @@ def _cost(runner: Any, share: float) -> float:
 
 
 def _serve(pipe, runners: Sequence[Any], val: Any) -> None:
-    """A worker: advance the runner it is told to, reply with its state, until told None."""
+    """A worker: advance the runner it is told to, reply with its state, until told None.
+
+    It ignores Ctrl-C (SIGINT goes to the whole process group): the parent process stops the
+    round and ends the workers, and says so in one line, instead of a traceback from every worker."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # held while forking (_sigint_held)
     torch.set_num_threads(1)
     while True:
         try:

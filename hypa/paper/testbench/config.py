@@ -9,11 +9,13 @@ All quantities are SI: angles in rad, angular rates in rad/s, times in s, length
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from hypa.errors import UserError, checked
 from hypa.vehicle import VehicleParameters
 
 
@@ -256,29 +258,7 @@ class TestbenchConfig:
     records: dict[str, RecordConfig] = field(default_factory=_default_records)
 
     def __post_init__(self) -> None:
-        rws = self.rear_steering
-        if len(rws.table_speed_mps) != len(rws.table_ratio) or len(rws.table_ratio) < 1:
-            raise ValueError("rear_steering.table_speed_mps and table_ratio need equal lengths")
-        if any(b <= a for a, b in zip(rws.table_speed_mps, rws.table_speed_mps[1:])):
-            raise ValueError("rear_steering.table_speed_mps must be strictly increasing")
-        if not self.tires.curvature_e < 1.0:
-            raise ValueError("tires.curvature_e must be < 1 for a monotonic rising branch")
-        load = self.load_transfer
-        if not (0.0 <= load.front_roll_share <= 1.0 and load.roll_frequency_hz > 0
-                and load.roll_damping > 0 and load.stiffness_load_peak > 0):
-            raise ValueError("load_transfer: need 0 <= front_roll_share <= 1 and positive "
-                             "roll_frequency_hz, roll_damping, stiffness_load_peak")
-        if self.steering.delay_s < 0 or self.steering.lag_tau_s < 0:
-            raise ValueError("steering.delay_s and steering.lag_tau_s must be >= 0")
-        for name, record in self.records.items():
-            unknown = [m for m in record.maneuvers if m not in MANEUVERS]
-            if unknown:
-                raise ValueError(f"record {name!r}: unknown maneuvers {unknown}, use {MANEUVERS}")
-            if not record.stochastic_duration_s > 0:
-                raise ValueError(f"record {name!r}: stochastic_duration_s must be > 0 (it is "
-                                 f"{record.stochastic_duration_s:g}); remove a record with ~testbench.records.{name}")
-            if not 0 < record.break_frequency_hz < self.excitation.stochastic.cutoff_hz:
-                raise ValueError(f"record {name!r}: need 0 < break_frequency_hz < cutoff_hz")
+        check(self)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | DictConfig | None = None) -> TestbenchConfig:
@@ -289,6 +269,9 @@ class TestbenchConfig:
     def from_hydra(cls, node: DictConfig | dict[str, Any] | None) -> TestbenchConfig:
         """The ``testbench`` node of a composed Hydra config: as :meth:`from_dict`, but it lists every
         record, so the records are exactly those it names (``~testbench.records.train_2`` drops one)."""
+        if node is not None and not isinstance(node, (dict, DictConfig)):
+            raise UserError(f"testbench is {type(node).__name__} {str(node)[:60]!r}, not a mapping of the test "
+                            "bench's settings (conf/testbench/default.yaml)")
         config = cls.from_dict(node)
         named = (node or {}).get("records")
         if named is None:
@@ -324,3 +307,122 @@ class TestbenchConfig:
     def to_dict(self) -> dict[str, Any]:
         """Plain nested dict (JSON-serializable), the inverse of :meth:`from_dict`."""
         return dataclasses.asdict(self)
+
+
+KEY = "testbench"  # the node of a command's configuration the settings are read from
+
+
+def check(config: TestbenchConfig) -> None:
+    """Every value of ``config`` of the right type and in its range, or a :class:`UserError` naming the
+    setting (``testbench.sample_rate_hz=-5 must be > 0``): before anything is generated from it.
+
+    The values that size the data (the sample rate, the records' and the manoeuvres' durations) are
+    positive and finite, so that each record has a number of samples; whether those samples fit
+    into this machine's memory is :func:`hypa.paper.testbench.memory.check_fits`. A value that the
+    simulation divides by is positive (a zero would end it with a ZeroDivisionError), one that
+    only shifts or scales is finite (an ``inf`` or ``nan`` would fill the files with NaN).
+    """
+    _finite(config, KEY)
+    fs = checked(f"{KEY}.sample_rate_hz", config.sample_rate_hz, float, positive=True)
+    if not config.records:
+        raise UserError(f"{KEY}.records is empty: the test bench needs a record to generate (conf/testbench/"
+                        "default.yaml lists train_1, train_2 and val)")
+    tires, relax, load, rws = config.tires, config.relaxation, config.load_transfer, config.rear_steering
+    for name, value in (("tires.mu", tires.mu), ("tires.shape_c", tires.shape_c),
+                        ("relaxation.front_length_m", relax.front_length_m),
+                        ("relaxation.rear_length_m", relax.rear_length_m),
+                        ("load_transfer.track_front_m", load.track_front_m),
+                        ("load_transfer.track_rear_m", load.track_rear_m),
+                        ("load_transfer.roll_frequency_hz", load.roll_frequency_hz),
+                        ("load_transfer.roll_damping", load.roll_damping),
+                        ("load_transfer.stiffness_load_peak", load.stiffness_load_peak),
+                        ("rear_steering.yaw_rate_ref", rws.yaw_rate_ref),
+                        ("rear_steering.transient_tau_s", rws.transient_tau_s),
+                        ("rear_steering.actuator_tau_s", rws.actuator_tau_s)):
+        checked(f"{KEY}.{name}", value, float, positive=True)
+    for name, value in (("load_transfer.cg_height_m", load.cg_height_m), ("rear_steering.rate_limit", rws.rate_limit),
+                        ("rear_steering.angle_limit", rws.angle_limit), ("steering.delay_s", config.steering.delay_s),
+                        ("steering.lag_tau_s", config.steering.lag_tau_s)):
+        checked(f"{KEY}.{name}", value, float, minimum=0.0)
+    if not tires.curvature_e < 1.0:
+        raise UserError(f"{KEY}.tires.curvature_e={tires.curvature_e:g} must be < 1 (a monotonic rising branch)")
+    checked(f"{KEY}.load_transfer.front_roll_share", load.front_roll_share, float, minimum=0.0)
+    if not load.front_roll_share <= 1.0:
+        raise UserError(f"{KEY}.load_transfer.front_roll_share={load.front_roll_share:g} must be between 0 and 1")
+    if len(rws.table_speed_mps) != len(rws.table_ratio) or not rws.table_ratio:
+        raise UserError(f"{KEY}.rear_steering.table_speed_mps and table_ratio need equal lengths (>= 1), not "
+                        f"{len(rws.table_speed_mps)} and {len(rws.table_ratio)}")
+    if any(b <= a for a, b in zip(rws.table_speed_mps, rws.table_speed_mps[1:])):
+        raise UserError(f"{KEY}.rear_steering.table_speed_mps must be strictly increasing")
+    _check_excitation(config.excitation)
+    for name, record in config.records.items():
+        _check_record(config, str(name), record, fs)
+
+
+def _check_excitation(excitation: ExcitationConfig) -> None:
+    """The steering robot's programmes: positive durations and frequencies, rests and ramps >= 0."""
+    where = f"{KEY}.excitation"
+    stochastic = excitation.stochastic
+    checked(f"{where}.stochastic.amplitude", stochastic.amplitude, float, positive=True)
+    checked(f"{where}.stochastic.crest_factor", stochastic.crest_factor, float, optional=True, positive=True)
+    checked(f"{where}.stochastic.cutoff_hz", stochastic.cutoff_hz, float, positive=True)
+    checked(f"{where}.stochastic.fade_s", stochastic.fade_s, float, minimum=0.0)
+    for name in MANEUVERS:
+        part = getattr(excitation, name)
+        checked(f"{where}.{name}.duration_s", part.duration_s, float, positive=True)
+        checked(f"{where}.{name}.lead_s", part.lead_s, float, minimum=0.0)
+    checked(f"{where}.lane_change.change_s", excitation.lane_change.change_s, float, positive=True)
+    checked(f"{where}.lane_change.hold_s", excitation.lane_change.hold_s, float, minimum=0.0)
+    checked(f"{where}.step_steer.ramp_s", excitation.step_steer.ramp_s, float, minimum=0.0)
+    checked(f"{where}.step_steer.hold_s", excitation.step_steer.hold_s, float, minimum=0.0)
+    sweep = excitation.sine_sweep
+    checked(f"{where}.sine_sweep.fade_s", sweep.fade_s, float, minimum=0.0)
+    checked(f"{where}.sine_sweep.start_hz", sweep.start_hz, float, positive=True)
+    checked(f"{where}.sine_sweep.end_hz", sweep.end_hz, float, positive=True)
+    if sweep.end_hz == sweep.start_hz:
+        raise UserError(f"{where}.sine_sweep.end_hz={sweep.end_hz:g} equals start_hz: a sweep needs two frequencies")
+
+
+def _check_record(config: TestbenchConfig, name: str, record: RecordConfig, fs: float) -> None:
+    """One record: a seed >= 0, known manoeuvres, a stochastic part with samples and a frequency below
+    the cut-off (else the excitation is empty and the record NaN), a break frequency below the cut-off."""
+    where = f"{KEY}.records.{name}"
+    checked(f"{where}.seed", record.seed, int, minimum=0)
+    unknown = [m for m in record.maneuvers if m not in MANEUVERS]
+    if unknown:
+        raise UserError(f"{where}.maneuvers: unknown maneuvers {', '.join(map(str, unknown))}; use "
+                        f"{', '.join(MANEUVERS)}")
+    duration = record.stochastic_duration_s
+    if not isinstance(duration, bool) and isinstance(duration, (int, float)) and not duration > 0:
+        raise UserError(f"record {name!r}: stochastic_duration_s must be > 0 (it is {duration:g}); give "
+                        f"{where}.stochastic_duration_s=<seconds> or remove the record with ~{where}")
+    duration = checked(f"{where}.stochastic_duration_s", duration, float, positive=True)
+    cutoff = config.excitation.stochastic.cutoff_hz
+    checked(f"{where}.break_frequency_hz", record.break_frequency_hz, float, positive=True)
+    if not record.break_frequency_hz < cutoff:
+        raise UserError(f"{where}.break_frequency_hz={record.break_frequency_hz:g} must be below "
+                        f"{KEY}.excitation.stochastic.cutoff_hz={cutoff:g}")
+    samples = round(duration * fs)
+    if samples < 2 or fs / samples > cutoff:  # its lowest frequency fs / samples carries the power
+        shortest = max(2.0 / fs, 1.0 / cutoff)
+        raise UserError(f"{where}.stochastic_duration_s={duration:g} is too short at {KEY}.sample_rate_hz={fs:g}: "
+                        f"the stochastic part needs 2 samples and a frequency below the cut-off "
+                        f"({cutoff:g} Hz), so at least {shortest:.3g} s")
+
+
+def _finite(node: Any, where: str) -> None:
+    """Every number of the dataclass ``node`` (and of the ones inside it) finite: an ``inf`` or ``nan``
+    fills the simulation with NaN. Ranges are checked by :func:`check`."""
+    for f in dataclasses.fields(node):
+        value, key = getattr(node, f.name), f"{where}.{f.name}"
+        if dataclasses.is_dataclass(value):
+            _finite(value, key)
+        elif isinstance(value, dict):
+            for name, item in value.items():
+                if dataclasses.is_dataclass(item):
+                    _finite(item, f"{key}.{name}")
+        elif isinstance(value, (list, tuple)):
+            if any(isinstance(v, float) and not math.isfinite(v) for v in value):
+                raise UserError(f"{key}={list(value)} holds a number that is not finite")
+        elif isinstance(value, float):
+            checked(key, value, float)

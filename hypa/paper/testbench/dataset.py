@@ -20,6 +20,7 @@ from typing import Any
 
 from hypa.metadata import sha256
 from hypa.paper.testbench.config import TestbenchConfig
+from hypa.paper.testbench.memory import check_fits
 from hypa.paper.testbench.records import COLUMNS, SimulatedRecord, simulate_record, write_record
 from hypa.paper.testbench.sensors import UNITS
 
@@ -71,8 +72,10 @@ def _simulate_and_write(config: TestbenchConfig, name: str, out_dir: Path) -> di
 def generate_dataset(config: TestbenchConfig, out_dir: Path) -> Path:
     """Simulate every record of ``config`` into ``out_dir`` (created); returns ``out_dir``.
 
-    Files of the same name are overwritten; other files in ``out_dir`` are left alone.
+    Files of the same name are overwritten; other files in ``out_dir`` are left alone. Settings
+    whose data would not fit into this machine's memory are refused first (:func:`check_fits`).
     """
+    check_fits(config)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     names = list(config.records)
@@ -203,8 +206,10 @@ def ensure_dataset(config: TestbenchConfig, cache_dir: Path | None = None) -> Pa
     temporary sibling folder that is renamed into place only when complete, so a crashed
     run leaves no half folder and of two parallel runs the first rename wins. A damaged
     folder is renamed aside just before and deleted after, so ``<config hash>`` never holds a
-    mix of old and new files.
+    mix of old and new files. Settings whose data would not fit into this machine's memory are
+    refused before anything is looked up or made (:func:`check_fits`).
     """
+    check_fits(config)
     cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     target = cache_dir / config_hash(config)
     damaged = _folder_id(target)  # before the check: another run may replace it meanwhile
