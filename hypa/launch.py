@@ -10,6 +10,7 @@ state, the random seeds and the run folder of each command its own.
 from __future__ import annotations
 
 import logging
+import signal
 import subprocess
 import sys
 from collections.abc import Sequence
@@ -36,6 +37,8 @@ def run_hypa(command: str, arguments: Sequence[str], what: str, config_dirs: Seq
     argv = hypa_argv(command, arguments, config_dirs)
     log.info("%s: %s", what, " ".join(argv[1:]))
     status = subprocess.run(argv, cwd=cwd, check=False).returncode
+    if status in (130, -signal.SIGINT):  # Ctrl-C reached the child too: it said so, this command ends the same way
+        raise KeyboardInterrupt
     if status != 0:
         raise error(f"{what} failed (exit status {status}, its error above){'; ' + after if after else ''}; "
                     f"run it alone: python {' '.join(argv[1:])}")
