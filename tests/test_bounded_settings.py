@@ -109,8 +109,9 @@ def test_every_value_the_simulation_sizes_or_divides_by_is_checked(override: str
 
 def test_the_memory_check_compares_with_this_machine_and_allocates_nothing() -> None:
     from hypa.errors import UserError
+    from hypa.machine import available_memory
     from hypa.paper.testbench import TestbenchConfig
-    from hypa.paper.testbench.memory import available_memory, check_fits, needed_bytes
+    from hypa.paper.testbench.memory import check_fits, needed_bytes
 
     assert available_memory() > 2**26  # the machine says how much it has
     config = TestbenchConfig()  # the default data: 800k samples, well below half of any machine's memory

@@ -32,6 +32,7 @@ from lightning.pytorch.plugins.io import TorchCheckpointIO
 
 from hypa.ann import ann_hyperparameters, build_ann, check_hyperparameters
 from hypa.errors import UserError, one_line
+from hypa.machine import available_memory
 from hypa.metadata import sha256
 from hypa.models import ModelSpecError, parse_model_spec
 from hypa.models.spec import model_imports
@@ -212,6 +213,12 @@ def checked_settings(state: dict[str, Any], source: Path | str, trust: Collectio
         value = out.get(key, low)
         if not (isinstance(value, int) and not isinstance(value, bool) and low <= value <= MAX_STEPS):
             raise bad(key, f"an integer from {low} to {MAX_STEPS:,}")
+    lifted = 8 * out.get("horizon", 1) ** 2  # [bytes] the smallest lifted matrix (one input, one output, float64)
+    room = available_memory()
+    if room is not None and lifted > room / 2:
+        raise UserError(f"{source}: its setting horizon={out['horizon']:,} asks for lifted matrices of at least "
+                        f"{lifted / 2**30:,.0f} GiB, more than half of the {room / 2**30:.3g} GiB available here; "
+                        "the checkpoint is damaged or crafted; not built")
     if out.get("hold") is not None and out["hold"] not in HOLDS:
         raise bad("hold", f"one of {', '.join(HOLDS)} or null")
     values = out.get("physical_values")
