@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from hypa.data.errors import DataError
+from hypa.trust import read_bounded
 
 TABLE_SUFFIXES: tuple[str, ...] = (".csv", ".parquet", ".mat")  # one time base, columns
 MDF_SUFFIXES: tuple[str, ...] = (".mf4", ".mdf")  # ASAM MDF 4 (and 3): a time base per group
@@ -130,8 +131,8 @@ def read_metadata(data_dir: Path) -> dict:
     if not path.is_file():
         return {}
     try:
-        content = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        content = json.loads(read_bounded(path, what=METADATA_FILE))
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as error:
         raise DataError(f"{path}: not valid JSON ({error})") from error
     if not isinstance(content, dict):
         raise DataError(f"{path}: expected a JSON object at the top level")

@@ -232,12 +232,21 @@ def load_statespace(path: Path | str, discrete: bool = False):
     system has them, are in the file's ``affine``: python-control has none."""
     import control
 
+    from hypa.errors import UserError
+    from hypa.trust import read_bounded
+
     path = Path(path)
-    description = json.loads((path / "statespace.json" if path.is_dir() else path).read_text())
-    part = description["discrete" if discrete else "continuous"]
-    names = {key: [s["name"] for s in description[key]] for key in ("states", "inputs", "outputs")}
-    n, m, p = len(names["states"]), len(names["inputs"]), len(names["outputs"])
-    matrices = [np.array(part[k], dtype=float).reshape(shape) for k, shape in
-                (("a", (n, n)), ("b", (n, m)), ("c", (p, n)), ("d", (p, m)))]
-    return control.ss(*matrices, *([description["dt"]] if discrete else []), states=names["states"] or None,
+    path = path / "statespace.json" if path.is_dir() else path
+    try:  # a file someone sent: read as data, bounded, every part checked by its shape
+        description = json.loads(read_bounded(path, what="statespace.json"))
+        part = description["discrete" if discrete else "continuous"]
+        names = {key: [str(s["name"]) for s in description[key]] for key in ("states", "inputs", "outputs")}
+        n, m, p = len(names["states"]), len(names["inputs"]), len(names["outputs"])
+        matrices = [np.array(part[k], dtype=float).reshape(shape) for k, shape in
+                    (("a", (n, n)), ("b", (n, m)), ("c", (p, n)), ("d", (p, m)))]
+        dt = float(description["dt"])
+    except (ValueError, KeyError, TypeError, IndexError, RecursionError) as error:
+        raise UserError(f"{path}: not a statespace.json of hypa.export ({type(error).__name__}: "
+                        f"{str(error)[:200]})") from None
+    return control.ss(*matrices, *([dt] if discrete else []), states=names["states"] or None,
                       inputs=names["inputs"], outputs=names["outputs"])
