@@ -139,7 +139,7 @@ def test_a_run_folder_holds_one_run(run: Path, data: Path, tmp_path: Path) -> No
     one_line_error(result, "hypa.train", "already holds another run's checkpoints", "ckpt_path=")
     assert {p.name: p.read_bytes() for p in (folder / "checkpoints").iterdir()} == before
     assert (folder / "run.json").read_text() == record and (folder / "config.yaml").read_text() == config
-    # hypa.evaluate still scores that run, under its own settings (Hydra's .hydra/ was rewritten by the refused run)
+    # hypa.evaluate still scores that run, under its own settings (the refused run wrote no .hydra/ either)
     from hypa.evaluation.runs import load_run
 
     assert load_run(folder).config.seed == 0

@@ -29,6 +29,7 @@ from omegaconf import DictConfig
 from hypa.commands.config import BenchmarkConfig, typed
 from hypa.errors import UserError, hydra_command
 from hypa.launch import run_hypa
+from hypa.output_folder import holding_output
 
 log = logging.getLogger(__name__)
 WRITTEN = ("diagnosed", "diagnosed_hybrid")  # the models hypa.diagnose writes (model=...)
@@ -48,6 +49,7 @@ def diagnose_suite(dataset: str, nominal: str, overrides: list[str], folder: Pat
 
 
 @hydra_command("hypa.benchmark", "benchmark")
+@holding_output("hypa.benchmark")  # its folder held first (each training run below holds its own)
 def main(cfg: DictConfig) -> None:
     from hypa.commands.entry import data_dir_from_config, data_overrides, user_config_dirs
     from hypa.commands.evaluate import run_datamodule

@@ -9,7 +9,9 @@
 Works on any system: the nominal model is a hypa model config (``model=M``), its candidate causes
 come from the catalogues (built-in and ``diagnosis.catalogue=[mine.yaml]``), and everything is
 simulated by the one physics engine (:mod:`hypa.diagnosis.system`). Writes ``diagnosis.md``,
-``diagnosis.json``, the figures and ``conf/model/diagnosed*.yaml`` into the Hydra run folder.
+``diagnosis.json``, the figures and ``conf/model/diagnosed*.yaml`` into the Hydra run folder, which it
+holds while it runs (:mod:`hypa.output_folder`: a second command into it is refused, as is a folder
+that holds a symbolic link or a training run's).
 """
 
 from __future__ import annotations
@@ -22,9 +24,11 @@ from omegaconf import DictConfig, OmegaConf
 
 from hypa.diagnosis.fleet import record_failures
 from hypa.errors import hydra_command
+from hypa.output_folder import holding_output
 
 
 @hydra_command("hypa.diagnose", "diagnose")
+@holding_output("hypa.diagnose")  # the run folder held first: a refused job records nothing into another's
 @record_failures("hypa.diagnose")  # -m over many logs: a bad log is reported in the fleet summary, the others run
 def main(cfg: DictConfig) -> None:
     from hypa.commands.config import DiagnoseConfig, typed

@@ -1,11 +1,12 @@
 """Explain what the learned blocks of a trained run learned.
 
-    python -m hypa.explain run=outputs/train/v1-lstm/2026-11-22_10-00-00                    # every ANN block
-    python -m hypa.explain run=outputs/train/v1-lstm/2026-11-22_10-00-00 block=rear_steering
+    python -m hypa.explain run=outputs/train/v1-lstm/2026-11-22_10-00-00-000000                    # every ANN block
+    python -m hypa.explain run=outputs/train/v1-lstm/2026-11-22_10-00-00-000000 block=rear_steering
     python -m hypa.explain run=RUN baseline=outputs/train/physical/...   # the replacement beside a baseline
 
 Writes ``explanation.md``, ``explanation.json`` and the figures into the Hydra run folder
-(``outputs/explain/<time>/``; :mod:`hypa.explain.run` holds what it computes).
+(``outputs/explain/<time>/``, held while it runs: :mod:`hypa.output_folder`; :mod:`hypa.explain.run`
+holds what it computes).
 """
 
 from __future__ import annotations
@@ -18,9 +19,11 @@ from omegaconf import DictConfig
 
 from hypa.commands.config import ExplainConfig, typed
 from hypa.errors import hydra_command
+from hypa.output_folder import holding_output
 
 
 @hydra_command("hypa.explain", "explain")
+@holding_output("hypa.explain")  # its folder held before anything is written
 def main(cfg: DictConfig) -> None:
     from hypa.commands.entry import from_cwd
     from hypa.evaluation.evaluation import run_datamodule

@@ -1,13 +1,14 @@
 """Export a trained run as a one-step model that runs without hypa.
 
-    python -m hypa.export run=outputs/train/v2-lstm/2026-11-22_10-00-00
+    python -m hypa.export run=outputs/train/v2-lstm/2026-11-22_10-00-00-000000
     python -m hypa.export run=RUN format=onnx record=1
     python -m hypa.export run=RUN format=fmu           # + model.fmu, FMI 2.0 co-simulation
     python -m hypa.export run=RUN format=statespace    # + statespace.mat / .json, physics-only models
     python -m hypa.export run=RUN format=all           # every format the model allows
 
 Writes ``model.onnx``, ``reference.csv`` and ``export.json`` (and the format's files) into the
-Hydra run folder (``outputs/export/<time>/``) and succeeds only when each format reproduces
+Hydra run folder (``outputs/export/<time>/``; held while it runs, never a training run's:
+:mod:`hypa.output_folder`) and succeeds only when each format reproduces
 hypa's free run of the reference record: onnxruntime, fmpy, the discrete state space
 (:mod:`hypa.export` holds what it builds and checks).
 """
@@ -21,9 +22,11 @@ from omegaconf import DictConfig
 
 from hypa.commands.config import ExportConfig, typed
 from hypa.errors import hydra_command
+from hypa.output_folder import holding_output
 
 
 @hydra_command("hypa.export", "export")
+@holding_output("hypa.export")  # its folder held before anything is written
 def main(cfg: DictConfig) -> None:
     from hypa.commands.entry import from_cwd
     from hypa.evaluation.evaluation import run_datamodule

@@ -4,17 +4,21 @@ A run folder holds ``checkpoints/``, ``tensorboard/``, ``config.yaml`` (the run'
 configuration) and ``run.json`` (what the run was made from and its result, with the record of
 its best checkpoint: path, validation loss, epoch and SHA-256). :class:`RunFolder` owns it:
 
-- a lock (``.lock``, an exclusive ``flock`` held while the run trains) keeps a second writer out:
-  two ``hypa.train`` with the same ``hydra.run.dir`` would otherwise mix their checkpoints,
-  ``run.json`` and ``config.yaml``;
+- it is held with :mod:`hypa.folders` (``.lock``, an exclusive ``flock`` held while the run trains,
+  opened without following a link): a second writer is kept out, since two ``hypa.train`` with the
+  same ``hydra.run.dir`` would otherwise mix their checkpoints, ``run.json`` and ``config.yaml``; a
+  folder that holds a symbolic link is refused, so that neither a new run nor a resumed one
+  (``ckpt_path=``, which appends to the folder's ``train.log``) writes through one;
 - a folder that already holds another run's checkpoints is refused, unless the run resumes one of
   that folder's own checkpoints (``ckpt_path=<folder>/checkpoints/last.ckpt``);
 - ``run.json`` and ``config.yaml`` are replaced atomically (written to a temporary name, then
   renamed), so a full disk or a killed process leaves the previous version, never half a file.
 
-Hydra writes ``.hydra/`` and the log before hypa's code runs, so a refused second writer may have
-touched those; what hypa reads back (``config.yaml``, ``run.json``, the recorded checkpoint) it
-has not.
+Hydra's record of the run (``.hydra/``) is written once the folder is held
+(:func:`hypa.output_folder.save_hydra_record`; ``conf/train.yaml`` sets ``hydra.output_subdir: null``),
+so a refused second writer leaves the first run's intact; a resumed run's goes into the folder Hydra
+made for the resume, held too. Hydra itself still creates the folder and opens ``train.log`` for
+appending before hypa's code runs (a refused run writes nothing into it).
 
 In a run across processes (``trainer.strategy=ddp``) rank 0 holds the folder; the other ranks
 :meth:`RunFolder.follow` it: they know where it is and never write it.
@@ -24,49 +28,31 @@ from __future__ import annotations
 
 import json
 import logging
-import os
-import socket
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 from hypa.errors import UserError
+from hypa.folders import LOCK_FILE, HeldFolder, take, write_atomic, write_text_atomic
 from hypa.metadata import file_name
 
-try:  # POSIX; elsewhere runs are not locked (said once in the log)
-    import fcntl
-except ImportError:  # pragma: no cover
-    fcntl = None  # type: ignore[assignment]
+__all__ = ["CHECKPOINTS", "CONFIG_FILE", "LOCK_FILE", "RECORD_FILE", "RunFolder", "read_record",
+           "training_run_marks", "write_atomic", "write_text_atomic"]
 
 log = logging.getLogger(__name__)
 
 RECORD_FILE = "run.json"
 CONFIG_FILE = "config.yaml"
-LOCK_FILE = ".lock"
 CHECKPOINTS = "checkpoints"
+COMMAND = "hypa.train"
 
 
-def write_atomic(path: Path, write: Callable[[IO[bytes]], None]) -> None:
-    """Write ``path`` through ``write(file)`` into a temporary sibling, flushed to disk, then rename
-    it into place: readers see the old file or the whole new one. On an error (a full disk) the
-    temporary file is removed and the old file kept."""
-    path = Path(path)
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with temporary.open("wb") as file:
-            write(file)
-            file.flush()
-            os.fsync(file.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        temporary.unlink(missing_ok=True)
-        raise
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    """:func:`write_atomic` for a text file (UTF-8)."""
-    write_atomic(path, lambda file: file.write(text.encode()))
+def training_run_marks(folder: Path) -> list[str]:
+    """What makes ``folder`` a ``hypa.train`` run's (``run.json``, ``checkpoints/``); empty for another."""
+    folder = Path(folder)
+    return [name for name, there in ((RECORD_FILE, (folder / RECORD_FILE).exists()),
+                                     (f"{CHECKPOINTS}/", (folder / CHECKPOINTS).exists())) if there]
 
 
 def read_record(folder: Path) -> dict[str, Any]:
@@ -93,7 +79,7 @@ class RunFolder:
         self.path = Path(path)
         self.writer = writer  # False: a rank > 0 of a run across processes (update_record writes nothing)
         self.record: dict[str, Any] = {}
-        self._lock: IO[str] | None = None
+        self._held: list[HeldFolder] = []
         self._log_handler: logging.Handler | None = None
 
     @property
@@ -108,9 +94,9 @@ class RunFolder:
         the folder's ``run.json`` and logs into its ``train.log`` too."""
         folder = cls(path)
         try:
-            folder.path.mkdir(parents=True, exist_ok=True)
-            folder._take_lock()
+            folder._held.append(take(folder.path, COMMAND, what="this run"))
             folder._refuse_foreign_checkpoints(resume)
+            folder._record_hydra(resume)
             if resume is not None and resume.parent.resolve() == folder.checkpoints.resolve():
                 folder.record = read_record(folder.path)
                 folder._log_here()
@@ -125,24 +111,20 @@ class RunFolder:
         locked, not checked, never written."""
         yield cls(path, writer=False)
 
-    def _take_lock(self) -> None:
-        if fcntl is None:  # pragma: no cover
-            log.warning("no file locking on this system: do not start two runs into %s", self.path)
+    def _record_hydra(self, resume: Path | None) -> None:
+        """Hydra's record of the run (``.hydra/``), written now that the folder is held; a resumed run's
+        into the folder Hydra made for the resume (held too), as Hydra would have."""
+        from hypa.output_folder import hydra_folder, refuse_training_run, save_hydra_record
+
+        own = hydra_folder()
+        if own is None:
             return
-        lock = (self.path / LOCK_FILE).open("a+")
-        try:
-            fcntl.flock(lock.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            lock.seek(0)
-            holder = lock.read().strip() or "another process"
-            lock.close()
-            raise UserError(f"{self.path} is being written by another hypa.train ({holder}); give this run its own "
-                            "folder (hydra.run.dir=...) or wait for that one to end") from None
-        lock.seek(0)
-        lock.truncate()
-        lock.write(f"pid {os.getpid()} on {socket.gethostname()}\n")
-        lock.flush()
-        self._lock = lock
+        if own.resolve() != self.path.resolve():
+            if resume is None:  # not this run's folder (Hydra runs another command): nothing of it
+                return
+            refuse_training_run(own, COMMAND)
+            self._held.append(take(own, COMMAND, what="this run"))
+        save_hydra_record(own)
 
     def _refuse_foreign_checkpoints(self, resume: Path | None) -> None:
         existing = sorted(p.name for p in self.checkpoints.glob("*.ckpt")) if self.checkpoints.is_dir() else []
@@ -172,9 +154,8 @@ class RunFolder:
             logging.getLogger().removeHandler(self._log_handler)
             self._log_handler.close()
             self._log_handler = None
-        if self._lock is not None:
-            self._lock.close()  # closing the file releases the flock
-            self._lock = None
+        while self._held:
+            self._held.pop().release()
 
     def update_record(self, **fields: Any) -> None:
         """Add ``fields`` to ``run.json`` and write it (atomically); nothing on a following rank."""
