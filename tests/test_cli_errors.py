@@ -82,7 +82,7 @@ CASES = [
 def hypa(command: str, overrides: list[str], places: dict[str, Path], tmp_path: Path,
          **env: str) -> subprocess.CompletedProcess:
     args = [o.format(**places) for o in overrides]
-    environment = {k: v for k, v in os.environ.items() if k != "HYDRA_FULL_ERROR"}
+    environment = {k: v for k, v in os.environ.items() if k not in ("HYDRA_FULL_ERROR", "HYPA_FULL_ERROR")}
     environment.update(HYPA_CACHE_DIR=str(tmp_path / "cache"), **env)
     return subprocess.run([sys.executable, "-m", command, *args, f"hydra.run.dir={tmp_path / 'run'}"],
                           cwd=ROOT, env=environment, capture_output=True, text=True, timeout=300, check=False)

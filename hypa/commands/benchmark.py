@@ -112,7 +112,7 @@ def main(cfg: DictConfig) -> None:
                      *config.train_overrides,
                      f"seed={seed}", f"data.seed={seed}"]  # the networks' start and the windows' order
         train_model(label, overrides, folder, config_dirs)
-        run = load_run(folder)
+        run = load_run(folder, trust=("*",))  # the run it trained just now, from its own configuration
         trained_on = Path(str(run.info.get("data_dir", ""))).resolve()
         if trained_on != expected:
             raise UserError(f"{label} trained on {trained_on}, not on the data asked for ({expected}); "

@@ -33,7 +33,7 @@ def main(cfg: DictConfig) -> None:
     from hypa.folders import FolderRefused
 
     config = typed(cfg, EvaluateConfig)
-    run = load_run(from_cwd(config.run))
+    run = load_run(from_cwd(config.run), config.trust)
     out = Path(config.out) if config.out else run.folder / "evaluation"
     board = run.folder / "tensorboard"
     if config.tensorboard and board.is_symlink():  # written into too: never through a link

@@ -35,8 +35,8 @@ def main(cfg: DictConfig) -> None:
     block = config.block
     settings = Settings(extra=config.extra, penalty=config.penalty, margin=config.margin, max_lag=config.max_lag,
                         max_delay=config.max_delay, plot=config.plot)
-    run = load_run(from_cwd(config.run))
-    baseline = load_run(from_cwd(config.baseline)) if config.baseline else None
+    run = load_run(from_cwd(config.run), config.trust)
+    baseline = load_run(from_cwd(config.baseline), config.trust) if config.baseline else None
     select_blocks(run.module.model.spec, block)  # a wrong block name fails before the data are read
     out = Path(HydraConfig.get().runtime.output_dir)
     dm = run_datamodule(run)

@@ -35,7 +35,7 @@ def main(cfg: DictConfig) -> None:
 
     config = typed(cfg, ExportConfig)
     formats_to_build(config.format)  # an unknown format fails before the run is read
-    run = load_run(from_cwd(config.run))
+    run = load_run(from_cwd(config.run), config.trust)
     out = Path(HydraConfig.get().runtime.output_dir)
     export = export_run(run, run_datamodule(run), out, config.format, config.record, config.tolerance)
     sizes = ", ".join(f"{name} {size / 1024:.1f} KiB" for name, size in export.sizes().items())

@@ -47,7 +47,7 @@ def run_name(model: str, ann: str, blocks: Any, model_file: str | None = None) -
             model, blocks = str(read.get("name", Path(model_file).stem)), read.get("blocks")
         except Exception:  # noqa: BLE001 -- a folder name only: the run reads the file and names what is wrong
             model, blocks = Path(str(model_file)).stem, None
-    has_ann = any(isinstance(b, dict) and b.get("kind") == "ann" for b in (blocks or {}).values())
+    has_ann = any(hasattr(b, "get") and b.get("kind") == "ann" for b in (blocks or {}).values())  # dict or DictConfig
     name = f"{model}-{ann}" if has_ann else model
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in name)[:100] or "model"
 
