@@ -1,4 +1,4 @@
-"""One command, one folder (hypa/folders.py, hypa/output_folder.py): every command that writes a folder
+"""One command, one folder (hypa/folders.py, hypa/commands/output_folder.py): every command that writes a folder
 holds it, a received folder with a link in it is written by none, Hydra's record of a run survives a
 refused second writer, and default folder names do not collide.
 

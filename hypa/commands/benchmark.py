@@ -27,9 +27,9 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from hypa.commands.config import BenchmarkConfig, typed
+from hypa.commands.output_folder import holding_output
 from hypa.errors import UserError, hydra_command
 from hypa.launch import run_hypa
-from hypa.output_folder import holding_output
 
 log = logging.getLogger(__name__)
 WRITTEN = ("diagnosed", "diagnosed_hybrid")  # the models hypa.diagnose writes (model=...)

@@ -10,7 +10,7 @@ Works on any system: the nominal model is a hypa model config (``model=M``), its
 come from the catalogues (built-in and ``diagnosis.catalogue=[mine.yaml]``), and everything is
 simulated by the one physics engine (:mod:`hypa.diagnosis.system`). Writes ``diagnosis.md``,
 ``diagnosis.json``, the figures and ``conf/model/diagnosed*.yaml`` into the Hydra run folder, which it
-holds while it runs (:mod:`hypa.output_folder`: a second command into it is refused, as is a folder
+holds while it runs (:mod:`hypa.commands.output_folder`: a second command into it is refused, as is a folder
 that holds a symbolic link or a training run's).
 """
 
@@ -22,9 +22,9 @@ from pathlib import Path
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
+from hypa.commands.output_folder import holding_output
 from hypa.diagnosis.fleet import record_failures
 from hypa.errors import hydra_command
-from hypa.output_folder import holding_output
 
 
 @hydra_command("hypa.diagnose", "diagnose")

@@ -5,7 +5,7 @@
     python -m hypa.explain run=RUN baseline=outputs/train/physical/...   # the replacement beside a baseline
 
 Writes ``explanation.md``, ``explanation.json`` and the figures into the Hydra run folder
-(``outputs/explain/<time>/``, held while it runs: :mod:`hypa.output_folder`; :mod:`hypa.explain.run`
+(``outputs/explain/<time>/``, held while it runs: :mod:`hypa.commands.output_folder`; :mod:`hypa.explain.run`
 holds what it computes).
 """
 
@@ -18,8 +18,8 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from hypa.commands.config import ExplainConfig, typed
+from hypa.commands.output_folder import holding_output
 from hypa.errors import hydra_command
-from hypa.output_folder import holding_output
 
 
 @hydra_command("hypa.explain", "explain")

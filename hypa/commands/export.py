@@ -8,7 +8,7 @@
 
 Writes ``model.onnx``, ``reference.csv`` and ``export.json`` (and the format's files) into the
 Hydra run folder (``outputs/export/<time>/``; held while it runs, never a training run's:
-:mod:`hypa.output_folder`) and succeeds only when each format reproduces
+:mod:`hypa.commands.output_folder`) and succeeds only when each format reproduces
 hypa's free run of the reference record: onnxruntime, fmpy, the discrete state space
 (:mod:`hypa.export` holds what it builds and checks).
 """
@@ -21,8 +21,8 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from hypa.commands.config import ExportConfig, typed
+from hypa.commands.output_folder import holding_output
 from hypa.errors import hydra_command
-from hypa.output_folder import holding_output
 
 
 @hydra_command("hypa.export", "export")

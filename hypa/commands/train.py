@@ -75,6 +75,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         user_callbacks,
         vehicle_from_config,
     )
+    from hypa.commands.output_folder import record_training_run
     from hypa.metadata import run_metadata
     from hypa.models import parse_model_spec
     from hypa.models.building import model_hold
@@ -139,7 +140,9 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         logger = instantiate(config.logger, save_dir=str(out))
     # one run, one folder: refused before any data are read; the other ranks of a run across processes follow it
     with RunFolder.claim(out, resume=ckpt_path) if zero else RunFolder.follow(out) as folder:
-        if not zero:
+        if zero:
+            record_training_run(folder, ckpt_path)  # Hydra's .hydra/, now that the folder is held
+        else:
             join_rank_zero_log(out)
         if ckpt_path is not None:
             log.info("resuming %s in %s", ckpt_path.name, out)

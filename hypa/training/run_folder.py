@@ -14,8 +14,8 @@ its best checkpoint: path, validation loss, epoch and SHA-256). :class:`RunFolde
 - ``run.json`` and ``config.yaml`` are replaced atomically (written to a temporary name, then
   renamed), so a full disk or a killed process leaves the previous version, never half a file.
 
-Hydra's record of the run (``.hydra/``) is written once the folder is held
-(:func:`hypa.output_folder.save_hydra_record`; ``conf/train.yaml`` sets ``hydra.output_subdir: null``),
+Hydra's record of the run (``.hydra/``) is written by the command once the folder is held
+(:func:`hypa.commands.output_folder.save_hydra_record`; ``conf/train.yaml`` sets ``hydra.output_subdir: null``),
 so a refused second writer leaves the first run's intact; a resumed run's goes into the folder Hydra
 made for the resume, held too. Hydra itself still creates the folder and opens ``train.log`` for
 appending before hypa's code runs (a refused run writes nothing into it).
@@ -36,6 +36,7 @@ from typing import Any
 from hypa.errors import UserError
 from hypa.folders import LOCK_FILE, HeldFolder, take, write_atomic, write_text_atomic
 from hypa.metadata import file_name
+from hypa.trust import read_bounded
 
 __all__ = ["CHECKPOINTS", "CONFIG_FILE", "LOCK_FILE", "RECORD_FILE", "RunFolder", "read_record",
            "training_run_marks", "write_atomic", "write_text_atomic"]
@@ -61,8 +62,8 @@ def read_record(folder: Path) -> dict[str, Any]:
     if not path.is_file():
         return {}
     try:
-        record = json.loads(path.read_text())
-    except (ValueError, UnicodeDecodeError) as error:
+        record = json.loads(read_bounded(path, what="run record"))
+    except (ValueError, UnicodeDecodeError, RecursionError) as error:
         raise UserError(f"{path}: not a readable run record ({error}); the run folder is damaged") from None
     if not isinstance(record, dict):
         raise UserError(f"{path}: not a run record (a JSON object); the run folder is damaged")
@@ -96,7 +97,6 @@ class RunFolder:
         try:
             folder._held.append(take(folder.path, COMMAND, what="this run"))
             folder._refuse_foreign_checkpoints(resume)
-            folder._record_hydra(resume)
             if resume is not None and resume.parent.resolve() == folder.checkpoints.resolve():
                 folder.record = read_record(folder.path)
                 folder._log_here()
@@ -111,20 +111,9 @@ class RunFolder:
         locked, not checked, never written."""
         yield cls(path, writer=False)
 
-    def _record_hydra(self, resume: Path | None) -> None:
-        """Hydra's record of the run (``.hydra/``), written now that the folder is held; a resumed run's
-        into the folder Hydra made for the resume (held too), as Hydra would have."""
-        from hypa.output_folder import hydra_folder, refuse_training_run, save_hydra_record
-
-        own = hydra_folder()
-        if own is None:
-            return
-        if own.resolve() != self.path.resolve():
-            if resume is None:  # not this run's folder (Hydra runs another command): nothing of it
-                return
-            refuse_training_run(own, COMMAND)
-            self._held.append(take(own, COMMAND, what="this run"))
-        save_hydra_record(own)
+    def hold_also(self, path: Path) -> None:
+        """Hold ``path`` too while this run holds its folder (a resumed run's new Hydra folder)."""
+        self._held.append(take(Path(path), COMMAND, what="this run"))
 
     def _refuse_foreign_checkpoints(self, resume: Path | None) -> None:
         existing = sorted(p.name for p in self.checkpoints.glob("*.ckpt")) if self.checkpoints.is_dir() else []

@@ -101,6 +101,21 @@ def claim_output(command: str, path: Path | None = None, setting: str = "hydra.r
             _HELD.discard(held)
 
 
+def record_training_run(folder: Any, resume: Path | None) -> None:
+    """Hydra's record of a ``hypa.train`` run (``.hydra/``), written once ``folder`` (its
+    :class:`~hypa.training.run_folder.RunFolder`) is held; a resumed run's into the folder Hydra made
+    for the resume, held too, as Hydra would have."""
+    own = hydra_folder()
+    if own is None:
+        return
+    if own.resolve() != folder.path.resolve():
+        if resume is None:  # not this run's folder (Hydra runs another command): nothing of it
+            return
+        refuse_training_run(own, "hypa.train")
+        folder.hold_also(own)
+    save_hydra_record(own)
+
+
 def holding_output(command: str) -> Callable[[F], F]:
     """Decorate a command's ``main(cfg)``, below ``@hydra_command``: Hydra's folder for the command is
     held (:func:`claim_output`) before ``main`` runs and until it returns; a refusal is the command's
