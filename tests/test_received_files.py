@@ -114,25 +114,40 @@ def test_trust_names_the_code_a_run_may_import(run: Path, tmp_path: Path) -> Non
     one_line_error(result, "hypa.evaluate", "is not an import path")
 
 
-@pytest.mark.parametrize("change, message", [
-    pytest.param(lambda h: with_network(h, ann_hparams={"_target_": "builtins.print"}), "unknown hyperparameter",
-                 id="target-key"),
-    pytest.param(lambda h: h.update(dt={"seconds": 1}), "its setting dt", id="dict-for-number"),
-    pytest.param(lambda h: h.update(horizon=10**12), "its setting horizon", id="horizon-out-of-range"),
-    pytest.param(lambda h: h.update(horizon=5_000_000), "asks for lifted matrices of at least", id="huge-horizon"),
-    pytest.param(lambda h: h.update(input_names="steering"), "its setting input_names", id="string-for-list"),
-    pytest.param(lambda h: h["normalization"].update(std=[0.0] * len(h["normalization"]["std"])), "normalization",
-                 id="zero-scale"),
-    pytest.param(lambda h: h.update(model_config={"name": "x", "blocks": {}}), "its model", id="no-blocks"),
-    pytest.param(lambda h: with_network(h, ann_hparams={"hidden_size": 100_000}), "its settings make a network of",
-                 id="huge-network"),
-])
-def test_stored_settings_are_checked_before_anything_is_built(change, message: str, run: Path,
-                                                              tmp_path: Path) -> None:
+SETTINGS = {
+    "target-key": (lambda h: with_network(h, ann_hparams={"_target_": "builtins.print"}), "unknown hyperparameter"),
+    "dict-for-number": (lambda h: h.update(dt={"seconds": 1}), "its setting dt"),
+    "horizon-out-of-range": (lambda h: h.update(horizon=10**12), "its setting horizon"),
+    "huge-horizon": (lambda h: h.update(horizon=5_000_000), "asks for lifted matrices of at least"),
+    "string-for-list": (lambda h: h.update(input_names="steering"), "its setting input_names"),
+    "zero-scale": (lambda h: h["normalization"].update(std=[0.0] * len(h["normalization"]["std"])), "normalization"),
+    "no-blocks": (lambda h: h.update(model_config={"name": "x", "blocks": {}}), "its model"),
+    "huge-network": (lambda h: with_network(h, ann_hparams={"hidden_size": 100_000}), "its settings make a network of"),
+}
+
+
+@pytest.mark.parametrize("case", ["dict-for-number", "huge-network"])
+def test_stored_settings_are_checked_before_anything_is_built(case: str, run: Path, tmp_path: Path) -> None:
+    change, message = SETTINGS[case]
     folder = copy_run(run, tmp_path / "run")
     edit_checkpoint(folder, change)
     result = hypa("hypa.evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}")
     one_line_error(result, "hypa.evaluate", message)
+
+
+@pytest.mark.parametrize("case", sorted(SETTINGS))
+def test_every_stored_setting_is_checked_by_the_loader_every_command_shares(case: str, run: Path,
+                                                                          tmp_path: Path) -> None:
+    """The same cases in this process, through load_run (what evaluate, export, explain, the benchmark
+    and the diagnosis call): a user error, with the message, before anything is built."""
+    from hypa.errors import UserError
+    from hypa.evaluation.runs import load_run
+
+    change, message = SETTINGS[case]
+    folder = copy_run(run, tmp_path / "run")
+    edit_checkpoint(folder, change)
+    with pytest.raises(UserError, match=message.replace("(", r"\(")):
+        load_run(folder)
 
 
 def test_run_json_names_no_file_outside_its_folder(run: Path, tmp_path: Path) -> None:
