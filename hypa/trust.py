@@ -25,6 +25,7 @@ This module is the core's: it imports nothing of hypa but its errors.
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Collection, Iterable
 from pathlib import Path
 from typing import Any
@@ -38,6 +39,7 @@ from hypa.errors import UserError
 # a checkpoint's bound is the model's own (hypa.training.checkpoints).
 MAX_TEXT_BYTES = 64 * 2**20  # a YAML or JSON file hypa reads as data
 MAX_YAML_ALIASES = 100  # hypa writes none; a hand-edited file may use a few
+MAX_YAML_DEPTH = 100  # levels of nesting (a hypa file has fewer than ten)
 MAX_NODES = 1_000_000  # values in one nested structure read from a file
 
 
@@ -68,7 +70,13 @@ class _BoundedLoader(yaml.SafeLoader):
             self._aliases += 1
             if self._aliases > MAX_YAML_ALIASES:
                 raise yaml.YAMLError(f"more than {MAX_YAML_ALIASES} aliases (*name): refused, not expanded")
-        return super().compose_node(parent, index)
+        self._depth = getattr(self, "_depth", 0) + 1
+        try:
+            if self._depth > MAX_YAML_DEPTH:  # the composer and constructor recurse: refused before Python's limit
+                raise yaml.YAMLError(f"nested more than {MAX_YAML_DEPTH} levels deep: refused")
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
 
 
 def read_yaml(path: Path, what: str = "YAML file") -> Any:
@@ -79,7 +87,7 @@ def read_yaml(path: Path, what: str = "YAML file") -> Any:
     text = read_bounded(path, what=what)
     try:
         value = yaml.load(text, Loader=_BoundedLoader)
-    except yaml.YAMLError as error:
+    except (yaml.YAMLError, RecursionError) as error:
         lines = " ".join(str(error).split())
         raise UserError(f"{path}: not a readable {what} ({lines[:300]})") from None
     count_nodes(value, f"{path}")
@@ -101,6 +109,22 @@ def count_nodes(value: Any, what: str, limit: int = MAX_NODES) -> int:
         elif isinstance(node, (list, tuple)):
             stack.extend(node)
     return count
+
+
+MAX_NAME = 200  # characters of a channel, signal or block name
+_NOT_IN_NAMES = re.compile(r"[/\\.\x00-\x1f\x7f]")
+
+
+def check_name(name: Any, what: str) -> str:
+    """``name`` (a channel, signal or block name), refused in one line unless it is 1 to
+    :data:`MAX_NAME` characters with no path separator, dot or control character: names become
+    file names (a figure per output) and module keys, and one that is a path (``/etc/x``,
+    ``../x``) must never lead a write out of its folder."""
+    if not isinstance(name, str) or not name or len(name) > MAX_NAME or _NOT_IN_NAMES.search(name):
+        shown = repr(name)[:60] + ("..." if len(repr(name)) > 60 else "")
+        raise UserError(f"{what}: {shown} is not a name (1 to {MAX_NAME} characters, no '/', '\\', '.' or "
+                        "control characters)")
+    return name
 
 
 def inside(folder: Path, recorded: str, what: str) -> Path:
@@ -169,5 +193,6 @@ def check_imports(found: dict[str, str], trust: Collection[str], source: Path | 
                     "(or its package)")
 
 
-__all__ = ["MAX_NODES", "MAX_TEXT_BYTES", "MAX_YAML_ALIASES", "check_imports", "check_links", "count_nodes",
+__all__ = ["MAX_NAME", "MAX_NODES", "MAX_TEXT_BYTES", "MAX_YAML_ALIASES", "check_imports", "check_links",
+           "check_name", "count_nodes",
            "inside", "read_bounded", "read_yaml", "trusted"]

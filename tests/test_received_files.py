@@ -284,3 +284,63 @@ def test_a_model_file_trains_as_the_model_it_holds(run: Path, data: Path, tmp_pa
     assert yaml.safe_load((out / "config.yaml").read_text())["model"]["name"] == "received"
     evaluated = hypa("hypa.evaluate", f"run={out}", f"hydra.run.dir={tmp_path / 'eval'}")
     assert evaluated.returncode == 0, evaluated.stderr[-3000:]
+
+
+def test_a_resumed_checkpoint_makes_the_rotation_remove_nothing_outside_its_folder(run: Path, data: Path,
+                                                                                   tmp_path: Path) -> None:
+    """The checkpoint callback's stored state names the files the rotation removes when a better epoch
+    comes: crafted to name files outside the run, they are dropped, and the files stay."""
+    from hypa.metadata import sha256
+
+    folder = copy_run(run, tmp_path / "run")
+    victims = [tmp_path / "victim.txt", tmp_path / "victim2.txt"]
+    for victim in victims:
+        victim.write_text("keep me")
+    checkpoint = folder / recorded(folder)["path"]
+    state = torch.load(checkpoint, weights_only=True)
+    key = next(k for k in state["callbacks"] if k.startswith("RecordedCheckpoint"))
+    outside = [str(folder / "checkpoints" / ".." / ".." / v.name) for v in victims]
+    state["callbacks"][key].update(dirpath=str(folder / "checkpoints"), best_model_path=outside[0],
+                                   kth_best_model_path=outside[0], best_k_models={outside[0]: torch.tensor(1e9)},
+                                   best_model_score=torch.tensor(1e9), kth_value=torch.tensor(1e9),
+                                   last_model_path=outside[1])
+    torch.save(state, checkpoint)
+    record = json.loads((folder / "run.json").read_text())
+    record["best_checkpoint"]["sha256"] = sha256(checkpoint)
+    (folder / "run.json").write_text(json.dumps(record))
+    result = hypa("hypa.train", *[o for o in FAST if not o.startswith("trainer.max_epochs")], "trainer.max_epochs=4",
+                  f"data.dir={data}", f"ckpt_path='{checkpoint}'")
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert all(v.read_text() == "keep me" for v in victims)
+
+
+@pytest.mark.parametrize("name", ["/tmp/received-evil", "../../evil", "a.b"])
+def test_a_name_that_is_a_path_is_refused(name: str, run: Path, tmp_path: Path) -> None:
+    """Channel and signal names become figure file names: one that is a path is no name."""
+    from hypa.errors import UserError
+    from hypa.evaluation.runs import load_run
+
+    folder = copy_run(run, tmp_path / "run")
+    def rename(h: dict) -> None:
+        h["output_names"] = [name if n == "yaw_rate" else n for n in h["output_names"]]
+    edit_checkpoint(folder, rename)
+    with pytest.raises(UserError, match="is not a name"):
+        load_run(folder)
+    from hypa.models.spec import parse_model_spec
+
+    with pytest.raises(UserError, match="is not a name"):
+        parse_model_spec({"name": "m", "blocks": {"net": {"kind": "ann", "outputs": [name]}}})
+
+
+def test_deep_yaml_and_a_linked_run_json_are_one_line(run: Path, tmp_path: Path) -> None:
+    folder = copy_run(run, tmp_path / "run")
+    original = (folder / "config.yaml").read_text()
+    (folder / "config.yaml").write_text(original + "deep: " + "[" * 100_000 + "]" * 100_000 + "\n")
+    result = hypa("hypa.evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}")
+    one_line_error(result, "hypa.evaluate", "nested more than")
+    (folder / "config.yaml").write_text(original)
+    outside = tmp_path / "outside.json"
+    (folder / "run.json").rename(outside)
+    (folder / "run.json").symlink_to(outside)
+    result = hypa("hypa.evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out2'}")
+    one_line_error(result, "hypa.evaluate", "run.json is a symbolic link")

@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 from hypa.data.errors import DataError
 from hypa.data.expressions import Expression
 from hypa.data.units import display_factor, unit
+from hypa.errors import UserError
+from hypa.trust import check_name
 
 ROLES: tuple[str, ...] = ("input", "output", "scheduling", "evaluation", "auxiliary")
 MODEL_ROLES: tuple[str, ...] = ("input", "output", "scheduling")  # what a training batch holds
@@ -48,6 +50,10 @@ class ChannelSpec:
     display_factor: float = field(init=False)
 
     def __post_init__(self) -> None:
+        try:
+            check_name(self.name, "a channel's name")
+        except UserError as error:
+            raise DataError(str(error)) from None
         if self.role not in ROLES:
             guess = difflib.get_close_matches(str(self.role), ROLES, n=1)
             hint = f" (did you mean {guess[0]!r}?)" if guess else ""

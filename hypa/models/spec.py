@@ -19,6 +19,7 @@ from hypa.models.schema import BlockConfig, ModelConfig, StageConfig, keys, unkn
 from hypa.physics.discretization import HOLDS
 from hypa.physics.statespace import LTIModel
 from hypa.physics.systems import PHYSICS_SYSTEMS, build_system, is_import_path
+from hypa.trust import check_name
 
 BLOCK_KINDS = ("physics", "ann", "delay", "saturation")
 # elements: blocks that map each input to one output through one own parameter (not a state space)
@@ -163,8 +164,17 @@ def _names(value: Any, where: str) -> tuple[str, ...]:
     if isinstance(value, str):
         return (value,)
     if not isinstance(value, Sequence):
-        raise ModelSpecError(f"{where} must be a list of signal names, got {value!r}")
+        raise ModelSpecError(f"{where} must be a list of signal names, got {str(value)[:80]!r}")
     return tuple(str(v) for v in value)
+
+
+def _signals(value: Any, where: str) -> tuple[str, ...]:
+    """Signal names: names that become file names and module keys (:func:`hypa.trust.check_name`)."""
+    names = _names(value, where)
+    try:
+        return tuple(check_name(n, where) for n in names)
+    except UserError as error:
+        raise ModelSpecError(str(error)) from None
 
 
 def _values(value: Any, where: str) -> dict[str, float]:
@@ -189,10 +199,10 @@ def _signal_map(value: Any, where: str) -> dict[str, str]:
     if value is None:
         return {}
     if isinstance(value, str) or (isinstance(value, Sequence) and not isinstance(value, Mapping)):
-        return {n: n for n in _names(value, where)}
+        return {n: n for n in _signals(value, where)}
     if not isinstance(value, Mapping):
-        raise ModelSpecError(f"{where} must map names to signal names, got {value!r}")
-    return {str(k): str(v) for k, v in value.items()}
+        raise ModelSpecError(f"{where} must map names to signal names, got {str(value)[:80]!r}")
+    return {str(k): _signals(str(v), where)[0] for k, v in value.items()}
 
 
 def _flag(value: Any, where: str) -> bool:
@@ -224,7 +234,7 @@ def _sides(value: Any, where: str) -> dict[str, str]:
 
 def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
     """Parse and check the ``model`` config (a plain mapping) into a :class:`ModelSpec`."""
-    name = str(config.get("name", "model"))
+    name = _signals(str(config.get("name", "model")), "the model's name")[0]
     unknown = unknown_keys(config, ModelConfig)  # the keys: hypa.models.schema, also Hydra's schema of `model`
     if unknown:
         raise ModelSpecError(f"model {name!r}: unknown keys {unknown}; known: {', '.join(keys(ModelConfig))}")
@@ -236,6 +246,7 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
         raise ModelSpecError(f"model {name!r} has no blocks")
     blocks = []
     for block_name, b in blocks_cfg.items():
+        _signals(str(block_name), "a block's name")
         if not isinstance(b, Mapping):
             raise ModelSpecError(f"block {block_name!r} must map keys ({', '.join(keys(BlockConfig))}) to values, "
                                  f"got {b!r}")
@@ -254,12 +265,12 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
                 "or an import path package.module:Class"
             )
         blocks.append(BlockSpec(
-            name=str(block_name), kind=kind, inputs=_names(b.get("inputs"), f"{block_name}.inputs"),
-            outputs=_names(b.get("outputs"), f"{block_name}.outputs"), system=system,
+            name=str(block_name), kind=kind, inputs=_signals(b.get("inputs"), f"{block_name}.inputs"),
+            outputs=_signals(b.get("outputs"), f"{block_name}.outputs"), system=system,
             trainable=_names(b.get("trainable"), f"{block_name}.trainable"),
-            residual_of=_names(b.get("residual_of"), f"{block_name}.residual_of"),
-            scale_as=_names(b.get("scale_as"), f"{block_name}.scale_as"),
-            initial_state=_names(b.get("initial_state"), f"{block_name}.initial_state"),
+            residual_of=_signals(b.get("residual_of"), f"{block_name}.residual_of"),
+            scale_as=_signals(b.get("scale_as"), f"{block_name}.scale_as"),
+            initial_state=_signals(b.get("initial_state"), f"{block_name}.initial_state"),
             parameters=_values(b.get("parameters"), f"{block_name}.parameters"),
             scheduling=_signal_map(b.get("scheduling"), f"{block_name}.scheduling"),
             observe=_signal_map(b.get("observe"), f"{block_name}.observe"),
@@ -288,7 +299,7 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
                                  f"required), got {s!r}")
         stages.append(StageSpec(name=str(s["name"]), train=_names(s.get("train"), "stage.train"),
                                 bypass=_names(s.get("bypass"), "stage.bypass")))
-    spec = ModelSpec(name=name, blocks=tuple(blocks), outputs=_names(config.get("outputs"), "outputs"),
+    spec = ModelSpec(name=name, blocks=tuple(blocks), outputs=_signals(config.get("outputs"), "outputs"),
                      stages=tuple(stages), hold=hold, parameters=_values(config.get("parameters"), "parameters"),
                      sensor_offsets=_values(config.get("sensor_offsets"), "sensor_offsets"))
     for stage in spec.stages:

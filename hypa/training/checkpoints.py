@@ -39,7 +39,7 @@ from hypa.models.spec import model_imports
 from hypa.physics.discretization import HOLDS
 from hypa.training.module import HybridModule
 from hypa.training.run_folder import RunFolder, write_atomic
-from hypa.trust import check_imports, count_nodes
+from hypa.trust import check_imports, check_name, count_nodes
 
 log = logging.getLogger(__name__)
 
@@ -81,10 +81,37 @@ class RecordedCheckpoint(ModelCheckpoint):
         super().on_train_epoch_end(trainer, module)
         self._record(trainer)
 
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        """A resumed checkpoint's record of the best and last files, kept only where each names a file
+        of this run's checkpoint folder: the checkpoint is data, and the rotation removes the files it
+        names (a crafted ``../../x`` would otherwise be deleted when a better epoch comes)."""
+        state = dict(state_dict)
+        for key in ("best_model_path", "kth_best_model_path", "last_model_path"):
+            if key in state and not self._ours(state[key]):
+                log.warning("the resumed checkpoint names %r as its %s, outside %s: not kept", state[key], key,
+                            self.dirpath)
+                state[key] = ""
+        models = state.get("best_k_models")
+        if isinstance(models, dict):
+            state["best_k_models"] = {k: v for k, v in models.items() if self._ours(k) and isinstance(v, torch.Tensor)}
+        if not state.get("best_model_path"):
+            state["best_model_score"] = None
+        super().load_state_dict(state)
+
+    def _ours(self, path: Any) -> bool:
+        """Whether ``path`` is a file directly in this run's checkpoint folder (not a link)."""
+        if not isinstance(path, str) or not path or self.dirpath is None:
+            return not path
+        candidate = Path(path)
+        return candidate.parent.resolve() == Path(self.dirpath).resolve() and not candidate.is_symlink()
+
     def _remove_checkpoint(self, trainer: L.Trainer, filepath: str) -> None:
         # the rotation saves the new best, then removes the old one: run.json names the new one first,
         # so a process killed in between leaves a record of a checkpoint that exists
         self._record(trainer)
+        if not self._ours(filepath):  # never a file outside this run's checkpoint folder
+            log.warning("not removing %s: not a checkpoint of %s", filepath, self.dirpath)
+            return
         super()._remove_checkpoint(trainer, filepath)
 
     def _record(self, trainer: L.Trainer) -> None:
@@ -205,6 +232,8 @@ def checked_settings(state: dict[str, Any], source: Path | str, trust: Collectio
     for key in ("input_names", "output_names", "eval_names", "scheduling_names"):
         if key in out and not (isinstance(out[key], list) and all(isinstance(n, str) for n in out[key])):
             raise bad(key, "a list of channel names")
+        for name in out.get(key, []):
+            check_name(name, f"{source}: its setting {key}")
     for key, positive in (("dt", True), ("lr", False), ("physics_lr", False), ("weight_decay", False)):
         value = out.get(key, 0.0)
         if not _number(value) or not math.isfinite(value) or value < 0 or (positive and value == 0):
@@ -306,8 +335,9 @@ def load_module(checkpoint: Path, trust: Collection[str] = ()) -> HybridModule:
     hparams = checked_settings(state, checkpoint, trust)
     _warn_new_network_settings(checkpoint, hparams)
     weights = state["state_dict"]
-    if not all(isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in weights.items()):
-        raise UserError(f"{checkpoint}: its weights are not named tensors; the checkpoint is damaged or crafted")
+    if not all(isinstance(k, str) and isinstance(v, torch.Tensor) and (v.is_floating_point() or v.dtype in (
+            torch.int64, torch.int32, torch.bool)) for k, v in weights.items()):
+        raise UserError(f"{checkpoint}: its weights are not named real tensors; the checkpoint is damaged or crafted")
     stored = sum(v.numel() * v.element_size() for v in weights.values())
     needed = _network_bytes(hparams)
     if needed > 2 * stored + 2**20:  # the weights hold every parameter: sizes that ask for more are not built
@@ -315,10 +345,11 @@ def load_module(checkpoint: Path, trust: Collection[str] = ()) -> HybridModule:
                         f"{stored / 2**20:.1f} MiB of weights; the checkpoint is damaged or crafted; not built")
     try:
         module = HybridModule(**hparams)
-    except (TypeError, ValueError) as error:
-        if isinstance(error, UserError):
-            raise
-        raise UserError(f"{checkpoint}: its settings do not build a model ({one_line(error)[:300]})") from None
+    except UserError:
+        raise
+    except (TypeError, ValueError, KeyError, IndexError, RuntimeError, AttributeError) as error:  # checked values
+        raise UserError(f"{checkpoint}: its settings do not build a model ({type(error).__name__}: "  # that still
+                        f"{one_line(error)[:300]})") from None  # do not fit together: the file's error, one line
     try:
         module.load_state_dict(weights)
     except RuntimeError as error:

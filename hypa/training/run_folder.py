@@ -36,7 +36,7 @@ from typing import Any
 from hypa.errors import UserError
 from hypa.folders import LOCK_FILE, HeldFolder, take, write_atomic, write_text_atomic
 from hypa.metadata import file_name
-from hypa.trust import read_bounded
+from hypa.trust import check_links, read_bounded
 
 __all__ = ["CHECKPOINTS", "CONFIG_FILE", "LOCK_FILE", "RECORD_FILE", "RunFolder", "read_record",
            "training_run_marks", "write_atomic", "write_text_atomic"]
@@ -59,7 +59,10 @@ def training_run_marks(folder: Path) -> list[str]:
 def read_record(folder: Path) -> dict[str, Any]:
     """A run folder's ``run.json`` (empty when there is none); a damaged one is the user's error."""
     path = Path(folder) / RECORD_FILE
+    check_links(path, Path(folder))  # never read through a link out of the folder
     if not path.is_file():
+        if path.exists():
+            raise UserError(f"{path}: not a file; the run folder is damaged")
         return {}
     try:
         record = json.loads(read_bounded(path, what="run record"))
