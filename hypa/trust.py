@@ -127,6 +127,18 @@ def check_name(name: Any, what: str) -> str:
     return name
 
 
+def has_interpolation(value: Any) -> bool:
+    """Whether a value read from a file holds an OmegaConf interpolation (``${...}``) anywhere: a
+    file hypa reads as data holds values, never references for a resolver to follow."""
+    if isinstance(value, str):
+        return "${" in value
+    if isinstance(value, dict):
+        return any(has_interpolation(k) or has_interpolation(v) for k, v in value.items())
+    if isinstance(value, list):
+        return any(has_interpolation(v) for v in value)
+    return False
+
+
 def inside(folder: Path, recorded: str, what: str) -> Path:
     """The file ``recorded`` (a path a folder's own record names) inside ``folder``: a relative path
     that stays inside it, with no symbolic link on the way. Anything else is refused in one line:
@@ -149,15 +161,8 @@ def inside(folder: Path, recorded: str, what: str) -> Path:
 
 def check_links(path: Path, folder: Path) -> None:
     """Refuse ``path`` when it, or a folder between ``folder`` and it, is a symbolic link."""
-    path, folder = Path(path), Path(folder)
-    try:
-        parts = path.relative_to(folder).parts
-    except ValueError:
-        parts = path.parts
-        folder = Path(path.anchor)
-        parts = parts[1:]
-    walked = folder
-    for part in parts:
+    walked = Path(folder)
+    for part in Path(path).relative_to(walked).parts:
         walked = walked / part
         if walked.is_symlink():
             raise UserError(f"{walked} is a symbolic link; hypa reads and writes no file through one in a run "
@@ -194,5 +199,5 @@ def check_imports(found: dict[str, str], trust: Collection[str], source: Path | 
 
 
 __all__ = ["MAX_NAME", "MAX_NODES", "MAX_TEXT_BYTES", "MAX_YAML_ALIASES", "check_imports", "check_links",
-           "check_name", "count_nodes",
+           "check_name", "count_nodes", "has_interpolation",
            "inside", "read_bounded", "read_yaml", "trusted"]

@@ -12,7 +12,6 @@ import logging
 from collections.abc import Collection
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -25,7 +24,7 @@ from hypa.models.rollout import Prediction, free_run, free_run_metrics, model_in
 from hypa.training import HybridModule
 from hypa.training.checkpoints import load_module
 from hypa.training.run_folder import CONFIG_FILE, RECORD_FILE, read_record
-from hypa.trust import check_links, inside, read_yaml
+from hypa.trust import check_links, has_interpolation, inside, read_yaml
 
 log = logging.getLogger(__name__)
 
@@ -130,7 +129,7 @@ def run_config(folder: Path) -> DictConfig:
     if not isinstance(values, dict) or not isinstance(values.get("data"), dict):
         raise UserError(f"{config_file}: not a hypa.train run configuration (no data settings); the run folder "
                         "is damaged")
-    if _interpolations(values):
+    if has_interpolation(values):
         raise UserError(f"{config_file}: holds an interpolation (${{...}}), which hypa.train never writes there "
                         "(it records resolved values); the run folder is damaged or crafted")
     try:
@@ -139,16 +138,6 @@ def run_config(folder: Path) -> DictConfig:
         raise UserError(f"{config_file}: not a readable run configuration ({one_line(error)[:200]}); "
                         "the run folder is damaged") from None
     return config
-
-
-def _interpolations(value: Any) -> bool:
-    if isinstance(value, str):
-        return "${" in value
-    if isinstance(value, dict):
-        return any(_interpolations(k) or _interpolations(v) for k, v in value.items())
-    if isinstance(value, list):
-        return any(_interpolations(v) for v in value)
-    return False
 
 
 @torch.no_grad()

@@ -318,18 +318,20 @@ def model_imports(config: Mapping[str, Any], ann_name: str | None = None) -> dic
     written ``diagnosed.yaml``) imports them only when the user trusts them (:mod:`hypa.trust`)."""
     from hypa.ann import ANN_BLOCKS
 
-    found, networks = {}, False
+    found = {}
     for name, block in (config.get("blocks") or {}).items():
-        if not isinstance(block, Mapping):
-            continue
-        system = block.get("system")
+        system = block.get("system") if isinstance(block, Mapping) else None
         if isinstance(system, str) and is_import_path(system):
             found[f"block {name!r} system"] = system
-        start = block.get("initial_state")
-        networks = networks or block.get("kind") == "ann" or start in (ENCODER, [ENCODER])
-    if networks and ann_name is not None and ann_name not in ANN_BLOCKS:
+    if ann_name is not None and ann_name not in ANN_BLOCKS and builds_networks(config):
         found["network"] = ann_name
     return found
+
+
+def builds_networks(config: Mapping[str, Any]) -> bool:
+    """Whether a model config builds a network: an ``ann`` block, or a start estimated by an encoder."""
+    return any(isinstance(b, Mapping) and (b.get("kind") == "ann" or b.get("initial_state") in (ENCODER, [ENCODER]))
+               for b in (config.get("blocks") or {}).values())
 
 
 def read_model_file(path: Path, trust: Collection[str] = ()) -> dict[str, Any]:
@@ -337,12 +339,12 @@ def read_model_file(path: Path, trust: Collection[str] = ()) -> dict[str, Any]:
     ``conf/model/diagnosed.yaml``): bounded plain YAML (:func:`hypa.trust.read_yaml`), the model
     schema's keys only (no ``_target_``, no ``# @package`` that reaches other settings), no
     interpolation, and no import path that ``trust`` does not name. Returns the checked mapping."""
-    from hypa.trust import check_imports, read_yaml
+    from hypa.trust import check_imports, has_interpolation, read_yaml
 
     config = read_yaml(path, "model file")
     if not isinstance(config, Mapping):
         raise ModelSpecError(f"{path}: a model file maps model keys ({', '.join(keys(ModelConfig))}) to values")
-    if "${" in repr(config):
+    if has_interpolation(config):
         raise ModelSpecError(f"{path}: holds an interpolation (${{...}}); a model file is read as data, with "
                              "values only")
     try:

@@ -35,7 +35,7 @@ from hypa.errors import UserError, one_line
 from hypa.machine import available_memory
 from hypa.metadata import sha256
 from hypa.models import ModelSpecError, parse_model_spec
-from hypa.models.spec import model_imports
+from hypa.models.spec import builds_networks, model_imports
 from hypa.physics.discretization import HOLDS
 from hypa.training.module import HybridModule
 from hypa.training.run_folder import RunFolder, write_atomic
@@ -262,7 +262,7 @@ def checked_settings(state: dict[str, Any], source: Path | str, trust: Collectio
     if ann is not None:
         if not isinstance(ann, dict):
             raise bad("ann_hparams", "a mapping of the network's settings")
-        if _uses_networks(out["model_config"]):
+        if builds_networks(out["model_config"]):
             try:
                 check_hyperparameters(out.get("ann_name", "lstm"), ann)
             except (TypeError, ValueError) as error:
@@ -308,7 +308,7 @@ def _check_normalization(state: Any, source: Path | str) -> None:
 def _network_bytes(hparams: dict[str, Any]) -> int:
     """The bytes of the smallest network the settings ask for (one input, one output), sized on the
     ``meta`` device (nothing allocated); 0 for a model without networks or one that cannot be sized so."""
-    if not _uses_networks(hparams["model_config"]):
+    if not builds_networks(hparams["model_config"]):
         return 0
     try:
         with torch.device("meta"):
@@ -316,11 +316,6 @@ def _network_bytes(hparams: dict[str, Any]) -> int:
     except Exception:  # noqa: BLE001 -- a network whose construction needs values: built with the module
         return 0
     return sum(p.numel() * p.element_size() for p in network.state_dict().values())
-
-
-def _uses_networks(model_config: dict[str, Any]) -> bool:
-    return any(isinstance(b, dict) and (b.get("kind") == "ann" or b.get("initial_state") in ("encoder", ["encoder"]))
-               for b in (model_config.get("blocks") or {}).values())
 
 
 def load_module(checkpoint: Path, trust: Collection[str] = ()) -> HybridModule:
