@@ -87,9 +87,15 @@ def test_diagnosis_json_reads_into_typed_fields_and_writes_back_unchanged(tmp_pa
     assert diagnosis.structure["yaw_rate"].worst_band_hz == (0.5, 16.0) and diagnosis.unexplained[0].unexplained
     assert diagnosis.data.time_scales().stretch_s == 12.25
     diagnosis.to_json(tmp_path / "again.json")
-    again = json.loads((tmp_path / "again.json").read_text())
-    assert again == WRITTEN and list(again) == list(WRITTEN)  # the documented schema, key for key
-    assert Diagnosis.from_json(tmp_path / "again.json") == diagnosis
+    text = (tmp_path / "again.json").read_text()
+    again = json.loads(text)
+    # the documented schema, key for key; the diverged fit's score and gain (not finite) as null, not Infinity
+    assert "Infinity" not in text and "NaN" not in text
+    assert again["rounds"][0][1]["score"] is None and again["rounds"][0][1]["gain"] is None
+    written = copy.deepcopy(WRITTEN)
+    written["rounds"][0][1].update(score=None, gain=None)
+    assert again == written and list(again) == list(WRITTEN)
+    assert json.loads(json.dumps(Diagnosis.from_json(tmp_path / "again.json").to_dict())) == written
 
 
 def test_the_markdown_report_comes_from_the_fields_alone() -> None:
@@ -99,8 +105,8 @@ def test_the_markdown_report_comes_from_the_fields_alone() -> None:
     assert "- nominal model: **10 %** (yaw_rate 10 %)" in report
     assert "- the trained extension: **1.5 %** (yaw_rate 1.5 %)" in report
     assert "- change with the named causes: **-80 %**" in report
-    assert ("1. **input_delay** on `u`: delay 60 ms. Cross-validated error 80 % lower than before it; 80 % of the "
-            "nominal error. A generic linear filter from the inputs in its place: 30 % lower.") in report
+    assert ("1. **input_delay** on `u`: delay 60 ms. Cross-validated error -80 % against the model before it; 80 % "
+            "of the nominal error. A generic linear filter from the inputs in its place: -30 %.") in report
     assert "   The data cannot tell it from: input_lag on u: tau 70 ms." in report
     assert "Small (below the 15 % floor), but 8 standard errors from zero." in report
     assert ("- Named, then dropped: **output_offset** on `side_slip`; dropped: fitted together with the other "
@@ -111,7 +117,7 @@ def test_the_markdown_report_comes_from_the_fields_alone() -> None:
     assert "| rear_wheel_angle | 0.810 | 0.0917 deg | 0.143 deg |" in report
     assert "- `yaw_rate`: 0.15 % of its variance left; **unexplained structure**: correlated with u" in report
     assert ("| input_lag | u | not fitted (diverged) (stopped after 40 of 100 steps, behind others: gain at least "
-            "this) | -inf % |") in report
+            "this) | did not converge |") in report
     assert report.endswith("![time_series_val.png](time_series_val.png)\n")
     assert Diagnosis.from_dict(WRITTEN).headline() == {"nominal": "10 %", "extended": "2 %", "trained": "1.5 %",
                                                        "change": "-80 %"}
@@ -130,3 +136,22 @@ def test_a_report_without_trained_extension_or_named_rows_reads_back(tmp_path: P
     assert diagnosis.named == [] and diagnosis.change == -0.3 and diagnosis.candidates[0].estimate["offset"] == 0.01
     with pytest.raises(KeyError, match="causes"):
         Diagnosis.from_dict({"named": []})
+
+
+def test_a_number_that_is_not_finite_is_written_as_null_and_reads_back(tmp_path: Path) -> None:
+    """A fit that diverged leaves NaN and infinite numbers: diagnosis.json holds null there (JSON has no
+    NaN), a float field reads it back as NaN, and the report says "did not converge", never "-8.5e+19 %"."""
+    diverged = copy.deepcopy(WRITTEN)
+    diverged["metrics"]["extended"]["yaw_rate"] = {"rmse": math.nan, "mse": math.inf, "r2": -8.5e17}
+    diverged["error"]["change"] = 8.5e17
+    diagnosis = Diagnosis.from_dict(diverged)
+    diagnosis.to_json(tmp_path / "diagnosis.json")
+    text = (tmp_path / "diagnosis.json").read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    assert json.loads(text)["metrics"]["extended"]["yaw_rate"] == {"rmse": None, "mse": None, "r2": -8.5e17}
+    back = Diagnosis.from_json(tmp_path / "diagnosis.json")
+    assert math.isnan(back.metrics["extended"]["yaw_rate"].rmse) and back.error.change == 8.5e17
+    assert back.headline()["change"].startswith("did not converge")
+    report = back.markdown(UNITS)
+    assert "e+17 %" not in report and "e+19" not in report
+    assert "- change with the named causes: **did not converge (error more than 100×)**" in report

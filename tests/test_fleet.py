@@ -255,9 +255,9 @@ def test_summary_builder_on_synthetic_jobs(tmp_path: Path) -> None:
     assert spreads["output_offset: yaw_rate"].stats()["std"] is None  # one log: no spread
     assert [spreads[k].values[5] for k in list(spreads)[3:]] == pytest.approx([150_000.0, 0.12, 80.0])
     report = (tmp_path / "fleet.md").read_text()
-    assert "| 1 | b | none | +0.0 % |" in report
-    assert "| 4 | old | sensor_offset | -30.0 % |  |" in report
-    assert ("| 10 | e f | input_delay, unmodeled_input, parameter_mismatch | -80.0 % | -90.0 % | 70.00 |  |  "
+    assert "| 1 | b | none | 0 % |" in report
+    assert "| 4 | old | sensor_offset | -30 % |  |" in report
+    assert ("| 10 | e f | input_delay, unmodeled_input, parameter_mismatch | -80 % | -90 % | 70.00 |  |  "
             "| 150000 | 0.1200 | 80.00 |") in report
     assert "| unmodeled_input: tau [ms] |" in report and "a_y" not in report
     assert "| none | 1 / 4 | 25 % |" in report

@@ -303,7 +303,8 @@ def number(value: float | None) -> str:
 
 
 def percent(change: float | None) -> str:
-    return "" if change is None else f"{100 * change:+.1f} %"
+    """A log's MSE change (:func:`hypa.markdown.change_text`), empty where it has none."""
+    return "" if change is None else md.change_text(change)
 
 
 def _spread_row(key: str, spread: Spread) -> list[str | int]:
@@ -357,7 +358,7 @@ def markdown(fleet: Fleet) -> str:
 def write_summary(sweep_dir: Path) -> Fleet:
     """Collect the sweep folder's jobs and write ``fleet.md`` and ``fleet.json`` into it."""
     fleet = collect(sweep_dir)
-    (fleet.sweep_dir / "fleet.json").write_text(json.dumps(fleet.to_dict(), indent=2))
+    (fleet.sweep_dir / "fleet.json").write_text(json.dumps(md.json_ready(fleet.to_dict()), indent=2, allow_nan=False))
     (fleet.sweep_dir / "fleet.md").write_text(markdown(fleet))
     return fleet
 

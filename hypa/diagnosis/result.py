@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -19,7 +20,6 @@ from typing import Any
 from hypa import markdown as md
 from hypa.diagnosis.coverage import ChannelCoverage
 from hypa.diagnosis.generic import GenericFit
-from hypa.diagnosis.problem import format_change
 from hypa.diagnosis.scales import Scales, duration
 from hypa.diagnosis.structure import OutputStructure
 from hypa.errors import UserError
@@ -293,7 +293,8 @@ class Diagnosis:
             data.get("seconds"), {k: list(v) for k, v in (data.get("figures") or {}).items()})
 
     def to_json(self, path: Path) -> None:
-        Path(path).write_text(json.dumps(self.to_dict(), indent=2, default=float))
+        """Write ``diagnosis.json``: a number that is not finite (the score of a fit that diverged) as null."""
+        Path(path).write_text(json.dumps(md.json_ready(self.to_dict()), indent=2, default=float, allow_nan=False))
 
     @classmethod
     def from_json(cls, path: Path) -> Diagnosis:
@@ -309,8 +310,7 @@ class Diagnosis:
             raise UserError(f"{path}: not a diagnosis.json of hypa.diagnose ({type(error).__name__}: "
                             f"{' '.join(str(error).split())[:200]})") from None
         try:
-            _conform(data, Diagnosis, "")
-            return cls.from_dict(data)
+            return cls.from_dict(_conform(data, Diagnosis, ""))
         except _Mismatch as error:
             raise UserError(f"{path}: not a diagnosis.json of hypa.diagnose ({error})") from None
         except (KeyError, TypeError, AttributeError, ValueError) as error:  # what the types do not say
@@ -323,8 +323,8 @@ class Diagnosis:
         output variance, and ``change``, extended against nominal."""
         error = self.error
         shares = {"nominal": error.nominal, "extended": error.extended, "trained": error.trained}
-        out = {m: f"{100 * v:.3g} %" for m, v in shares.items() if v is not None}
-        out["change"] = format_change(error.change)
+        out = {m: md.share_text(v) for m, v in shares.items() if v is not None}
+        out["change"] = md.change_text(error.change)
         return out
 
     def markdown(self, units: Mapping[str, tuple[str, float]] | None = None, min_gain: float = MIN_GAIN) -> str:
@@ -341,19 +341,21 @@ class _Mismatch(Exception):
 _NULL_AS_EMPTY = {"Diagnosis", "Extension", "TrainedSummary"}
 
 
-def _conform(value: Any, hint: Any, where: str) -> None:
-    """Raise :class:`_Mismatch` where ``value`` (parsed JSON) is not of the type ``hint`` (a field's
-    annotation: a dataclass of this module's, ``float``, ``list[...]``, ``X | None``, ...)."""
+def _conform(value: Any, hint: Any, where: str) -> Any:
+    """``value`` (parsed JSON) as the type ``hint`` (a field's annotation: a dataclass of this
+    module's, ``float``, ``list[...]``, ``X | None``, ...) takes it: the same value, except that null
+    where a number must be reads as NaN (:meth:`Diagnosis.to_json` writes a number that is not finite
+    as null). Raise :class:`_Mismatch` where it is not of that type."""
     import types
     import typing
     from numbers import Integral, Real
 
     if hint is Any:
-        return
+        return value
     if dataclasses.is_dataclass(hint):
         if not isinstance(value, Mapping):
             raise _Mismatch(f"{where or 'the file'} is {_kind(value)}, not an object of {hint.__name__}'s keys")
-        hints = _hints(hint)
+        hints, conformed = _hints(hint), dict(value)
         for f in fields(hint):
             key = f"{where}.{f.name}" if where else f.name
             if f.name not in value:
@@ -363,47 +365,47 @@ def _conform(value: Any, hint: Any, where: str) -> None:
             item = value[f.name]
             if item is None and hint.__name__ in _NULL_AS_EMPTY:
                 continue
-            _conform(item, hints[f.name], key)
-        return
+            conformed[f.name] = _conform(item, hints[f.name], key)
+        return conformed
     origin, args = typing.get_origin(hint), typing.get_args(hint)
     if origin in (typing.Union, types.UnionType):
         if value is None and type(None) in args:
-            return
+            return None
         problems = []
         for option in (a for a in args if a is not type(None)):
             try:
-                _conform(value, option, where)
-                return
+                return _conform(value, option, where)
             except _Mismatch as mismatch:  # noqa: PERF203 -- the next option may fit
                 problems.append(mismatch)
         raise problems[0]
     if hint is type(None):
         if value is not None:
             raise _Mismatch(f"{where} is {_kind(value)}, not null")
-        return
+        return None
     if origin in (list, tuple):
         if not isinstance(value, (list, tuple)):
             raise _Mismatch(f"{where} is {_kind(value)}, not a list")
         items = args if origin is tuple and args and args[-1] is not Ellipsis else None
         if items is not None and len(items) != len(value):
             raise _Mismatch(f"{where} has {len(value)} values, not {len(items)}")
-        for i, item in enumerate(value):
-            _conform(item, items[i] if items is not None else (args[0] if args else Any), f"{where}[{i}]")
-        return
+        return [_conform(item, items[i] if items is not None else (args[0] if args else Any), f"{where}[{i}]")
+                for i, item in enumerate(value)]
     if origin is dict:
         if not isinstance(value, Mapping):
             raise _Mismatch(f"{where} is {_kind(value)}, not an object")
-        for key, item in value.items():
+        for key in value:
             if not isinstance(key, str):
                 raise _Mismatch(f"{where} has the key {key!r}, not a string")
-            _conform(item, args[1] if args else Any, f"{where}.{key}")
-        return
+        return {key: _conform(item, args[1] if args else Any, f"{where}.{key}") for key, item in value.items()}
     expected = {float: (Real, "a number"), int: (Integral, "an integer"), str: (str, "a string"),
                 bool: (bool, "true or false")}.get(hint)
     if expected is None:
         raise _Mismatch(f"{where} cannot be checked")  # a field of a type this function does not know: a bug
+    if value is None and hint is float:  # a number that was not finite, written as null
+        return math.nan
     if not isinstance(value, expected[0]) or (hint is not bool and isinstance(value, bool)):
         raise _Mismatch(f"{where} is {_kind(value)}, not {expected[1]}")
+    return value
 
 
 def _hints(cls: type) -> dict[str, Any]:
@@ -480,7 +482,7 @@ def _markdown(d: Diagnosis, units: Mapping[str, tuple[str, float]], min_gain: fl
     figures = d.headline()
 
     def per_output(model: str) -> str:
-        return ", ".join(f"{o} {100 * (1 - d.metrics[model][o].r2):.3g} %" for o in outputs)
+        return ", ".join(f"{o} {md.share_text(1 - d.metrics[model][o].r2)}" for o in outputs)
 
     lines.append(f"- nominal model: **{figures['nominal']}** ({per_output('nominal')})")
     lines.append(f"- with the named causes: **{figures['extended']}** ({per_output('extended')})")
@@ -519,11 +521,11 @@ def _markdown(d: Diagnosis, units: Mapping[str, tuple[str, float]], min_gain: fl
     for k, f in enumerate(d.named, 1):
         share = (previous - f.score) / nominal if nominal > 0 else 0.0
         lines.append(f"{k}. **{f.cause}** on `{f.target}`: " + (f.fitted or "no value")
-                     + f". {error.capitalize()} {100 * f.gain:.2g} % lower than before it; "
+                     + f". {error.capitalize()} {_lower(f.gain)} against the model before it; "
                      f"{100 * share:.2g} % of the nominal error."
                      + (f" Small (below the {100 * min_gain:.0f} % floor), but {f.z:.0f} standard errors from zero."
                         if f.small else "")
-                     + (f" A generic linear filter from the inputs in its place: {100 * f.generic:.2g} % lower."
+                     + (f" A generic linear filter from the inputs in its place: {_lower(f.generic)}."
                         if f.generic is not None else ""))
         if f.alternatives:
             lines.append(f"   The data cannot tell it from: {'; '.join(f.alternatives)}.")
@@ -549,7 +551,7 @@ def _markdown(d: Diagnosis, units: Mapping[str, tuple[str, float]], min_gain: fl
     trained = d.extended.trained
     if trained:
         lines += ["", (f"The trained extension is `{trained.model}` trained by hypa.train (run `{trained.run}`): "
-                  f"validation error {format_change(trained.change)} against the nominal model.")]
+                  f"validation error {md.change_text(trained.change)} against the nominal model.")]
         if trained.explained:
             lines += ["", ("What its networks learned (hypa.explain; fitted on the training records, R² on the "
                       f"validation records; report `{trained.explained[0].report}`):"), ""]
@@ -585,9 +587,16 @@ def _markdown(d: Diagnosis, units: Mapping[str, tuple[str, float]], min_gain: fl
             fitted += " (standard error not judged: too few training stretches)"
         if f.screened:
             fitted += " (first fold only: far behind that fold's best)"
-        gain = "–" if f.too_short and f.error else f"{100 * f.gain:+.1f} %"
-        candidates.append([f.cause, f.target, fitted, gain])
-    lines += ["", "## Every candidate of the first round", "", *md.table(["cause", "on", "fitted", "gain"], candidates)]
+        change = "–" if f.too_short and f.error else _lower(f.gain)
+        candidates.append([f.cause, f.target, fitted, change])
+    lines += ["", "## Every candidate of the first round", "",
+              *md.table(["cause", "on", "fitted", "error change"], candidates)]
     for name in [*d.figures.get("time_series", []), *d.figures.get("signals", [])]:
         lines += ["", f"![{name}]({name})"]
     return "\n".join(lines) + "\n"
+
+
+def _lower(gain: float | None) -> str:
+    """A row's ``gain`` (how much lower its error is than before it, a share) as the change of that
+    error (:func:`hypa.markdown.change_text`: ``-80 %``; a diverged fit's ``did not converge``)."""
+    return md.change_text(None if gain is None else -gain)

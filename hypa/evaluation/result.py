@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,7 +46,7 @@ class OutputMetrics:
 
     @classmethod
     def from_dict(cls, data: dict) -> OutputMetrics:
-        return cls(float(data["mae"]), float(data["mse"]), float(data["mape"]), float(data["r2"]))
+        return cls(_number(data["mae"]), _number(data["mse"]), _number(data["mape"]), _number(data["r2"]))
 
 
 @dataclass(frozen=True)
@@ -90,7 +91,7 @@ class SplitMetrics:
     @classmethod
     def from_dict(cls, data: dict) -> SplitMetrics:
         return cls(segments(data.get("windowed") or {}), segments(data.get("free_run") or {}),
-                   {n: SignalMetrics(float(s["corr"]), float(s["rmse"]))
+                   {n: SignalMetrics(_number(s["corr"]), _number(s["rmse"]))
                     for n, s in (data.get("signals") or {}).items()})
 
 
@@ -114,7 +115,8 @@ class RunMetrics:
                    {k: str(u) for k, u in (data.get("units") or {}).items()})
 
     def to_json(self, path: Path) -> None:
-        Path(path).write_text(json.dumps(self.to_dict(), indent=2))
+        """Write ``metrics.json``: a figure that is not finite (a free run that diverged) as null."""
+        Path(path).write_text(json.dumps(md.json_ready(self.to_dict()), indent=2, allow_nan=False))
 
     @classmethod
     def from_json(cls, path: Path) -> RunMetrics:
@@ -194,3 +196,8 @@ class Evaluation:
     def markdown(self, figures: Sequence[str] = ()) -> str:
         """``summary.md`` in the display units."""
         return self.metrics.markdown(figures, self.display_units, self.display_factors)
+
+
+def _number(value: float | None) -> float:
+    """A figure of ``metrics.json``: null (written for one that was not finite) reads as NaN."""
+    return math.nan if value is None else float(value)
