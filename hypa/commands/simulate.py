@@ -8,7 +8,9 @@
 
 The entry point only reads the settings; :func:`hypa.evaluation.nominal.simulate_nominal` runs
 the model (windowed and free-running on each validation record, through the same engine as
-training) and writes ``simulation.json`` and a figure per record into the Hydra run folder.
+training) and writes ``simulation.json`` and a figure per record into the Hydra run folder. A free
+run that sits at a level the data never reach is one warning line naming the output and the
+likely state (:func:`hypa.models.rollout.free_run_levels`).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ def main(cfg: DictConfig) -> float:
     from hypa.commands.entry import data_dir_from_config, model_datamodule, vehicle_from_config
     from hypa.evaluation.nominal import nominal_module, report, simulate_nominal
     from hypa.models.building import model_hold
+    from hypa.models.rollout import free_run, free_run_levels
     from hypa.models.schema import plain_model
     from hypa.models.spec import parse_model_spec
 
@@ -47,6 +50,9 @@ def main(cfg: DictConfig) -> float:
     # the hold the physics ran with: the model's own where it fixes one (silverbox_physical: foh)
     print(report(results, dm, f"model {model_config['name']} at its configured values (hold={module.model.hold}) "
                               "against the validation data:"))
+    runs = [free_run(module.model, dm, record) for record in dm.records("val")]
+    for line in free_run_levels(runs, dm.output_names, module.model, {n: dm.channels[n].unit for n in dm.output_names}):
+        print(f"warning: {line}")  # a level no data reach: one line naming the output and the likely state
     print(f"results and figures in {out}")
     return float(np.mean([m["nrmse"] for label, r in results.items() if label.startswith("windowed")
                           for m in r.values()]))

@@ -33,6 +33,7 @@ import functools
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Self
 
 import pint
 
@@ -48,11 +49,14 @@ _SI_NAMES = {"dimensionless": "-", "second": "s", "1 / second": "Hz", "radian": 
              "kilogram": "kg", "kilogram * meter / second ** 2": "N", "kilogram * meter ** 2 / second ** 2": "Nm",
              "kilogram / meter / second ** 2": "Pa", "kilogram * meter ** 2 / ampere / second ** 3": "V",
              "ampere": "A", "kilogram * meter ** 2 / second ** 3": "W", "kelvin": "K", "meter ** 3 / second": "m^3/s",
-             "meter ** 3": "m^3", "kilogram / second": "kg/s"}
+             "meter ** 3": "m^3", "kilogram / second": "kg/s", "ampere * second": "C",
+             "kilogram * meter ** 2 / ampere ** 2 / second ** 3": "ohm",
+             "ampere ** 2 * second ** 4 / kilogram / meter ** 2": "F"}
 _KINDS = {"-": "dimensionless", "s": "time", "Hz": "frequency", "rad": "angle", "rad/s": "angular rate",
           "rad/s^2": "angular acceleration", "m": "length", "m/s": "speed", "m/s^2": "acceleration", "kg": "mass",
           "N": "force", "Nm": "torque or energy", "Pa": "pressure", "V": "voltage", "A": "current", "W": "power",
-          "K": "temperature", "m^3/s": "volume flow", "m^3": "volume", "kg/s": "mass flow"}
+          "K": "temperature", "m^3/s": "volume flow", "m^3": "volume", "kg/s": "mass flow", "C": "charge",
+          "ohm": "resistance", "F": "capacitance"}
 
 _REGISTRY = pint.UnitRegistry()
 _USER: dict[str, str] = {}  # the users' own names (data.units) defined so far: name -> definition
@@ -93,7 +97,7 @@ def define_units(units: Mapping[str, str] | None) -> None:
 
 @functools.cache
 def _parse(text: str) -> Unit | None:
-    spelled = _ALIASES.get(text, text).replace("^", "**")
+    spelled = re.sub(r"(?<![A-Za-z])([a-zA-Zµμ]?)Ohm\b", r"\1ohm", _ALIASES.get(text, text)).replace("^", "**")
     try:
         zero = _REGISTRY.Quantity(0.0, spelled).to_base_units()
         one = _REGISTRY.Quantity(1.0, spelled).to_base_units()
@@ -156,6 +160,109 @@ KNOWN_UNITS: tuple[str, ...] = COMMON  # examples for messages; pint reads many 
 def units_of(dimension: str) -> tuple[str, ...]:
     """The common units of a kind (e.g. ``"angle"`` -> rad, mrad, deg)."""
     return tuple(name for name in COMMON if (u := _parse(name)) is not None and u.dimension == dimension)
+
+
+# --- a value given with its unit (a physical parameter) -------------------------------------
+
+_NUMBER = re.compile(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*?)\s*")
+
+
+def value_in(value: object, declared: str, name: str) -> float:
+    """``value`` as a number in the unit ``declared`` (a parameter's, e.g. ``C``): a plain number is
+    taken to be in it already; a value with a unit (``"2.5 Ah"``, ``"40 mOhm"``, ``{value: 2.5, unit:
+    Ah}``, or any object with ``value`` and ``unit`` attributes) is converted by pint. A unit of
+    another kind is a DataError naming ``name``: "capacity: 2.5 V is not a charge (the class declares C)".
+    """
+    if isinstance(value, bool):
+        raise DataError(f"{name} must be a number (with a unit or not), got {value!r}")
+    if isinstance(value, int | float) and not hasattr(value, "unit"):
+        return float(value)
+    if isinstance(value, Mapping) or hasattr(value, "unit"):
+        get = value.get if isinstance(value, Mapping) else lambda key: getattr(value, key, None)
+        extra = sorted(set(map(str, value)) - {"value", "unit"}) if isinstance(value, Mapping) else []
+        if extra or get("value") is None or get("unit") is None:
+            raise DataError(f"{name}: a value with a unit is {{value: <number>, unit: <unit>}} or '2.5 Ah', "
+                            f"got {value!r}")
+        number, given = get("value"), str(get("unit")).strip()
+        text = f"{number} {given}"
+        try:
+            number = float(number)
+        except (TypeError, ValueError):
+            raise DataError(f"{name}: the value of {value!r} must be a number") from None
+    elif isinstance(value, str):
+        text = value.strip()
+        match = _NUMBER.fullmatch(value)
+        if match is None:
+            raise DataError(f"{name}: cannot read {value!r} as a number with a unit (write e.g. '2.5 Ah', "
+                            "'40 mOhm', or {value: 2.5, unit: Ah})")
+        number, given = float(match.group(1)), match.group(2)
+        if not given:
+            return number  # a number written as text: in the declared unit
+    else:
+        try:
+            return float(value)  # a numpy or torch scalar
+        except (TypeError, ValueError):
+            raise DataError(f"{name} must be a number or a number with a unit ('2.5 Ah'), got {value!r}") from None
+    found = _parse(given)
+    if found is None:
+        raise DataError(f"{name}: unknown unit {given!r} in {text!r} (write it as pint reads it: Ah, mAh, mOhm, "
+                        "kF, kN/m, deg, ...)")
+    target = _parse("" if declared is None else str(declared).strip())
+    if target is None:
+        raise DataError(f"{name}: {text} has a unit, but the class declares {declared!r}, which is no unit pint "
+                        f"reads: give a plain number in {declared}")
+    if found.si != target.si:
+        kind = target.dimension
+        what = kind if kind == "dimensionless" else f"{'an' if kind[:1] in 'aeiou' else 'a'} {kind}"
+        raise DataError(f"{name}: {text} is not {what} (the class declares {declared or '-'})")
+    return (number * found.factor + found.offset - target.offset) / target.factor
+
+
+class GivenQuantity(float):
+    """A number given with its unit (a model YAML's ``capacity: 2.5 Ah``): its float value is in SI base
+    units (9000.0), ``value`` and ``unit`` are as given, and :func:`value_in` converts it to the
+    unit a parameter declares. Written back as it was given (``str``: ``2.5 Ah``)."""
+
+    value: float
+    unit: str
+
+    def __new__(cls, value: float, unit_name: str, si_value: float) -> Self:
+        given = super().__new__(cls, si_value)
+        given.value, given.unit = float(value), unit_name
+        return given
+
+    def __repr__(self) -> str:
+        return f"{self.value:g} {self.unit}"
+
+    __str__ = __repr__
+
+    def __reduce__(self) -> tuple:
+        return GivenQuantity, (self.value, self.unit, float(self))
+
+
+def given_value(value: object, name: str) -> float:
+    """A configured value: a plain number as a float, a number with a unit (``"2.5 Ah"``, ``{value: 2.5,
+    unit: Ah}``) as a :class:`GivenQuantity` (checked here: an unknown unit is a DataError naming
+    ``name``; converted to a parameter's declared unit where the parameter is known)."""
+    if isinstance(value, bool):
+        raise DataError(f"{name} must be a number (with a unit or not), got {value!r}")
+    if isinstance(value, GivenQuantity) or (isinstance(value, int | float) and not isinstance(value, bool)):
+        return value if isinstance(value, GivenQuantity) else float(value)
+    if isinstance(value, str) and _NUMBER.fullmatch(value) and not _NUMBER.fullmatch(value).group(2):
+        return float(value)
+    if isinstance(value, str):
+        match = _NUMBER.fullmatch(value)
+        number, given = (float(match.group(1)), match.group(2)) if match else (None, "")
+    elif isinstance(value, Mapping):
+        number, given = value.get("value"), str(value.get("unit", "")).strip()
+    else:
+        return value_in(value, "", name)  # a numpy scalar, or refused in one line
+    found = _parse(given) if number is not None else None
+    if found is None:
+        value_in(value, "", name)  # raises the one-line reason (unreadable, unknown unit, ...)
+        raise DataError(f"{name}: cannot read {value!r}")
+    number = value_in(value, found.name, name)  # checks the mapping's keys and number
+    return GivenQuantity(number, found.name, number * found.factor + found.offset)
 
 
 # --- how values are shown, and the unit of a ratio --------------------------------------------

@@ -84,6 +84,7 @@ class PhysicsStep(nn.Module):
         self.n, self.m, self.q = model.n_states, len(model.input_names), len(block.scheduled)
         self.lagged = block.hold == "foh"  # x_k needs u_k: the state holds sample k - 1
         self.same, self.feedthrough = model.outputs_are_states, block.feedthrough
+        self.curved = model.has_nonlinear_output  # y = C x + D u + h(x, u): h by the block's own torch code
         for key in ("state_mean", "state_std", "input_mean", "input_std"):
             _constant(self, key, getattr(block, key))
         if not block.scheduled:
@@ -126,6 +127,7 @@ class PhysicsStep(nn.Module):
         else:
             y = x @ c.T + g
             y = y + u @ d.T if self.feedthrough else y
+            y = y + self.block.nonlinear_output(x, u) if self.curved else y
         physical = lambda values, mean, std: values * std + mean  # noqa: E731
         if self.lagged:
             parts = [physical(x, self.state_mean, self.state_std), physical(u, self.input_mean, self.input_std)]
@@ -148,6 +150,7 @@ class NonlinearStep(nn.Module):
         self.block, self.name = block, name
         self.n, self.m, self.q = block.model.n_states, len(block.model.input_names), 0
         self.same, self.feedthrough = block.model.outputs_are_states, block.feedthrough
+        self.curved = block.model.has_nonlinear_output
         with torch.no_grad():
             lure = block.lure_parts(torch.float32)
             norm = block.normalized(torch.float32)
@@ -181,6 +184,7 @@ class NonlinearStep(nn.Module):
         else:
             y = x_hat @ self.c.T + self.g
             y = y + u @ self.d.T if self.feedthrough else y
+            y = y + self.block.nonlinear_output(x_hat, u) if self.curved else y
         return y, torch.cat([x, u_now], -1)
 
 
@@ -200,7 +204,10 @@ class GainStep(nn.Module):
 
     def forward(self, u: Tensor, rho: Tensor | None, state: Tensor) -> tuple[Tensor, Tensor]:
         if rho is None:
-            return u @ self.d.T + self.g, state
+            y = u @ self.d.T + self.g
+            if self.block.model.has_nonlinear_output:  # y = D u + h(u)
+                y = y + self.block.nonlinear_output(u.new_zeros(*u.shape[:-1], 0), u)
+            return y, state
         norm = self.block.sample_matrices(rho[0], 0)
         return u @ norm.d.T + norm.g, state
 

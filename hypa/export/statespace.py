@@ -85,6 +85,9 @@ def refusal(model: ComposedModel) -> str | None:
         if block.model.is_nonlinear:
             return (f"block {b.name!r} is nonlinear ({block.model.display_name}): no linear state space "
                     "(use onnx or fmu)")
+        if block.model.has_nonlinear_output:
+            return (f"block {b.name!r} has a nonlinear output ({block.model.display_name}.output_nonlinearity): "
+                    "no linear state space (use onnx or fmu)")
     return hold_refusal(model)
 
 

@@ -22,7 +22,7 @@ from hypa.ann import build_ann
 from hypa.models.spec import ELEMENT_PARAMETER, BlockSpec, ModelSpec, ModelSpecError
 from hypa.physics import HOLDS, LTIBlock, LTIModel, ParameterSpec, PhysicalParameters, Scaling, default_state_std
 from hypa.physics.elements import DeadTime, Saturation, local_name
-from hypa.physics.operating_point import Scale, settled_state_scales
+from hypa.physics.operating_point import Scale, output_level_state_scales, settled_state_scales
 
 MEASURED, STEADY, ESTIMATE = "measured", "steady", "estimate"
 
@@ -90,7 +90,10 @@ def collect_parameters(spec: ModelSpec, values: Mapping[str, float]
             if missing:
                 raise ModelSpecError(f"block {b.name!r} ({b.system}) needs parameters {missing}; give them in "
                                      "the model's or the block's parameters")
-            block_specs = system.parameter_specs(given)
+            try:  # a value given with a unit is converted to the unit the system declares
+                block_specs = system.parameter_specs(given)
+            except ValueError as error:
+                raise ModelSpecError(f"block {b.name!r} ({b.system}): {error}") from None
         resolved = {t: local_name(b.name, t) if local_name(b.name, t) in names else t for t in b.trainable}
         unknown = [t for t, full in resolved.items() if full not in names]
         if unknown:
@@ -110,6 +113,20 @@ def collect_parameters(spec: ModelSpec, values: Mapping[str, float]
     params = PhysicalParameters(specs.values())
     params.set_trainable({t for ts in trainable_of.values() for t in ts}, True)
     return params, trainable_of, systems
+
+
+def _rows_read_nonlinearly(system: LTIModel, nominal: Mapping[str, torch.Tensor]) -> frozenset[int]:
+    """The outputs whose nonlinear part h (``output_nonlinearity``) is not zero: at the nominal values
+    and at two points of states and inputs (0.5 and 0.25: a state of charge's range); none for a
+    linear output."""
+    if not system.has_nonlinear_output:
+        return frozenset()
+    n, m = system.n_states, len(system.input_names)
+    with torch.no_grad():
+        values = [system.output_nonlinearity(torch.full((n,), v, dtype=torch.float64),
+                                             torch.full((m,), v, dtype=torch.float64), nominal)
+                  for v in (0.5, 0.25)]
+    return frozenset(torch.nonzero((values[0] != 0) | (values[1] != 0)).flatten().tolist())
 
 
 class BlockBuilder:
@@ -198,9 +215,13 @@ class BlockBuilder:
             else:
                 std = default_state_std(ss, self.dt, torch.tensor([s for _, s in inputs], dtype=torch.float64),
                                         self.horizon)
-                states, read = self._observed_state_scales(ss, start, inputs, [(0.0, float(s)) for s in std])
-                if system.is_nonlinear:  # the operating point of a state no output reads alone: where it settles
-                    unread = [j for j in range(n) if j not in read]
+                states, read = self._observed_state_scales(ss, start, inputs, [(0.0, float(s)) for s in std],
+                                                           _rows_read_nonlinearly(system, nominal))
+                unread = [j for j in range(n) if j not in read]
+                if system.has_nonlinear_output:  # ... where the outputs are the data's means (a state of charge)
+                    measured = [self.measured[m] if m is not None else None for m in start.observed or ()]
+                    states = output_level_state_scales(system, self.params, inputs, measured, states, unread)
+                elif system.is_nonlinear:  # the operating point of a state no output reads alone: where it settles
                     states = settled_state_scales(system, self.params, self.dt, inputs, states, unread)
         self.scales.update(zip(b.outputs, outputs))
         t = lambda pairs, i: torch.tensor([p[i] for p in pairs], dtype=torch.float64)  # noqa: E731
@@ -267,8 +288,8 @@ class BlockBuilder:
                                  "(scale_as, or its inputs for a steady start)")
         return scales
 
-    def _observed_state_scales(self, ss, start: PhysicsStart, inputs: list[Scale], states: list[Scale]
-                               ) -> tuple[list[Scale], set[int]]:
+    def _observed_state_scales(self, ss, start: PhysicsStart, inputs: list[Scale], states: list[Scale],
+                               curved: frozenset[int] = frozenset()) -> tuple[list[Scale], set[int]]:
         """``states`` with the data's scale for each state that an observed output reads alone, and
         the indices of those states.
 
@@ -278,14 +299,15 @@ class BlockBuilder:
         physics (``default_state_std``, around 0) knows neither: a level of 5.6 V measured with a
         spread of 0.67 V would be scaled by the spread the inputs give it in the linear part
         alone (1e-3 of another state's where the coupling is nonlinear), and the estimate's
-        ridge would pull it toward 0 V.
+        ridge would pull it toward 0 V. A row that a nonlinear output also reads (``curved``: a
+        cell's OCV(SOC) − v₁) reads no state alone.
         """
         if start.mode != ESTIMATE or not start.observed:
             return states, set()
         states, read = list(states), set()
         mean_in = torch.tensor([m for m, _ in inputs], dtype=torch.float64)
         for row, measured in enumerate(start.observed):
-            if measured is None:
+            if measured is None or row in curved:
                 continue
             entries = torch.nonzero(ss.c[row]).flatten().tolist()
             if len(entries) != 1:

@@ -3,12 +3,13 @@ after its start, and what it predicted (``Prediction``).
 
 The one rollout every command uses (evaluation, the benchmark, explain, the diagnosis, the
 validation figures in TensorBoard): it needs a model and the data module's channels and
-normalization, nothing of training or of a run folder.
+normalization, nothing of training or of a run folder. :func:`free_run_levels` says where a free
+run sits at a level the data never reach (a state no data initialize, an output offset).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -89,3 +90,74 @@ def free_run_metrics(runs: Sequence[Prediction], outputs: Sequence[str]) -> dict
         e = errors(p, y)
         out[name] = {"rmse": e["rmse"], "mse": e["mse"], "r2": e["r2"]}
     return out
+
+
+LEVEL_SPREADS = 5.0  # a free run whose mean is this many spreads (the data's or its own) from the data's: off level
+
+
+def free_run_levels(runs: Sequence[Prediction], outputs: Sequence[str], model: ComposedModel | None = None,
+                    units: Mapping[str, str] | None = None) -> list[str]:
+    """One line per output whose free runs sit at a level the data never reach: the mean of the
+    predicted samples over all ``runs`` further than ``LEVEL_SPREADS`` spreads from the measured
+    mean, the spread the larger of the data's and the free run's own standard deviation (the data's
+    own scale: a 0 V run of a 3.7 V cell whose voltage moves by 0.1 V is 37 spreads off; a run that
+    only drifts or oscillates is not flagged by its level). Each line names the output and, given
+    the ``model``, the states it reads that no dynamics pull back (A's null space: an integrator, a
+    state of charge, an OCV), else all the states it reads: "the free run of 'voltage' sits at 0 V
+    while the data sit at 3.7 V (37 spreads away): a state that no data initialize (ocv?) or an
+    output offset". ``units``: each output's unit for the message. Empty where every level is right.
+    """
+    lines = []
+    for name in outputs:
+        measured = np.concatenate([np.asarray(r.measured[name][r.first:], float) for r in runs]) if runs else []
+        predicted = np.concatenate([np.asarray(r.predicted[name][r.first:], float) for r in runs]) if runs else []
+        seen = np.isfinite(measured)
+        if not seen.any() or len(predicted) != len(measured):
+            continue
+        measured, predicted = measured[seen], predicted[seen]
+        if not np.isfinite(predicted).all():
+            continue  # a diverged run: not a level (the metrics say it)
+        level, data = float(predicted.mean()), float(measured.mean())
+        spread = max(float(measured.std()), float(predicted.std()),
+                     np.finfo(float).eps * max(abs(level), abs(data), 1.0))
+        away = abs(level - data) / spread
+        if away <= LEVEL_SPREADS:
+            continue
+        unit = f" {units[name]}" if units and units.get(name) else ""
+        states = _level_states(model, name) if model is not None else ()
+        where = f"a state that no data initialize ({' or '.join(states)}?) or an output offset" if states else \
+            "an output offset, or a state that no data initialize"
+        lines.append(f"the free run of {name!r} sits at {level:.3g}{unit} while the data sit at {data:.3g}{unit} "
+                     f"({away:.0f} spreads away): {where}")
+    return lines
+
+
+def _level_states(model: ComposedModel, output: str) -> tuple[str, ...]:
+    """The states of the physics block writing ``output`` that it reads (C, and a nonlinear output's
+    slope at the states' operating point), those that A leaves free first (its null space)."""
+    import torch
+
+    block_spec = next((b for b in model.order if output in b.outputs), None)
+    if block_spec is None or block_spec.kind != "physics":
+        return ()
+    block = model.blocks[block_spec.name]
+    system, row = block.model, block_spec.outputs.index(output)
+    if not system.n_states or system.outputs_are_states:
+        return (system.state_names[row],) if system.outputs_are_states else ()
+    with torch.no_grad():
+        ss = block.state_space(torch.float64)
+        reads = ss.c[row].abs() > 0
+    if system.has_nonlinear_output:
+        dtype = torch.float64
+        zero_u = block.input_mean.new_zeros(len(system.input_names), dtype=dtype)
+        with torch.enable_grad():
+            slope = torch.func.jacrev(lambda x: block.nonlinear_output(x, zero_u))(
+                block.state_mean.new_zeros(system.n_states, dtype=dtype))
+        reads = reads | (slope[row].detach().abs() > 0)
+    with torch.no_grad():
+        _, sv, vh = torch.linalg.svd(ss.a)
+        tol = 1e-9 * float(sv.max()) if float(sv.max()) > 0 else 0.0
+        free = vh[vh.shape[0] - int((sv <= tol).sum()):].abs().sum(0) > 1e-9  # (n,) in A's null space
+    names = [s for j, s in enumerate(system.state_names) if bool(reads[j])]
+    held = [s for j, s in enumerate(system.state_names) if bool(reads[j]) and bool(free[j])]
+    return tuple(held or names)

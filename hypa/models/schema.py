@@ -32,7 +32,7 @@ class BlockConfig:
     residual_of: Any = None  # ann: signals the output is added to
     scale_as: Any = None  # signals whose scale the outputs share
     initial_state: Any = None  # measured outputs, steady, estimate or encoder
-    parameters: Any = None  # name -> value [SI]
+    parameters: Any = None  # name -> value [the parameter's unit], or with a unit: 2.5 Ah, {value: 2.5, unit: Ah}
     scheduling: Any = None  # physics: parameter -> scheduling channel
     observe: Any = None  # physics: block output -> measured output
     table: Any = None  # physics scheduled by one signal: its matrices off a verified table where no gradient needs them
@@ -58,7 +58,7 @@ class ModelConfig:
     outputs: Any = None
     stages: list[StageConfig] = field(default_factory=list)
     hold: str | None = None  # zoh | foh | cubic, overriding physics.hold of the run
-    parameters: Any = None  # shared physical parameters [SI], overriding the vehicle config
+    parameters: Any = None  # shared physical parameters (as a block's), overriding the vehicle config
     sensor_offsets: Any = None  # measured - true [SI]
 
 

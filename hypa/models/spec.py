@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hypa.data.errors import DataError
+from hypa.data.units import GivenQuantity, given_value
 from hypa.errors import UserError
 from hypa.models.schema import BlockConfig, ModelConfig, StageConfig, keys, unknown_keys
 from hypa.physics.discretization import HOLDS
@@ -47,8 +49,10 @@ class BlockSpec:
         path of a user's ``LTIModel`` subclass (``mypackage.motors:DCMotor``).
     trainable: physics, delay and saturation, parameter names learned from data (grey-box); a block's own
         parameters by their short name (``tau_s``).
-    parameters: physics, delay and saturation, values [SI] of the block's own parameters (a
-        lag's ``tau_s``, a dead time's ``delay_s``, a limit's ``limit``), stored as ``<block>/<name>``.
+    parameters: physics, delay and saturation, values of the block's own parameters (a
+        lag's ``tau_s``, a dead time's ``delay_s``, a limit's ``limit``), stored as ``<block>/<name>``:
+        a number in the parameter's declared unit, or a number with a unit (``2.5 Ah``, ``{value: 2.5,
+        unit: Ah}``) converted to it when the model is built (another kind of unit is refused).
     residual_of: ann only, signals the network's output is added to (a correction network);
         when the block is bypassed (first stage of a staged training) its output is exactly
         these signals.
@@ -133,8 +137,8 @@ class ModelSpec:
     """A composition. Besides blocks, outputs and stages, a model may fix:
 
     hold: the physics' hold (``zoh`` | ``foh`` | ``cubic``), overriding ``physics.hold`` of the run.
-    parameters: values [SI] of shared physical parameters, overriding the ``vehicle`` config
-        (e.g. a stiffness re-fitted by ``hypa.diagnose``).
+    parameters: values of shared physical parameters, overriding the ``vehicle`` config
+        (e.g. a stiffness re-fitted by ``hypa.diagnose``); with a unit or not, as a block's.
     sensor_offsets: constant biases [SI] of measured signals (measured - true): subtracted from
         a measured input and from a measured initial state, added to the model output.
     """
@@ -177,21 +181,34 @@ def _signals(value: Any, where: str) -> tuple[str, ...]:
         raise ModelSpecError(str(error)) from None
 
 
-def _values(value: Any, where: str) -> dict[str, float]:
-    """A mapping name -> finite number (SI)."""
+def _values(value: Any, where: str, units: bool = False) -> dict[str, float]:
+    """A mapping name -> finite number (SI); with ``units`` also a number with a unit (``2.5 Ah``,
+    ``{value: 2.5, unit: Ah}``): a :class:`~hypa.data.units.GivenQuantity`, converted to the unit its
+    parameter declares when the model is built."""
     if value is None:
         return {}
     if not isinstance(value, Mapping):
         raise ModelSpecError(f"{where} must map names to numbers, got {value!r}")
     out = {}
     for key, v in value.items():
-        try:
-            out[str(key)] = float(v)
-        except (TypeError, ValueError):
-            raise ModelSpecError(f"{where}.{key} must be a number, got {v!r}") from None
+        if units and not isinstance(v, int | float):
+            try:
+                out[str(key)] = given_value(v, f"{where}.{key}")
+            except DataError as error:
+                raise ModelSpecError(str(error)) from None
+        else:
+            try:
+                out[str(key)] = float(v)
+            except (TypeError, ValueError):
+                raise ModelSpecError(f"{where}.{key} must be a number, got {v!r}") from None
         if not math.isfinite(out[str(key)]):
             raise ModelSpecError(f"{where}.{key} must be finite, got {v!r}")
     return out
+
+
+def _written(value: float) -> float | str:
+    """A parameter value as a model YAML holds it: a number, or a number with its unit as given."""
+    return str(value) if isinstance(value, GivenQuantity) else float(value)
 
 
 def _signal_map(value: Any, where: str) -> dict[str, str]:
@@ -271,7 +288,7 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
             residual_of=_signals(b.get("residual_of"), f"{block_name}.residual_of"),
             scale_as=_signals(b.get("scale_as"), f"{block_name}.scale_as"),
             initial_state=_signals(b.get("initial_state"), f"{block_name}.initial_state"),
-            parameters=_values(b.get("parameters"), f"{block_name}.parameters"),
+            parameters=_values(b.get("parameters"), f"{block_name}.parameters", units=True),
             scheduling=_signal_map(b.get("scheduling"), f"{block_name}.scheduling"),
             observe=_signal_map(b.get("observe"), f"{block_name}.observe"),
             table=_flag(b.get("table"), f"{block_name}.table"),
@@ -300,7 +317,8 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
         stages.append(StageSpec(name=str(s["name"]), train=_names(s.get("train"), "stage.train"),
                                 bypass=_names(s.get("bypass"), "stage.bypass")))
     spec = ModelSpec(name=name, blocks=tuple(blocks), outputs=_signals(config.get("outputs"), "outputs"),
-                     stages=tuple(stages), hold=hold, parameters=_values(config.get("parameters"), "parameters"),
+                     stages=tuple(stages), hold=hold,
+                     parameters=_values(config.get("parameters"), "parameters", units=True),
                      sensor_offsets=_values(config.get("sensor_offsets"), "sensor_offsets"))
     for stage in spec.stages:
         for block_name in (*stage.train, *stage.bypass):
@@ -366,6 +384,8 @@ def spec_config(spec: ModelSpec, name: str | None = None) -> dict[str, Any]:
             if value:
                 entry[key] = dict(value) if isinstance(value, Mapping) else (
                     list(value) if isinstance(value, tuple) else value)
+        if b.parameters:  # a value given with its unit is written as given (2.5 Ah)
+            entry["parameters"] = {k: _written(v) for k, v in b.parameters.items()}
         if b.table:
             entry["table"] = True
         blocks[b.name] = entry
@@ -373,7 +393,7 @@ def spec_config(spec: ModelSpec, name: str | None = None) -> dict[str, Any]:
     if spec.hold:
         out["hold"] = spec.hold
     if spec.parameters:
-        out["parameters"] = {k: float(v) for k, v in spec.parameters.items()}
+        out["parameters"] = {k: _written(v) for k, v in spec.parameters.items()}
     if spec.sensor_offsets:
         out["sensor_offsets"] = {k: float(v) for k, v in spec.sensor_offsets.items()}
     out["stages"] = [{"name": s.name, "train": list(s.train), "bypass": list(s.bypass)} for s in spec.stages]

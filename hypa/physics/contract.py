@@ -51,8 +51,44 @@ def check_system(system: object, where: str = "") -> None:
     _check_matrices(system, _nominal(specs), label)
     if system.is_nonlinear:
         _check_nonlinearity(system, _nominal(specs), label)
+    if system.has_nonlinear_output:
+        _check_output_nonlinearity(system, _nominal(specs), label)
     if system.outputs_are_states:
         _check_outputs_are_states(system, specs, label)
+
+
+def _check_output_nonlinearity(system: LTIModel, nominal: dict[str, torch.Tensor], label: str) -> None:
+    """h(x, u) at the nominal values and x = 0.5, u = 0.5 (inside a state of charge's range): shape (p,)
+    for one sample and (2, p) for two, finite, elementwise in the leading dims, and differentiable."""
+    n, m, p = len(system.state_names), len(system.input_names), len(system.output_names)
+    where = f"system {label}: output_nonlinearity"
+    if system.outputs_are_states:
+        raise SystemContractError(f"{where}: its outputs are named like its states {list(system.state_names)}, so "
+                                  "they are the states (y = x): give the measured outputs their own names")
+    x = torch.full((n,), 0.5, dtype=torch.float64, requires_grad=True)
+    u = torch.full((m,), 0.5, dtype=torch.float64, requires_grad=True)
+    try:
+        h = system.output_nonlinearity(x, u, nominal)
+        shape = tuple(h.shape) if isinstance(h, torch.Tensor) else type(h).__name__
+        if shape != (p,):
+            raise SystemContractError(f"{where}(x ({n},), u ({m},), p) must return h of shape ({p},) (outputs), "
+                                      f"got {shape}")
+        two = system.output_nonlinearity(torch.stack([x.detach(), x.detach() * 0.9]),
+                                         torch.stack([u.detach(), u.detach() * 0.9]), nominal)
+        slopes = torch.autograd.grad(h.sum(), (x, u), allow_unused=True) if h.requires_grad else ()
+    except SystemContractError:
+        raise
+    except Exception as error:  # a user's code: report any failure as one line
+        raise SystemContractError(f"{where} raised {type(error).__name__}: {error}") from error
+    if not bool(torch.isfinite(h).all()):
+        raise SystemContractError(f"{where} is not finite at x = 0.5, u = 0.5 and the nominal values: "
+                                  f"{h.tolist()}")
+    if not isinstance(two, torch.Tensor) or tuple(two.shape) != (2, p) or not torch.allclose(two[0], h.detach()):
+        raise SystemContractError(f"{where} must work on a batch of samples (x (..., {n}), u (..., {m}) -> (..., "
+                                  f"{p})), elementwise in the leading dims (index x[..., j], not x[j])")
+    if not all(g is None or bool(torch.isfinite(g).all()) for g in slopes):
+        raise SystemContractError(f"{where} has a non-finite slope at x = 0.5, u = 0.5 (torch ops only, "
+                                  "differentiable there)")
 
 
 def _check_nonlinearity(system: LTIModel, nominal: dict[str, torch.Tensor], label: str) -> None:

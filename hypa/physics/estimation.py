@@ -69,10 +69,15 @@ def estimate_last_state(phi: Tensor, forced: Tensor, c: Tensor, offset: Tensor, 
 
 
 GAUSS_NEWTON_STEPS = 3  # refinements of a nonlinear block's estimate (each one simulation of the past, n + 1 wide)
+# ... of a nonlinear output's: its linearised start can be far off where h bends (an OCV curve read from its
+# operating point), and a step that overshoots is halved rather than dropped
+NONLINEAR_OUTPUT_STEPS = 8
+OUTPUT_HALVINGS = 4
 
 
 def refine_first_state(simulate: Callable[[Tensor], tuple[Tensor, Tensor]], x0: Tensor, y: Tensor,
-                       observed: Tensor, ridge: float = 1e-8, steps: int = GAUSS_NEWTON_STEPS) -> Tensor:
+                       observed: Tensor, ridge: float = 1e-8, steps: int = GAUSS_NEWTON_STEPS,
+                       halvings: int = 0) -> Tensor:
     """x̂_P (B, n) of a nonlinear block whose x̂_0 is refined by Gauss-Newton on its own simulation of
     the past window.
 
@@ -84,7 +89,8 @@ def refine_first_state(simulate: Callable[[Tensor], tuple[Tensor, Tensor]], x0: 
 
     with the Jacobian ∂ŷ/∂x̂_0 by forward differences (n more simulations in the same batch,
     so any ``nonlinearity`` works) and takes δ only where it lowers that cost (per window),
-    so a window the linear part already fits keeps its estimate. Differentiable in y, u and
+    so a window the linear part already fits keeps its estimate; where no window's cost falls,
+    δ is halved up to ``halvings`` times before the refinement stops. Differentiable in y, u and
     the parameters through the simulations (the Jacobian's values enter as they are).
 
     Why: the linear part alone may not see a state that the feedback couples to the outputs
@@ -123,10 +129,13 @@ def refine_first_state(simulate: Callable[[Tensor], tuple[Tensor, Tensor]], x0: 
         step = torch.linalg.lstsq(rows.double(), target[..., None].double()).solution.squeeze(-1).to(x0.dtype)
         if not bool(torch.isfinite(step).all()) or float(step.abs().max()) <= tolerance:
             break  # converged: a step below the dtype's resolution of a state of unit spread
-        candidate = x0 + step
-        trial, trial_last = run(candidate)
-        trial_cost = cost(trial[:, 0] - seen, candidate)
-        better = (trial_cost < current) & torch.isfinite(trial_cost)  # (B,)
+        for halved in range(halvings + 1):
+            candidate = x0 + step / 2**halved
+            trial, trial_last = run(candidate)
+            trial_cost = cost(trial[:, 0] - seen, candidate)
+            better = (trial_cost < current) & torch.isfinite(trial_cost)  # (B,)
+            if bool(better.any()):
+                break
         if not bool(better.any()):
             break
         x0 = torch.where(better[:, None], candidate, x0)

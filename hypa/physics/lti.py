@@ -77,8 +77,12 @@ class LTIBlock(BlockSimulation, nn.Module):
             raise SchedulingError(f"{model.display_name}: a table needs one scheduled parameter, got "
                                   f"{list(self.scheduled) or 'none'}")
         self._fixed_names = tuple(k for k in model.parameter_names if k not in self.scheduled)
-        with torch.no_grad():  # feedthrough decides how many inputs a window takes (``extra_inputs``)
-            self.feedthrough = bool(model.n_states and torch.count_nonzero(self.state_space().d))
+        if self.scheduled and model.has_nonlinear_output:
+            raise SchedulingError(f"{model.display_name}: a system with a nonlinear output cannot be scheduled yet")
+        with torch.no_grad():  # feedthrough decides how many inputs a window takes (``extra_inputs``);
+            # a nonlinear output h(x, u) may read its own sample's input
+            self.feedthrough = bool(model.n_states and (model.has_nonlinear_output
+                                                        or torch.count_nonzero(self.state_space().d)))
         n, m, p = model.n_states, len(model.input_names), len(model.output_names)
         scaling = scaling or Scaling.identity(n, m, p)
         if model.outputs_are_states:

@@ -27,6 +27,10 @@ class ParameterSpec:
       nominal value (1 when it is 0), so a step is relative for them too.
 
     ``bounds`` take precedence; a positive parameter's bounds must then lie in [0, ∞).
+
+    ``value`` may be given with a unit (``"2.5 Ah"``, ``{"value": 2.5, "unit": "Ah"}``, pint's
+    spellings): it is converted to ``unit`` (``C``), the unit the parameter is stored, fitted and
+    reported in; a value of another kind is refused in one line (``hypa.data.units.value_in``).
     """
 
     name: str
@@ -39,6 +43,10 @@ class ParameterSpec:
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
             raise ValueError(f"a parameter name must be a non-empty string, got {self.name!r}")
+        if type(self.value) is not float:  # a unit to convert (or an int, a numpy scalar)
+            from hypa.data.units import value_in
+
+            object.__setattr__(self, "value", value_in(self.value, self.unit, self.name))
         if not math.isfinite(self.value):
             raise ValueError(f"parameter {self.name!r} must be finite, got {self.value}")
         if self.bounds is not None:

@@ -27,7 +27,13 @@ import torch
 from torch import Tensor
 
 from hypa.physics.discretization import HoldForm
-from hypa.physics.estimation import estimate_last_state, refine_first_state
+from hypa.physics.estimation import (
+    GAUSS_NEWTON_STEPS,
+    NONLINEAR_OUTPUT_STEPS,
+    OUTPUT_HALVINGS,
+    estimate_last_state,
+    refine_first_state,
+)
 from hypa.physics.exponential import squarings_for
 from hypa.physics.lifted import simulate_chunked, simulate_from_rows
 from hypa.physics.lure import LureSimulation
@@ -112,7 +118,9 @@ class BlockSimulation(LureSimulation):
         states, out = self._simulate(x0, u, scheduling, steps, before)
         if out is None:  # y = x: the outputs share the states' names and scaling
             return states, states
-        return apply_output(*out, states, u[:, 1 : steps + 1] if self.feedthrough else None), states
+        now = u[:, 1 : steps + 1] if self.feedthrough else None  # a nonlinear output's block always has them
+        y = apply_output(*out, states, now)
+        return (y + self.nonlinear_output(states, now) if self.model.has_nonlinear_output else y), states
 
     def states(self, x0: Tensor | None, u: Tensor, scheduling: Tensor | None = None) -> Tensor:
         """Normalized states x̂_{k+1..k+S} (B, S, n), the samples of ``forward``'s outputs."""
@@ -131,8 +139,31 @@ class BlockSimulation(LureSimulation):
         rho = self._check_scheduling(scheduling, u)
         if rho is None:
             norm = self._norm(u.dtype)
-            return apply_output(norm.c, norm.d, norm.g, states, u)
+            y = apply_output(norm.c, norm.d, norm.g, states, u)
+            return y + self.nonlinear_output(states, u) if self.model.has_nonlinear_output else y
         return apply_output(*self._output_rows(self._per_sample(rho)), states, u)
+
+    def nonlinear_output(self, states: Tensor, u: Tensor) -> Tensor:
+        """The nonlinear part of the outputs, ĥ = h(x, u) / σ_y (..., p), from normalized states (..., n)
+        and inputs of the same samples (..., m): what ``output`` adds to Ĉ x̂ + D̂ û + Ĝ for a system
+        with ``output_nonlinearity`` (the output's mean is in Ĝ already). Differentiable in the
+        states, the inputs and the trainable parameters."""
+        dtype = states.dtype
+        p = self.parameters_.values(self.model.parameter_names, dtype)
+        x = states * self.state_std.to(dtype) + self.state_mean.to(dtype)
+        u_phys = u.to(dtype) * self.input_std.to(dtype) + self.input_mean.to(dtype)
+        return self.model.output_nonlinearity(x, u_phys, p) / self.output_std.to(dtype)
+
+    def _linearised_output(self, norm: NormalizedLTI, dtype: torch.dtype) -> Output:
+        """Ĉ, D̂, Ĝ of the outputs linearised about the operating point (x̂ = 0, û = 0: the scaling's
+        means): the linear part plus ĥ's slopes, its value there in Ĝ. What a nonlinear output's
+        initial-state estimate starts from (``estimate_state``)."""
+        n, m = self.model.n_states, len(self.model.input_names)
+        x0, u0 = norm.c.new_zeros(n, dtype=dtype), norm.c.new_zeros(m, dtype=dtype)
+        with torch.enable_grad():  # the slopes' values only: the estimate's start, refined afterwards
+            jx, ju = torch.func.jacrev(self.nonlinear_output, argnums=(0, 1))(x0, u0)  # (p, n), (p, m)
+        level = self.nonlinear_output(x0, u0)
+        return norm.c + jx.detach(), norm.d + ju.detach(), norm.g + level.detach()
 
     def steady_state(self, u0: Tensor, scheduling: Tensor | None = None) -> Tensor:
         """Normalized equilibrium x̂ (B, n) for the constant normalized input û0 (B, m).
@@ -179,30 +210,45 @@ class BlockSimulation(LureSimulation):
         rho = self._check_scheduling(scheduling, u, past + 1)
         if rho is not None and self.model.is_nonlinear:
             raise SchedulingError(f"{self.model.display_name}: a nonlinear system cannot be scheduled yet")
+        curved = self.model.has_nonlinear_output
         if rho is None:
             norm = self._norm(u.dtype)
             phi = norm.a.expand(1, past, n, n)
             forced = forced_terms(torch.cat([*norm.b_taps, norm.h[:, None]], -1), self.n_taps, taps, past)
-            c, offset = norm.c[None, None], u @ norm.d.T + norm.g  # (1, 1, p, n), (B, P+1, p)
+            c, d, g = self._linearised_output(norm, u.dtype) if curved else (norm.c, norm.d, norm.g)
+            c, offset = c[None, None], u @ d.T + g  # (1, 1, p, n), (B, P+1, p)
         else:
             ss = self._per_sample(rho[:, : past + 1])  # (B, P+1, ...)
             rows = self._state_rows(ss, past)  # (B, P, n, n + T m + 1)
             phi, forced = rows[..., :n], forced_terms(rows[..., n:], self.n_taps, taps, past)
             c, d, g = self._output_rows(ss)
             offset = (d @ u[..., None]).squeeze(-1) + g
-        if not self.model.is_nonlinear or past == 0:
+        if not (self.model.is_nonlinear and past) and not curved:
             return estimate_last_state(phi, forced, c, offset, y, observed, ridge)
-        # a Lur'e block: the linear part's x̂_0, refined on the block's own steps over the past
+        # a Lur'e block or a nonlinear output: the linear(ised) part's x̂_0, refined on the block's own
+        # steps and outputs over the past
 
         ahead = given[:, : past + 1 + self.form.lead]
 
+        rows = None if self.model.is_nonlinear else torch.cat([norm.a, *norm.b_taps, norm.h[:, None]], -1)
+
+        def outputs(states: Tensor, inputs: Tensor) -> Tensor:
+            y = apply_output(norm.c, norm.d, norm.g, states, inputs)
+            return y + self.nonlinear_output(states, inputs) if curved else y
+
         def run(starts: Tensor) -> tuple[Tensor, Tensor]:  # (K, n), K windows' starts -> ŷ_0..ŷ_P, x̂_P
             inputs = ahead.repeat_interleave(starts.shape[0] // u.shape[0], 0)  # each window's starts are adjacent
-            states = torch.cat([starts[:, None], self._simulate_nonlinear(starts, inputs, past)], 1)
-            return apply_output(norm.c, norm.d, norm.g, states, inputs[:, : past + 1]), states[:, -1]
+            if not past:
+                return outputs(starts[:, None], inputs[:, :1]), starts
+            later = simulate_from_rows(rows, self.n_taps, starts, self.tap_inputs(inputs, past)) if rows is not None \
+                else self._simulate_nonlinear(starts, inputs, past)
+            states = torch.cat([starts[:, None], later], 1)
+            return outputs(states, inputs[:, : past + 1]), states[:, -1]
 
         start = estimate_last_state(phi, forced, c, offset, y, observed, ridge, first=True)
-        return refine_first_state(run, start, y, observed, ridge)
+        if curved:
+            return refine_first_state(run, start, y, observed, ridge, NONLINEAR_OUTPUT_STEPS, OUTPUT_HALVINGS)
+        return refine_first_state(run, start, y, observed, ridge, GAUSS_NEWTON_STEPS)
 
     def simulate_physical(self, x0: Tensor | None, u: Tensor, scheduling: Tensor | None = None) -> Tensor:
         """``forward`` in physical units: normalize, simulate, de-normalize (x0 (B, n), u (B, L, m))."""

@@ -63,6 +63,13 @@ class LTIModel(ABC):
     simulated step by step (the linear part exact under the hold, w linear over each sample by a
     predictor-corrector: second order in dt) rather than lifted, and its initial-state estimate
     and equilibrium are the linear part's.
+
+    **Nonlinear outputs**: a system that also defines ``output_nonlinearity(x, u, p)`` measures
+    y = C x + D u + h(x, u) (a battery's terminal voltage OCV(SOC) − v₁ − R₀ I, a sensor's
+    curve), h (..., p) added to the linear output. Its states are simulated as they would be
+    without it (lifted where the dynamics are linear) and h is applied to them; its initial-state
+    estimate is refined by Gauss-Newton on the nonlinear output. A wrapper that keeps the system
+    it wraps as ``base`` (``hypa.physics.wrapped``) measures through the wrapped system's h.
     """
 
     state_names: tuple[str, ...] = ()
@@ -88,6 +95,24 @@ class LTIModel(ABC):
         ``p``: what ``prepare`` returned."""
         raise NotImplementedError(f"{type(self).__name__} defines feedback but no nonlinearity")
 
+    def output_nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
+        """h(x, u) (..., p) added to y = C x + D u, from states (..., n) and inputs (..., m) in physical
+        units; ``p``: the parameter values by name (scalar tensors). Torch ops only, elementwise in
+        the leading dims (differentiable). Not defined: y is linear (a wrapper's: its ``base``'s h)."""
+        base = getattr(self, "base", None)
+        if isinstance(base, LTIModel) and base.has_nonlinear_output:
+            return base.output_nonlinearity(x, u, p)
+        raise NotImplementedError(f"{type(self).__name__} has no output_nonlinearity")
+
+    @property
+    def has_nonlinear_output(self) -> bool:
+        """Whether the outputs have a nonlinear part h (``output_nonlinearity`` overridden, or a wrapped
+        system's ``base`` has one)."""
+        if type(self).output_nonlinearity is not LTIModel.output_nonlinearity:
+            return True
+        base = getattr(self, "base", None)
+        return isinstance(base, LTIModel) and base.has_nonlinear_output
+
     @property
     def display_name(self) -> str:
         """The system's name in messages: its class name (a wrapper, ``Curved``, names what it wraps)."""
@@ -106,10 +131,10 @@ class LTIModel(ABC):
     def parameter_specs(self, values: Mapping[str, float]) -> list[ParameterSpec]:
         """The specs of ``parameters``, valued from ``values`` where given (nominal otherwise).
 
-        Unit, positivity and bounds stay the system's own: a configuration sets values only.
+        Unit, positivity and bounds stay the system's own: a configuration sets values only, each
+        a number in the spec's unit or a number with a unit (``"2.5 Ah"``), converted to it.
         """
-        return [dataclasses.replace(spec, value=float(values.get(spec.name, spec.value)))
-                for spec in self.parameters]
+        return [dataclasses.replace(spec, value=values.get(spec.name, spec.value)) for spec in self.parameters]
 
     def nominal_values(self) -> dict[str, float]:
         """Nominal value of every parameter by name."""
