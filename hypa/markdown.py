@@ -106,6 +106,18 @@ def percent_change(before: float, after: float) -> str:
     return change_text(after / before - 1)
 
 
+def elapsed(seconds: float | None) -> str:
+    """A duration [s] as a report shows it: two significant digits, at least whole units, in s, min or
+    h (``0.4 s``, ``12 s``, ``3.4 min``, ``75 min``, ``2.5 h``); ``–`` where it is not known."""
+    if seconds is None or not math.isfinite(seconds) or seconds < 0:
+        return "–"
+    for unit, size, up_to in (("s", 1.0, 60.0), ("min", 60.0, 6000.0), ("h", 3600.0, math.inf)):
+        if seconds < up_to:
+            value = seconds / size
+            return f"{value:.2g} {unit}" if value < 10 else f"{value:.0f} {unit}"
+    return "–"  # not reached
+
+
 def json_ready(value: Any) -> Any:
     """``value`` (nested dicts, lists and tuples of plain values) with every number that is not finite
     replaced by ``None``: JSON has no NaN or Infinity (Python writes them, other readers refuse them),

@@ -184,8 +184,28 @@ def test_a_fit_stopped_at_its_time_limit_reports_its_best_point(data: Path) -> N
 
     model, stretches = problem(data, list(TRUE), OFF)
     result = identify(model, stretches, settings=IdentificationSettings(max_seconds=1e-3))
-    assert not result.converged and "time limit" in result.message
-    assert result.warnings[0].startswith("did not converge: stopped at the time limit")
+    assert not result.converged and "time limit" in result.message and result.capped == "max_seconds"
+    assert result.warnings[0].startswith("stopped at the cap of 0.001 s (identification.max_seconds")
+    assert "(not converged)" in result.warnings[0] and "stopped at the cap" in result.summary()
+    assert result.to_dict()["capped"] == "max_seconds"
+
+
+def test_the_first_iteration_says_what_the_work_cap_may_cost_and_the_cap_is_named(data: Path) -> None:
+    """After its first iteration the fit says how many model runs it may still make and how long they
+    take at its pace; stopped by max_evaluations, its warning and summary name the cap, not converged."""
+    from hypa.identification import IdentificationSettings, identify
+
+    model, stretches = problem(data, list(TRUE), OFF)
+    lines: list[str] = []
+    result = identify(model, stretches, settings=IdentificationSettings(max_evaluations=2), progress=lines.append)
+    estimate = [line for line in lines if "at most" in line]
+    assert len(estimate) == 1 and lines.index(estimate[0]) == 1  # once, right after the first iteration
+    assert estimate[0].startswith("identification: at most 2 model runs (identification.max_evaluations), about ")
+    assert "at this pace" in estimate[0] and "e+" not in estimate[0]
+    assert not result.converged and result.capped == "max_evaluations"
+    assert result.warnings[0] == ("stopped at the cap of 2 model runs (identification.max_evaluations; "
+                                  "not converged)")
+    assert "stopped at the cap of identification.max_evaluations (not converged)" in result.summary()
     assert result.error_final <= result.error_initial and all(e.std is not None for e in result.estimates)
 
 

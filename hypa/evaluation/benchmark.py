@@ -61,18 +61,82 @@ def score_run(run: TrainedRun, dm: HypaDataModule, label: str, seed: int = 0) ->
 
 def benchmark(dataset: str, scores: Sequence[Score], training_time_s: Mapping[str, float],
               published: Mapping[str, Mapping], units: Mapping[str, tuple[str, float]],
-              kept_physics: Mapping[str, Sequence[int]] | None = None) -> Benchmark:
+              kept_physics: Mapping[str, Sequence[int]] | None = None,
+              capped: Mapping[str, Sequence[str]] | None = None,
+              failed: Mapping[str, str] | None = None) -> Benchmark:
     """The data set's :class:`~hypa.evaluation.benchmark_result.Benchmark` (written by its
     ``to_json`` and ``markdown``): per model, test set and output the scores' mean ± std over seeds.
 
     ``units``: output -> (display unit, factor from SI); ``published``: test set -> output ->
-    {label: RMS in the output's display unit}; ``training_time_s``: model -> mean seconds per seed;
+    {label: RMS in the output's display unit}; ``training_time_s``: model -> mean seconds per seed
+    (its order: the table's, with the models that have scores and those that failed);
     ``kept_physics``: model -> the seeds whose hybrid run kept its identified physics (its best checkpoint
-    the model before its networks' first epoch).
+    the model before its networks' first epoch); ``capped``: model -> where its identification or
+    training stopped at a cap (:func:`stopped_at_caps`); ``failed``: model -> why it failed, one line.
     """
     rows = summarize(scores)
-    models = dict.fromkeys(k[0] for k in rows)
+    failed = dict(failed or {})
+    models = dict.fromkeys([*training_time_s, *(k[0] for k in rows), *failed])
     return Benchmark(dataset, rows, {m: training_time_s.get(m) for m in models},
                      {k: {o: dict(f) for o, f in v.items()} for k, v in published.items()},
                      {k: (u, f) for k, (u, f) in units.items()},
-                     {m: sorted(s) for m, s in (kept_physics or {}).items() if s})
+                     {m: sorted(s) for m, s in (kept_physics or {}).items() if s},
+                     {m: list(dict.fromkeys(c)) for m, c in (capped or {}).items() if c}, failed)
+
+
+def stopped_at_caps(run: TrainedRun) -> list[str]:
+    """Where a trained run stopped at a cap rather than by convergence or early stopping, one line
+    each: its identification at ``identification.max_evaluations`` or ``max_seconds`` (``run.json``'s
+    ``identification``), its training at ``trainer.max_epochs`` (its last checkpoint's epoch and stage
+    against the run's configuration: the last stage, or every stage before it, ran its whole budget
+    without early stopping)."""
+    notes = []
+    found = run.info.get("identification")
+    if isinstance(found, dict) and not found.get("converged", True):
+        cap = found.get("capped")
+        if cap is None:  # a run of an older hypa: scipy's words, or the time limit's
+            message = str(found.get("message", ""))
+            cap = ("max_seconds" if "time limit" in message
+                   else "max_evaluations" if "function evaluations" in message else None)
+        if cap:
+            notes.append(f"identification stopped at identification.{cap} (not converged)")
+    epochs = _epochs_at_cap(run)
+    if epochs:
+        notes.append(f"training ran trainer.max_epochs={epochs} epochs{' per stage' if _staged(run) else ''} "
+                     "without early stopping")
+    return notes
+
+
+def _staged(run: TrainedRun) -> bool:
+    return len(getattr(run.module.model.spec, "stages", ()) or ()) > 1
+
+
+def _epochs_at_cap(run: TrainedRun) -> int | None:
+    """``trainer.max_epochs`` where the run's training used it up (see :func:`stopped_at_caps`), else None."""
+    from hypa.training.checkpoints import read_checkpoint
+    from hypa.trust import inside
+
+    last, best = run.info.get("last_checkpoint"), run.info.get("best_checkpoint")
+    max_epochs = (run.config.get("trainer") or {}).get("max_epochs")
+    if not isinstance(last, str) or not isinstance(max_epochs, int) or max_epochs < 1:
+        return None
+    if isinstance(best, dict) and str(best.get("path", "")).endswith("best-identified.ckpt"):
+        return None  # physics alone: identified, no epochs
+    path = inside(run.folder, last, f"{run.folder}/run.json's last_checkpoint")
+    if not path.is_file():
+        return None
+    state = read_checkpoint(path)
+    epoch = state.get("epoch")
+    if not isinstance(epoch, int):
+        return None
+    callbacks = state.get("callbacks") or {}
+    staged = next((v for k, v in callbacks.items() if str(k).startswith("StagedTraining")), None)
+    stopping = next((v for k, v in callbacks.items() if str(k).startswith("EarlyStopping")), None)
+    if isinstance(stopping, dict) and stopping.get("stopped_epoch") == epoch and epoch > 0:
+        return None  # early stopping ended it, in the same epoch as the budget
+    if isinstance(staged, dict):
+        stage, start = int(staged.get("stage", 0)), int(staged.get("stage_start_epoch", 0))
+        capped = epoch + 1 - start >= max_epochs or (stage > 0 and start >= stage * max_epochs)
+    else:
+        capped = epoch + 1 >= max_epochs
+    return max_epochs if capped else None

@@ -3,16 +3,22 @@
 What it holds is computed by :mod:`hypa.evaluation.benchmark` (free-run scores, mean ± std over
 seeds); this module only writes and reads it. ``benchmark.json`` (RMS in SI units)::
 
-    {dataset: {"models": {model: {"training_time_s", "kept_physics_seeds", "test_sets": {set: {output: {"rms",
-     "rms_std", "r2", "r2_std", "samples", "seeds": {seed: {"rms", "r2"}}}}}}},
+    {dataset: {"models": {model: {"training_time_s", "kept_physics_seeds", "capped", "failed",
+     "test_sets": {set: {output: {"rms", "rms_std", "r2", "r2_std", "samples", "seeds": {seed: {"rms", "r2"}}}}}}},
      "published": {set: {output: {label: RMS in display units}}},
      "display_units": {output: {"unit", "factor"}}}}
+
+``capped``: where the model's identification or training stopped at a cap (one line each, e.g.
+``identification.max_evaluations``); ``failed``: the one-line reason a model (or one of its seeds)
+failed, null where none did. A number that is not finite is written as null (JSON has none).
+Both files are written again after every row the benchmark finishes (:func:`write_report`).
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -37,9 +43,9 @@ class Summary:
 
     @classmethod
     def from_dict(cls, data: dict) -> Summary:
-        return cls(float(data["rms"]), float(data.get("rms_std", 0.0)), float(data["r2"]),
-                   float(data.get("r2_std", 0.0)), int(data["samples"]),
-                   {int(s): (float(v["rms"]), float(v["r2"])) for s, v in (data.get("seeds") or {}).items()})
+        return cls(_number(data["rms"]), _number(data.get("rms_std", 0.0)), _number(data["r2"]),
+                   _number(data.get("r2_std", 0.0)), int(data["samples"]),
+                   {int(s): (_number(v["rms"]), _number(v["r2"])) for s, v in (data.get("seeds") or {}).items()})
 
 
 Key = tuple[str, str, str]  # (model, test set, output)
@@ -58,19 +64,23 @@ class Benchmark:
     units: dict[str, tuple[str, float]] = field(default_factory=dict)  # output -> (display unit, factor from SI)
     # model -> the seeds whose run kept its identified physics (no epoch of its networks beat it on validation)
     kept_physics: dict[str, list[int]] = field(default_factory=dict)
+    # model -> where its identification or training stopped at a cap, one line each
+    capped: dict[str, list[str]] = field(default_factory=dict)
+    failed: dict[str, str] = field(default_factory=dict)  # model -> why it (or a seed of it) failed, one line
 
     @property
     def models(self) -> list[str]:
-        return list(dict.fromkeys(k[0] for k in self.rows))
+        """The models in the order they were benchmarked (those that failed too)."""
+        return list(dict.fromkeys([*self.training_time_s, *(k[0] for k in self.rows), *self.failed]))
 
     def to_dict(self) -> dict:
         """This data set's entry of ``benchmark.json``."""
-        models: dict[str, dict] = {}
+        models: dict[str, dict] = {m: {"training_time_s": self.training_time_s.get(m),
+                                       "kept_physics_seeds": list(self.kept_physics.get(m, [])),
+                                       "capped": list(self.capped.get(m, [])), "failed": self.failed.get(m),
+                                       "test_sets": {}} for m in self.models}
         for (model, test_set, output), s in self.rows.items():
-            entry = models.setdefault(model, {"training_time_s": self.training_time_s.get(model),
-                                              "kept_physics_seeds": list(self.kept_physics.get(model, [])),
-                                              "test_sets": {}})
-            entry["test_sets"].setdefault(test_set, {})[output] = s.to_dict()
+            models[model]["test_sets"].setdefault(test_set, {})[output] = s.to_dict()
         return {"models": models,
                 "published": {k: {o: dict(f) for o, f in v.items()} for k, v in self.published.items()},
                 "display_units": {k: {"unit": u, "factor": f} for k, (u, f) in self.units.items()}}
@@ -84,14 +94,16 @@ class Benchmark:
                    {k: {o: dict(f) for o, f in v.items()} for k, v in (data.get("published") or {}).items()},
                    {k: (str(u["unit"]), float(u["factor"])) for k, u in (data.get("display_units") or {}).items()},
                    {m: [int(s) for s in e["kept_physics_seeds"]] for m, e in models.items()
-                    if e.get("kept_physics_seeds")})
+                    if e.get("kept_physics_seeds")},
+                   {m: [str(c) for c in e["capped"]] for m, e in models.items() if e.get("capped")},
+                   {m: str(e["failed"]) for m, e in models.items() if e.get("failed")})
 
     def to_json(self, path: Path) -> None:
         """Write this data set's entry into ``benchmark.json``, keeping the other data sets' entries."""
         path = Path(path)
         content = json.loads(path.read_text()) if path.is_file() else {}
         content[self.dataset] = self.to_dict()
-        path.write_text(json.dumps(content, indent=2))
+        _write_atomic(path, json.dumps(md.json_ready(content), indent=2, allow_nan=False))
 
     @classmethod
     def from_json(cls, path: Path, dataset: str | None = None) -> Benchmark:
@@ -105,35 +117,52 @@ class Benchmark:
 
     def markdown(self) -> str:
         """``benchmark.md``: per test set and output, each model's RMS and R² (mean ± std over seeds
-        where there are several, the seeds named under the table) and the published RMS figures."""
+        where there are several, the seeds named under the table) and the published RMS figures; the
+        last row each model's training time (mean per seed), "(capped)" where its identification or
+        training stopped at a cap (said under the table); a model that failed "failed: <why>"."""
         models, published = self.models, self.published
         shown = list(dict.fromkeys(k for outputs in published.values() for figures in outputs.values()
                                    for k in figures))
         head = ["test set", "output", *[f"{m} RMS" for m in models], *[f"{m} R²" for m in models],
                 *[f"published {k}" for k in shown]]
+        scored = {k[0] for k in self.rows}
         rows = []
-        for test_set, output in dict.fromkeys((k[1], k[2]) for k in self.rows):
+        for test_set, output in dict.fromkeys((k[1], k[2]) for k in self.rows) or [("–", "–")]:
             unit, factor = self.units.get(output, ("", 1.0))
             summaries = [self.rows.get((m, test_set, output)) for m in models]
-            cells = [test_set, output, *[_rms_cell(s, factor, unit) for s in summaries],
+            cells = [test_set, output, *[_failed_cell(self.failed[m]) if m not in scored and m in self.failed
+                                         else _rms_cell(s, factor, unit) for m, s in zip(models, summaries)],
                      *[_r2_cell(s) for s in summaries]]
             figures = published.get(test_set, {}).get(output, {})
             cells += [f"{figures[k]:g} {unit}" if k in figures else "–" for k in shown]
             rows.append(cells)
+        rows.append(["training time", "", *[md.elapsed(self.training_time_s.get(m))
+                                            + (" (capped)" if self.capped.get(m) else "") for m in models],
+                     *[""] * len(models), *[""] * len(shown)])
         lines = [f"### {self.dataset}: free-run test error", "", *md.table(head, rows)]
-        times = {m: self.training_time_s.get(m) for m in models}
-        lines += ["", "training time: " + ", ".join(f"{m} {math.nan if t is None else t:.0f} s"
-                                                    for m, t in times.items())]
+        lines += [f"(capped) {m}: " + "; ".join(self.capped[m]) for m in models if self.capped.get(m)]
+        # a model one of whose seeds failed: the others' figures are in the table
+        lines += [f"{m}: {_one_line(self.failed[m])}" for m in models if m in self.failed and m in scored]
         for m in models:
             if self.kept_physics.get(m):
                 kept = ", ".join(map(str, self.kept_physics[m]))
                 lines.append(f"{m}: no epoch of its networks beat its identified physics on validation (seed {kept}), "
                              "so its row is that physics")
-        seeds = {m: sorted(next(s for k, s in self.rows.items() if k[0] == m).seeds) for m in models}
+        seeds = {m: sorted(next(s for k, s in self.rows.items() if k[0] == m).seeds) for m in models if m in scored}
         if any(len(v) > 1 for v in seeds.values()):
             lines += ["mean ± standard deviation over seeds " + ", ".join(f"{m} {v}" for m, v in seeds.items())
                       + " (training time: mean per seed); each seed in benchmark.json"]
         return "\n".join(lines)
+
+
+def write_report(result: Benchmark, folder: Path) -> tuple[Path, Path]:
+    """Write ``benchmark.md`` and ``benchmark.json`` into ``folder`` (each replaced whole, never left
+    half written: the benchmark writes them after every row, and Ctrl-C may come at any time)."""
+    folder = Path(folder)
+    table, data = folder / "benchmark.md", folder / "benchmark.json"
+    _write_atomic(table, result.markdown() + "\n")
+    result.to_json(data)
+    return table, data
 
 
 def read_benchmarks(path: Path) -> dict[str, Benchmark]:
@@ -163,3 +192,26 @@ def _spread(std: float, mean: float) -> float:
     """A standard deviation over seeds, 0 where it is round-off (seeds that gave the same model, e.g.
     identified physics, differ by float summation order only)."""
     return 0.0 if std <= 1e-9 * max(abs(mean), 1e-300) else std
+
+
+def _failed_cell(reason: str) -> str:
+    """A failed model's cell: its reason on one line, cut short (the whole reason is in benchmark.json)."""
+    return f"failed: {_one_line(reason, 160)}"
+
+
+def _one_line(text: str, limit: int = 300) -> str:
+    """``text`` on one line, at most ``limit`` characters."""
+    line = " ".join(str(text).split())
+    return line if len(line) <= limit else line[: limit - 1] + "…"
+
+
+def _number(value: float | None) -> float:
+    """A number of ``benchmark.json``: null (written for one that was not finite) reads as NaN."""
+    return math.nan if value is None else float(value)
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    """``path`` replaced by ``text`` in one step (written beside it, then renamed over it)."""
+    part = path.with_name(f".{path.name}.part")
+    part.write_text(text)
+    os.replace(part, path)

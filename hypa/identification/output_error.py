@@ -39,6 +39,7 @@ import torch
 from scipy import sparse
 from scipy.optimize import least_squares
 
+from hypa import markdown as md
 from hypa.data import HypaDataModule, Record
 from hypa.errors import UserError
 from hypa.identification.report import Estimate, Identification
@@ -188,6 +189,8 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
                                   "parameters: start nearer (the model's parameters), or restart the free runs "
                                   "from the data more often (identification.stretch_s)") from None
     iterates: list[np.ndarray] = []
+    # the work cap: scipy's max_nfev (its default 100 per variable) for each continuity weight
+    cap = (settings.max_evaluations or 100 * problem.size) * (len(CONTINUITY) if problem.junctions else 1)
 
     def jacobian(v: np.ndarray):
         iterates.append(v.copy())
@@ -195,9 +198,14 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
         progress(f"identification: iteration {len(iterates)}, output error "
                  f"{100 * problem.output_cost(v):.4g} % of the output variance"
                  + (f", continuity defects {problem.defect_rms(v):.2g} state std" if problem.junctions else ""))
-        return problem.jacobian(v, base, upper)
+        J = problem.jacobian(v, base, upper)
+        if len(iterates) == 1 and fitting:  # the pace of one step: what the cap may cost, said once
+            line = remaining(cap, time.perf_counter() - started, settings)
+            progress(f"identification: {line}")
+            log.info("identification: %s", line)
+        return J
 
-    v, converged, message, evaluations = v0, False, "", 0
+    v, converged, message, evaluations, capped = v0, False, "", 0, None
     for mu in CONTINUITY if problem.junctions else (None,):
         if mu is not None:
             problem.mu = mu
@@ -208,9 +216,17 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
                                    max_nfev=settings.max_evaluations)
             v, converged, message = result.x, result.status > 0, result.message
             evaluations += int(result.nfev)
+            capped = "max_evaluations" if result.status == 0 else None  # scipy's max_nfev: the work cap
+            if capped:
+                message = (f"stopped at the cap of {settings.max_evaluations or 100 * problem.size} model runs "
+                           "(identification.max_evaluations" + ("" if settings.max_evaluations else
+                                                                ": null, scipy's 100 per variable")
+                           + "; not converged)")
         except _Stop:
             v, converged = np.asarray(best["v"]), False
-            message, evaluations = f"stopped at the time limit of {settings.max_seconds:g} s", -1
+            message, evaluations = (f"stopped at the cap of {settings.max_seconds:g} s (identification.max_seconds; "
+                                    "the time limit), at the best point so far (not converged)"), -1
+            capped = "max_seconds"
             break
     fitting = False  # the report's evaluations below run whatever the time limit
     J = jacobian(v)
@@ -233,7 +249,7 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
         d = np.sqrt(np.diag(cov_z))
         correlation = np.clip(cov_z / np.outer(d, d), -1.0, 1.0)
     correlation[~np.isfinite(correlation)] = np.nan
-    warnings = _warnings(estimates, limits, z0, z, correlation, settings.correlated, converged, message)
+    warnings = _warnings(estimates, limits, z0, z, correlation, settings.correlated, converged, message, capped)
     if defect > _JOINED:
         warnings.append(f"the stretches do not join into one free run per record (continuity defects "
                         f"{defect:.2g} state std): the model cannot follow the whole records; the estimates "
@@ -242,7 +258,7 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
         tuple(estimates), correlation.tolist(), converged, message, len(iterates), evaluations, final_step,
         error_initial, error_final, problem.stretches, problem.samples, time.perf_counter() - started,
         tuple(warnings), "multiple" if problem.junctions else "single", defect,
-        {name: float(t) for name, t in zip(names, tau)})
+        {name: float(t) for name, t in zip(names, tau)}, capped)
     for line in warnings:
         log.warning("identification: %s", line)
     return identification
@@ -295,9 +311,22 @@ def _covariance(J, cost: float, m: int) -> np.ndarray:
     return sigma2 * (vt.T * inverse) @ vt
 
 
+def remaining(cap: int, seconds: float, settings: IdentificationSettings) -> str:
+    """What the work cap may still cost, from the pace of the first iteration (``seconds``: its model
+    runs for the residual and the Jacobian): at most ``cap`` model runs, each at most one such step.
+    Said, never acted on: only ``max_seconds`` stops on the clock."""
+    worst = cap * seconds
+    line = (f"at most {cap} model runs (identification.max_evaluations), about {md.elapsed(worst)} at this pace "
+            f"({md.elapsed(seconds)} per iteration)")
+    if settings.max_seconds is not None and settings.max_seconds < worst:
+        line += f"; identification.max_seconds stops it after {md.elapsed(settings.max_seconds)}"
+    return line
+
+
 def _warnings(estimates: Sequence[Estimate], limits: Sequence[tuple[float, float]], z0: np.ndarray, z: np.ndarray,
-              correlation: np.ndarray, correlated: float, converged: bool, message: str) -> list[str]:
-    out = [] if converged else [f"did not converge: {message}"]
+              correlation: np.ndarray, correlated: float, converged: bool, message: str,
+              capped: str | None = None) -> list[str]:
+    out = [] if converged else [message if capped else f"did not converge: {message}"]
     for j, e in enumerate(estimates):
         lo, hi = limits[j]
         if abs(z[j] - z0[j]) < _MOVED:

@@ -41,6 +41,7 @@ class Identification:
     shooting: str = "single"  # single: one free run per record; multiple: stretches joined by continuity
     continuity_defect: float = 0.0  # RMS of the junctions' state defects at the end [state std] (multiple)
     correlation_times: dict[str, float] = field(default_factory=dict)  # [samples] per parameter (see identify)
+    capped: str | None = None  # the cap it stopped at, not converged: max_evaluations or max_seconds
 
     def values(self) -> dict[str, float]:
         return {e.name: e.value for e in self.estimates}
@@ -56,11 +57,13 @@ class Identification:
                 "parameters": {e.name: {"unit": e.unit, "initial": e.initial, "value": e.value, "std": e.std}
                                for e in self.estimates},
                 "correlation": {"names": [e.name for e in self.estimates], "matrix": self.correlation},
-                "warnings": list(self.warnings)}
+                "warnings": list(self.warnings), "capped": self.capped}
 
     def summary(self) -> str:
         """One line: the error before and after, convergence, and how many warnings."""
-        state = "converged" if self.converged else "did NOT converge"
+        state = ("converged" if self.converged
+                 else f"stopped at the cap of identification.{self.capped} (not converged)" if self.capped
+                 else "did NOT converge")
         runs = f"{self.stretches} free run(s)" if self.shooting == "single" else (
             f"{self.stretches} stretches by multiple shooting "
             f"(continuity defects {self.continuity_defect:.2g} state std)")
