@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -56,6 +57,24 @@ class Cell(LTIModel):
         return a + b * s + c * torch.tanh(k * (s - s0))
 
 
+class OcvLeak(LTIModel):
+    """The OCV a state that leaks (self-discharge over a day), started steady: where nothing says its level."""
+
+    state_names = ("ocv", "v1")
+    input_names = ("current",)
+    output_names = ("voltage",)
+    parameters = (ParameterSpec("slope_capacitance", "10 kF", "F"), ParameterSpec("r0", "30 mOhm", "ohm"),
+                  ParameterSpec("r1", 0.02, "ohm"), ParameterSpec("c1", "1.5 kF", "F"),
+                  ParameterSpec("leak_s", "1 day", "s"))
+
+    def matrices(self, p):
+        cb, r0, r1, c1, leak = p["slope_capacitance"], p["r0"], p["r1"], p["c1"], p["leak_s"]
+        z, one = torch.zeros_like(cb), torch.ones_like(cb)
+        a = torch.stack([torch.stack([-1 / leak, z]), torch.stack([z, -1 / (r1 * c1)])])
+        b = torch.stack([-1 / cb, 1 / c1]).reshape(2, 1)
+        return StateSpace(a, b, torch.stack([one, -one]).reshape(1, 2), (-r0).reshape(1, 1))
+
+
 class OcvState(LTIModel):
     """The natural linear model: the OCV a state (its slope a capacitance), read through y = C x + D u."""
 
@@ -83,8 +102,8 @@ blocks:
     outputs: [voltage]
     initial_state: {start}
     trainable: [capacity, r0, r1]
-    parameters: {{capacity: 2.0 Ah, r0: 30 mOhm, r1: {{value: 20, unit: mOhm}}, c1: 1.5 kF}}
 outputs: [voltage]
+parameters: {{capacity: 2.0 Ah, r0: 30 mOhm, r1: {{value: 25, unit: mOhm}}, c1: 1.5 kF}}
 stages: []
 """
 
@@ -95,8 +114,8 @@ def ocv(s: np.ndarray) -> np.ndarray:
 
 
 def drive_cycle(samples: int, rng: np.random.Generator) -> np.ndarray:
-    """1 Hz current [A], positive discharging: pulses of 5-40 s at -3..5 A, rests between."""
-    current, k = np.zeros(samples), 0
+    """1 Hz current [A], positive discharging: a rest of 30 s, then pulses of 5-40 s at -3..5 A, rests between."""
+    current, k = np.zeros(samples), 30
     while k < samples:
         length = int(rng.integers(5, 40))
         current[k : k + length] = 0.0 if rng.random() < 0.3 else rng.uniform(-3.0, 5.0)
@@ -244,6 +263,10 @@ def _write_cell_project(folder: Path, seed: int, offset: float = 0.0, records: t
     models = {"cell": MODEL.format(name="cell", system="Cell", start="estimate"),
               "ocv_state": MODEL.format(name="ocv_state", system="OcvState", start="estimate")
               .replace("capacity, r0, r1", "r0, r1").replace("capacity: 2.0 Ah", "slope_capacitance: 10 kF")}
+    folder.mkdir(parents=True, exist_ok=True)
+    steady = "steady\n    scale_as: [voltage]"
+    models["ocv_leak"] = models["ocv_state"].replace("OcvState", "OcvLeak").replace("estimate", steady) \
+        .replace("name: ocv_state", "name: ocv_leak")
     user = user_project(folder, "cellmodel", CELL, "cell", dataset, models)
     rng = np.random.default_rng(seed)
     for name, samples in zip(("train", "val"), records):
@@ -256,8 +279,9 @@ def _write_cell_project(folder: Path, seed: int, offset: float = 0.0, records: t
 
 
 def _run(args: list[str], user: Path, timeout: int = 600) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", *args, "--config-dir", str(user / "conf"), "dataset=cell",
-                           f"data.dir={user / 'data'}"], cwd=ROOT, capture_output=True, text=True, timeout=timeout,
+    return subprocess.run([sys.executable, "-m", args[0], "--config-dir", str(user / "conf"), "dataset=cell",
+                           f"data.dir={user / 'data'}", *args[1:]], cwd=ROOT, capture_output=True, text=True,
+                          timeout=timeout,
                           env={**os.environ, "PYTHONPATH": str(user)}, check=False)
 
 
@@ -291,20 +315,58 @@ def test_train_identifies_capacity_and_resistance_written_in_ah_and_mohm(tmp_pat
 
 def test_a_unit_of_another_kind_is_refused_in_one_line(tmp_path: Path) -> None:
     from hypa.models.building import collect_parameters
-    from hypa.models.spec import ModelSpecError, parse_model_spec
+    from hypa.models.spec import ModelSpecError, parse_model_spec, spec_config
 
     (tmp_path / "cellmodel.py").write_text(CELL)
     sys.path.insert(0, str(tmp_path))
     try:
-        config = {"name": "cell", "outputs": ["voltage"],
+        config = {"name": "cell", "outputs": ["voltage"], "parameters": {"capacity": "2.5 V"},
                   "blocks": {"cell": {"kind": "physics", "system": "cellmodel:Cell", "inputs": ["current"],
-                                      "outputs": ["voltage"], "parameters": {"capacity": "2.5 V"}}}}
-        with pytest.raises(ModelSpecError, match=r"capacity: 2.5 V is not a charge \(the class declares C\)"):
+                                      "outputs": ["voltage"]}}}
+        with pytest.raises(ModelSpecError, match=r"capacity: 2.5 V is not a charge \(the class declares C\)$"):
             collect_parameters(parse_model_spec(config), {})
-        config["blocks"]["cell"]["parameters"] = {"capacity": "2.5 Ah", "r0": {"value": 45, "unit": "mOhm"}}
-        params, _, _ = collect_parameters(parse_model_spec(config), {})
+        config["parameters"] = {"capacity": "2.5 foo"}
+        with pytest.raises(ModelSpecError, match=r"parameters\.capacity: unknown unit 'foo'"):
+            parse_model_spec(config)
+        config["parameters"] = {"capacity": "2.5 Ah", "r0": {"value": 45, "unit": "mOhm"}, "r1": 0.03}
+        spec = parse_model_spec(config)
+        params, _, _ = collect_parameters(spec, {})
         assert params.as_floats()["capacity"] == pytest.approx(9000.0)
-        assert params.as_floats()["r0"] == pytest.approx(0.045)
+        assert params.as_floats()["r0"] == pytest.approx(0.045) and params.as_floats()["r1"] == pytest.approx(0.03)
+        assert spec_config(spec)["parameters"] == {"capacity": "2.5 Ah", "r0": "45 mOhm", "r1": 0.03}  # as given
+        assert parse_model_spec(spec_config(spec)).parameters == spec.parameters
     finally:
         sys.path.remove(str(tmp_path))
         sys.modules.pop("cellmodel", None)
+
+
+def test_a_free_run_at_zero_volts_is_flagged_in_one_line(tmp_path: Path) -> None:
+    """(c) The OCV as a leaking state started steady sits at 0 V while the cell sits near 3.9 V: hypa.simulate
+    says so in one line naming the output and the state; the cell with its OCV read through the nonlinear
+    output, started from the estimate, is not flagged."""
+    user = _write_cell_project(tmp_path / "user", seed=2, records=(300, 900))
+    flagged = _run(["hypa.simulate", "model=ocv_leak", "plot=false", f"hydra.run.dir={tmp_path / 'leak'}"], user)
+    assert flagged.returncode == 0, flagged.stderr[-3000:]
+    lines = [line for line in flagged.stdout.splitlines() if line.startswith("warning: the free run")]
+    assert len(lines) == 1, flagged.stdout[-2000:]
+    level = re.search(r"'voltage' sits at (\S+) V while the data sit at (\S+) V", lines[0])
+    assert level and abs(float(level[1])) < 0.5 and 3.5 < float(level[2]) < 4.2, lines[0]
+    assert lines[0].endswith("a state that no data initialize (ocv?) or an output offset")
+    fine = _run(["hypa.simulate", "model=cell", "plot=false", f"hydra.run.dir={tmp_path / 'cell'}"], user)
+    assert fine.returncode == 0, fine.stderr[-3000:]
+    assert "warning: the free run" not in fine.stdout
+
+
+def test_the_level_check_reads_the_datas_own_spread() -> None:
+    """The threshold is the data's (or the run's) spread times LEVEL_SPREADS, whatever the signal's size."""
+    from hypa.models.rollout import LEVEL_SPREADS, Prediction, free_run_levels
+
+    rng = np.random.default_rng(0)
+    for level, spread in ((3.7, 0.1), (1e-3, 1e-5), (5e4, 2e3)):
+        data = level + spread * rng.standard_normal(500)
+        for shift, flagged in ((0.5 * LEVEL_SPREADS, False), (2 * LEVEL_SPREADS, True)):
+            run = Prediction("r", np.arange(500.0), {"y": data}, {"y": data + shift * spread}, {}, first=1)
+            assert bool(free_run_levels([run], ["y"], units={"y": "V"})) is flagged
+    off = Prediction("r", np.arange(500.0), {"y": data}, {"y": 0 * data}, {}, first=1)
+    line = free_run_levels([off], ["y"], units={"y": "V"})[0]
+    assert line.startswith("the free run of 'y' sits at 0 V while the data sit at 5") and "(25 spreads away)" in line

@@ -124,7 +124,8 @@ def free_run_levels(runs: Sequence[Prediction], outputs: Sequence[str], model: C
         if away <= LEVEL_SPREADS:
             continue
         unit = f" {units[name]}" if units and units.get(name) else ""
-        states = _level_states(model, name) if model is not None else ()
+        duration = max(float(r.time[-1] - r.time[r.first - 1]) for r in runs if len(r.time) > r.first)
+        states = _level_states(model, name, duration) if model is not None else ()
         where = f"a state that no data initialize ({' or '.join(states)}?) or an output offset" if states else \
             "an output offset, or a state that no data initialize"
         lines.append(f"the free run of {name!r} sits at {level:.3g}{unit} while the data sit at {data:.3g}{unit} "
@@ -132,9 +133,11 @@ def free_run_levels(runs: Sequence[Prediction], outputs: Sequence[str], model: C
     return lines
 
 
-def _level_states(model: ComposedModel, output: str) -> tuple[str, ...]:
+def _level_states(model: ComposedModel, output: str, duration: float) -> tuple[str, ...]:
     """The states of the physics block writing ``output`` that it reads (C, and a nonlinear output's
-    slope at the states' operating point), those that A leaves free first (its null space)."""
+    slope at the states' operating point), those of modes slower than the record (``duration`` [s]:
+    |λ| duration < 1, an integrator's λ = 0 too) first: a wrong start of those stays wrong over the
+    whole run, a faster state's fades."""
     import torch
 
     block_spec = next((b for b in model.order if output in b.outputs), None)
@@ -155,9 +158,10 @@ def _level_states(model: ComposedModel, output: str) -> tuple[str, ...]:
                 block.state_mean.new_zeros(system.n_states, dtype=dtype))
         reads = reads | (slope[row].detach().abs() > 0)
     with torch.no_grad():
-        _, sv, vh = torch.linalg.svd(ss.a)
-        tol = 1e-9 * float(sv.max()) if float(sv.max()) > 0 else 0.0
-        free = vh[vh.shape[0] - int((sv <= tol).sum()):].abs().sum(0) > 1e-9  # (n,) in A's null space
+        rates, vectors = torch.linalg.eig(ss.a)  # modes [1/s] and their directions
+        slow = rates.abs() * duration < 1.0
+        weight = vectors[:, slow].abs()  # (n, slow modes)
+        free = (weight > 1e-6 * weight.amax(0, keepdim=True)).any(1) if bool(slow.any()) else reads & False
     names = [s for j, s in enumerate(system.state_names) if bool(reads[j])]
     held = [s for j, s in enumerate(system.state_names) if bool(reads[j]) and bool(free[j])]
     return tuple(held or names)
