@@ -56,7 +56,8 @@ def main(cfg: DictConfig) -> None:
     catalogue = load_catalogue([from_cwd(p) for p in config.diagnosis.catalogue])
     values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.get("vehicle") else {}
     print("reading the data", flush=True)
-    dm = model_datamodule(cfg, data_dir_from_config(cfg), spec_config(spec), values)  # data.past null: for the model
+    # data.past null: for the model; the auxiliary channels as inputs a candidate may read (unmodeled_input)
+    dm = model_datamodule(cfg, data_dir_from_config(cfg), spec_config(spec), values, auxiliary_inputs=True)
     diagnosis = config.diagnosis
     workers = {} if diagnosis.workers is None else {"workers": diagnosis.workers}
     problem = Problem(dm, values, hold=hold, horizon=config.data.window,

@@ -42,18 +42,26 @@ def datamodule(cfg: DictConfig) -> HypaDataModule:
 
 
 def model_datamodule(cfg: DictConfig, data_dir: Path, model_config: Mapping[str, Any],
-                     physical_values: Mapping[str, float]) -> HypaDataModule:
+                     physical_values: Mapping[str, float], auxiliary_inputs: bool = False) -> HypaDataModule:
     """The data node's DataModule, set up, for the model ``model_config``: where ``data.past`` is
     null, with as many past samples as the model's estimated starts want
     (:meth:`~hypa.models.ComposedModel.suggested_past`) and, for a network that starts from the
     measured outputs over the past, ``PAST_MARGIN`` times the past the training data's outputs
     depend on (:func:`~hypa.data.memory.linear_memory`; at most a window), 0 where nothing reads a
-    past: written into ``cfg`` (the run's recorded configuration) and said on one line."""
+    past: written into ``cfg`` (the run's recorded configuration) and said on one line. An auxiliary
+    channel the model reads is declared an input in ``cfg`` (:func:`~hypa.data.from_config.read_as_inputs`),
+    said on one line; ``auxiliary_inputs``: every varying auxiliary channel held as an input too (the
+    diagnosis)."""
+    from hypa.data.from_config import read_as_inputs
     from hypa.data.memory import linear_memory
     from hypa.models import ComposedModel
     from hypa.models.composed import PAST_MARGIN
 
-    dm = datamodule_from_config(cfg.data, data_dir)
+    promoted = read_as_inputs(cfg.data, model_config)
+    if promoted:
+        print(f"data: {', '.join(promoted)} declared auxiliary, read by the model as input(s): held as input(s)",
+              flush=True)
+    dm = datamodule_from_config(cfg.data, data_dir, auxiliary_inputs=auxiliary_inputs)
     dm.setup()
     if cfg.data.past is not None:
         return dm
@@ -77,7 +85,7 @@ def model_datamodule(cfg: DictConfig, data_dir: Path, model_config: Mapping[str,
         return dm
     print(f"data.past: {past} samples before each window ({past * dm.dt:.3g} s), chosen for the model: "
           + "; ".join(reasons) + "; set data.past to choose", flush=True)
-    dm = datamodule_from_config(cfg.data, data_dir)
+    dm = datamodule_from_config(cfg.data, data_dir, auxiliary_inputs=auxiliary_inputs)
     dm.setup()
     return dm
 

@@ -54,6 +54,11 @@ class HypaDataModule(L.LightningDataModule):
         normalization: statistics to use instead of fitting them on the training split
             (a :class:`Normalization` or its ``state_dict()``), e.g. from a checkpoint.
         seed: seed of the training-set shuffling.
+        auxiliary_inputs: hold every auxiliary channel that varies over the training records as an
+            input too (after the declared ones, in declared order; decided in ``setup()``): the
+            diagnosis, whose candidates may read a channel the model does not
+            (``unmodeled_input``). A model that reads an auxiliary channel gets it declared an input
+            instead (:func:`hypa.data.from_config.read_as_inputs`).
     """
 
     def __init__(
@@ -74,6 +79,7 @@ class HypaDataModule(L.LightningDataModule):
         num_workers: int = 0,
         normalization: Normalization | Mapping[str, Any] | None = None,
         seed: int = 0,
+        auxiliary_inputs: bool = False,
     ) -> None:
         super().__init__()
         declared = channels
@@ -107,6 +113,7 @@ class HypaDataModule(L.LightningDataModule):
         self.batch_size = int(batch_size)
         self.num_workers = int(num_workers)
         self.seed = int(seed)
+        self.auxiliary_inputs = bool(auxiliary_inputs)
         self._normalization = self._as_normalization(normalization)
         self._data: DataSet | None = None  # SI records at the model rate
         self._datasets: dict[str, WindowDataset] = {}
@@ -193,6 +200,8 @@ class HypaDataModule(L.LightningDataModule):
                 self.data_dir, self.channels, self.split_spec, self.time_column, self.time_unit,
                 self.sample_rate_hz, self.rate_hz, self.select, self.window, self.past,
             )
+        if self.auxiliary_inputs and self._normalization is None:
+            self.input_names = (*self.input_names, *varying_auxiliary(self.channels, self._data.train))
         if self._normalization is None:
             self._normalization = Normalization.fit(self._data.train, self.normalized_names)
         if not self._datasets:
@@ -263,6 +272,11 @@ class HypaDataModule(L.LightningDataModule):
 
     # -- helpers --------------------------------------------------------------------------
 
+    @property
+    def auxiliary_names(self) -> tuple[str, ...]:
+        """The auxiliary channels held as inputs (``auxiliary_inputs``; after ``setup()``), in declared order."""
+        return tuple(n for n in self.input_names if self.channels[n].role == "auxiliary")
+
     def _dataset(self) -> DataSet:
         if self._data is None:
             raise RuntimeError("records are read in setup(); call setup() first")
@@ -286,3 +300,18 @@ class HypaDataModule(L.LightningDataModule):
                 f"the given normalization has no statistics for {missing} "
                 f"(it covers {list(normalization.names)})"
             )
+
+
+def varying_auxiliary(channels: Mapping[str, ChannelSpec], records: Sequence[Record]) -> tuple[str, ...]:
+    """The auxiliary channels of ``channels`` that vary over ``records`` (a constant one, a flag that
+    never changes, cannot be normalized, :meth:`Normalization.fit`), in declared order."""
+    out = []
+    for name in names_with_role(channels, "auxiliary"):
+        if not records or not all(name in r for r in records):
+            continue
+        try:
+            Normalization.fit(records, [name])
+        except DataError:
+            continue
+        out.append(name)
+    return tuple(out)

@@ -39,9 +39,11 @@ def datamodule_from_config(
     data_cfg: DictConfig | Mapping[str, Any],
     data_dir: Path,
     normalization: Normalization | Mapping[str, Any] | None = None,
+    auxiliary_inputs: bool = False,
 ):
     """Build the :class:`~hypa.data.HypaDataModule` from the ``data`` node and the resolved
-    data folder (``normalization``: e.g. a checkpoint's, instead of fitting it)."""
+    data folder (``normalization``: e.g. a checkpoint's, instead of fitting it; ``auxiliary_inputs``:
+    every varying auxiliary channel held as an input too, for the diagnosis)."""
     from hypa.data.datamodule import HypaDataModule
 
     cfg = validated(data_cfg)
@@ -63,7 +65,23 @@ def datamodule_from_config(
         num_workers=cfg.num_workers,
         normalization=normalization,
         seed=cfg.seed,
+        auxiliary_inputs=auxiliary_inputs,
     )
+
+
+def read_as_inputs(data_cfg: Any, model_config: Mapping[str, Any]) -> list[str]:
+    """The auxiliary channels of the ``data`` node that a block of ``model_config`` reads (a
+    diagnosed model's ``unmodeled_input``), declared inputs in the node, in place: a channel the
+    model reads is an input, and the run's recorded configuration says so (so that evaluating or
+    resuming the run builds the same data). Returns their names."""
+    read = {s for b in (model_config.get("blocks") or {}).values() if isinstance(b, Mapping)
+            for s in (b.get("inputs") or ())}
+    channels = data_cfg.get("channels") or {}
+    promoted = [str(n) for n, c in channels.items()
+                if str(n) in read and isinstance(c, Mapping) and c.get("role") == "auxiliary"]
+    for name in promoted:
+        channels[name]["role"] = "input"
+    return promoted
 
 
 def validated(data_cfg: DictConfig | Mapping[str, Any]) -> DataConfig:

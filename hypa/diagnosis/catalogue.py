@@ -62,11 +62,13 @@ from hypa.models.spec import ELEMENT_PARAMETER, ModelSpec, ModelSpecError, parse
 from hypa.physics.systems import PHYSICS_SYSTEMS
 
 GENERIC = Path(__file__).with_name("catalogue.yaml")
-FOR_EACH = ("input", "output", "parameter", "scheduling", "block", "state")
+FOR_EACH = ("input", "output", "parameter", "scheduling", "block", "state", "auxiliary", "block_input")
 FITS = {"gradient": GRADIENT, "offset": AFFINE, "none": NONE}
-_KEYS = {"id", "name", "for_each", "where", "when", "fit", "offset", "patch", "learn"}
+_KEYS = {"id", "name", "for_each", "where", "when", "fit", "offset", "patch", "learn", "by", "scan"}
+ON = ("input", "state")  # what a for_each: parameter entry's ``by`` visits: the block's inputs, its states
 _WHEN = ("zero", "nonzero")
-_PATCH_KEYS = {"rewire", "blocks", "parameters"}
+_PATCH_KEYS = {"rewire", "reroute", "blocks", "parameters"}
+EACH_OUTPUT = "{each_output}"  # in a patch's block names and reroute keys: repeated for every model output
 
 
 class CatalogueError(UserError):
@@ -87,6 +89,8 @@ class Entry:
     offset: str = ""
     source: str = ""
     learn: tuple[str, ...] = ()  # blocks of the patch a network may learn instead (placeholders allowed)
+    on: tuple[str, ...] = ()  # ``by``: for_each: parameter, also each of the block's inputs / states (ON)
+    scan: Mapping[str, tuple[Any, ...]] = field(default_factory=dict)  # variable -> start values, a candidate each
 
     def applies(self, values: Mapping[str, float]) -> bool:
         """Whether the nominal parameter values allow the entry (``when``; a missing one: no)."""
@@ -151,9 +155,19 @@ def _entry(item: Any, path: Path) -> Entry:
     if not isinstance(learn, list) or unknown:
         raise CatalogueError(f"{where}: learn lists blocks of the patch (a network learns each instead), "
                              f"got {item.get('learn')!r}")
+    on = item.get("by") or []
+    on = [on] if isinstance(on, str) else on
+    if not isinstance(on, list) or any(o not in ON for o in on) or (on and item["for_each"] != "parameter"):
+        raise CatalogueError(f"{where}: by lists {' and/or '.join(ON)} (for_each: parameter only), "
+                             f"got {item.get('by')!r}")
+    scan = item.get("scan") or {}
+    if not isinstance(scan, dict) or not all(isinstance(v, list) and v and str(k).isidentifier()
+                                             for k, v in scan.items()):
+        raise CatalogueError(f"{where}: scan maps a variable to a list of start values (expressions), got {scan!r}")
     return Entry(id=str(item["id"]), name=str(item.get("name", item["id"])), for_each=item["for_each"], fit=fit,
                  patch=patch, where=item.get("where") or {}, when=when, offset=str(item.get("offset", "")),
-                 source=str(path), learn=tuple(str(b) for b in learn))
+                 source=str(path), learn=tuple(str(b) for b in learn), on=tuple(on),
+                 scan={str(k): tuple(v) for k, v in scan.items()})
 
 
 def _format(value: Any, context: Mapping[str, Any]) -> Any:
@@ -171,6 +185,33 @@ def _format(value: Any, context: Mapping[str, Any]) -> Any:
         return out
     if isinstance(value, dict):
         return {_format(k, context): _format(v, context) for k, v in value.items()}
+    return value
+
+
+def _each_output(value: Any, outputs: Sequence[str]) -> Any:
+    """A patch with every mapping key that holds ``{each_output}`` repeated for each model output
+    (``{each_output}`` replaced in the key and its value)."""
+    if isinstance(value, dict):
+        out = {}
+        for key, item in value.items():
+            if isinstance(key, str) and EACH_OUTPUT in key:
+                for o in outputs:
+                    out[key.replace(EACH_OUTPUT, o)] = _each_output(_replace(item, EACH_OUTPUT, o), outputs)
+            else:
+                out[key] = _each_output(item, outputs)
+        return out
+    if isinstance(value, list):
+        return [_each_output(v, outputs) for v in value]
+    return value
+
+
+def _replace(value: Any, old: str, new: str) -> Any:
+    if isinstance(value, str):
+        return value.replace(old, new)
+    if isinstance(value, list):
+        return [_replace(v, old, new) for v in value]
+    if isinstance(value, dict):
+        return {_replace(k, old, new): _replace(v, old, new) for k, v in value.items()}
     return value
 
 
@@ -200,6 +241,7 @@ def apply_patch(spec: ModelSpec, patch: Mapping[str, Any], dt: float, where: str
     rewire = patch.get("rewire") or {}
     for block in config["blocks"].values():
         block["inputs"] = [rewire.get(s, s) for s in block["inputs"]]
+    _reroute(config, patch.get("reroute") or {})
     new = {}
     for name, fields in (patch.get("blocks") or {}).items():
         fields = copy.deepcopy(fields)
@@ -219,6 +261,27 @@ def apply_patch(spec: ModelSpec, patch: Mapping[str, Any], dt: float, where: str
         return parse_model_spec(config)
     except ModelSpecError as error:
         raise CatalogueError(f"{where}: the edited model is not valid: {error}") from None
+
+
+def _reroute(config: dict[str, Any], reroute: Mapping[str, str]) -> None:
+    """The blocks that write a signal of ``reroute`` write the new name instead (a block the patch
+    adds then writes the signal, from the new one); the blocks that read it go on reading it. A
+    physics block whose output was a model output observes that measured output under the new name
+    for its initial state, and is scaled like it."""
+    if not reroute:
+        return
+    measured = set(config.get("outputs") or ())
+    for block in config["blocks"].values():
+        before = list(block["outputs"])
+        if not any(s in reroute for s in before):
+            continue
+        block["outputs"] = [reroute.get(s, s) for s in before]
+        if block["kind"] != "physics":
+            continue
+        block["observe"] = {**(block.get("observe") or {}),
+                            **{reroute[s]: s for s in before if s in reroute and s in measured}}
+        if not block.get("scale_as") and all(s in measured for s in before):
+            block["scale_as"] = before
 
 
 def specific_systems(entries: Sequence[Entry]) -> set[str]:
@@ -282,6 +345,18 @@ def _contexts(entry: Entry, spec: ModelSpec, inputs: Sequence[str], outputs: Seq
     """(target, placeholders) for each place the entry applies to."""
     if entry.for_each == "state":
         yield from _state_contexts(spec, values, specific)
+    elif entry.for_each == "auxiliary":
+        consumed = {s for b in spec.blocks for s in (*b.inputs, *b.scheduling.values())}
+        blocks = [b for b in spec.blocks if b.kind == "physics" and not b.name.startswith("diagnosed_")
+                  and not b.scheduling and b.system_model().n_states]
+        for n in inputs:
+            if n in consumed or n in scheduling:
+                continue
+            for b in blocks:
+                yield (n if len(blocks) == 1 else f"{b.name}/{n}"), {
+                    "channel": n, "block": b.name, "block_inputs": list(b.inputs), "block_driven": list(b.driven)}
+    elif entry.for_each == "block_input":
+        yield from _block_inputs(spec, outputs)
     elif entry.for_each == "input":
         consumed = {s for b in spec.blocks for s in b.inputs}
         yield from ((n, {"input": n}) for n in inputs if n in consumed)
@@ -308,7 +383,107 @@ def _contexts(entry: Entry, spec: ModelSpec, inputs: Sequence[str], outputs: Seq
                     yield local, {"block": b.name, "parameter": local, "channel": local, "qualified": p.name}
                 elif (entry.for_each == "parameter" and local not in scheduling
                       and (not declared or local in uncertain.get(b.name, ()))):
-                    yield p.name, {"block": b.name, "parameter": local, "qualified": p.name}
+                    context = {"block": b.name, "parameter": local, "qualified": p.name}
+                    if not entry.on:
+                        yield p.name, context
+                    elif (_state_block(b, specific) and local not in b.depends
+                          and _in_dynamics(system, {**values, **spec.parameters}, p.name)):
+                        for kind in entry.on:  # a parameter that varies with a signal of its block
+                            signals = system.input_names if kind == "input" else system.state_names
+                            for i, on in enumerate(signals):
+                                yield f"{p.name} on {on}", {**context, "on": on, "on_kind": kind,
+                                                            "on_signal": b.inputs[i] if kind == "input" else ""}
+
+
+def _block_inputs(spec: ModelSpec, outputs: Sequence[str]) -> Iterator[tuple[str, dict[str, Any]]]:
+    """Each input of each physics block with states that writes a model output (not a cause's own
+    ``diagnosed_`` block, not scheduled), but one that drives a mode of the block already: the
+    place of a mode it lacks (``hypa.physics.modes``), its target the input's signal (``<block>/<signal>``
+    where several blocks qualify)."""
+    blocks = [b for b in spec.blocks if b.kind == "physics" and not b.name.startswith("diagnosed_")
+              and not b.scheduling and set(b.outputs) & set(outputs) and b.system_model().n_states]
+    for b in blocks:
+        system = b.system_model()
+        for name, signal in zip(system.input_names, b.inputs):
+            if name in b.modes or signal in b.driven:
+                continue
+            yield (signal if len(blocks) == 1 else f"{b.name}/{signal}"), {
+                "block": b.name, "mode": name, "block_input": signal, "block_modes": list(b.modes),
+                "block_outputs": list(b.outputs)}
+
+
+def _mode_parameters(context: Mapping[str, Any], channels: Mapping[str, tuple[float, str]]
+                     ) -> tuple[list[str], dict[str, Any]] | None:
+    """``{mode_weights}`` and ``{mode_parameters}`` of ``missing_mode``: the weights of the mode on
+    the block's outputs, and its time constant (``tau``, the scanned start) and the weights' sizes,
+    each output's largest value over the input's (None where a size is not known)."""
+    from hypa.physics.modes import mode_names
+
+    tau, weights, scales = mode_names(context["mode"], context["block_outputs"])
+    peak = channels.get(context["block_input"], (0.0, ""))[0]
+    sizes = [channels.get(o, (0.0, ""))[0] for o in context["block_outputs"]]
+    if not peak > 0 or not all(size > 0 for size in sizes):
+        return None
+    return weights, {tau: "tau", **{k: size / peak for k, size in zip(scales, sizes)}}
+
+
+def _in_dynamics(system: Any, values: Mapping[str, float], name: str) -> bool:
+    """Whether the parameter ``name`` changes the system's A, B or e (what a ``depends`` acts on,
+    ``hypa.physics.dependent``) at the current values: not one seen at the outputs only."""
+    import torch
+
+    given = {p.name: torch.tensor(p.value, dtype=torch.float64) for p in system.parameter_specs(values)}
+
+    def stacked(p: Mapping[str, Any]) -> Any:
+        ss = system.matrices(p)
+        return torch.cat([ss.a.reshape(-1), ss.b.reshape(-1), *([ss.e.reshape(-1)] if ss.e is not None else [])])
+
+    p0 = given[name]
+    moved = stacked({**given, name: p0 * 1.01 if float(p0) != 0.0 else p0 + 1e-3})
+    return bool((moved != stacked(given)).any())
+
+
+def _slowest(spec: ModelSpec, values: Mapping[str, float], dt: float) -> float:
+    """The slowest decay time [s] of the model's physics blocks at the current values (their linear
+    parts; integrators left out): ``slowest`` in an entry's expressions. A model without a decaying
+    mode: 100 sample times."""
+    import torch
+
+    times = []
+    for b in spec.blocks:
+        if b.kind != "physics" or b.scheduling:
+            continue
+        system = b.system_model()
+        if not system.n_states:
+            continue
+        given = {p.name: torch.tensor(p.value, dtype=torch.float64) for p in system.parameter_specs(values)}
+        rates = -torch.linalg.eigvals(system.matrices(given).a).real
+        times += [1.0 / float(r) for r in rates if float(r) > 1e-9 / dt]
+    return max(times) if times else 100.0 * dt
+
+
+def _drives(spec: ModelSpec, block: str, channel: str, values: Mapping[str, float],
+            states: Mapping[str, tuple[float, ...]], peak: float, dt: float
+            ) -> tuple[list[str], dict[str, float]] | None:
+    """``{drives}`` and ``{drive_scales}`` of ``unmodeled_input``: the weights of ``channel`` in each state
+    derivative of ``block`` and their sizes k_r = σ_r ρ / peak (``hypa.physics.dependent.Driven``): a
+    weight of 1 moves the state by one spread at the block's fastest rate ρ (its spectral radius; 1 / dt
+    where it has none) for the channel at its largest value. None where a state's spread is unknown."""
+    import torch
+
+    from hypa.physics.dependent import drive_name, drive_scale_name
+
+    b = spec.block(block)
+    system = b.system_model()
+    given = {p.name: torch.tensor(p.value, dtype=torch.float64) for p in system.parameter_specs(values)}
+    rate = float(torch.linalg.eigvals(system.matrices(given).a).abs().max())
+    spreads = [states.get(f"{block}/{s}", (None, None))[1] for s in system.state_names]
+    if any(s is None or not s > 0 for s in spreads) or not peak > 0:
+        return None
+    rate = rate if rate > 0 else 1.0 / dt
+    return ([drive_name(channel, s) for s in system.state_names],
+            {drive_scale_name(channel, s): float(spread) * rate / peak
+             for s, spread in zip(system.state_names, spreads)})
 
 
 def _knobs(edited: ModelSpec, values: Mapping[str, float],
@@ -367,11 +542,13 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
     matched block's states' as ``<state>_level`` and ``<state>_spread`` (``position_spread``)."""
     channels, states = channels or {}, states or {}
     specific = specific_systems(entries)
+    peaks = {f"peak_{name}": peak for name, (peak, _) in channels.items() if f"peak_{name}".isidentifier()}
     uncertain = {b.name: b.trainable for b in spec.blocks} if uncertain is None else uncertain
     base = frozen(spec)
     existing = {b.name for b in base.blocks}
     out = []
     known = {**physical_values, **spec.parameters}
+    slowest = _slowest(base, known, dt) if any(e.scan for e in entries) else 0.0
     for entry in entries:
         if not entry.applies(known):
             continue
@@ -379,6 +556,17 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
                                          physical_values, uncertain, specific):
             if entry.for_each == "state" and target not in states:
                 continue
+            if entry.for_each == "auxiliary":  # the channel's weights in each state derivative, and their sizes
+                drives = _drives(base, context["block"], context["channel"], known, states,
+                                 channels.get(context["channel"], (0.0, ""))[0], dt)
+                if drives is None:
+                    continue
+                context = {**context, "drives": drives[0], "drive_scales": drives[1]}
+            if entry.for_each == "block_input":  # the mode's weights on the block's outputs, and their sizes
+                mode = _mode_parameters(context, channels)
+                if mode is None:
+                    continue
+                context = {**context, "mode_weights": mode[0], "mode_parameters": mode[1]}
             where = f"catalogue {entry.source}, entry {entry.id} on {target}"
             if entry.fit == AFFINE:
                 out.append(Candidate(entry.id, _format(entry.offset, context), base, AFFINE,
@@ -389,23 +577,61 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
             own = {} if entry.for_each != "block" else {  # the matched block's states: position_spread
                 f"{key.split('/', 1)[1]}_{name}": value for key, scales in states.items()
                 if key.startswith(f"{target}/") for name, value in zip(("level", "spread"), scales)}
-            variables = {**own, **_parameter_values(base, known, context.get("block")),
+            variables = {**own, **_parameter_values(base, known, context.get("block")), **peaks, "slowest": slowest,
                          **({"peak": channels[channel][0]} if channel in channels else {}),
                          **(dict(zip(("level", "spread", "low", "high"), states[target]))
                             if entry.for_each == "state" else {})}
-            patch = _format(dict(entry.patch), context)
+            if "on" in context:  # the signal a parameter varies with: its operating point and spread
+                scales = _on_scales(context, states, channels)
+                if scales is None:
+                    continue
+                variables.update(on_level=scales[0], on_spread=scales[1])
+            patch = _format(_each_output(dict(entry.patch), base.outputs), context)
             if any(name.startswith("diagnosed_") and name in existing for name in patch.get("blocks", {})):
                 continue  # the model has this cause's block already: named in an earlier round
-            edited = apply_patch(base, patch, dt, where, variables)
-            knobs = _knobs(edited, physical_values, channels) if entry.fit == GRADIENT else {}
-            if entry.fit == GRADIENT and not knobs and entry.for_each == "state":
-                continue  # nothing of this state to fit (no coupling to bend): the entry does not apply
-            if entry.fit == GRADIENT and not knobs:
-                raise CatalogueError(f"{where}: fit: gradient but the patch makes nothing trainable")
-            state = context.get("state") if entry.for_each == "state" else None
-            if state in channels:  # a state named like a measured channel: its level (a limit) in that unit
-                own_level = f"{context['block']}/{state}_"
-                knobs = {k: u or (channels[state][1] if k.startswith(own_level) else u) for k, u in knobs.items()}
-            out.append(Candidate(entry.id, target, edited, entry.fit, tuple(knobs), knobs,
-                                 tuple(_format(b, context) for b in entry.learn)))
+            for scanned, values in _scanned(entry, target, {**variables, "dt": dt}, where):
+                out += _candidate(entry, scanned, context, apply_patch(base, patch, dt, where, values),
+                                  physical_values, channels, where)
     return out
+
+
+def _on_scales(context: Mapping[str, Any], states: Mapping[str, tuple[float, ...]],
+               channels: Mapping[str, tuple[float, str]]) -> tuple[float, float] | None:
+    """``on_level`` and ``on_spread`` of a ``for_each: parameter`` entry with ``on``: a state's
+    operating point and spread in the round's model's scaling, an input's 0 and its largest |value| / 3
+    (a signal's peak is about three spreads); None where they are not known."""
+    if context["on_kind"] == "state":
+        scales = states.get(f"{context['block']}/{context['on']}")
+        return None if scales is None or not scales[1] > 0 else (float(scales[0]), float(scales[1]))
+    peak = channels.get(context["on_signal"], (0.0, ""))[0]
+    return (0.0, peak / 3.0) if peak > 0 else None
+
+
+def _scanned(entry: Entry, target: str, variables: Mapping[str, float], where: str
+             ) -> Iterator[tuple[str, dict[str, float]]]:
+    """(target, variables) for each start value of the entry's ``scan`` (one: none), the target
+    then naming it (``current from 12 s``)."""
+    if not entry.scan:
+        yield target, dict(variables)
+        return
+    name, starts = next(iter(entry.scan.items()))
+    for start in starts:
+        value = _number(start, variables, where)
+        yield f"{target} from {value:.3g}", {**variables, name: value}
+
+
+def _candidate(entry: Entry, target: str, context: Mapping[str, Any], edited: ModelSpec,
+               physical_values: Mapping[str, float], channels: Mapping[str, tuple[float, str]], where: str
+               ) -> list[Candidate]:
+    """The candidate of one edit (none where a state entry finds nothing to fit)."""
+    knobs = _knobs(edited, physical_values, channels) if entry.fit == GRADIENT else {}
+    if entry.fit == GRADIENT and not knobs and entry.for_each == "state":
+        return []  # nothing of this state to fit (no coupling to bend): the entry does not apply
+    if entry.fit == GRADIENT and not knobs:
+        raise CatalogueError(f"{where}: fit: gradient but the patch makes nothing trainable")
+    state = context.get("state") if entry.for_each == "state" else None
+    if state in channels:  # a state named like a measured channel: its level (a limit) in that unit
+        own_level = f"{context['block']}/{state}_"
+        knobs = {k: u or (channels[state][1] if k.startswith(own_level) else u) for k, u in knobs.items()}
+    return [Candidate(entry.id, target, edited, entry.fit, tuple(knobs), knobs,
+                      tuple(_format(b, context) for b in entry.learn))]

@@ -38,6 +38,9 @@ class BlockConfig:
     table: Any = None  # physics scheduled by one signal: its matrices off a verified table where no gradient needs them
     curved: Any = None  # physics: state -> power (2, 3), couplings from the state bent (hypa.physics.curved)
     limited: Any = None  # physics: state -> upper | lower, the state held at a limit (hypa.physics.limited)
+    depends: Any = None  # physics: parameter -> {by, kind}, varying with a direction or a state
+    modes: Any = None  # physics: inputs each driving a first-order mode added into the outputs (hypa.physics.modes)
+    driven: Any = None  # physics: signals read after its inputs, entering every state derivative
 
 
 @dataclass

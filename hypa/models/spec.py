@@ -87,6 +87,20 @@ class BlockSpec:
         carry the state past its limit ``<state>_limit`` spills within ``<state>_limit_time``, a
         share ``spill_<state>_to_<row>`` of it into each other state (``hypa.physics.limited``;
         named by ``hypa.diagnose``'s ``upper_state_limit`` and ``lower_state_limit``).
+    depends: physics only, parameters that vary per sample with a direction or a state, parameter
+        -> {by: a state or input of the system, kind: direction | state}: p (1 + d tanh(s / w)) or
+        p (1 + a (s - μ) / σ), with the block's own parameters ``<p>_direction_<s>`` d and
+        ``<p>_direction_<s>_width`` w, or ``<p>_slope_<s>`` a, ``<p>_slope_<s>_level`` μ and
+        ``<p>_slope_<s>_spread`` σ (``hypa.physics.dependent``; named by ``hypa.diagnose``'s
+        ``direction_parameter`` and ``state_parameter``).
+    modes: physics only, inputs of the system (its own names) that each drive a first-order mode
+        the system lacks, added into its outputs: the block's own ``mode_<input>_tau_s``,
+        ``mode_<input>_on_<output>`` and the fixed ``mode_<input>_scale_on_<output>``
+        (``hypa.physics.modes``; named by ``hypa.diagnose``'s ``missing_mode``).
+    driven: physics only, signals read after the system's own inputs that enter every state
+        derivative through the block's own weights ``drive_<signal>_on_<state>`` times the fixed
+        ``drive_<signal>_scale_on_<state>`` (``hypa.physics.dependent.Driven``; named by
+        ``hypa.diagnose``'s ``unmodeled_input`` for a measured channel the model did not read).
     """
 
     name: str
@@ -104,10 +118,15 @@ class BlockSpec:
     table: bool = False
     curved: Mapping[str, int] = field(default_factory=dict)
     limited: Mapping[str, str] = field(default_factory=dict)
+    depends: Mapping[str, Mapping[str, str]] = field(default_factory=dict)
+    modes: tuple[str, ...] = ()
+    driven: tuple[str, ...] = ()
 
     def system_model(self) -> LTIModel:
-        """A physics block's system as built for it: ``system`` with its ``curved`` and ``limited`` states."""
-        return build_system(self.system or "", self.name, self.curved, self.limited)
+        """A physics block's system as built for it: ``system`` with its ``curved`` and ``limited``
+        states, its ``depends`` parameters, its ``modes`` and its ``driven`` inputs."""
+        return build_system(self.system or "", self.name, self.curved, self.limited, self.depends, self.driven,
+                            self.modes)
 
     @property
     def steady(self) -> bool:
@@ -249,6 +268,18 @@ def _sides(value: Any, where: str) -> dict[str, str]:
     return {str(k): str(v) for k, v in value.items()}
 
 
+def _dependences(value: Any, where: str) -> dict[str, dict[str, str]]:
+    """A mapping parameter -> {by: signal, kind: direction | state} (None: empty)."""
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping) or not all(
+            isinstance(v, Mapping) and set(v) == {"by", "kind"} and v["kind"] in ("direction", "state")
+            for v in value.values()):
+        raise ModelSpecError(f"{where} must map parameters to {{by: <state or input>, kind: direction | state}} "
+                             f"(e.g. {{R0: {{by: current, kind: direction}}}}), got {value!r}")
+    return {str(k): {"by": str(v["by"]), "kind": str(v["kind"])} for k, v in value.items()}
+
+
 def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
     """Parse and check the ``model`` config (a plain mapping) into a :class:`ModelSpec`."""
     name = _signals(str(config.get("name", "model")), "the model's name")[0]
@@ -294,11 +325,15 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
             table=_flag(b.get("table"), f"{block_name}.table"),
             curved=_powers(b.get("curved"), f"{block_name}.curved"),
             limited=_sides(b.get("limited"), f"{block_name}.limited"),
+            depends=_dependences(b.get("depends"), f"{block_name}.depends"),
+            driven=_signals(b.get("driven"), f"{block_name}.driven"),
+            modes=_names(b.get("modes"), f"{block_name}.modes"),
         ))
         if kind != "physics" and (blocks[-1].scheduling or blocks[-1].observe or blocks[-1].curved
-                                  or blocks[-1].limited):
-            raise ModelSpecError(f"block {block_name!r}: only physics blocks take scheduling, observe, curved or "
-                                 "limited")
+                                  or blocks[-1].limited or blocks[-1].depends or blocks[-1].driven
+                                  or blocks[-1].modes):
+            raise ModelSpecError(f"block {block_name!r}: only physics blocks take scheduling, observe, curved, "
+                                 "limited, depends, modes or driven")
         if blocks[-1].table and len(blocks[-1].scheduling) != 1:
             raise ModelSpecError(f"block {block_name!r}: table: true needs a physics block scheduled by one signal, "
                                  f"got scheduling {dict(blocks[-1].scheduling) or 'none'}")
@@ -379,10 +414,11 @@ def spec_config(spec: ModelSpec, name: str | None = None) -> dict[str, Any]:
     for b in spec.blocks:
         entry: dict[str, Any] = {"kind": b.kind, "inputs": list(b.inputs), "outputs": list(b.outputs)}
         for key in ("system", "trainable", "residual_of", "scale_as", "initial_state", "parameters", "scheduling",
-                    "observe", "curved", "limited"):
+                    "observe", "curved", "limited", "depends", "modes", "driven"):
             value = getattr(b, key)
             if value:
-                entry[key] = dict(value) if isinstance(value, Mapping) else (
+                entry[key] = {k: dict(v) if isinstance(v, Mapping) else v for k, v in value.items()} \
+                    if isinstance(value, Mapping) else (
                     list(value) if isinstance(value, tuple) else value)
         if b.parameters:  # a value given with its unit is written as given (2.5 Ah)
             entry["parameters"] = {k: _written(v) for k, v in b.parameters.items()}

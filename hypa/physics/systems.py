@@ -15,11 +15,13 @@ from collections.abc import Callable, Iterator, Mapping
 
 from hypa.physics.contract import SystemContractError, check_system
 from hypa.physics.curved import Curved, CurvedError
+from hypa.physics.dependent import Dependent, DependentError, Driven
 from hypa.physics.elements import FirstOrderLag, GainLag, LeadLag, SecondOrder, StaticGain
 from hypa.physics.friction import MassWithCoulombFriction, MassWithCubicFriction, MassWithFriction
 from hypa.physics.limited import Limited, LimitedError
 from hypa.physics.lti import LTIModel
 from hypa.physics.mass_spring_damper import DuffingOscillator, MassSpringDamper
+from hypa.physics.modes import Moded
 
 __all__ = ["PHYSICS_SYSTEMS", "SystemContractError", "build_system", "check_system", "is_import_path",
            "resolve_system"]
@@ -104,15 +106,22 @@ def resolve_system(name: str, block: str = "") -> LTIModel:
 
 
 def build_system(name: str, block: str = "", curved: Mapping[str, int] | None = None,
-                 limited: Mapping[str, str] | None = None) -> LTIModel:
+                 limited: Mapping[str, str] | None = None, depends: Mapping[str, Mapping[str, str]] | None = None,
+                 driven: tuple[str, ...] = (), modes: tuple[str, ...] = ()) -> LTIModel:
     """The system ``name`` for the block ``block`` (``resolve_system``), its couplings from the
-    states of ``curved`` (state -> power, a block's ``curved:``) bent (``hypa.physics.curved``)
-    and the states of ``limited`` (state -> upper | lower) held at a limit (``hypa.physics.limited``)."""
+    states of ``curved`` (state -> power, a block's ``curved:``) bent (``hypa.physics.curved``),
+    the states of ``limited`` (state -> upper | lower) held at a limit (``hypa.physics.limited``),
+    the parameters of ``depends`` varying with a direction or a state and the signals of
+    ``driven`` entering its state derivatives (``hypa.physics.dependent``), and a mode added per
+    input of ``modes`` (``hypa.physics.modes``)."""
     system = resolve_system(name, block)
     try:
         system = Curved(system, curved, block) if curved else system
-        return Limited(system, limited, block) if limited else system
-    except (CurvedError, LimitedError) as error:
+        system = Limited(system, limited, block) if limited else system
+        system = Dependent(system, depends, block) if depends else system
+        system = Moded(system, tuple(modes), block) if modes else system
+        return Driven(system, tuple(driven), block) if driven else system
+    except (CurvedError, LimitedError, DependentError) as error:
         raise SystemContractError(f"block {block!r} ({name}): {error}") from None
 
 
