@@ -17,10 +17,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from hypa.diagnosis.problem import Problem
 from hypa.diagnosis.search import name_causes
-from hypa.models.spec import parse_model_spec
+from hypa.models.spec import parse_model_spec, spec_config
 
 from data_helpers import importable
 from test_diagnose_time_scales import _datamodule, _files
@@ -50,8 +51,9 @@ def user_systems(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     yield from importable(tmp_path, monkeypatch, {"cell_system": CELL_SYSTEM})
 
 
-def cell_truth(seed: int, seconds: int, r2: float, tau2: float) -> dict[str, np.ndarray]:
-    """Current pulses (-50..50 A, a new level every 5-120 s), both RC pairs exact under a held current."""
+def cell_truth(seed: int, seconds: int, r2: float, tau2: float, offset: float = 0.0) -> dict[str, np.ndarray]:
+    """Current pulses (-50..50 A, a new level every 5-120 s), both RC pairs exact under a held current;
+    ``offset``: the voltage sensor's bias [V]."""
     rng = np.random.default_rng(seed)
     levels, lengths = rng.uniform(-50, 50, seconds), rng.integers(5, 120, seconds)
     current = np.repeat(levels, lengths)[:seconds]
@@ -63,11 +65,11 @@ def cell_truth(seed: int, seconds: int, r2: float, tau2: float) -> dict[str, np.
         drop[k] = CELL["r0"] * i + v.sum()
         v = decay * v + (1 - decay) * gains * i
     return {"time": np.arange(seconds, dtype=float), "current": current,
-            "drop": drop + 5e-4 * rng.standard_normal(seconds)}
+            "drop": drop + offset + 5e-4 * rng.standard_normal(seconds)}
 
 
-def diagnose(folder: Path, seed: int, r2: float, tau2: float, r0_off: float = 1.0):
-    split = {"train": cell_truth(seed, 7200, r2, tau2), "val": cell_truth(seed + 1, 2400, r2, tau2)}
+def diagnose(folder: Path, seed: int, r2: float, tau2: float, r0_off: float = 1.0, offset: float = 0.0):
+    split = {"train": cell_truth(seed, 7200, r2, tau2, offset), "val": cell_truth(seed + 1, 2400, r2, tau2, offset)}
     _files(folder, split)
     dm = _datamodule(folder, 1.0, {"current": {"role": "input", "unit": "A"}, "drop": {"role": "output", "unit": "V"}},
                      window=100, past=10)
@@ -99,11 +101,16 @@ def test_a_missing_slow_rc_pair_is_named_with_its_resistance_and_time_constant(
     assert tau == pytest.approx(tau2, rel=0.15), (tau2, found.describe())
     assert gain == pytest.approx(r2, rel=0.15), (r2, gain, found.describe())
     assert search.final_score < 0.1 * search.nominal_score, (search.final_score, search.nominal_score)
+    # the diagnosed model as its YAML holds it (the model writer) is the same model
+    assert parse_model_spec(yaml.safe_load(yaml.safe_dump(spec_config(search.spec)))) == search.spec
     print(f"seed {seed}: R2 {r2:.4g} -> {gain:.4g} ohm, tau2 {tau2:.3g} -> "
           f"{tau:.3g} s, {time.perf_counter() - started:.1f} s")
 
 
 def test_without_a_second_pair_no_mode_is_named(tmp_path: Path, user_systems: Path) -> None:
-    search = diagnose(user_systems, 7, 0.0, 60.0, r0_off=1.3)  # R0 30 % off: something to name
+    # R0 30 % off and a 50 mV sensor bias: something to name, and a bias a slow mode of the current could
+    # stand in for
+    search = diagnose(user_systems, 7, 0.0, 60.0, r0_off=1.3, offset=5e-2)
     named = [f.cause for f in search.named]
-    assert named == ["parameter_mismatch"], [f.describe() for f in search.named]
+    assert {"output_offset", "input_offset"} & set(named), [f.describe() for f in search.named]
+    assert "missing_mode" not in named, [f.describe() for f in search.named]

@@ -388,9 +388,11 @@ def _contexts(entry: Entry, spec: ModelSpec, inputs: Sequence[str], outputs: Seq
                         yield p.name, context
                     elif (_state_block(b, specific) and local not in b.depends
                           and _in_dynamics(system, {**values, **spec.parameters}, p.name)):
-                        for kind in entry.on:  # a parameter that varies with a signal of its block
+                        for kind in entry.on:  # a parameter that varies with a signal of its block (not a driven one)
                             signals = system.input_names if kind == "input" else system.state_names
                             for i, on in enumerate(signals):
+                                if kind == "input" and b.inputs[i] in b.driven:
+                                    continue
                                 yield f"{p.name} on {on}", {**context, "on": on, "on_kind": kind,
                                                             "on_signal": b.inputs[i] if kind == "input" else ""}
 
