@@ -251,8 +251,8 @@ def _composed_cell() -> tuple:
     return model, current, voltage, model.suggested_past()
 
 
-def _write_cell_project(folder: Path, seed: int, offset: float = 0.0, records: tuple[int, ...] = (2400, 1200)
-                        ) -> Path:
+def _write_cell_project(folder: Path, seed: int, offset: float = 0.0, records: tuple[int, ...] = (2400, 1200),
+                        soc: tuple[float, float] = (0.8, 0.95)) -> Path:
     """A user's project: cellmodel.py, conf/dataset/cell.yaml, conf/model/{cell,ocv_state}.yaml and
     train/val records of the true cell (1 mV noise, ``offset`` added by the voltage sensor)."""
     dataset = user_dataset({"time": {"column": "time", "unit": "s"}, "sample_rate_hz": 1.0, "rate_hz": None,
@@ -264,6 +264,9 @@ def _write_cell_project(folder: Path, seed: int, offset: float = 0.0, records: t
               "ocv_state": MODEL.format(name="ocv_state", system="OcvState", start="estimate")
               .replace("capacity, r0, r1", "r0, r1").replace("capacity: 2.0 Ah", "slope_capacitance: 10 kF")}
     folder.mkdir(parents=True, exist_ok=True)
+    models["cell_true"] = models["cell"].replace("name: cell", "name: cell_true").replace(
+        "{capacity: 2.0 Ah, r0: 30 mOhm, r1: {value: 25, unit: mOhm}, c1: 1.5 kF}",
+        f"{{capacity: {TRUE['capacity_ah']} Ah, r0: {TRUE['r0'] * 1e3} mOhm, r1: {TRUE['r1']}, c1: {TRUE['c1']}}}")
     steady = "steady\n    scale_as: [voltage]"
     models["ocv_leak"] = models["ocv_state"].replace("OcvState", "OcvLeak").replace("estimate", steady) \
         .replace("name: ocv_state", "name: ocv_leak")
@@ -271,7 +274,7 @@ def _write_cell_project(folder: Path, seed: int, offset: float = 0.0, records: t
     rng = np.random.default_rng(seed)
     for name, samples in zip(("train", "val"), records):
         current = drive_cycle(samples, rng)
-        voltage, _ = cell_truth(current, rng.uniform(0.8, 0.95), 0.0, **TRUE)
+        voltage, _ = cell_truth(current, rng.uniform(*soc), 0.0, **TRUE)
         voltage = voltage + offset + 1e-3 * rng.standard_normal(samples)
         table = np.column_stack([np.arange(samples, dtype=float), current, voltage])
         np.savetxt(user / "data" / f"{name}.csv", table, delimiter=",", header="time,current,voltage", comments="")
@@ -370,3 +373,27 @@ def test_the_level_check_reads_the_datas_own_spread() -> None:
     off = Prediction("r", np.arange(500.0), {"y": data}, {"y": 0 * data}, {}, first=1)
     line = free_run_levels([off], ["y"], units={"y": "V"})[0]
     assert line.startswith("the free run of 'y' sits at 0 V while the data sit at 5") and "(25 spreads away)" in line
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [11, 12])
+def test_the_diagnosis_runs_on_the_nonlinear_output_and_tries_an_output_offset(tmp_path: Path, seed: int) -> None:
+    """(d) hypa.diagnose through the CLI on the cell with its OCV in the output and a voltage sensor
+    offset it does not know (20-60 mV, either sign): the search runs end to end through the nonlinear
+    output (every candidate keeps h: the wrappers read it through ``base``) and fits the output offset.
+
+    Naming it is expected to fail for now: the initial state estimated from the past absorbs a
+    constant offset into the state of charge (OCV(s) + b ≈ OCV(s + b / OCV'(s)) over a fit window), so
+    the fitted offset stays near 0; only the OCV's curvature over a long free run tells them apart."""
+    rng = np.random.default_rng(seed)
+    offset = float(rng.uniform(0.02, 0.06) * rng.choice([-1.0, 1.0]))
+    user = _write_cell_project(tmp_path / "user", seed=seed, offset=offset, records=(1500, 900), soc=(0.15, 0.35))
+    result = _run(["hypa.diagnose", "model=cell_true", f"hydra.run.dir={tmp_path / 'diag'}"], user, timeout=900)
+    assert result.returncode == 0, result.stderr[-3000:]
+    diagnosis = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
+    tried = {(c["cause"], c["target"]): c for c in diagnosis["candidates"]}
+    assert ("output_offset", "voltage") in tried and tried["output_offset", "voltage"]["score"] is not None
+    named = {(c["cause"], c["target"]): c for c in diagnosis["named"]}
+    if ("output_offset", "voltage") not in named:
+        pytest.xfail(f"an output offset of {offset * 1e3:.0f} mV is absorbed by the estimated state of charge")
+    assert named["output_offset", "voltage"]["values"]["voltage"] == pytest.approx(offset, rel=0.2)

@@ -127,7 +127,7 @@ def refine_first_state(simulate: Callable[[Tensor], tuple[Tensor, Tensor]], x0: 
         # (5e-8, with the buffers' alignment) that these iterations, on a state the outputs barely see
         # (the tanks' upper level), carried to 7e-5 of its spread: the same record started elsewhere
         step = torch.linalg.lstsq(rows.double(), target[..., None].double()).solution.squeeze(-1).to(x0.dtype)
-        if not bool(torch.isfinite(step).all()) or float(step.abs().max()) <= tolerance:
+        if not bool(torch.isfinite(step.detach()).all()) or float(step.detach().abs().max()) <= tolerance:
             break  # converged: a step below the dtype's resolution of a state of unit spread
         for halved in range(halvings + 1):
             candidate = x0 + step / 2**halved
