@@ -205,6 +205,7 @@ def test_a_nonlinear_output_is_checked_and_exported(cell_module) -> None:
     from hypa.export import ModelStep
     from hypa.export.statespace import refusal
     from hypa.physics import LTIModel, SystemContractError, check_system
+    from hypa.physics.curved import Curved
 
     class Bad(cell_module.Cell):
         def output_nonlinearity(self, x, u, p):
@@ -219,6 +220,11 @@ def test_a_nonlinear_output_is_checked_and_exported(cell_module) -> None:
     with pytest.raises(SystemContractError, match="elementwise in the leading dims"):
         check_system(NotBatched())
     assert not LTIModel.has_nonlinear_output.fget(cell_module.OcvState())
+    curved = Curved(cell_module.Cell(), {"v1": 3}, "cell")  # a wrapper measures through its base's h
+    check_system(curved)
+    assert curved.has_nonlinear_output and curved.is_nonlinear
+    x, u = torch.tensor([0.5, 0.0], dtype=torch.float64), torch.zeros(1, dtype=torch.float64)
+    assert torch.equal(curved.output_nonlinearity(x, u, {}), cell_module.Cell().output_nonlinearity(x, u, {}))
     model, current, voltage, past = _composed_cell()
     why = refusal(model)
     assert why is not None and "block 'cell' has a nonlinear output" in why and "\n" not in why
