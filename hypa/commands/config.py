@@ -199,14 +199,14 @@ class DiagnosisConfig:
     min_gain: float = 0.15
     workers: int | None = None  # None: one per core (at most 4)
     stretch_s: float | None = None  # [s] None: from the nominal model's time scales
-    fit_seconds: float = 60.0  # [s]
+    fit_seconds: float | None = None  # [s] None: no cap (the search is budgeted in work, not seconds)
 
     def __post_init__(self) -> None:
         checked("diagnosis.max_causes", self.max_causes, int, minimum=0)
         checked("diagnosis.min_gain", self.min_gain, float, minimum=0.0)
         checked("diagnosis.workers", self.workers, int, optional=True, minimum=1)
         checked("diagnosis.stretch_s", self.stretch_s, float, optional=True, positive=True)
-        checked("diagnosis.fit_seconds", self.fit_seconds, float, positive=True)
+        checked("diagnosis.fit_seconds", self.fit_seconds, float, optional=True, positive=True)
 
 
 @dataclass

@@ -41,9 +41,10 @@ def main(cfg: DictConfig) -> None:
         vehicle_from_config,
     )
     from hypa.diagnosis.catalogue import load_catalogue
-    from hypa.diagnosis.problem import Problem, format_change, nominal_hold
+    from hypa.diagnosis.problem import Problem, nominal_hold
     from hypa.diagnosis.system import diagnose_system
     from hypa.errors import UserError
+    from hypa.markdown import change_text
     from hypa.models.schema import plain_model
     from hypa.models.spec import parse_model_spec, spec_config
 
@@ -88,7 +89,7 @@ def main(cfg: DictConfig) -> None:
     trained = result.extended.trained
     if trained:
         print(f"trained extension ({trained.run}): validation error {figures['trained']} of the output variance "
-              f"({format_change(trained.change)} against the nominal physics)", flush=True)
+              f"({change_text(trained.change)} against the nominal physics)", flush=True)
         for explained in trained.explained:
             print(f"  its network {explained.block} learned: {explained.description}", flush=True)
     else:

@@ -20,7 +20,7 @@ from hypa.diagnosis.edits import GRADIENT, Candidate
 from hypa.diagnosis.finding import ALTERNATIVE, SIMPLER, Finding
 from hypa.diagnosis.generic import GenericFit, fit_generic
 from hypa.diagnosis.problem import Problem
-from hypa.diagnosis.race import evaluate_round
+from hypa.diagnosis.race import SCREEN, evaluate_round
 from hypa.models.spec import ModelSpec
 
 # a gradient fit goes on to the other folds from this share of what it needs on the first (evaluate_folds)
@@ -39,8 +39,11 @@ def evaluate_folds(candidates: Callable[[ModelSpec], list[Candidate]], folds: Se
     (:func:`evaluate_round`), their scores pooled over the folds (the error over all blocks, each
     scored by a fit that never saw it), their values the folds' mean (each fold's in ``folds``).
 
-    All run the first fold. A gradient fit goes on to the others only where it could be named or
-    listed beside the one named: its gain there at least ``CONTENDER`` (a margin for the folds'
+    All run the first fold, the gradient fits screened by their score test there
+    (:func:`~hypa.diagnosis.race.evaluate_round`: a fit runs where its first step promises
+    ``SCREEN`` of ``min_gain``, or among the best few promises). A gradient fit goes on to the
+    others only where it could be named or listed beside the one named: its gain there at least
+    ``CONTENDER`` (a margin for the folds'
     spread) of ``min_gain`` and of what :func:`~hypa.diagnosis.finding.alternatives` asks beside
     the fold's best; the ``RUNNERS_UP`` best of the first fold go on wherever their gain reaches
     ``CONTENDER`` of ``min_gain``, as one fold's best may fit that fold alone (an input limit that
@@ -50,7 +53,7 @@ def evaluate_folds(candidates: Callable[[ModelSpec], list[Candidate]], folds: Se
     def listed(k: int) -> list[Candidate]:
         return [c for c in candidates(bases[k]) if keep(c)]
 
-    first = evaluate_round(listed(0), folds[0], windows[0], scores[0], refine, side=side)
+    first = evaluate_round(listed(0), folds[0], windows[0], scores[0], refine, screen=SCREEN * min_gain, side=side)
     if len(folds) == 1:
         return first
     fitted = [f for f in first if f.error is None]
@@ -69,8 +72,7 @@ def evaluate_folds(candidates: Callable[[ModelSpec], list[Candidate]], folds: Se
     going = {f.key for f in first if contends(f)} | {f.key for f in leading if f.gain >= CONTENDER * min_gain}
     per_fold = [{f.key: f for f in first}]
     for k in range(1, len(folds)):
-        found = evaluate_round([c for c in listed(k) if c.key in going], folds[k], windows[k], scores[k], refine,
-                               rungs=(1.0,))  # the contenders: each fit to its end
+        found = evaluate_round([c for c in listed(k) if c.key in going], folds[k], windows[k], scores[k], refine)
         per_fold.append({f.key: f for f in found})
     pooled, screened = [], []
     for f in first:

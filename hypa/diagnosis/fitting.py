@@ -1,6 +1,5 @@
-"""Fitting a candidate cause's knobs: gradient fits of physical parameters (Adam for linear
-physics, Levenberg-Marquardt on finite differences for nonlinear physics simulated step by
-step) and exact least squares of sensor offsets."""
+"""Fitting a candidate cause's knobs: physical parameters by Levenberg-Marquardt on finite
+differences of forward runs, to convergence, and sensor offsets by exact least squares."""
 
 from __future__ import annotations
 
@@ -17,8 +16,7 @@ from hypa.diagnosis.problem import Problem, TooLittleData, format_value
 from hypa.models.spec import ModelSpec, ModelSpecError
 from hypa.physics.parameters import LOG, SIGNED
 
-REFINE_LR = 0.2  # the learning rate of the earlier causes' knobs, relative to the candidate's own
-LM_ITERATIONS = 8  # Levenberg-Marquardt steps of a nonlinear fit (the knobs are few: 1 to 7)
+LM_ITERATIONS = 40  # Levenberg-Marquardt steps at most (a fit ends earlier where it converges)
 LM_WINDOWS_PER_BATCH = 2  # its fixed windows: this many batches' worth (256 by default)
 LM_PROBE = 1e-5  # the finite-difference step on a raw knob (a relative 1e-5 for positive parameters)
 LM_TOLERANCE = 1e-3  # converged: a step lowered the error by less than this share
@@ -34,11 +32,14 @@ class GradientFit:
     jointly: a rear-steering ratio fitted on linear tires moves once saturation joins it).
     Resumable: the search advances only the promising fits to their full number of steps.
 
-    Linear physics (the lifted form, one graph node per window) takes ``problem.steps`` Adam
-    steps on random batches. Nonlinear physics is simulated step by step, and there the
-    backward pass through the step loop costs about eight times the forward run: such a fit
-    takes ``LM_ITERATIONS`` Levenberg-Marquardt steps on a fixed set of windows instead, its
-    Jacobian from finite differences of forward runs (one per knob, no autograd; a few knobs)."""
+    Every fit takes Levenberg-Marquardt steps on a fixed set of training windows, in double
+    precision, its Jacobian from finite differences of forward runs (one per knob: the knobs are
+    few, and no backward pass through a step-by-step simulation, which costs about eight times
+    the forward run), until a step lowers the error by less than ``LM_TOLERANCE`` (at most
+    ``LM_ITERATIONS`` steps). Its budget is work, never seconds: every fit that runs runs to its
+    end, on any machine (``Problem.fit_seconds``, off by default, is a user's cap and says so),
+    whatever its start (an earlier cause's knobs at their optimum, a nominal value far off).
+    :meth:`promise` is the screen that decides which fits of a round run."""
 
     def __init__(self, candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor],
                  refine: Sequence[str] = ()) -> None:
@@ -57,24 +58,18 @@ class GradientFit:
         self._knobs = {n: raw[n] for n in raw if raw[n].requires_grad}
         self._start = {n: float(p.detach()) for n, p in self._knobs.items()}
         self._sane = dict(self._start)  # the last values that passed :meth:`_check`
-        self.nonlinear = nonlinear = any(getattr(getattr(b, "model", None), "is_nonlinear", False)
-                                         for b in self.model.blocks.values())
-        self.total, self.done = LM_ITERATIONS if nonlinear else problem.steps, 0
-        self.batch, self.damping = problem.batch, LM_DAMPING
-        self.converged = False  # Levenberg-Marquardt: a step lowered the error by less than LM_TOLERANCE
-        self._last: torch.Tensor | None = None  # the residual at the knobs now, where known (Levenberg-Marquardt)
-        if nonlinear:  # Levenberg-Marquardt: a fixed set of windows, in double precision (finite differences)
-            count = windows["u"].shape[0]
-            index = torch.randperm(count, generator=self.generator)[: LM_WINDOWS_PER_BATCH * problem.batch]
-            self.fixed = {k: v[index].double() for k, v in windows.items()}
-            self.knobs = params
-        else:
-            # the earlier causes' knobs start at their optimum: slower steps, so that Adam's first
-            # steps (about lr each, whatever the gradient) do not throw them off it
-            settled = {id(self.model.parameters_.raw[k]) for k in self.refine}
-            groups = [{"params": [p for p in params if id(p) not in settled], "lr": problem.lr},
-                      {"params": [p for p in params if id(p) in settled], "lr": REFINE_LR * problem.lr}]
-            self.optimizer = torch.optim.Adam([g for g in groups if g["params"]])
+        # simulated step by step (Lur'e, scheduled, curved): a fit that costs several linear ones
+        self.nonlinear = any(getattr(getattr(b, "model", None), "is_nonlinear", False)
+                             for b in self.model.blocks.values())
+        self.total, self.done = LM_ITERATIONS, 0
+        self.damping = LM_DAMPING
+        self.converged = False  # a step lowered the error by less than LM_TOLERANCE, or none lowered it
+        self._last: torch.Tensor | None = None  # the residual at the knobs now, where known
+        self._linearized: tuple[torch.Tensor, torch.Tensor] | None = None  # (residual, Jacobian) at the knobs now
+        count = windows["u"].shape[0]
+        index = torch.randperm(count, generator=self.generator)[: LM_WINDOWS_PER_BATCH * problem.batch]
+        self.fixed = {k: v[index].double() for k, v in windows.items()}
+        self.knobs = params
 
     @property
     def finished(self) -> bool:
@@ -102,13 +97,13 @@ class GradientFit:
         """Go on until ``share`` of the total steps are done (or the fit stopped for good: it
         diverged, :meth:`_check`, and keeps its last sane values; or it reached the problem's
         time limit per fit)."""
-        first, count, w = self.problem.dm.past + 1, self.windows["u"].shape[0], self.windows
         while self.done < math.ceil(share * self.total) and not self.finished:
-            if time.perf_counter() - self.started > self.problem.fit_seconds:
+            limit = self.problem.fit_seconds
+            if limit is not None and time.perf_counter() - self.started > limit:
                 self.timed_out = True
                 break
             try:
-                self._step(first, count, w)
+                self._least_squares_step()
             except (ArithmeticError, torch.linalg.LinAlgError) as error:
                 self.diverged = f"{type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}"
             self.diverged = self.diverged or self._check()
@@ -120,37 +115,51 @@ class GradientFit:
             self._sane = {n: float(p.detach()) for n, p in self._knobs.items()}
             self.done += 1
 
-    def _step(self, first: int, count: int, w: Mapping[str, torch.Tensor]) -> None:
-        if self.nonlinear:
-            self._least_squares_step()
-        else:
-            index = torch.randperm(count, generator=self.generator)[: self.batch]
-            u, y = w["u"][index], w["y"][index]
-            loss = torch.mean((self.model(u, y[:, :first], w["s"][index] if "s" in w else None)
-                               - y[:, first:]) ** 2)
-            self.optimizer.zero_grad()
-            loss.backward()
-            self.optimizer.step()
-
     @torch.no_grad()
     def _residual(self) -> torch.Tensor:
         w, first = self.fixed, self.problem.dm.past + 1
         return (self.model(w["u"], w["y"][:, :first], w.get("s")) - w["y"][:, first:]).reshape(-1)
 
     @torch.no_grad()
-    def _least_squares_step(self) -> None:
-        """One Levenberg-Marquardt step on the raw knobs (relative for positive parameters, so one
-        finite-difference step fits all); the damping grows until the step lowers the error."""
+    def _linearize(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The residual at the knobs now and its Jacobian (finite differences of forward runs)."""
+        if self._linearized is not None:
+            return self._linearized
         r0 = self._last if self._last is not None else self._residual()  # the previous step's accepted run
-        cost = float(r0 @ r0)
-        if not math.isfinite(cost):
+        if not math.isfinite(float(r0 @ r0)):
             raise ValueError("the model's error is not finite at the start of a step")
         columns = []
         for knob in self.knobs:
             knob += LM_PROBE
             columns.append((self._residual() - r0) / LM_PROBE)
             knob -= LM_PROBE
-        jacobian = torch.stack(columns, 1)
+        self._linearized = (r0, torch.stack(columns, 1))
+        return self._linearized
+
+    def promise(self) -> float | None:
+        """The score test of a fit: the share of its fit error that the first Gauss-Newton
+        step from where it starts (the model as it was: a weight at 0, a limit outside the data)
+        promises to remove, g' (J'J)⁻¹ g / r'r with g = J'r (a Lagrange-multiplier test: what the
+        knobs could explain to first order). One Jacobian, which the fit's first step then reuses.
+        ``None`` for a fit that has started or stopped; ``NaN`` where the start is not finite."""
+        if self.done or self.finished:
+            return None
+        try:
+            r0, jacobian = self._linearize()
+        except (ArithmeticError, ValueError, torch.linalg.LinAlgError):
+            return math.nan
+        gradient = jacobian.T @ r0
+        solution = torch.linalg.lstsq(jacobian.T @ jacobian, gradient.unsqueeze(-1)).solution.squeeze(-1)
+        promised, cost = float(gradient @ solution), float(r0 @ r0)
+        return min(max(promised / cost, 0.0), 1.0) if cost > 0 and math.isfinite(promised) else math.nan
+
+    @torch.no_grad()
+    def _least_squares_step(self) -> None:
+        """One Levenberg-Marquardt step on the raw knobs (relative for positive parameters, so one
+        finite-difference step fits all); the damping grows until the step lowers the error."""
+        r0, jacobian = self._linearize()
+        self._linearized = None  # the knobs move: the next step linearizes again
+        cost = float(r0 @ r0)
         normal, gradient = jacobian.T @ jacobian, jacobian.T @ r0
         while self.damping < 1e6:
             step = torch.linalg.solve(normal + self.damping * torch.diag(torch.diagonal(normal) + 1e-12), -gradient)
@@ -165,6 +174,8 @@ class GradientFit:
             for knob, delta in zip(self.knobs, step):
                 knob -= delta
             self.damping *= 4.0
+        self.converged = True  # no step lowers the error: a minimum to the finite differences' precision
+        self._last = r0
 
     def values(self) -> dict[str, float]:
         return {k: float(self.model.parameters_.value(k).detach()) for k in (*self.candidate.knobs, *self.refine)}

@@ -63,11 +63,9 @@ class Problem:
     physical_values: Mapping[str, float] | None = None
     hold: str | None = None
     horizon: int | None = None
-    steps: int = 60  # Adam steps per linear candidate fit (nonlinear physics: LM_ITERATIONS Levenberg-Marquardt steps)
-    batch: int = 128  # training windows per step
-    lr: float = 0.05  # on the raw (relative) parameters: about 5 % of a value per step
+    batch: int = 128  # a fit's fixed training windows: twice this (hypa.diagnosis.fitting.LM_WINDOWS_PER_BATCH)
     seed: int = 0
-    fit_seconds: float = 60.0  # [s] a candidate's fit stops here (and says so), whatever its steps
+    fit_seconds: float | None = None  # [s] a user's cap per candidate fit (says so where it stops one); None: none
     stretch_s: float | None = None  # [s] the scoring free runs' length; None: from the model's scales
     workers: int = field(default_factory=default_workers)  # processes fitting a round's candidates at once
     scales: Scales | None = None  # the time scales (:meth:`scaled`: from the nominal model and the data)
@@ -264,13 +262,6 @@ class Evidence:
                 f"{self.window_samples * self.dt:.3g} s) without overlap, too short to fit even one number (that "
                 f"needs 2 such windows); give at least {2 * self.window_samples * self.dt:.3g} s of training data, "
                 "or a shorter data.window")
-
-
-def format_change(change: float) -> str:
-    """A relative change in percent, signed: whole percent, one decimal near ±100 % and below 1 %
-    (a 99.6 % drop reads -99.6 %, not -100 %)."""
-    percent = 100 * change
-    return f"{percent:+.1f} %" if abs(percent) < 1 or abs(percent) >= 99.5 else f"{percent:+.0f} %"
 
 
 def format_value(value: float, unit: str) -> str:

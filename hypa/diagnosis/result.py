@@ -582,7 +582,7 @@ def _markdown(d: Diagnosis, units: Mapping[str, tuple[str, float]], min_gain: fl
     for f in d.rounds[0] if d.rounds else []:
         fitted = f.fitted or (f.error or "–")
         if f.steps and f.steps[0] < f.steps[1]:
-            fitted += f" (stopped after {f.steps[0]} of {f.steps[1]} steps, behind others: gain at least this)"
+            fitted += f" (stopped after {f.steps[0]} of at most {f.steps[1]} steps: gain at least this)"
         if f.too_short and not f.error:
             fitted += " (standard error not judged: too few training stretches)"
         if f.screened:

@@ -5,8 +5,13 @@ constant. Every one follows from three things: the sample time ``dt``, the recor
 the nominal model's own modes (:meth:`hypa.models.ComposedModel.eigenvalues`, the eigenvalues
 λ of its physics blocks' linear parts at the nominal values):
 
-- ``slowest_s``: the slowest decay time 1/|Re λ| of a mode that decays (an integrator, λ = 0 to
-  round-off, never settles and is left out; a model without decaying modes uses ``dt``);
+- ``slowest_s``: the slowest decay time 1/|Re λ| of a mode that settles within the records. An
+  integrator (λ = 0 to round-off) never settles and is left out, and so is a **drift**: a real
+  mode whose time 1/|λ| is longer than the longest record (``DRIFT_SHARE``): it cannot settle
+  in it. Over these records it cannot be told from an integrator (a state of charge whose
+  open-circuit-voltage slope makes a fake 24 h "mode" at the mean current, a position under a
+  weak spring), and taking it as the time scale would make every stretch the whole record and
+  every fit window an hour long (a model without such modes uses ``dt``);
 - ``period_s``: the longest period 2π/|Im λ| of an oscillating mode (none: 0);
 - **stretches** (the free runs that score a candidate, restarted from the data):
   ``STRETCH_SPAN`` slowest decay times or ``STRETCH_PERIODS`` periods of the slowest
@@ -57,6 +62,7 @@ SEGMENT_SPAN = 8.0  # slowest decay times per Welch segment
 MIN_SEGMENT = 64  # [samples]
 BANDS = 3  # log-spaced bands from the lowest resolved frequency to Nyquist
 INTEGRATOR = 1e-9  # |λ| below this share of the fastest mode's: an integrator (λ = 0 to round-off)
+DRIFT_SHARE = 1.0  # a real mode slower than this share of the longest record: a drift, not a time scale
 
 
 @dataclass(frozen=True)
@@ -67,7 +73,7 @@ class Scales:
     slowest_s: float  # [s] the slowest decay time (dt if no mode decays)
     fastest_s: float  # [s] the fastest mode's time 1/|λ| (dt if no mode)
     period_s: float  # [s] the longest period of an oscillating mode (0: none)
-    integrating: bool  # a mode at λ = 0: the free run drifts (restarts keep it bounded)
+    integrating: bool  # a mode at λ = 0, or one too slow to settle in the records: the free run drifts
     stretch: int  # [samples] of a scoring stretch's free run
     fit_window: int  # [samples] predicted by a fit window
     max_lag: int  # [samples] of the cross-correlations
@@ -81,14 +87,16 @@ class Scales:
         """The scales of a model with these modes [1/s] on records of these lengths [samples]."""
         modes = np.asarray(list(eigenvalues), dtype=complex)
         size = float(np.max(np.abs(modes))) if modes.size else 0.0
-        moving = modes[np.abs(modes) > INTEGRATOR * size] if size > 0 else modes[:0]
+        longest = max(record_lengths) if record_lengths else MIN_STRETCH
+        drift = DRIFT_SHARE * longest * dt  # [s] a decay time longer than this: a drift over these records
+        drifting = (np.abs(modes.imag) <= 1e-12 * size) & (np.abs(modes.real) * drift <= 1.0)  # real and slow
+        moving = modes[(np.abs(modes) > INTEGRATOR * size) & ~drifting] if size > 0 else modes[:0]
         decaying = moving[moving.real < 0]
         slowest = float(1.0 / np.min(-decaying.real)) if decaying.size else dt
         slowest = max(slowest, dt)
         fastest = max(1.0 / size, dt) if size > 0 else dt
         oscillating = moving[np.abs(moving.imag) > 1e-12 * size]
         period = float(2 * math.pi / np.min(np.abs(oscillating.imag))) if oscillating.size else 0.0
-        longest = max(record_lengths) if record_lengths else MIN_STRETCH
         longest_train = max(train_lengths) if train_lengths else longest
         span = math.ceil(FIT_SPAN * slowest / dt)
         fit_window = max(window, min(span, longest_train // 8))

@@ -37,7 +37,7 @@ import torch
 
 from hypa.diagnosis.catalogue import Entry, catalogue_candidates, load_catalogue, state_blocks
 from hypa.diagnosis.cross_validation import evaluate_folds, evaluate_generic, pool, pooled_z
-from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, averaged, frozen
+from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, averaged, frozen, set_free
 from hypa.diagnosis.finding import SIMPLER, Finding, alternatives
 from hypa.diagnosis.fitting import fit_offsets
 from hypa.diagnosis.generic import MARGIN as GENERIC_MARGIN
@@ -148,6 +148,13 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
         named.append(best)
 
     rounds, named, refine, findings, generic, standin = [], [], [], [], [], ""
+    identified: list[Finding] = []  # the nominal's uncertain values, identified before any structural cause
+    if any(uncertain.values()) and max_causes > 0:
+        found = _identify(nominal, candidates, folds, bases, scores, windows, base_score, min_gain, floor,
+                          error, progress)
+        if found is not None:
+            identified, bases, scores, base_score = found
+            refine += [k for f in identified for k in f.candidate.knobs if k not in refine]
     while len(named) < max_causes and base_score > floor:
         done = {f.key for f in named}
         bar: list[GenericFit] = []  # fitted by this process while the workers fit the candidates
@@ -193,14 +200,106 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
         findings = _small_offsets(findings, unjudged, error)
     too_short = _not_fitted(rounds) + list(unjudged.values())
     named, dropped, bases, scores = _joint_offsets(named, bases, scores, folds, progress, too_short)
-    named, bases, scores = _prune(nominal, named, dropped, bases, scores, folds, candidates, min_gain, floor, error,
-                                   progress)
+    # the identified values, after the causes (each of which re-fitted them): each stays named only
+    # where, with every cause named, it still lowers the error by min_gain (:func:`_prune`); one that
+    # the causes made unnecessary goes back to its nominal value
+    named, bases, scores = _prune(nominal, named + identified, dropped, bases, scores, folds, candidates, min_gain,
+                                  floor, error, progress)
+    for f in identified:
+        if any(f is g for g in named):
+            progress(f"named {f.describe()} (identified first: it removed {100 * f.gain:.0f} % of the {error} "
+                     "that its nominal value left, and the causes named still need it)")
     for k, f in enumerate(named):  # the final values: re-fitted jointly with every later cause
         for later in named[k + 1 :]:
             f.values.update({name: v for name, v in later.refined.items() if name in f.values})
     return Search(nominal_score, rounds, named, averaged(bases), pool(folds, scores), time.perf_counter() - started,
                   dropped, too_short, generic, standin, folds=len(folds),
                   blocks=len(problem.blocks()) if len(folds) > 1 else 0)
+
+
+def _identify(nominal: ModelSpec, candidates: Callable[[ModelSpec], list[Candidate]], folds: Sequence[Problem],
+              bases: Sequence[ModelSpec], scores: Sequence[float], windows: Sequence, base_score: float,
+              min_gain: float, floor: float, error: str, progress: Callable[[str], None]
+              ) -> tuple[list[Finding], list[ModelSpec], list[float], float] | None:
+    """The nominal model's uncertain parameters (its ``trainable`` ones) identified together before
+    any structural cause is judged, so that a poor nominal value does not breed stand-ins (an input
+    limit or a curved state doing a gain's work). Fitted in each fold as a candidate is; then each
+    is put back to its nominal value in turn (the others as identified), and the one whose return
+    costs least goes back while that raises the error by less than ``min_gain`` (the mirror of
+    naming one: :func:`_prune`'s rule). The rest are named ``parameter_mismatch``, the most
+    needed first, each with the share of the error its identified value removes. Returns the
+    named findings, each fold's model and score with them, and the pooled score; ``None`` where
+    the identification does not lower the error."""
+    singles = {c.knobs[0]: c for c in candidates(bases[0]) if c.cause == "parameter_mismatch" and len(c.knobs) == 1}
+    if not singles:
+        return None
+    knobs = tuple(singles)
+    units = {k: u for c in singles.values() for k, u in c.units.items()}
+
+    def joint(spec: ModelSpec) -> list[Candidate]:
+        return [Candidate("parameter_mismatch", ", ".join(knobs), set_free(frozen(spec), knobs), GRADIENT, knobs,
+                          units)]
+
+    started = time.perf_counter()
+    progress(f"identifying the nominal's uncertain parameters first ({', '.join(knobs)})")
+    fits = evaluate_folds(joint, folds, bases, scores, windows, base_score, min_gain)
+    fit = fits[0] if fits else None
+    if fit is None or fit.error or fit.screened or not fit.gain > 0:
+        why = (f"not fitted ({fit.error})" if fit is not None and fit.error else
+               f"it lowers the first fold's error by only {100 * max(fit.gain, 0.0):.2g} %" if fit is not None
+               else "nothing to fit")
+        progress(f"the nominal's values are kept: identified, {why}")
+        return None
+    per_fold = fit.folds or [fit]
+    model = folds[0].build(frozen(nominal))
+    start = {k: float(model.parameters_.value(k).detach()) for k in knobs}
+    values = [dict(f.values) for f in per_fold]
+
+    def models(kept: Sequence[str]) -> list[ModelSpec]:
+        return [applied(joint(b)[0], {k: v[k] if k in kept else start[k] for k in knobs})
+                for b, v in zip(bases, values)]
+
+    def scored(kept: Sequence[str]) -> tuple[list[ModelSpec], list[float]]:
+        specs = models(kept)
+        return specs, [p.stretches("val").score(p.build(m)) for p, m in zip(folds, specs)]
+
+    kept, shares = list(knobs), {}
+    current_specs, current_scores = scored(kept)
+    current = pool(folds, current_scores)
+    progress(f"identified: {', '.join(_shift(k, start[k], fit.values[k], units.get(k, '')) for k in knobs)} "
+             f"({error} {100 * base_score:.3g} % → {100 * current:.3g} % of the output variance)")
+    while kept:
+        trials = {k: scored([j for j in kept if j != k]) for k in kept}
+        worse = {k: pool(folds, trial[1]) for k, trial in trials.items()}
+        share = {k: (w - current) / w if w > 0 else 0.0 for k, w in worse.items()}
+        weakest = min(kept, key=lambda k: share[k])
+        if share[weakest] >= min_gain and worse[weakest] > floor:
+            shares.update(share)
+            break
+        kept.remove(weakest)
+        current_specs, current_scores = trials[weakest]
+        current = worse[weakest]
+    if not kept:
+        progress("no uncertain parameter is off by more than the data can tell: the nominal's values are kept")
+        return None
+    seconds = time.perf_counter() - started
+    named = []
+    for k in sorted(kept, key=lambda k: -shares[k]):
+        c = singles[k]
+        own = [Finding(c.cause, c.target, {k: v[k]}, dict(c.units), f.score, shares[k], f.seconds, candidate=c,
+                       refined={j: v[j] for j in kept if j != k}) for f, v in zip(per_fold, values)]
+        mean = sum(v[k] for v in values) / len(values)
+        named.append(Finding(c.cause, c.target, {k: mean}, dict(c.units), current, shares[k], seconds / len(kept),
+                             candidate=c, refined={j: sum(v[j] for v in values) / len(values) for j in kept if j != k},
+                             steps=fit.steps, folds=own if len(own) > 1 else []))
+    progress(f"the search starts from the nominal model with {', '.join(f.target for f in named)} as identified "
+             f"({error} {100 * current:.3g} % of the output variance); every cause re-fits them")
+    return named, current_specs, current_scores, current
+
+
+def _shift(name: str, before: float, after: float, unit: str) -> str:
+    """``k1 0.02 → 0.0101 1/s``."""
+    return f"{name} {before:.3g} → {after:.3g}{' ' + unit if unit else ''}"
 
 
 def _not_fitted(rounds: Sequence[Sequence[Finding]]) -> list[str]:
@@ -336,7 +435,7 @@ def _prune(nominal: ModelSpec, named: list[Finding], dropped: list[Finding], bas
                f"(under {100 * min_gain:.0f} %)" if share < min_gain else
                f"without it the {error} is {100 * worse:.2g} % of the output variance, below the noise floor "
                f"({100 * floor:.2g} %)")
-        f.note = f"dropped: {why}: the causes named after it carry what it explained"
+        f.note = f"dropped: {why}: the other causes named carry what it explained"
         progress(f"{f.cause} on {f.target}: {f.note}")
         named, bases, scores, current = kept, without, trial, worse
         dropped.append(f)

@@ -97,6 +97,7 @@ class Workers:
             state["score"], state["previous"], state["error"], state["seconds"])
         runner.fit.done, runner.values = state["done"], state["values"]
         runner.fit.diverged, runner.fit.timed_out = state["diverged"], state["timed_out"]
+        runner.fit.converged, runner.promise = state["converged"], state["promise"]
 
     def __enter__(self) -> Workers:  # noqa: PYI034 -- never subclassed; typing.Self needs 3.11
         return self
@@ -132,8 +133,8 @@ def _sigint_held() -> Iterator[None]:
 
 
 def _cost(runner: Any, share: float) -> float:
-    """The steps left to ``share``, in units of a linear fit's step."""
-    steps = max(0.0, share * runner.fit.total - runner.fit.done)
+    """The steps left to ``share``, in units of a linear fit's step (a screen: one step)."""
+    steps = max(1.0 if share == 0 else 0.0, share * runner.fit.total - runner.fit.done)
     return steps * (NONLINEAR_COST if runner.fit.nonlinear else 1.0)
 
 
@@ -161,6 +162,7 @@ def _serve(pipe, runners: Sequence[Any], val: Any) -> None:
             pipe.send(("done", (i, {"score": runner.score, "previous": runner.previous, "error": error,
                                     "seconds": runner.seconds, "done": runner.fit.done,
                                     "diverged": runner.fit.diverged, "timed_out": runner.fit.timed_out,
+                                    "converged": runner.fit.converged, "promise": runner.promise,
                                     "values": runner.fit.values() if runner.error is None else None})))
         except BaseException:  # noqa: BLE001 - the parent raises it with the worker's traceback
             pipe.send(("failed", traceback.format_exc()))
