@@ -1,5 +1,5 @@
 """A measured channel the model does not read, hidden at random strengths: named by the generic
-``unmodeled_input`` entry on a system hypa never saw, not absorbed into a bias.
+``unread_channel`` entry on a system hypa never saw, not absorbed into a bias.
 
 A heated zone (a user's linear class, C dT/dt = -g T + P, every 5 minutes for 40 days): the
 nominal model has no outside temperature, the truth loses heat to it, C dT/dt = -g (T - T_out) + P,
@@ -7,7 +7,7 @@ and the data declare the outside temperature with role ``auxiliary``. The outsid
 has a mean (a bias in the zone temperature the model cannot reach: what an offset would stand in
 for) and a daily cycle and weather on top (what only the channel explains). The truth is the
 exact recursion under the inputs held over each sample, 0.05 K noise. The search must name
-``unmodeled_input`` on the outside temperature with its weight in the zone's derivative, g / C,
+``unread_channel`` on the outside temperature with its weight in the zone's derivative, g / C,
 near the truth; with an outside temperature that does not reach the zone, it must not name it.
 
 The diagnosed model reads the auxiliary channel: :func:`hypa.data.from_config.read_as_inputs`
@@ -116,11 +116,11 @@ def test_an_unread_outside_temperature_is_named_where_it_acts(tmp_path: Path, us
     started = time.perf_counter()
     search = diagnose(user_systems, int(rng.integers(1000)), reach, quick=seed == 0)
     named = {f.cause: f for f in search.named}
-    assert "unmodeled_input" in named, (reach, [f.describe() for f in search.named],
+    assert "unread_channel" in named, (reach, [f.describe() for f in search.named],
                                         [f.describe() for f in (search.rounds[0][:5] if search.rounds else [])])
-    found = named["unmodeled_input"]
+    found = named["unread_channel"]
     assert found.target == "outside", found.describe()
-    assert search.named[0].cause == "unmodeled_input" or all(f.cause != "output_offset" for f in search.named), \
+    assert search.named[0].cause == "unread_channel" or all(f.cause != "output_offset" for f in search.named), \
         [f.describe() for f in search.named]
     block = found.candidate.spec.block("zone")
     rate = found.values["zone/drive_outside_on_temperature"] * block.parameters["drive_outside_scale_on_temperature"]
@@ -147,4 +147,4 @@ def test_an_outside_temperature_that_does_not_reach_the_zone_is_not_named(tmp_pa
     search = diagnose(user_systems, 21, 0.0, g_off=1.3, quick=True, offset=0.5)
     causes = [f.cause for f in search.named]
     assert {"output_offset", "input_offset"} & set(causes), [f.describe() for f in search.named]  # a bias, as such
-    assert "unmodeled_input" not in causes, [f.describe() for f in search.named]
+    assert "unread_channel" not in causes, [f.describe() for f in search.named]

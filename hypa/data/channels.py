@@ -7,7 +7,7 @@ Roles:
 * ``scheduling``: a measured signal ρ the physics depends on per sample (SI in windows);
 * ``evaluation``: read for val/test only, never part of a training record or batch;
 * ``auxiliary``: read for ``select`` conditions; shown to a model only where it reads the channel
-  (a diagnosed model's ``unmodeled_input``: the channel is then an input, :func:`hypa.data.from_config.read_as_inputs`),
+  (a diagnosed model's ``unread_channel``: the channel is then an input, :func:`hypa.data.from_config.read_as_inputs`),
   and offered to the diagnosis as a channel the model may miss (``HypaDataModule(auxiliary_inputs=True)``).
 
 A channel is a file ``column`` (default: its name) or an ``expression`` over the file's columns

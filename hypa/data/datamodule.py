@@ -57,7 +57,7 @@ class HypaDataModule(L.LightningDataModule):
         auxiliary_inputs: hold every auxiliary channel that varies over the training records as an
             input too (after the declared ones, in declared order; decided in ``setup()``): the
             diagnosis, whose candidates may read a channel the model does not
-            (``unmodeled_input``). A model that reads an auxiliary channel gets it declared an input
+            (``unread_channel``). A model that reads an auxiliary channel gets it declared an input
             instead (:func:`hypa.data.from_config.read_as_inputs`).
     """
 

@@ -71,7 +71,7 @@ def datamodule_from_config(
 
 def read_as_inputs(data_cfg: Any, model_config: Mapping[str, Any]) -> list[str]:
     """The auxiliary channels of the ``data`` node that a block of ``model_config`` reads (a
-    diagnosed model's ``unmodeled_input``), declared inputs in the node, in place: a channel the
+    diagnosed model's ``unread_channel``), declared inputs in the node, in place: a channel the
     model reads is an input, and the run's recorded configuration says so (so that evaluating or
     resuming the run builds the same data). Returns their names."""
     read = {s for b in (model_config.get("blocks") or {}).values() if isinstance(b, Mapping)

@@ -5,7 +5,8 @@ the vehicle's, a user's own file with ``diagnosis.catalogue=[PATH]``)::
 
     - id: input_delay                  # the cause's id in reports and diagnosis.json
       name: dead time on a measured input
-      for_each: input                  # input | output | parameter | scheduling | block | state
+      for_each: input                  # input | output | parameter | scheduling | block | state |
+                                       # auxiliary | block_input
       where: {system: [single_track_front]}   # block only: blocks of these systems, or a
                                        # mapping {system: its replacement, ...} read as {system}
       when: {rws_ratio: nonzero}       # only where these nominal parameters are (non)zero
@@ -38,6 +39,19 @@ parameters by name, and for ``for_each: block`` of the block's states'
 ``level`` and ``spread``, the state's operating point and spread in the round's model's scaling,
 and ``low`` and ``high``, the 10th and 90th percentiles of the state in that model's free runs
 over the training data.
+``for_each: auxiliary`` visits each measured input no block reads (an auxiliary channel the
+diagnosis holds as an input, ``HypaDataModule(auxiliary_inputs=True)``) for each physics block with
+states: ``{channel}``, ``{block}``, ``{block_inputs}`` and ``{block_driven}`` (its inputs and driven
+signals, lists), ``{drives}`` and ``{drive_scales}`` (the names of the channel's weights in each
+state derivative, and a mapping of their fixed sizes, ``hypa.physics.dependent.Driven``).
+``for_each: block_input`` visits each input of each physics block with states that writes a model
+output: ``{block}``, ``{mode}`` (the system's name of the input), ``{block_input}`` (its signal),
+``{block_modes}``, ``{mode_weights}`` and ``{mode_parameters}`` (a mapping: the mode's time constant,
+``tau``, and its weights' sizes, ``hypa.physics.modes``). A ``for_each: parameter`` entry with
+``by: [input, state]`` is repeated for each input and state of the parameter's block (``{on}``; its
+expressions read ``on_level`` and ``on_spread``), for parameters that act on the state equation, of
+systems no ``for_each: block`` entry names. ``scan: {variable: [start, ...]}`` makes a candidate per
+start value (expressions, e.g. of ``slowest``: the model's slowest decay time at this round's values).
 ``for_each: state`` visits the states of the physics blocks whose system no ``for_each: block``
 entry names (the catalogue's own physics of a system comes first), other than a cause's own
 ``diagnosed_`` blocks and scheduled ones. Which
@@ -67,8 +81,7 @@ FITS = {"gradient": GRADIENT, "offset": AFFINE, "none": NONE}
 _KEYS = {"id", "name", "for_each", "where", "when", "fit", "offset", "patch", "learn", "by", "scan"}
 ON = ("input", "state")  # what a for_each: parameter entry's ``by`` visits: the block's inputs, its states
 _WHEN = ("zero", "nonzero")
-_PATCH_KEYS = {"rewire", "reroute", "blocks", "parameters"}
-EACH_OUTPUT = "{each_output}"  # in a patch's block names and reroute keys: repeated for every model output
+_PATCH_KEYS = {"rewire", "blocks", "parameters"}
 
 
 class CatalogueError(UserError):
@@ -188,33 +201,6 @@ def _format(value: Any, context: Mapping[str, Any]) -> Any:
     return value
 
 
-def _each_output(value: Any, outputs: Sequence[str]) -> Any:
-    """A patch with every mapping key that holds ``{each_output}`` repeated for each model output
-    (``{each_output}`` replaced in the key and its value)."""
-    if isinstance(value, dict):
-        out = {}
-        for key, item in value.items():
-            if isinstance(key, str) and EACH_OUTPUT in key:
-                for o in outputs:
-                    out[key.replace(EACH_OUTPUT, o)] = _each_output(_replace(item, EACH_OUTPUT, o), outputs)
-            else:
-                out[key] = _each_output(item, outputs)
-        return out
-    if isinstance(value, list):
-        return [_each_output(v, outputs) for v in value]
-    return value
-
-
-def _replace(value: Any, old: str, new: str) -> Any:
-    if isinstance(value, str):
-        return value.replace(old, new)
-    if isinstance(value, list):
-        return [_replace(v, old, new) for v in value]
-    if isinstance(value, dict):
-        return {_replace(k, old, new): _replace(v, old, new) for k, v in value.items()}
-    return value
-
-
 def _number(value: Any, variables: Mapping[str, float], where: str) -> float:
     if isinstance(value, (int, float)):
         return float(value)
@@ -241,7 +227,6 @@ def apply_patch(spec: ModelSpec, patch: Mapping[str, Any], dt: float, where: str
     rewire = patch.get("rewire") or {}
     for block in config["blocks"].values():
         block["inputs"] = [rewire.get(s, s) for s in block["inputs"]]
-    _reroute(config, patch.get("reroute") or {})
     new = {}
     for name, fields in (patch.get("blocks") or {}).items():
         fields = copy.deepcopy(fields)
@@ -261,27 +246,6 @@ def apply_patch(spec: ModelSpec, patch: Mapping[str, Any], dt: float, where: str
         return parse_model_spec(config)
     except ModelSpecError as error:
         raise CatalogueError(f"{where}: the edited model is not valid: {error}") from None
-
-
-def _reroute(config: dict[str, Any], reroute: Mapping[str, str]) -> None:
-    """The blocks that write a signal of ``reroute`` write the new name instead (a block the patch
-    adds then writes the signal, from the new one); the blocks that read it go on reading it. A
-    physics block whose output was a model output observes that measured output under the new name
-    for its initial state, and is scaled like it."""
-    if not reroute:
-        return
-    measured = set(config.get("outputs") or ())
-    for block in config["blocks"].values():
-        before = list(block["outputs"])
-        if not any(s in reroute for s in before):
-            continue
-        block["outputs"] = [reroute.get(s, s) for s in before]
-        if block["kind"] != "physics":
-            continue
-        block["observe"] = {**(block.get("observe") or {}),
-                            **{reroute[s]: s for s in before if s in reroute and s in measured}}
-        if not block.get("scale_as") and all(s in measured for s in before):
-            block["scale_as"] = before
 
 
 def specific_systems(entries: Sequence[Entry]) -> set[str]:
@@ -467,7 +431,7 @@ def _slowest(spec: ModelSpec, values: Mapping[str, float], dt: float) -> float:
 def _drives(spec: ModelSpec, block: str, channel: str, values: Mapping[str, float],
             states: Mapping[str, tuple[float, ...]], peak: float, dt: float
             ) -> tuple[list[str], dict[str, float]] | None:
-    """``{drives}`` and ``{drive_scales}`` of ``unmodeled_input``: the weights of ``channel`` in each state
+    """``{drives}`` and ``{drive_scales}`` of ``unread_channel``: the weights of ``channel`` in each state
     derivative of ``block`` and their sizes k_r = σ_r ρ / peak (``hypa.physics.dependent.Driven``): a
     weight of 1 moves the state by one spread at the block's fastest rate ρ (its spectral radius; 1 / dt
     where it has none) for the channel at its largest value. None where a state's spread is unknown."""
@@ -544,7 +508,6 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
     matched block's states' as ``<state>_level`` and ``<state>_spread`` (``position_spread``)."""
     channels, states = channels or {}, states or {}
     specific = specific_systems(entries)
-    peaks = {f"peak_{name}": peak for name, (peak, _) in channels.items() if f"peak_{name}".isidentifier()}
     uncertain = {b.name: b.trainable for b in spec.blocks} if uncertain is None else uncertain
     base = frozen(spec)
     existing = {b.name for b in base.blocks}
@@ -579,7 +542,7 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
             own = {} if entry.for_each != "block" else {  # the matched block's states: position_spread
                 f"{key.split('/', 1)[1]}_{name}": value for key, scales in states.items()
                 if key.startswith(f"{target}/") for name, value in zip(("level", "spread"), scales)}
-            variables = {**own, **_parameter_values(base, known, context.get("block")), **peaks, "slowest": slowest,
+            variables = {**own, **_parameter_values(base, known, context.get("block")), "slowest": slowest,
                          **({"peak": channels[channel][0]} if channel in channels else {}),
                          **(dict(zip(("level", "spread", "low", "high"), states[target]))
                             if entry.for_each == "state" else {})}
@@ -588,7 +551,7 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
                 if scales is None:
                     continue
                 variables.update(on_level=scales[0], on_spread=scales[1])
-            patch = _format(_each_output(dict(entry.patch), base.outputs), context)
+            patch = _format(dict(entry.patch), context)
             if any(name.startswith("diagnosed_") and name in existing for name in patch.get("blocks", {})):
                 continue  # the model has this cause's block already: named in an earlier round
             for scanned, values in _scanned(entry, target, {**variables, "dt": dt}, where):

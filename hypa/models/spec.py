@@ -100,7 +100,7 @@ class BlockSpec:
     driven: physics only, signals read after the system's own inputs that enter every state
         derivative through the block's own weights ``drive_<signal>_on_<state>`` times the fixed
         ``drive_<signal>_scale_on_<state>`` (``hypa.physics.dependent.Driven``; named by
-        ``hypa.diagnose``'s ``unmodeled_input`` for a measured channel the model did not read).
+        ``hypa.diagnose``'s ``unread_channel`` for a measured channel the model did not read).
     """
 
     name: str

@@ -154,7 +154,7 @@ class Driven(LTIModel):
     measured channel the model did not read (a race car's roll angle on a banked oval: gravity's
     lateral component) enters the physics where it acts, one number per state; the outputs are the
     wrapped system's. The block reads the new signals after its own inputs. Linear where the
-    wrapped system is (the generic catalogue's ``unmodeled_input``, ``hypa/diagnosis/catalogue.yaml``).
+    wrapped system is (the generic catalogue's ``unread_channel``, ``hypa/diagnosis/catalogue.yaml``).
     """
 
     key = "driven"
