@@ -116,10 +116,10 @@ def build_system(name: str, block: str = "", curved: Mapping[str, int] | None = 
     input of ``modes`` (``hypa.physics.modes``)."""
     system = resolve_system(name, block)
     try:
+        system = Moded(system, tuple(modes), block) if modes else system  # first: its states are the block's
         system = Curved(system, curved, block) if curved else system
         system = Limited(system, limited, block) if limited else system
         system = Dependent(system, depends, block) if depends else system
-        system = Moded(system, tuple(modes), block) if modes else system
         return Driven(system, tuple(driven), block) if driven else system
     except (CurvedError, LimitedError, DependentError) as error:
         raise SystemContractError(f"block {block!r} ({name}): {error}") from None
