@@ -88,11 +88,14 @@ def test_no_standard_error_from_fewer_stretches_than_offsets(folders, tmp_path: 
     assert "## Too little data" in report and "output_offset on side_slip lowers the cross-validated error" in report
     assert why in report
     # the fit windows are the model's 3 decay times (16 samples), not data.window (20), as the folds
-    # would hold too few of those: the rear steering's 4 numbers are fitted, and not named
+    # would hold too few of those: the rear steering's 4 numbers may be fitted (the data hold enough
+    # windows for them), and are not named; with min_gain 1 the screen may leave it unfitted, for
+    # what its first step promises, never for too little data
     assert diagnosis["data"]["scales"]["fit_window"] == 16
     first = {f["cause"] + ":" + f["target"]: f for f in diagnosis["rounds"][0]}
-    assert first["unmodeled_input:single_track"]["error"] is None
-    assert first["unmodeled_input:single_track"]["gain"] < 0.15
+    rear = first["unmodeled_input:single_track"]
+    assert rear["error"] is None or rear["error"].startswith("its first Gauss-Newton step promises"), rear["error"]
+    assert rear["error"] is not None or rear["gain"] < 0.15
     assert first["parameter_mismatch:cf"]["error"] is None
 
 

@@ -156,12 +156,13 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
             identified, bases, scores, base_score = found
             refine += [k for f in identified for k in f.candidate.knobs if k not in refine]
     while len(named) < max_causes and base_score > floor:
-        done = {f.key for f in named}
+        done, round_started = {f.key for f in named}, time.perf_counter()
         bar: list[GenericFit] = []  # fitted by this process while the workers fit the candidates
         findings = round_of(lambda c: c.key not in done, refine,  # noqa: B023 -- round_of applies it before returning
                             side=[partial(append_result, bar, evaluate_generic, folds, bases, scores, base_score)])
         rounds.append(findings)
         generic.append(bar[0] if bar else evaluate_generic(folds, bases, scores, base_score))
+        progress(_round_line(len(rounds), findings, time.perf_counter() - round_started, max_causes - len(named)))
         if not findings or findings[0].gain < min_gain:
             break
         best, bar = findings[0], generic[-1]
@@ -215,6 +216,15 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
     return Search(nominal_score, rounds, named, averaged(bases), pool(folds, scores), time.perf_counter() - started,
                   dropped, too_short, generic, standin, folds=len(folds),
                   blocks=len(problem.blocks()) if len(folds) > 1 else 0)
+
+
+def _round_line(number: int, findings: Sequence[Finding], seconds: float, left: int) -> str:
+    """``round 1: 23 candidates (9 fitted to convergence, 14 not: they promised too little), 41 s;
+    each further round, if one is named, about as long (at most 7 more)``."""
+    fitted = sum(1 for f in findings if f.error is None)
+    return (f"round {number}: {len(findings)} candidates ({fitted} fitted, {len(findings) - fitted} not), "
+            f"{duration(seconds)}" + (f"; a further round, where a cause is named, takes about as long (at most "
+                                      f"{left - 1} more)" if left > 1 else ""))
 
 
 def _identify(nominal: ModelSpec, candidates: Callable[[ModelSpec], list[Candidate]], folds: Sequence[Problem],

@@ -146,7 +146,7 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     progress("step 2/4: naming the causes (" + (
         f"each candidate fitted on every other block of all records and scored on the rest, {len(problem.folds())} "
         "folds" if crossed else f"each candidate fitted on {len(dm.records('train'))} training record(s)")
-        + "; seconds to a minute)")
+        + "; each round's time is printed as it ends)")
     search = name_causes(nominal, problem, catalogue=catalogue, max_causes=max_causes, min_gain=min_gain,
                          progress=lambda text: progress("          " + text))
     progress(f"          named: {', '.join(f.cause for f in search.named) or 'none'} ({search.seconds:.0f} s)")
