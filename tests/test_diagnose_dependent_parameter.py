@@ -146,7 +146,6 @@ def test_a_damping_by_direction_or_position_is_named_with_its_size(tmp_path: Pat
     print(f"{kind} seed {seed}: {size:.3f} -> {weight:.3f}, {time.perf_counter() - started:.1f} s")
 
 
-@pytest.mark.slow  # the offset round fits nine dependences step by step: 1-2 min
 def test_without_a_dependence_neither_is_named(tmp_path: Path, user_systems: Path) -> None:
     # c 30 % off and a 5 mm bias of mass 1's sensor: something to name, and a bias that a damping by
     # position (its level) could bend towards
