@@ -12,7 +12,9 @@ from hypa.plots import time_series
 class ValidationFigures(Callback):
     """Predicted vs measured outputs (and each learned signal the files measure for evaluation,
     such as an implicitly learned rear-wheel angle) on ``seconds`` of the first validation
-    record from ``start_s``, free-running from its start; axes in the channels' display units."""
+    record from ``start_s``, free-running from its start; axes in the channels' display units.
+    The stretch is at least one training window long (data sampled every few seconds: 30 s would be
+    a handful of samples) and at most the record."""
 
     def __init__(self, seconds: float = 30.0, start_s: float = 10.0, every_n_epochs: int = 1) -> None:
         self.seconds, self.start_s, self.every_n_epochs = seconds, start_s, every_n_epochs
@@ -25,8 +27,9 @@ class ValidationFigures(Callback):
             return
         dm = trainer.datamodule
         record = dm.records("val")[0]
-        first = int(min(self.start_s, max(record.duration_s - self.seconds, 0)) / dm.dt)
-        stretch = slice(first, first + int(self.seconds / dm.dt) + dm.past + 1)
+        samples = min(max(int(self.seconds / dm.dt), dm.window), len(record) - dm.past - 1)
+        first = max(0, min(int(self.start_s / dm.dt), len(record) - samples - dm.past - 1))
+        stretch = slice(first, first + samples + dm.past + 1)
         was_training = module.model.training
         module.model.eval()
         prediction = free_run(module.model, dm, record, stretch)
