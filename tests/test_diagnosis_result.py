@@ -116,7 +116,7 @@ def test_the_markdown_report_comes_from_the_fields_alone() -> None:
     assert "- `correction`, yaw_rate_correction: yaw_rate_correction = 0.1 · u" in report
     assert "| rear_wheel_angle | 0.810 | 0.0917 deg | 0.143 deg |" in report
     assert "- `yaw_rate`: 0.15 % of its variance left; **unexplained structure**: correlated with u" in report
-    assert ("| input_lag | u | not fitted (diverged) (stopped after 40 of 100 steps, behind others: gain at least "
+    assert ("| input_lag | u | not fitted (diverged) (stopped after 40 of at most 100 steps: gain at least "
             "this) | did not converge |") in report
     assert report.endswith("![time_series_val.png](time_series_val.png)\n")
     assert Diagnosis.from_dict(WRITTEN).headline() == {"nominal": "10 %", "extended": "2 %", "trained": "1.5 %",

@@ -520,16 +520,20 @@ def _markdown(d: Diagnosis, units: Mapping[str, tuple[str, float]], min_gain: fl
     nominal = previous = d.score.nominal
     for k, f in enumerate(d.named, 1):
         share = (previous - f.score) / nominal if nominal > 0 else 0.0
+        # a nominal value identified before the structural causes (listed after them: they re-fitted it)
+        identified = f.cause == "parameter_mismatch" and f.score > previous
         lines.append(f"{k}. **{f.cause}** on `{f.target}`: " + (f.fitted or "no value")
-                     + f". {error.capitalize()} {_lower(f.gain)} against the model before it; "
-                     f"{100 * share:.2g} % of the nominal error."
+                     + (f". Identified before the structural causes: it removes {100 * f.gain:.2g} % of the {error} "
+                        "that its nominal value leaves (the others identified)." if identified else
+                        f". {error.capitalize()} {_lower(f.gain)} against the model before it; "
+                        f"{100 * share:.2g} % of the nominal error.")
                      + (f" Small (below the {100 * min_gain:.0f} % floor), but {f.z:.0f} standard errors from zero."
                         if f.small else "")
                      + (f" A generic linear filter from the inputs in its place: {_lower(f.generic)}."
                         if f.generic is not None else ""))
         if f.alternatives:
             lines.append(f"   The data cannot tell it from: {'; '.join(f.alternatives)}.")
-        previous = f.score
+        previous = previous if identified else f.score
     if d.standin:
         lines.append(f"- Not named: {d.standin}.")
     for f in d.dropped:
