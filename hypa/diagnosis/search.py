@@ -219,12 +219,11 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
 
 
 def _round_line(number: int, findings: Sequence[Finding], seconds: float, left: int) -> str:
-    """``round 1: 23 candidates (9 fitted to convergence, 14 not: they promised too little), 41 s;
-    each further round, if one is named, about as long (at most 7 more)``."""
+    """``round 1: 23 candidates (9 fitted to convergence, 14 not), 41 s; at most 7 more rounds``
+    (a round after a nonlinear cause simulates every candidate step by step: it can take longer)."""
     fitted = sum(1 for f in findings if f.error is None)
-    return (f"round {number}: {len(findings)} candidates ({fitted} fitted, {len(findings) - fitted} not), "
-            f"{duration(seconds)}" + (f"; a further round, where a cause is named, takes about as long (at most "
-                                      f"{left - 1} more)" if left > 1 else ""))
+    return (f"round {number}: {len(findings)} candidates ({fitted} fitted to convergence, {len(findings) - fitted} "
+            f"not), {duration(seconds)}" + (f"; at most {left - 1} more rounds" if left > 1 else ""))
 
 
 def _identify(nominal: ModelSpec, candidates: Callable[[ModelSpec], list[Candidate]], folds: Sequence[Problem],
