@@ -96,7 +96,8 @@ def test_no_standard_error_from_fewer_stretches_than_offsets(folders, tmp_path: 
     rear = first["unmodeled_input:single_track"]
     assert rear["error"] is None or rear["error"].startswith("its first Gauss-Newton step promises"), rear["error"]
     assert rear["error"] is not None or rear["gain"] < 0.15
-    assert first["parameter_mismatch:cf"]["error"] is None
+    refit = first["parameter_mismatch:cf"]["error"]
+    assert refit is None or refit.startswith("its first Gauss-Newton step promises"), refit
 
 
 def test_the_printed_summary_gives_the_reports_headline_figures(folders, tmp_path: Path) -> None:

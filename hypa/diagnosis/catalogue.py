@@ -375,7 +375,7 @@ def _block_inputs(spec: ModelSpec, outputs: Sequence[str]) -> Iterator[tuple[str
                 continue
             yield (signal if len(blocks) == 1 else f"{b.name}/{signal}"), {
                 "block": b.name, "mode": name, "block_input": signal, "block_modes": list(b.modes),
-                "block_outputs": list(b.outputs)}
+                "block_outputs": list(b.outputs), "system_outputs": list(system.output_names)}
 
 
 def _mode_parameters(context: Mapping[str, Any], channels: Mapping[str, tuple[float, str]]
@@ -385,7 +385,8 @@ def _mode_parameters(context: Mapping[str, Any], channels: Mapping[str, tuple[fl
     each output's largest value over the input's (None where a size is not known)."""
     from hypa.physics.modes import mode_names
 
-    tau, weights, scales = mode_names(context["mode"], context["block_outputs"])
+    # named by the system's own outputs (the wrapper's names), sized by the signals they are wired to
+    tau, weights, scales = mode_names(context["mode"], context["system_outputs"])
     peak = channels.get(context["block_input"], (0.0, ""))[0]
     sizes = [channels.get(o, (0.0, ""))[0] for o in context["block_outputs"]]
     if not peak > 0 or not all(size > 0 for size in sizes):

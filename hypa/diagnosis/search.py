@@ -28,7 +28,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 
@@ -38,7 +38,7 @@ import torch
 from hypa.diagnosis.catalogue import Entry, catalogue_candidates, load_catalogue, state_blocks
 from hypa.diagnosis.cross_validation import evaluate_folds, evaluate_generic, pool, pooled_z
 from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, averaged, frozen, set_free
-from hypa.diagnosis.finding import SIMPLER, Finding, alternatives
+from hypa.diagnosis.finding import ALTERNATIVE, SIMPLER, Finding, alternatives
 from hypa.diagnosis.fitting import fit_offsets
 from hypa.diagnosis.generic import MARGIN as GENERIC_MARGIN
 from hypa.diagnosis.generic import GenericFit
@@ -118,8 +118,11 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
             # a signal between blocks: its peak, |mean| + 3 spreads in the model's scaling (a block's input)
             internal = {name: (abs(float(mean)) + 3 * float(std), "") for name, (mean, std) in model.scales.items()
                         if name not in channels}
-            return catalogue_candidates(entries, spec, dm.input_names, dm.output_names, dm.scheduling_names,
-                                        problem.physical_values, dm.dt, uncertain, {**internal, **channels}, states)
+            found = catalogue_candidates(entries, spec, dm.input_names, dm.output_names, dm.scheduling_names,
+                                         problem.physical_values, dm.dt, uncertain, {**internal, **channels}, states)
+            return [c for c in found if _both_directions(c, spec, ranges, states)]
+
+        ranges = {n: _range(np.concatenate([r[n] for r in dm.records("train")])) for n in measured}
     torch.manual_seed(problem.seed)
     folds = problem.folds()
     windows = [p.windows() for p in folds]
@@ -218,6 +221,34 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
                   blocks=len(problem.blocks()) if len(folds) > 1 else 0)
 
 
+def _range(values: np.ndarray) -> tuple[float, float, float]:
+    """A signal's 10th and 90th percentiles and its spread."""
+    return float(np.percentile(values, 10)), float(np.percentile(values, 90)), float(np.std(values))
+
+
+def _both_directions(candidate: Candidate, base: ModelSpec, ranges: Mapping[str, tuple[float, float, float]],
+                     states: Mapping[str, tuple[float, float, float, float]]) -> bool:
+    """False for a parameter made to differ with the direction of a signal that does not take both
+    directions (a pump voltage, a tank's level: its 10th and 90th percentiles not on either side of
+    zero by a tenth of its spread): on such a signal the dependence is a constant factor, a
+    parameter refit in disguise, not a cause of its own."""
+    before = {b.name: b.depends for b in base.blocks}
+    for block in candidate.spec.blocks:
+        for parameter, how in block.depends.items():
+            if how.get("kind") != "direction" or before.get(block.name, {}).get(parameter) == how:
+                continue
+            signal = how.get("by", "")
+            if signal in ranges:
+                low, high, spread = ranges[signal]
+            elif f"{block.name}/{signal}" in states:
+                _, spread, low, high = states[f"{block.name}/{signal}"]
+            else:
+                continue
+            if not (low < -0.1 * spread and high > 0.1 * spread):
+                return False
+    return True
+
+
 def _round_line(number: int, findings: Sequence[Finding], seconds: float, left: int) -> str:
     """``round 1: 23 candidates (9 fitted to convergence, 14 not), 41 s; at most 7 more rounds``
     (a round after a nonlinear cause simulates every candidate step by step: it can take longer)."""
@@ -258,6 +289,15 @@ def _identify(nominal: ModelSpec, candidates: Callable[[ModelSpec], list[Candida
                f"it lowers the first fold's error by only {100 * max(fit.gain, 0.0):.2g} %" if fit is not None
                else "nothing to fit")
         progress(f"the nominal's values are kept: identified, {why}")
+        return None
+    # a sensor or input offset (one number, exact least squares) that explains about as much is the
+    # simpler account: a conductance re-fitted to shift a steady level is a stand-in for a sensor bias
+    offsets = evaluate_folds(lambda b: [c for c in candidates(b) if c.fit == AFFINE], folds, bases, scores, windows,
+                             base_score, min_gain)
+    rival = max((f for f in offsets if f.error is None and not f.screened), key=lambda f: f.gain, default=None)
+    if rival is not None and rival.gain >= ALTERNATIVE * fit.gain:
+        progress(f"the nominal's values are kept: {rival.describe()} explains about as much as identifying them "
+                 f"({100 * rival.gain:.2g} % against {100 * fit.gain:.2g} % lower) with fewer numbers")
         return None
     per_fold = fit.folds or [fit]
     model = folds[0].build(frozen(nominal))
