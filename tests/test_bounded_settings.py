@@ -177,7 +177,9 @@ def test_evaluate_refuses_a_run_whose_stored_testbench_asks_for_huge_records(tmp
 
 
 def test_ctrl_c_ends_diagnose_and_its_workers_with_one_line_and_status_130(tmp_path: Path) -> None:
-    data = make_data_dir(tmp_path / "data", duration_s=30.0)
+    # long enough that the search is still fitting a second after its first line (30 s of data: it
+    # ended within that second on a quiet machine, and the Ctrl-C reached nothing to interrupt)
+    data = make_data_dir(tmp_path / "data", duration_s=150.0)
     environment = {k: v for k, v in os.environ.items() if k not in ("HYDRA_FULL_ERROR", "HYPA_FULL_ERROR")}
     environment.update(OMP_NUM_THREADS="1", PYTHONUNBUFFERED="1")
     process = subprocess.Popen([sys.executable, "-m", "hypa.diagnose", "dataset=files", f"data.dir={data}",
@@ -192,6 +194,7 @@ def test_ctrl_c_ends_diagnose_and_its_workers_with_one_line_and_status_130(tmp_p
                 break
         assert process.poll() is None, "".join(lines) + process.stderr.read()
         time.sleep(1.0)  # the first round's workers forked and fitting
+        assert process.poll() is None, "the diagnosis ended before the Ctrl-C: the test needs more data"
         os.killpg(process.pid, signal.SIGINT)  # what Ctrl-C in a terminal does
         _, stderr = process.communicate(timeout=60)
     finally:
