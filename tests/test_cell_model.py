@@ -361,6 +361,12 @@ def test_a_free_run_at_zero_volts_is_flagged_in_one_line(tmp_path: Path) -> None
     level = re.search(r"'voltage' sits at (\S+) V while the data sit at (\S+) V", lines[0])
     assert level and abs(float(level[1])) < 0.5 and 3.5 < float(level[2]) < 4.2, lines[0]
     assert lines[0].endswith("a state that no data initialize (ocv?) or an output offset")
+    # the diagnosis says the same before it names anything
+    diagnosed = _run(["hypa.diagnose", "model=ocv_leak", "plot=false", "diagnosis.max_causes=0",
+                      f"hydra.run.dir={tmp_path / 'diagnosis'}"], user)
+    assert diagnosed.returncode == 0, diagnosed.stderr[-3000:]
+    warned = [line.strip() for line in diagnosed.stdout.splitlines() if "warning: the free run" in line]
+    assert warned == [lines[0]], diagnosed.stdout[-2000:]
 
 
 def test_the_level_check_reads_the_datas_own_spread() -> None:

@@ -42,7 +42,7 @@ from hypa.diagnosis.search import name_causes
 from hypa.diagnosis.structure import analyze_output
 from hypa.diagnosis.trained import TrainedExtension
 from hypa.metrics import correlation, errors, rms
-from hypa.models.rollout import Prediction, free_run, free_run_metrics
+from hypa.models.rollout import Prediction, free_run, free_run_levels, free_run_metrics
 from hypa.models.spec import DIAGNOSED, ModelSpec, model_imports, read_model_file, spec_config
 from hypa.plots import time_series
 
@@ -138,6 +138,10 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     dm, started = problem.dm, time.perf_counter()
     progress(f"step 1/4: the nominal model {nominal.name!r} free-running on {len(dm.records('val'))} "
              "validation record(s)")
+    before = _runs(problem, frozen(nominal))
+    units = {n: dm.channels[n].unit for n in dm.output_names}
+    for line in free_run_levels(before, dm.output_names, problem.build(frozen(nominal)), units):
+        progress(f"          warning: {line}")  # a level no cause can explain: a state the data do not start
     covered, crossed = coverage(dm), len(problem.folds()) > 1
     for line in short_lines(dm, covered):
         progress(f"          validation data: {line}: "
@@ -151,7 +155,7 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
                          progress=lambda text: progress("          " + text))
     progress(f"          named: {', '.join(f.cause for f in search.named) or 'none'} ({search.seconds:.0f} s)")
     progress("step 3/4: what remains (amplitude, band, correlation with the inputs)")
-    before, after = _runs(problem, frozen(nominal)), _runs(problem, search.spec)
+    after = _runs(problem, search.spec)
     # every measured channel but the outputs; those the extended model does not read are named as such
     used = {s for b in search.spec.blocks for s in (*b.inputs, *b.scheduling.values())}
     held = {r.name: r for r in dm.records("val")}
