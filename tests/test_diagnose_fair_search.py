@@ -97,3 +97,31 @@ def test_a_nominal_far_off_is_identified_first_and_breeds_no_stand_in(tmp_path: 
     assert named["parameter_mismatch:stiffness"].values["stiffness"] == pytest.approx(stiffness, rel=0.03)
     assert named["input_delay:force"].values["diagnosed_delay_force/delay_s"] == pytest.approx(delay, rel=0.2)
     assert search.final_score < 0.05 * search.nominal_score
+
+
+def test_a_limit_that_starts_by_clipping_promises_only_what_it_wins_over_the_model_as_it_was(tmp_path: Path) -> None:
+    """A state's limit starts at the 90th percentile of where the state goes (a gradient from beyond
+    the data is zero), so its start clips the rest and is worse than the model as it was. Its score
+    test is measured against the round's model: on a linear truth, undoing the clipping promises
+    nothing (it stood at 30-80 % of its own start's error, and such fits ran 20-40 steps to a model
+    that diverges on the held-out stretches: 80 s a fit on Wiener-Hammerstein)."""
+    from hypa.diagnosis.fitting import base_columns
+    from hypa.diagnosis.states import state_scales
+
+    dm = datamodule(tmp_path)
+    nominal = parse_model_spec(MODEL)
+    problem = Problem(dm, NOMINAL, hold="foh", horizon=100).scaled(frozen(nominal))
+    windows = problem.windows()
+    states = state_scales(problem.build(frozen(nominal)), problem.stretches("train"))
+    entries = [e for e in load_catalogue() if e.id in ("upper_state_limit", "lower_state_limit")]
+    limits = catalogue_candidates(entries, frozen(nominal), dm.input_names, dm.output_names, dm.scheduling_names,
+                                  problem.physical_values, dm.dt, states=states)
+    assert len(limits) >= 2, [c.key for c in limits]
+    base = base_columns(problem, windows, frozen(nominal), ())[0]
+    for candidate in limits:
+        own, measured = GradientFit(candidate, problem, windows), GradientFit(candidate, problem, windows)
+        measured.base_cost = base
+        start = float(own._residual() @ own._residual())
+        assert start > 1.05 * base, (candidate.key, start, base)  # it starts by clipping
+        assert own.promise() > 0.1, candidate.key  # against its own start: a large promise
+        assert measured.promise() < 0.02, (candidate.key, measured.promise())  # against the model: next to none

@@ -53,7 +53,8 @@ def evaluate_folds(candidates: Callable[[ModelSpec], list[Candidate]], folds: Se
     def listed(k: int) -> list[Candidate]:
         return [c for c in candidates(bases[k]) if keep(c)]
 
-    first = evaluate_round(listed(0), folds[0], windows[0], scores[0], refine, screen=SCREEN * min_gain, side=side)
+    first = evaluate_round(listed(0), folds[0], windows[0], scores[0], refine, screen=SCREEN * min_gain, side=side,
+                           base=bases[0])
     if len(folds) == 1:
         return first
     fitted = [f for f in first if f.error is None]

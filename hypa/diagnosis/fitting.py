@@ -52,7 +52,6 @@ class GradientFit:
         shortfall = problem.evidence().fit_shortfall(sum(p.numel() for p in params))
         if shortfall:
             raise TooLittleData(shortfall)
-        self.generator = torch.Generator().manual_seed(problem.seed)
         self.started, self.diverged, self.timed_out = time.perf_counter(), "", False
         raw = self.model.parameters_.raw
         self._knobs = {n: raw[n] for n in raw if raw[n].requires_grad}
@@ -66,10 +65,13 @@ class GradientFit:
         self.converged = False  # a step lowered the error by less than LM_TOLERANCE, or none lowered it
         self._last: torch.Tensor | None = None  # the residual at the knobs now, where known
         self._linearized: tuple[torch.Tensor, torch.Tensor] | None = None  # (residual, Jacobian) at the knobs now
-        count = windows["u"].shape[0]
-        index = torch.randperm(count, generator=self.generator)[: LM_WINDOWS_PER_BATCH * problem.batch]
-        self.fixed = {k: v[index].double() for k, v in windows.items()}
+        self.fixed = fixed_windows(problem, windows)
         self.knobs = params
+        # the fit error of the round's base model on the same windows (:meth:`promise`; None: the start's),
+        # and its Jacobian's columns for the knobs of ``refine`` (:func:`base_columns`): a fit that starts
+        # at the base model (a weight at 0) has these columns there, so its first Jacobian needs only its own
+        self.base_cost: float | None = None
+        self.base_columns: Mapping[str, torch.Tensor] = {}
 
     @property
     def finished(self) -> bool:
@@ -115,10 +117,8 @@ class GradientFit:
             self._sane = {n: float(p.detach()) for n, p in self._knobs.items()}
             self.done += 1
 
-    @torch.no_grad()
     def _residual(self) -> torch.Tensor:
-        w, first = self.fixed, self.problem.dm.past + 1
-        return (self.model(w["u"], w["y"][:, :first], w.get("s")) - w["y"][:, first:]).reshape(-1)
+        return window_residual(self.model, self.fixed, self.problem.dm.past + 1)
 
     @torch.no_grad()
     def _linearize(self) -> tuple[torch.Tensor, torch.Tensor]:
@@ -128,20 +128,33 @@ class GradientFit:
         r0 = self._last if self._last is not None else self._residual()  # the previous step's accepted run
         if not math.isfinite(float(r0 @ r0)):
             raise ValueError("the model's error is not finite at the start of a step")
+        shared = self.base_columns if self.done == 0 and self._at_base(r0) else {}
+        names = {id(p): n for n, p in self._knobs.items()}
         columns = []
         for knob in self.knobs:
+            if names.get(id(knob)) in shared:
+                columns.append(shared[names[id(knob)]])
+                continue
             knob += LM_PROBE
             columns.append((self._residual() - r0) / LM_PROBE)
             knob -= LM_PROBE
         self._linearized = (r0, torch.stack(columns, 1))
         return self._linearized
 
+    def _at_base(self, residual: torch.Tensor) -> bool:
+        """Whether the fit starts at the round's base model (its error on the windows the base's, to round-off)."""
+        return self.base_cost is not None and math.isclose(float(residual @ residual), self.base_cost, rel_tol=1e-9)
+
     def promise(self) -> float | None:
-        """The score test of a fit: the share of its fit error that the first Gauss-Newton
-        step from where it starts (the model as it was: a weight at 0, a limit outside the data)
-        promises to remove, g' (J'J)⁻¹ g / r'r with g = J'r (a Lagrange-multiplier test: what the
-        knobs could explain to first order). One Jacobian, which the fit's first step then reuses.
-        ``None`` for a fit that has started or stopped; ``NaN`` where the start is not finite."""
+        """The score test of a fit: the share of the round's fit error (the base model's,
+        ``base_cost``, on the same windows) that the first Gauss-Newton step from where the fit
+        starts promises to remove, 1 - (r'r - g' (J'J)⁻¹ g) / base with g = J'r (a
+        Lagrange-multiplier test: what the knobs could explain to first order). Most fits start
+        at the model as it was (a weight at 0: r'r is the base's); one that cannot (a state's limit
+        starts at the 90th percentile of where it goes, clipping the rest) must first win back
+        what its start costs: a step that only undoes the clipping promises nothing. One
+        Jacobian, which the fit's first step then reuses. ``None`` for a fit that has started or
+        stopped; ``NaN`` where the start is not finite."""
         if self.done or self.finished:
             return None
         try:
@@ -151,7 +164,10 @@ class GradientFit:
         gradient = jacobian.T @ r0
         solution = torch.linalg.lstsq(jacobian.T @ jacobian, gradient.unsqueeze(-1)).solution.squeeze(-1)
         promised, cost = float(gradient @ solution), float(r0 @ r0)
-        return min(max(promised / cost, 0.0), 1.0) if cost > 0 and math.isfinite(promised) else math.nan
+        base = cost if self.base_cost is None else self.base_cost
+        if not (base > 0 and math.isfinite(promised)):
+            return math.nan
+        return min(max(1.0 - (cost - promised) / base, 0.0), 1.0)
 
     @torch.no_grad()
     def _least_squares_step(self) -> None:
@@ -179,6 +195,41 @@ class GradientFit:
 
     def values(self) -> dict[str, float]:
         return {k: float(self.model.parameters_.value(k).detach()) for k in (*self.candidate.knobs, *self.refine)}
+
+
+def fixed_windows(problem: Problem, windows: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """The training windows a fit takes its steps on, in double precision: ``LM_WINDOWS_PER_BATCH``
+    batches' worth drawn with the problem's seed (the same ones for every fit of a round)."""
+    count = windows["u"].shape[0]
+    generator = torch.Generator().manual_seed(problem.seed)
+    index = torch.randperm(count, generator=generator)[: LM_WINDOWS_PER_BATCH * problem.batch]
+    return {k: v[index].double() for k, v in windows.items()}
+
+
+@torch.no_grad()
+def window_residual(model: torch.nn.Module, fixed: Mapping[str, torch.Tensor], first: int) -> torch.Tensor:
+    """The model's prediction errors on ``fixed`` windows (each started from its first ``first`` samples), flat."""
+    return (model(fixed["u"], fixed["y"][:, :first], fixed.get("s")) - fixed["y"][:, first:]).reshape(-1)
+
+
+def base_columns(problem: Problem, windows: Mapping[str, torch.Tensor], spec: ModelSpec, refine: Sequence[str]
+                 ) -> tuple[float, dict[str, torch.Tensor]]:
+    """The fit error (sum of squares) of a round's base model ``spec`` on the windows every fit of
+    the round takes its steps on, and the columns of its Jacobian for the knobs of ``refine`` (raw
+    knob -> column, finite differences as :class:`GradientFit` takes them): computed once for the
+    round instead of once per candidate (:meth:`GradientFit.promise`)."""
+    fixed, first = fixed_windows(problem, windows), problem.dm.past + 1
+    model = problem.build(set_free(spec, refine) if refine else spec)
+    residual = window_residual(model, fixed, first)
+    raw = model.parameters_.raw
+    columns = {}
+    with torch.no_grad():
+        for name in raw:
+            if raw[name].requires_grad:
+                raw[name] += LM_PROBE
+                columns[name] = (window_residual(model, fixed, first) - residual) / LM_PROBE
+                raw[name] -= LM_PROBE
+    return float(residual @ residual), columns
 
 
 def fit_gradient(candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor],

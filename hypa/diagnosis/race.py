@@ -22,10 +22,11 @@ import torch
 
 from hypa.diagnosis.edits import GRADIENT, Candidate
 from hypa.diagnosis.finding import FIT_ERRORS, Finding, evaluate, failed, scored
-from hypa.diagnosis.fitting import GradientFit
+from hypa.diagnosis.fitting import GradientFit, base_columns
 from hypa.diagnosis.problem import Problem
 from hypa.diagnosis.workers import Workers, can_fork
 from hypa.identification.stretches import Stretches
+from hypa.models.spec import ModelSpec
 
 SCREEN = 0.25  # a fit runs where its first Gauss-Newton step promises this share of min_gain ...
 SCREEN_BEST = 3  # ... and the round's best few promises run whatever they promise (the test is first order)
@@ -65,13 +66,14 @@ class _Runner:
 
 def evaluate_round(candidates: Sequence[Candidate], problem: Problem, windows: Mapping[str, torch.Tensor],
                    base_score: float, refine: Sequence[str] = (), screen: float | None = None,
-                   side: Sequence[Callable[[], None]] = ()) -> list[Finding]:
+                   side: Sequence[Callable[[], None]] = (), base: ModelSpec | None = None) -> list[Finding]:
     """Every candidate of a round fitted and scored (best first).
 
     With ``screen`` (a share of the fit error), each gradient fit is first screened
     (:meth:`~hypa.diagnosis.fitting.GradientFit.promise`); those promising at least ``screen``,
     and the ``SCREEN_BEST`` best promises whatever they are, run to convergence, and the others
-    are reported not fitted, with what they promised (``screen=None``: every fit runs).
+    are reported not fitted, with what they promised (``screen=None``: every fit runs); ``base``,
+    the round's model, is what the promises are measured against (a fit that starts elsewhere).
     ``side``: other work for this process while the workers fit (run with the offsets).
     """
     findings, runners, others = [], [], []
@@ -84,6 +86,10 @@ def evaluate_round(candidates: Sequence[Candidate], problem: Problem, windows: M
             runners.append(_Runner(GradientFit(c, problem, windows, refine), time.perf_counter() - started))
         except FIT_ERRORS as error:
             findings.append(failed(c, error, time.perf_counter() - started))
+    if screen is not None and base is not None and runners:
+        cost, columns = base_columns(problem, windows, base, refine)
+        for runner in runners:
+            runner.fit.base_cost, runner.fit.base_columns = cost, columns
     val = problem.stretches("val")
     count = min(problem.workers, len(runners)) if can_fork() else 1
     jobs = [partial(append_result, findings, evaluate, c, problem, windows, base_score, refine)

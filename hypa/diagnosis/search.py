@@ -110,11 +110,19 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
         channels = {n: (max(float(np.max(np.abs(r[n]))) for r in dm.records("train")), dm.channels[n].unit)
                     for n in measured}
 
+        listed: dict[str, list[Candidate]] = {}  # by the spec's text: _prune rebuilds the same models often
+
         def candidates(spec: ModelSpec) -> list[Candidate]:
+            key = repr(spec)
+            if key not in listed:
+                listed[key] = _listed(spec)
+            return list(listed[key])
+
+        def _listed(spec: ModelSpec) -> list[Candidate]:
             # the states' operating points, spreads and free-run ranges in this round's model: a state
             # no sensor reads moves with the values fitted so far (the tanks' upper level with k4 / k1)
             model = problem.build(frozen(spec))
-            states = state_scales(model, dm, state_blocks(entries, spec))
+            states = state_scales(model, problem.stretches("train"), state_blocks(entries, spec))
             # a signal between blocks: its peak, |mean| + 3 spreads in the model's scaling (a block's input)
             internal = {name: (abs(float(mean)) + 3 * float(std), "") for name, (mean, std) in model.scales.items()
                         if name not in channels}

@@ -15,38 +15,39 @@ import numpy as np
 import torch
 
 from hypa.models import ComposedModel
-from hypa.models.rollout import model_inputs
 from hypa.physics import LTIBlock
 
 if TYPE_CHECKING:
-    from hypa.data import HypaDataModule
+    from hypa.identification.stretches import Stretches
 
 
-def state_scales(model: ComposedModel, dm: HypaDataModule | None = None,
+def state_scales(model: ComposedModel, stretches: Stretches | None = None,
                  blocks: Collection[str] | None = None) -> dict[str, tuple[float, float, float, float]]:
     """Each physics block's states (``<block>/<state>``) -> (operating point, spread) [SI]: the
     scaling the model gave them (a measured state's from the data, another's from the physics);
-    then (``low``, ``high``) [SI]: with ``dm``, for the states of ``blocks`` (all: None), their 10th
-    and 90th percentiles in the model's free runs over the training records (where a state that
-    no sensor reads actually goes, which its scaling's spread may miss by a factor), else the
-    operating point ∓ the spread."""
+    then (``low``, ``high``) [SI]: with ``stretches`` (the training records cut into the search's
+    scoring stretches, each started from the data), for the states of ``blocks`` (all: None), their
+    10th and 90th percentiles in the model's free runs over them (where a state that no sensor reads
+    actually goes, which its scaling's spread may miss by a factor), else the operating point ∓ the
+    spread. The stretches run side by side: a model simulated step by step (a curved state, a
+    direction-dependent gain) takes a stretch's length in steps, not a whole record's."""
     out: dict[str, tuple[float, float, float, float]] = {}
     for name, block in model.blocks.items():
         if isinstance(block, LTIBlock):
             for state, mean, std in zip(block.model.state_names, block.state_mean.tolist(), block.state_std.tolist()):
                 out[f"{name}/{state}"] = (float(mean), float(std), float(mean - std), float(mean + std))
     started = [n for n in model.started_blocks() if blocks is None or n in blocks]
-    if dm is None or not started:
+    if stretches is None or not started:
         return out
     runs: dict[str, list[np.ndarray]] = {n: [] for n in started}
+    ran: list[dict[str, torch.Tensor]] = []
     with torch.no_grad():
-        for record in dm.records("train"):
-            states: dict[str, torch.Tensor] = {}
-            model.signals(*model_inputs(dm, record), states=states)
-            for name in started:
-                block = model.blocks[name]
-                physical = states[name][0].double() * block.state_std + block.state_mean
-                runs[name].append(physical.numpy())
+        stretches.predict(model, states=ran)
+    for states in ran:
+        for name in started:
+            block = model.blocks[name]
+            physical = states[name].double() * block.state_std + block.state_mean
+            runs[name].append(physical.reshape(-1, physical.shape[-1]).numpy())
     for name, parts in runs.items():
         values = np.concatenate(parts)
         for j, state in enumerate(model.blocks[name].model.state_names):

@@ -128,18 +128,27 @@ class Dependent(LTIModel):
             up, down = self._stacked({**p, qualified: p0 + h}), self._stacked({**p, qualified: p0 - h})
             slope, curvature = (up - down) / (2 * h), (up - 2 * middle + down) / (h * h)
             shape = (p[local[1]], p[local[1]].new_zeros(())) if kind == "direction" else (p[local[2]], p[local[1]])
-            terms.append((kind, source, p0 * weight, *shape, slope, curvature))
+            # S and ½K side by side, split by what they multiply (x, u, 1): one product each per step
+            both = torch.cat([slope, 0.5 * curvature], 0).T  # (n + m + 1, 2n)
+            n = slope.shape[0]
+            terms.append((kind, source, p0 * weight, *shape, both[:n], both[n:-1], both[-1]))
         prepared["_depends"] = terms
         return prepared
 
     def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
-        xu = torch.cat([x, u.to(x.dtype), x.new_ones(*x.shape[:-1], 1)], -1)  # (..., n + m + 1)
-        own = x.new_zeros(x.shape)
-        for kind, (where, j), size, scale, level, slope, curvature in p["_depends"]:
-            s = (x if where == "x" else u)[..., j].to(x.dtype)
+        # δ S [x; u; 1] + ½ δ² K [x; u; 1] = δ (a + δ b), [a b] = x S_x' + u S_u' + s_1 (the module docstring)
+        u, n, own = u.to(x.dtype), x.shape[-1], None
+        for kind, (where, j), size, scale, level, on_x, on_u, constant in p["_depends"]:
+            s = (x if where == "x" else u)[..., j]
             shape = torch.tanh(s / scale) if kind == "direction" else (s - level) / scale
             delta = (size * shape)[..., None]
-            own = own + delta * (xu @ slope.T) + 0.5 * delta * delta * (xu @ curvature.T)
+            if x.dim() == 2:
+                both = torch.addmm(torch.addmm(constant, x, on_x), u, on_u)
+            else:
+                both = x @ on_x + u @ on_u + constant
+            term = delta * (both[..., :n] + delta * both[..., n:])
+            own = term if own is None else own + term
+        own = x.new_zeros(x.shape) if own is None else own
         return torch.cat([self.base.nonlinearity(x, u, p), own], -1) if self.base.is_nonlinear else own
 
 
