@@ -367,6 +367,17 @@ def test_a_free_run_at_zero_volts_is_flagged_in_one_line(tmp_path: Path) -> None
     assert diagnosed.returncode == 0, diagnosed.stderr[-3000:]
     warned = [line.strip() for line in diagnosed.stdout.splitlines() if "warning: the free run" in line]
     assert warned == [lines[0]], diagnosed.stdout[-2000:]
+    # ... and so does hypa.evaluate of a run trained from it (one epoch: its values stay where they are)
+    trained = _run(["hypa.train", "model=ocv_leak", "trainer.max_epochs=1",
+                    f"hydra.run.dir={tmp_path / 'run'}"], user)
+    assert trained.returncode == 0, trained.stderr[-3000:]
+    evaluated = subprocess.run([sys.executable, "-m", "hypa.evaluate", f"run={tmp_path / 'run'}", "tensorboard=false",
+                                "trust=[cellmodel:OcvLeak]"], cwd=ROOT, capture_output=True, text=True, timeout=600,
+                               env={**os.environ, "PYTHONPATH": str(user)}, check=False)
+    assert evaluated.returncode == 0, evaluated.stderr[-3000:]
+    flags = [line for line in evaluated.stdout.splitlines() if line.startswith("warning: the free run of 'voltage'")]
+    assert len(flags) == 1 and flags[0].endswith("or an output offset"), evaluated.stdout[-2000:]
+    assert "**Warning:** the free run of 'voltage'" in (tmp_path / "run" / "evaluation" / "summary.md").read_text()
 
 
 def test_the_level_check_reads_the_datas_own_spread() -> None:

@@ -48,6 +48,8 @@ def main(cfg: DictConfig) -> None:
             parts = [f"{k} R² {v.r2:.4f}, RMSE {v.rmse * scale.get(k, 1.0):.3g} {units.get(k, '')}"
                      for k, v in metrics.mode(mode)["all"].items() if k != "overall"]
             print(f"{run.label} {split} {mode}: {'; '.join(parts)}")
+    for line in evaluation.warnings:
+        print(f"warning: {line}")  # a level no data reach: one line naming the output and the likely state
     print(f"report: {out / 'summary.md'}")
 
 

@@ -23,7 +23,7 @@ from hypa.evaluation.result import Evaluation, RunMetrics, SignalMetrics, SplitM
 from hypa.evaluation.runs import TrainedRun, windowed
 from hypa.evaluation.transfer import TransferEstimate, h1_estimate
 from hypa.metrics import correlation, errors, state_metrics
-from hypa.models.rollout import Prediction, free_run
+from hypa.models.rollout import Prediction, free_run, free_run_levels
 from hypa.plots import time_series
 
 log = logging.getLogger(__name__)
@@ -166,7 +166,7 @@ def evaluate_run(run: TrainedRun, out_dir: Path, tensorboard: bool = True) -> Ev
     units = {n: c.display_unit for n, c in dm.channels.items()}
     scale = {n: c.display_factor for n, c in dm.channels.items()}
     metrics = RunMetrics(run.label, str(run.checkpoint), units={n: c.unit for n, c in dm.channels.items()})
-    figures, primary, learned = {}, {}, {}
+    figures, primary, learned, warnings = {}, {}, {}, []
     for split in ("val", "test"):
         if not dm.records(split):
             continue
@@ -181,6 +181,9 @@ def evaluate_run(run: TrainedRun, out_dir: Path, tensorboard: bool = True) -> Ev
         metrics.splits[split], predictions = evaluate_split(run, dm, split)
         if split != "val":
             continue
+        # a free run at a level the data never reach (a 0 V cell): one line naming the output and the state
+        warnings = free_run_levels(predictions, dm.output_names, run.module.model,
+                                   {n: dm.channels[n].unit for n in dm.output_names})
         first = predictions[0]
         segments = segments_of(dm, dm.records(split)[0].file, float(first.time[-1]), float(first.time[first.first]))
         stochastic = next((s for s in segments if s[0] == "stochastic"), None)
@@ -207,7 +210,7 @@ def evaluate_run(run: TrainedRun, out_dir: Path, tensorboard: bool = True) -> Ev
             figures[name] = time_series(first.time, {name: first.measured[name]},
                                         {f"{run.label} (learned)": {name: first.signal_on_grid(name)}},
                                         units=units, scale=scale, title=f"implicitly learned {name}")
-    evaluation = Evaluation(metrics, primary, learned, run.module.model.spec.blocks, units, scale)
+    evaluation = Evaluation(metrics, primary, learned, run.module.model.spec.blocks, units, scale, warnings)
     evaluation.to_json(out_dir / "metrics.json")
     metrics.write_csv(out_dir / "metrics.csv")
     for name, fig in figures.items():

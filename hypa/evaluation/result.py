@@ -183,6 +183,8 @@ class Evaluation:
     model_blocks: tuple = ()  # the model's BlockSpecs (which signals a network learns)
     display_units: dict[str, str] = field(default_factory=dict)  # channel -> unit shown
     display_factors: dict[str, float] = field(default_factory=dict)  # channel -> SI to shown
+    # one line per output whose free run sits at a level the data never reach (hypa.models.rollout.free_run_levels)
+    warnings: list[str] = field(default_factory=list)
 
     def to_json(self, path: Path) -> None:
         """``metrics.json``."""
@@ -194,8 +196,12 @@ class Evaluation:
         return cls(RunMetrics.from_json(path))
 
     def markdown(self, figures: Sequence[str] = ()) -> str:
-        """``summary.md`` in the display units."""
-        return self.metrics.markdown(figures, self.display_units, self.display_factors)
+        """``summary.md`` in the display units (the :attr:`warnings` first)."""
+        text = self.metrics.markdown(figures, self.display_units, self.display_factors)
+        if not self.warnings:
+            return text
+        head, _, rest = text.partition("\n")
+        return "\n".join([head, "", *(f"> **Warning:** {w}" for w in self.warnings), rest])
 
 
 def _number(value: float | None) -> float:
