@@ -114,3 +114,36 @@ def test_without_a_second_pair_no_mode_is_named(tmp_path: Path, user_systems: Pa
     named = [f.cause for f in search.named]
     assert {"output_offset", "input_offset"} & set(named), [f.describe() for f in search.named]
     assert "missing_mode" not in named, [f.describe() for f in search.named]
+
+
+def test_an_offset_that_follows_the_current_is_not_a_constant_offset(tmp_path: Path, user_systems: Path) -> None:
+    """A constant offset must be constant: fitted on each training stretch alone, a sensor's bias
+    stays where it is whatever the current does there; the apparent offset of a slow RC pair the
+    model lacks follows each stretch's mean current. The first is fitted (within 2 mV of the
+    truth), the second is refused in one line saying what it follows."""
+    import dataclasses
+
+    from hypa.diagnosis.edits import AFFINE, Candidate, frozen
+    from hypa.diagnosis.fitting import fit_affine
+
+    rng = np.random.default_rng(5)
+    for r2, offset, constant in ((0.0, float(rng.uniform(0.02, 0.05)), True), (CELL["r1"], 0.0, False)):
+        folder = tmp_path / f"case_{constant}"
+        folder.mkdir()
+        split = {"train": cell_truth(11, 7200, r2, 150.0, offset), "val": cell_truth(12, 2400, r2, 150.0, offset)}
+        _files(folder, split)
+        dm = _datamodule(folder, 1.0, {"current": {"role": "input", "unit": "A"},
+                                       "drop": {"role": "output", "unit": "V"}}, window=100, past=10)
+        spec = frozen(parse_model_spec({"name": "cell", "hold": "zoh", "blocks": {"cell": {
+            "kind": "physics", "system": "cell_system:Cell", "inputs": ["current"], "outputs": ["drop"],
+            "initial_state": "estimate"}}, "outputs": ["drop"]}))
+        problem = Problem(dm, dict(CELL), hold="zoh", horizon=100, workers=1).scaled(spec)
+        assert problem.stretches("train").count >= 6
+        candidate = Candidate("output_offset", "drop", dataclasses.replace(spec, sensor_offsets={"drop": 0.0}),
+                              AFFINE, ("drop",))
+        if constant:
+            values, z = fit_affine(candidate, problem)
+            assert values["drop"] == pytest.approx(offset, abs=2e-3) and z is not None and z > 5, (values, z)
+        else:
+            with pytest.raises(ValueError, match=r"not a constant offset .*follows the stretch's mean current"):
+                fit_affine(candidate, problem)

@@ -9,6 +9,7 @@ with estimates, and name no proxy (a dead time for a tire relaxation).
 from __future__ import annotations
 
 import json
+import math
 import os
 import shlex
 import subprocess
@@ -89,7 +90,8 @@ def test_tire_relaxation_is_named_and_no_dead_time_stands_in(tmp_path: Path) -> 
     result = diagnose(tmp_path, *LINEAR, "testbench.relaxation.enabled=true", "diagnosis.max_causes=1")
     causes = [n["cause"] for n in result["named"]]
     assert causes == ["tire_relaxation"], result["named"]
-    gains = {f["cause"]: f["gain"] for f in result["rounds"][0]}
+    # a rival not fitted (its first step promises nothing over the model as it was) has no gain: -inf
+    gains = {f["cause"]: -math.inf if f["gain"] is None else f["gain"] for f in result["rounds"][0]}
     assert gains["tire_relaxation"] > max(gains["input_delay"], gains["input_lag"])
     length = result["named"][0]["values"]["relaxation_length"]
     assert 0.4 < length < 1.0  # the truth's 0.7 m front, 0.6 m rear, as one length

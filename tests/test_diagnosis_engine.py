@@ -15,11 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+import yaml
 from scipy import signal
 
 from hypa.data import datamodule_from_config
 from hypa.diagnosis.catalogue import CatalogueError, catalogue_candidates, load_catalogue
-from hypa.diagnosis.edits import applied
+from hypa.diagnosis.edits import applied, frozen
 from hypa.diagnosis.problem import Problem, format_value
 from hypa.diagnosis.search import name_causes
 from hypa.models.spec import parse_model_spec
@@ -154,10 +155,13 @@ def test_candidates_are_edits_of_the_model_and_apply_their_values() -> None:
                           "input_saturation:force", "parameter_mismatch:stiffness",
                           "parameter_mismatch:damping",  # mass is not declared uncertain
                           "stiffening_spring:spring",  # the core mass-spring-damper's own entry
-                          # any system's: a mode it lacks, its time constant from three starts (dt = 10 ms;
-                          # the spring's slowest mode decays in 0.5 s)
-                          "missing_mode:force from 0.03", "missing_mode:force from 0.212",
-                          "missing_mode:force from 1.5"}
+                          # any system's: a mode it lacks, its time constant from three starts, each named
+                          "missing_mode:force, fast start", "missing_mode:force, middle start",
+                          "missing_mode:force, slow start"}
+    # the starts' values (dt = 10 ms; the spring's slowest mode decays in 0.5 s): 3 dt, their geometric mean, 3 slowest
+    taus = [found[f"missing_mode:force, {s} start"].spec.block("spring").parameters["mode_force_tau_s"]
+            for s in ("fast", "middle", "slow")]
+    assert taus == pytest.approx([0.03, 0.2121, 1.5], rel=1e-3), taus
     delay = found["input_delay:force"]
     assert [b.name for b in delay.spec.blocks] == ["diagnosed_delay_force", "spring"]
     assert delay.spec.block("spring").inputs == ("force__delayed",)
@@ -357,3 +361,25 @@ def test_a_validation_record_unlike_the_training_does_not_decide(tmp_path: Path,
     monkeypatch.setattr(Problem, "folds", lambda self: [self])  # the old way: the validation record decides
     alone = name_causes(parse_model_spec(MODEL), Problem(dm, NOMINAL, hold="foh", horizon=100), max_causes=1)
     assert alone.folds == 1 and not any(f.cause == "input_saturation" for f in alone.named)
+
+
+def test_a_scanned_entry_names_its_starts_not_their_values(tmp_path: Path) -> None:
+    """A scan's start values move with each fold's and round's model (``slowest``); the candidates'
+    keys must not (the folds pool them by key, the final model is rebuilt from them): a list of
+    starts is named by position, named starts by their names; anything else is refused in one line."""
+    entry = {"id": "my_mode", "for_each": "block_input", "fit": "gradient",
+             "patch": {"blocks": {"{block}": {"modes": ["{block_modes}", "{mode}"], "parameters": "{mode_parameters}",
+                                              "initial_state": ["estimate"],
+                                              "trainable": ["mode_{mode}_tau_s", "{mode_weights}"]}}}}
+    path = tmp_path / "mine.yaml"
+    spec = frozen(parse_model_spec(MODEL))
+    for scan, names in (([0.05, "3 * slowest"], ["start 1 of 2", "start 2 of 2"]), ({"quick": 0.05}, ["quick"])):
+        path.write_text(yaml.safe_dump([{**entry, "scan": {"tau": scan}}]))
+        mine = [e for e in load_catalogue([path]) if e.id == "my_mode"]
+        found = catalogue_candidates(mine, spec, ("force",), ("position",), (), NOMINAL, 0.01,
+                                     channels={"force": (200.0, "N"), "position": (0.5, "m")})
+        assert [c.target for c in found] == [f"force, {n}" for n in names], [c.target for c in found]
+    for bad in ({"tau": []}, {"tau": {"": 1.0}}, {"tau": [1.0], "width": [2.0]}, ["tau"]):
+        path.write_text(yaml.safe_dump([{**entry, "scan": bad}]))
+        with pytest.raises(CatalogueError, match="scan maps one variable to its start values"):
+            load_catalogue([path])

@@ -50,8 +50,9 @@ output: ``{block}``, ``{mode}`` (the system's name of the input), ``{block_input
 ``tau``, and its weights' sizes, ``hypa.physics.modes``). A ``for_each: parameter`` entry with
 ``by: [input, state]`` is repeated for each input and state of the parameter's block (``{on}``; its
 expressions read ``on_level`` and ``on_spread``), for parameters that act on the state equation, of
-systems no ``for_each: block`` entry names. ``scan: {variable: [start, ...]}`` makes a candidate per
-start value (expressions, e.g. of ``slowest``: the model's slowest decay time at this round's values).
+systems no ``for_each: block`` entry names. ``scan: {variable: {name: start, ...}}`` makes a candidate per
+start value (expressions, e.g. of ``slowest``: the model's slowest decay time at this round's values),
+the target naming the start (``current, slow start``; a list of starts: ``start 1 of 3``).
 ``for_each: state`` visits the states of the physics blocks whose system no ``for_each: block``
 entry names (the catalogue's own physics of a system comes first), other than a cause's own
 ``diagnosed_`` blocks and scheduled ones. Which
@@ -103,7 +104,8 @@ class Entry:
     source: str = ""
     learn: tuple[str, ...] = ()  # blocks of the patch a network may learn instead (placeholders allowed)
     on: tuple[str, ...] = ()  # ``by``: for_each: parameter, also each of the block's inputs / states (ON)
-    scan: Mapping[str, tuple[Any, ...]] = field(default_factory=dict)  # variable -> start values, a candidate each
+    # variable -> its starts, (name, expression) each, a candidate each
+    scan: Mapping[str, tuple[tuple[str, Any], ...]] = field(default_factory=dict)
 
     def applies(self, values: Mapping[str, float]) -> bool:
         """Whether the nominal parameter values allow the entry (``when``; a missing one: no)."""
@@ -174,13 +176,17 @@ def _entry(item: Any, path: Path) -> Entry:
         raise CatalogueError(f"{where}: by lists {' and/or '.join(ON)} (for_each: parameter only), "
                              f"got {item.get('by')!r}")
     scan = item.get("scan") or {}
-    if not isinstance(scan, dict) or not all(isinstance(v, list) and v and str(k).isidentifier()
-                                             for k, v in scan.items()):
-        raise CatalogueError(f"{where}: scan maps a variable to a list of start values (expressions), got {scan!r}")
+    if not isinstance(scan, dict) or len(scan) > 1 or not all(
+            str(k).isidentifier() and v and (isinstance(v, list) or (
+                isinstance(v, dict) and all(isinstance(n, str) and n.strip() for n in v))) for k, v in scan.items()):
+        raise CatalogueError(f"{where}: scan maps one variable to its start values (expressions), a list or named "
+                             f"starts ({{fast: 3 * dt, slow: 3 * slowest}}), got {scan!r}")
     return Entry(id=str(item["id"]), name=str(item.get("name", item["id"])), for_each=item["for_each"], fit=fit,
                  patch=patch, where=item.get("where") or {}, when=when, offset=str(item.get("offset", "")),
                  source=str(path), learn=tuple(str(b) for b in learn), on=tuple(on),
-                 scan={str(k): tuple(v) for k, v in scan.items()})
+                 scan={str(k): tuple(v.items()) if isinstance(v, dict) else tuple((f"start {i + 1} of {len(v)}", e)
+                                                                                   for i, e in enumerate(v))
+                       for k, v in scan.items()})
 
 
 def _format(value: Any, context: Mapping[str, Any]) -> Any:
@@ -575,15 +581,16 @@ def _on_scales(context: Mapping[str, Any], states: Mapping[str, tuple[float, ...
 
 def _scanned(entry: Entry, target: str, variables: Mapping[str, float], where: str
              ) -> Iterator[tuple[str, dict[str, float]]]:
-    """(target, variables) for each start value of the entry's ``scan`` (one: none), the target
-    then naming it (``current from 12 s``)."""
+    """(target, variables) for each start of the entry's ``scan`` (one: none), the target then
+    naming it by its name (``current, slow start``), never by its value: the value moves with
+    each fold's and round's model (``slowest``), and a candidate must keep its key across them
+    (the folds pool it; the final model is rebuilt from the causes' keys)."""
     if not entry.scan:
         yield target, dict(variables)
         return
     name, starts = next(iter(entry.scan.items()))
-    for start in starts:
-        value = _number(start, variables, where)
-        yield f"{target} from {value:.3g}", {**variables, name: value}
+    for label, start in starts:
+        yield f"{target}, {label}", {**variables, name: _number(start, variables, where)}
 
 
 def _candidate(entry: Entry, target: str, context: Mapping[str, Any], edited: ModelSpec,

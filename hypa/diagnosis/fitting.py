@@ -24,6 +24,10 @@ LM_DAMPING = 1e-2  # the starting damping (relative to the normal matrix's diago
 LM_MAX_STEP = 1.0  # the largest move of a raw knob per Levenberg-Marquardt step (a factor e for a positive one)
 SANE_DECADES = 3.0  # a positive knob more than this many decades from where its fit started has diverged
 SANE_SIGNED = 1e3  # so has a signed knob beyond this many times its nominal magnitude
+CONSTANT_Z = 5.0  # an offset whose stretch estimates correlate with an input's mean this many standard errors ...
+CONSTANT_STRETCHES = 6  # ... (judged from this many training stretches up) is not constant (_follows_inputs),
+CONSTANT_SHARE = 0.5  # ... where the part that follows the input is this share of its mean or more (a bias with
+# a small gain error beside it stays an offset: the gain is a cause of its own)
 
 
 class GradientFit:
@@ -162,7 +166,10 @@ class GradientFit:
         except (ArithmeticError, ValueError, torch.linalg.LinAlgError):
             return math.nan
         gradient = jacobian.T @ r0
-        solution = torch.linalg.lstsq(jacobian.T @ jacobian, gradient.unsqueeze(-1)).solution.squeeze(-1)
+        # gelsd (SVD): a knob whose column is 0 where the fit starts (a mode's time constant while its
+        # weights are 0) must drop out, not zero the whole solution (gelsy, the default, did that)
+        normal = jacobian.T @ jacobian
+        solution = torch.linalg.lstsq(normal, gradient.unsqueeze(-1), driver="gelsd").solution.squeeze(-1)
         promised, cost = float(gradient @ solution), float(r0 @ r0)
         base = cost if self.base_cost is None else self.base_cost
         if not (base > 0 and math.isfinite(promised)):
@@ -244,13 +251,48 @@ def fit_affine(candidate: Candidate, problem: Problem) -> tuple[dict[str, float]
     """One offset (the candidate's channel): its least-squares value and |value| / standard error
     (``None`` where the training stretches are too few to judge it, see :func:`fit_offsets`)."""
     channel = candidate.target
-    values, z = fit_offsets(candidate.spec, [channel], problem)
+    batches, weights = _offset_responses(candidate.spec, [channel], problem)
+    values, z = _solve_offsets(batches, weights, [channel], problem)
     span = max(float(np.ptp(r[channel])) for r in problem.records("train"))
+    unit = problem.dm.channels[channel].unit
     if not abs(values[channel]) <= span:  # e.g. a position offset the initial-state estimate absorbs
-        unit = problem.dm.channels[channel].unit
         raise ValueError(f"offset {format_value(values[channel], unit)} beyond the channel's whole range "
                          f"({format_value(span, unit)}): not identifiable from these data")
+    follows = _follows_inputs(batches, weights, problem)
+    if follows:
+        raise ValueError(f"not a constant offset ({format_value(values[channel], unit)} on average): {follows}")
     return values, z[channel]
+
+
+def _follows_inputs(batches: Sequence[tuple[torch.Tensor, torch.Tensor]], weights: torch.Tensor,
+                    problem: Problem) -> str:
+    """Why one offset is not constant, or "": its estimate on each training stretch alone follows
+    the stretch's mean of an input, ``CONSTANT_Z`` standard errors of their correlation or more, and
+    by ``CONSTANT_SHARE`` of its mean or more (a sensor's bias does not change with what drives the
+    system; the apparent offset of a slow mode the model misses, a wrong gain or a drift does).
+    Judged from ``CONSTANT_STRETCHES`` stretches up."""
+    estimates = []
+    for g, r in batches:  # g (B, L, p, 1), r (B, L, p): each stretch's own least-squares offset
+        gram = torch.einsum("blp,blp,p->b", g[..., 0], g[..., 0], weights)
+        estimates.append(torch.einsum("blp,blp,p->b", g[..., 0], r, weights) / torch.clamp(gram, min=1e-300))
+    estimate = torch.cat(estimates).numpy()
+    train = problem.stretches("train")
+    means = torch.cat([b["u"][:, train.first :].double().mean(1) for b in train.batches]).numpy()  # (stretches, m)
+    count = len(estimate)
+    if count < CONSTANT_STRETCHES or not np.isfinite(estimate).all() or np.ptp(estimate) == 0:
+        return ""
+    for j, name in enumerate(problem.dm.input_names):
+        if np.ptp(means[:, j]) == 0:
+            continue
+        r = float(np.corrcoef(estimate, means[:, j])[0, 1])
+        t = abs(r) * math.sqrt(count - 2) / math.sqrt(max(1.0 - r * r, 1e-12))
+        moves = abs(r) * float(np.std(estimate))  # the part of the stretches' spread that follows the input
+        share = moves / max(abs(float(np.mean(estimate))), 1e-300)
+        if t >= CONSTANT_Z and share >= CONSTANT_SHARE:
+            return (f"its estimate on each of the {count} training stretches follows the stretch's mean {name} "
+                    f"(correlation {r:.2f}, {t:.0f} standard errors; it moves by {100 * share:.0f} % of its mean "
+                    "with it): a slow dynamic or a gain the model misses, not a sensor's bias")
+    return ""
 
 
 def fit_offsets(spec: ModelSpec, channels: Sequence[str], problem: Problem) -> tuple[dict[str, float],
@@ -264,6 +306,13 @@ def fit_offsets(spec: ModelSpec, channels: Sequence[str], problem: Problem) -> t
     stretches than offsets that ratio is ``None``: the stretches' shares sum to zero at the
     optimum, so they cannot judge as many directions as there are offsets (one stretch gives a
     standard error of exactly zero)."""
+    return _solve_offsets(*_offset_responses(spec, channels, problem), channels, problem)
+
+
+def _offset_responses(spec: ModelSpec, channels: Sequence[str], problem: Problem
+                      ) -> tuple[list[tuple[torch.Tensor, torch.Tensor]], torch.Tensor]:
+    """Per batch of training stretches, the outputs' responses to each offset (B, L, p, k) and the
+    residual with them at zero (B, L, p); the outputs' weights (:func:`fit_offsets`)."""
     zeroed = {**spec.sensor_offsets, **dict.fromkeys(channels, 0.0)}
     train = problem.stretches("train")
     base = train.predict(problem.build(dataclasses.replace(spec, sensor_offsets=zeroed)))
@@ -272,8 +321,14 @@ def fit_offsets(spec: ModelSpec, channels: Sequence[str], problem: Problem) -> t
         probe = 0.1 * problem.scale([channel])[channel][1]
         moved = train.predict(problem.build(dataclasses.replace(spec, sensor_offsets={**zeroed, channel: probe})))
         responses.append([(p1 - p0) / probe for (p1, _), (p0, _) in zip(moved, base)])
-    weights, k = train.weights(), len(channels)
     batches = [(torch.stack([resp[b] for resp in responses], -1), y - p0) for b, (p0, y) in enumerate(base)]
+    return batches, train.weights()
+
+
+def _solve_offsets(batches: Sequence[tuple[torch.Tensor, torch.Tensor]], weights: torch.Tensor,
+                   channels: Sequence[str], problem: Problem) -> tuple[dict[str, float], dict[str, float | None]]:
+    """The offsets' least squares and their clustered standard errors (:func:`fit_offsets`)."""
+    k = len(channels)
     gram = sum(torch.einsum("blpi,blpj,p->ij", g, g, weights) for g, _ in batches)  # g: (B, L, p, k)
     rhs = sum(torch.einsum("blpi,blp,p->i", g, r, weights) for g, r in batches)
     if torch.linalg.matrix_rank(gram) < k:

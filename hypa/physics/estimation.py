@@ -73,6 +73,7 @@ GAUSS_NEWTON_STEPS = 3  # refinements of a nonlinear block's estimate (each one 
 # operating point), and a step that overshoots is halved rather than dropped
 NONLINEAR_OUTPUT_STEPS = 8
 OUTPUT_HALVINGS = 4
+REFINED = 1e-3  # a refinement that lowers the windows' summed cost by less than this share ends them
 
 
 def refine_first_state(simulate: Callable[[Tensor], tuple[Tensor, Tensor]], x0: Tensor, y: Tensor,
@@ -141,5 +142,7 @@ def refine_first_state(simulate: Callable[[Tensor], tuple[Tensor, Tensor]], x0: 
         x0 = torch.where(better[:, None], candidate, x0)
         last = torch.where(better[:, None], trial_last, last)
         out = torch.where(better[:, None, None, None], trial, out)
-        current = torch.where(better, trial_cost, current)
+        before, current = current, torch.where(better, trial_cost, current)
+        if float((before - current).detach().sum()) <= REFINED * float(before.detach().sum()):
+            break  # the step lowered the windows' cost by less than REFINED: converged (a run of the past saved)
     return last
