@@ -383,3 +383,24 @@ def test_a_scanned_entry_names_its_starts_not_their_values(tmp_path: Path) -> No
         path.write_text(yaml.safe_dump([{**entry, "scan": bad}]))
         with pytest.raises(CatalogueError, match="scan maps one variable to its start values"):
             load_catalogue([path])
+
+
+def test_an_input_limit_inside_the_range_the_input_spans_says_so(tmp_path: Path) -> None:
+    """A limit that bends more than a tenth of the samples is not an actuator's range reached at the
+    peaks: its finding says where it sits against the input's spread; one beyond the peaks says nothing."""
+    from hypa.diagnosis.finding import scored
+
+    dm = datamodule(tmp_path)
+    spec = frozen(parse_model_spec(MODEL))
+    problem = Problem(dm, NOMINAL, hold="foh", horizon=100).scaled(spec)
+    force = np.concatenate([r["force"] for r in dm.records("train")])
+    peak = float(np.abs(force).max())
+    found = catalogue_candidates([e for e in load_catalogue() if e.id == "input_saturation"], spec, ("force",),
+                                 ("position",), (), NOMINAL, 0.01, channels={"force": (peak, "N")})
+    knob = found[0].knobs[0]
+    inside = float(np.percentile(np.abs(force), 60))
+    for limit, bent in ((inside, True), (1.2 * peak, False)):
+        text = scored(found[0], problem, {knob: limit}, 0.5, 1.0, 0.0).describe()
+        assert ("the limit sits inside the range force spans" in text) is bent, text
+        if bent:
+            assert "bends 40 % of the training samples" in text, text

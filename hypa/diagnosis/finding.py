@@ -120,7 +120,8 @@ def scored(candidate: Candidate, problem: Problem, values: Mapping[str, float], 
     units = dict(candidate.units) or {candidate.target: problem.dm.channels[candidate.target].unit
                                       if candidate.fit == AFFINE else ""}
     gain = 1.0 - value / base_score if base_score > 0 else 0.0
-    note = _scheduling_note(candidate, problem) if candidate.cause == "scheduling" else _curved_note(candidate, problem)
+    note = (_scheduling_note(candidate, problem) if candidate.cause == "scheduling" else
+            _curved_note(candidate, problem) or _inside_note(candidate, problem, values))
     own = {k: v for k, v in values.items() if k in candidate.knobs or candidate.fit == AFFINE}
     refined = {k: v for k, v in values.items() if k not in own}
     return Finding(candidate.cause, candidate.target, own, units, value, gain, seconds, None, candidate, note=note,
@@ -142,6 +143,30 @@ def _curved_note(candidate: Candidate, problem: Problem) -> str:
     sign, shift = ("+", -level) if level < 0 else ("-", level)
     return (f"each coupling from {state} is (1 + w z{'²' if b.curved[state] == 3 else ''}) times the linear one, "
             f"z = ({state} {sign} {format_value(shift, unit)}) / {format_value(spread, unit)}")
+
+
+INSIDE = 0.1  # a limit that bends more than this share of the samples sits inside the signal's range
+
+
+def _inside_note(candidate: Candidate, problem: Problem, values: Mapping[str, float]) -> str:
+    """What an input's limit is where it sits inside the range the input spans (it bends more
+    than ``INSIDE`` of the training samples: below the 90th percentile of the input's size) rather
+    than at its peaks: "" where it does not, or for any other candidate. (A 0.6 deg steering limit
+    was named on a log whose steering spans -0.47...1.04 deg: a gain that changes with the
+    steering's size, not an actuator's range.)"""
+    blocks = [b for b in candidate.spec.blocks if b.kind == "saturation" and f"{b.name}/limit" in values]
+    if not blocks or blocks[0].inputs[0] not in problem.dm.channels:
+        return ""
+    channel, limit = blocks[0].inputs[0], abs(values[f"{blocks[0].name}/limit"])
+    signal = np.concatenate([np.asarray(r[channel], float) for r in problem.records("train")])
+    share = float(np.mean(np.abs(signal) > limit)) if signal.size else 0.0
+    if share <= INSIDE:
+        return ""
+    unit = problem.dm.channels[channel].unit
+    low, high = np.percentile(signal, [10, 90])
+    return (f"the limit sits inside the range {channel} spans ({format_value(float(low), unit)} to "
+            f"{format_value(float(high), unit)}, 10th to 90th percentile) and bends {100 * share:.0f} % of the "
+            "training samples: a gain that falls with the input's size, not a range reached at its peaks")
 
 
 def _limited_note(candidate: Candidate | None, values: Mapping[str, float], units: Mapping[str, str]) -> str:
