@@ -217,14 +217,17 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
     # the causes made unnecessary goes back to its nominal value
     named, bases, scores = _prune(nominal, named + identified, dropped, bases, scores, folds, candidates, min_gain,
                                   floor, error, progress)
+    final = averaged(bases)
+    for k, f in enumerate(named):  # the final values: re-fitted jointly with every later cause
+        for later in named[k + 1 :]:
+            f.values.update({name: v for name, v in later.refined.items() if name in f.values})
+        held = _knob_values(final, f.candidate) if f.candidate is not None and f.candidate.fit == GRADIENT else None
+        f.values.update(held or {})  # what the model written holds (an identified value the causes re-fitted)
     for f in identified:
         if any(f is g for g in named):
             progress(f"named {f.describe()} (identified first: it removed {100 * f.gain:.0f} % of the {error} "
                      "that its nominal value left, and the causes named still need it)")
-    for k, f in enumerate(named):  # the final values: re-fitted jointly with every later cause
-        for later in named[k + 1 :]:
-            f.values.update({name: v for name, v in later.refined.items() if name in f.values})
-    return Search(nominal_score, rounds, named, averaged(bases), pool(folds, scores), time.perf_counter() - started,
+    return Search(nominal_score, rounds, named, final, pool(folds, scores), time.perf_counter() - started,
                   dropped, too_short, generic, standin, folds=len(folds),
                   blocks=len(problem.blocks()) if len(folds) > 1 else 0)
 
