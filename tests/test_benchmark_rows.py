@@ -43,7 +43,7 @@ def test_a_failed_model_is_a_row_of_the_table_with_its_reason(tmp_path: Path) ->
     result.to_json(path)
     models = json.loads(path.read_text())["silverbox"]["models"]
     assert models["lstm"] == {"training_time_s": None, "kept_physics_seeds": [], "capped": [], "failed": WHY,
-                              "test_sets": {}}
+                              "extends": None, "test_sets": {}}
     assert models["hybrid"]["capped"] == ["training ran trainer.max_epochs=2 epochs without early stopping"]
     assert Benchmark.from_json(path) == result and Benchmark.from_json(path).markdown() == table
 

@@ -92,3 +92,23 @@ def test_a_hybrid_that_kept_its_identified_physics_is_said_under_the_table(tmp_p
     assert models["hybrid"]["kept_physics_seeds"] == [0, 1] and models["physical"]["kept_physics_seeds"] == []
     assert Benchmark.from_json(path, "emps") == result
     assert "no epoch" not in benchmark("emps", scores(), {}, PUBLISHED, UNITS).markdown()
+
+
+def test_the_diagnosed_row_is_set_against_the_identified_physics_it_extends(tmp_path: Path) -> None:
+    """``extends``: under the table, each test set's RMS of the diagnosed row beside the nominal it
+    extends (identified), "worse" in bold where it lost; the link reads back from the JSON."""
+    rows = [Score("nominal", "test", "position", 0.006, 0.98, 100, 0),
+            Score("diagnosed", "test", "position", 0.004, 0.99, 100, 0),
+            Score("nominal", "other", "position", 0.002, 0.99, 100, 0),
+            Score("diagnosed", "other", "position", 0.003, 0.98, 100, 0)]
+    result = benchmark("emps", rows, {"nominal": 5.0, "diagnosed": 9.0}, {}, UNITS, extends={"diagnosed": "nominal"})
+    line = next(x for x in result.markdown().splitlines() if x.startswith("diagnosed against nominal"))
+    assert "test position 6 → 4 mm (-33 %)" in line and "other position 2 → 3 mm (+50 %) **worse**" in line
+    assert line.count("**worse**") == 1
+    path = tmp_path / "benchmark.json"
+    result.to_json(path)
+    assert json.loads(path.read_text())["emps"]["models"]["diagnosed"]["extends"] == "nominal"
+    assert read_benchmarks(path)["emps"] == result
+    # a row it names that did not run: no comparison, no link
+    alone = benchmark("emps", rows[1:2], {"diagnosed": 9.0}, {}, UNITS, extends={"diagnosed": "nominal"})
+    assert alone.extends == {} and "against" not in alone.markdown()

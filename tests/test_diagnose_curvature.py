@@ -72,6 +72,28 @@ class Tank(LTIModel):
         return StateSpace((-1 / t).reshape(1, 1), p["gain"].reshape(1, 1), torch.ones(1, 1, dtype=t.dtype),
                           t.new_zeros(1, 1), p["drift"].reshape(1))
 '''
+ORIFICE_SYSTEM = '''
+import torch
+from hypa.physics import LTIModel, ParameterSpec, StateSpace
+
+
+class OrificeTank(LTIModel):
+    """dh/dt = -K sqrt(h) + k u: the user's own physics of the tank's outflow."""
+    state_names = ("level",)
+    input_names = ("inflow",)
+    output_names = ("level",)
+    parameters = (ParameterSpec("outflow", 0.01, "m^0.5/s"), ParameterSpec("gain", 0.03, "m/(s V)"))
+
+    def matrices(self, p):
+        g = p["gain"]
+        return StateSpace(g.new_zeros(1, 1), g.reshape(1, 1), torch.ones(1, 1, dtype=g.dtype), g.new_zeros(1, 1))
+
+    def feedback(self, p):
+        return (-p["outflow"]).reshape(1, 1)
+
+    def nonlinearity(self, x, u, p):
+        return torch.sqrt(x.clamp_min(1e-9))
+'''
 ROLL = {"inertia": 1.0e7, "damping": 1.0e6, "stiffness": 2.7e6}
 CIRCUIT = {"inductance": 0.01, "capacitance": 1e-6, "resistance": 20.0, "conductance": 1e-3}
 
@@ -80,7 +102,7 @@ CIRCUIT = {"inductance": 0.01, "capacitance": 1e-6, "resistance": 20.0, "conduct
 def user_systems(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     # the circuit is test_fast_circuit's user system; its nominal values do not matter here (given)
     yield from importable(tmp_path, monkeypatch, {"ship_roll": ROLL_SYSTEM, "circuit_system": CIRCUIT_SYSTEM,
-                                                  "tank_system": TANK_SYSTEM})
+                                                  "tank_system": TANK_SYSTEM, "orifice_system": ORIFICE_SYSTEM})
 
 
 def roll_truth(seed: int, hardening: float, minutes: float) -> dict[str, np.ndarray]:
@@ -136,6 +158,11 @@ def tank_truth(seed: int, outflow: float, hours: float) -> dict[str, np.ndarray]
 
 
 def diagnose(folder: Path, system: str, magnitude: float):
+    return name_causes(*setup(folder, system, magnitude), max_causes=1)
+
+
+def setup(folder: Path, system: str, magnitude: float) -> tuple:
+    """(the nominal model, the diagnosis problem) of a case."""
     if system == "roll":
         train, val = roll_truth(0, magnitude, 40.0), roll_truth(1, magnitude, 20.0)
         channels = {"moment": ("input", "N m"), "angle": ("output", "rad")}
@@ -159,7 +186,7 @@ def diagnose(folder: Path, system: str, magnitude: float):
     spec = parse_model_spec({"name": system, "hold": hold, "blocks": {"plant": {
         "kind": "physics", "system": block, "inputs": inputs, "outputs": outputs,
         "initial_state": "estimate"}}, "outputs": outputs})
-    return name_causes(spec, Problem(dm, values, hold=hold, horizon=100, workers=1), max_causes=1)
+    return spec, Problem(dm, values, hold=hold, horizon=100, workers=1)
 
 
 CASES = [(system, seed) for system in ("roll", "circuit", "tank") for seed in range(3)]
@@ -244,3 +271,48 @@ def test_a_cause_the_later_ones_made_unnecessary_is_dropped(tmp_path: Path, user
     assert dropped[0].note.startswith("dropped: ")
     assert "plant" in bases[0].block_names and bases[0].block("plant").curved == {"voltage": 3}
     assert after == pytest.approx(scores, rel=1e-4)  # the same model: the resistance was at its nominal value
+
+
+def test_a_users_replacement_system_at_a_guessed_start_is_fitted_and_named(tmp_path: Path, user_systems: Path
+                                                                          ) -> None:
+    """A user's catalogue entry that replaces the linear tank by their orifice class, its K guessed at
+    0.01 m^0.5/s (a fourth to an eighth of the truth: the tank would fill to 16-64 times its level):
+    the guess is far worse than the model it replaces, so a score test from it promises nothing (the
+    real cascaded tanks' Torricelli entry was never fitted). The replaced system first moves to where
+    it reproduces the round's model, and is then named with K. (A guess on the other side, a K
+    that empties the tank within a sample time, is a model no gradient recovers from.)"""
+    import dataclasses
+
+    import yaml
+
+    from hypa.diagnosis.catalogue import catalogue_candidates, load_catalogue
+    from hypa.diagnosis.edits import frozen
+    from hypa.diagnosis.fitting import GradientFit, base_model
+
+    outflow = float(np.random.default_rng(7).uniform(0.04, 0.08))
+    entry = tmp_path / "orifice.yaml"
+    entry.write_text(yaml.safe_dump([{
+        "id": "orifice", "name": "an outflow through an orifice, K sqrt(h)", "for_each": "block",
+        "where": {"system": {"tank_system:Tank": "orifice_system:OrificeTank"}}, "fit": "gradient",
+        "patch": {"blocks": {"{block}": {"system": "{system}", "trainable": ["outflow", "gain"]}}}}]))
+    entries = [e for e in load_catalogue([entry]) if e.id in ("orifice", "output_offset")]
+
+    spec, problem = setup(user_systems, "tank", outflow)
+    search = name_causes(spec, problem, entries, max_causes=1)
+    assert search.named and search.named[0].cause == "orifice", [f.describe() for f in search.rounds[0]]
+    named = search.named[0]
+    assert named.values["outflow"] == pytest.approx(outflow, rel=0.05), named.describe()
+    assert named.gain > 0.5, named.describe()
+
+    # without moving first, its score test from the guess promises next to nothing
+    spec = frozen(spec)
+    problem = problem.scaled(spec)
+    windows = problem.windows()
+    orifice = next(c for c in catalogue_candidates(entries, spec, ["inflow"], ["level"], [], problem.physical_values,
+                                                   problem.dm.dt, states={}) if c.cause == "orifice")
+    assert orifice.replaces
+    base = base_model(problem, windows, spec, ())
+    moved, guessed = (GradientFit(c, problem, windows) for c in (orifice, dataclasses.replace(orifice, replaces=False)))
+    moved.base = guessed.base = base
+    promised = guessed.promise(), moved.promise()
+    assert promised[0] < 0.05 and promised[1] > 0.5, promised

@@ -105,7 +105,7 @@ def test_a_limit_that_starts_by_clipping_promises_only_what_it_wins_over_the_mod
     test is measured against the round's model: on a linear truth, undoing the clipping promises
     nothing (it stood at 30-80 % of its own start's error, and such fits ran 20-40 steps to a model
     that diverges on the held-out stretches: 80 s a fit on Wiener-Hammerstein)."""
-    from hypa.diagnosis.fitting import base_columns
+    from hypa.diagnosis.fitting import base_model
     from hypa.diagnosis.states import state_scales
 
     dm = datamodule(tmp_path)
@@ -117,11 +117,11 @@ def test_a_limit_that_starts_by_clipping_promises_only_what_it_wins_over_the_mod
     limits = catalogue_candidates(entries, frozen(nominal), dm.input_names, dm.output_names, dm.scheduling_names,
                                   problem.physical_values, dm.dt, states=states)
     assert len(limits) >= 2, [c.key for c in limits]
-    base = base_columns(problem, windows, frozen(nominal), ())[0]
+    base = base_model(problem, windows, frozen(nominal), ())
     for candidate in limits:
         own, measured = GradientFit(candidate, problem, windows), GradientFit(candidate, problem, windows)
-        measured.base_cost = base
+        measured.base = base
         start = float(own._residual() @ own._residual())
-        assert start > 1.05 * base, (candidate.key, start, base)  # it starts by clipping
+        assert start > 1.05 * base.cost, (candidate.key, start, base.cost)  # it starts by clipping
         assert own.promise() > 0.1, candidate.key  # against its own start: a large promise
         assert measured.promise() < 0.02, (candidate.key, measured.promise())  # against the model: next to none

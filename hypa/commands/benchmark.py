@@ -152,7 +152,10 @@ def main(cfg: DictConfig) -> None:
         conf = diagnose_suite(dataset, str(nominal), asked, out / "diagnosis", config_dirs)
         searchpath = [f"hydra.searchpath=[file://{conf}]"]
     units = {n: (data.channels[n].display_unit, data.channels[n].display_factor) for n in data.output_names}
-    rows = Rows(dataset, labels, seeds, suite.published if suite is not None else {}, units, out)
+    # the diagnosed row against the row of the nominal it extends, identified (where the suite has one)
+    base = [label for label in labels if label == nominal or f"model={nominal}" in suite_models.get(label, ())]
+    extends = {"diagnosed": base[0]} if base and "diagnosed" in labels and folder is None else {}
+    rows = Rows(dataset, labels, seeds, suite.published if suite is not None else {}, units, out, extends)
     jobs = [(label, seed) for label in labels for seed in seeds]
     for i, (label, seed) in enumerate(jobs, 1):
         print(f"[{i}/{len(jobs)}] {dataset}: {label}" + (f", seed {seed}" if len(seeds) > 1 else ""), flush=True)
@@ -209,9 +212,10 @@ class Rows:
     after every row, so that a row that fails or Ctrl-C keeps the others."""
 
     def __init__(self, dataset: str, labels: list[str], seeds: list[int], published: dict,
-                 units: dict[str, tuple[str, float]], out: Path) -> None:
+                 units: dict[str, tuple[str, float]], out: Path, extends: dict[str, str] | None = None) -> None:
         self.dataset, self.labels, self.seeds, self.published, self.units, self.out = (
             dataset, labels, seeds, published, units, out)
+        self.extends = dict(extends or {})
         self.scores: list = []
         self.times: dict[str, list[float]] = {}
         self.kept: dict[str, list[int]] = {}
@@ -241,7 +245,7 @@ class Rows:
         times = {label: sum(t) / len(t) for label, t in self.times.items()}  # mean per seed that finished
         order = {label: times.get(label) for label in self.labels if label in times or label in self.failures}
         return benchmark(self.dataset, self.scores, order, self.published, self.units, self.kept, self.caps,
-                         self.failed)
+                         self.failed, self.extends)
 
     def write(self) -> tuple[Path, Path]:
         from hypa.evaluation.benchmark_result import write_report

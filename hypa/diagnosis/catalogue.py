@@ -272,11 +272,15 @@ def _state_block(b: Any, specific: set[str]) -> bool:
 
 
 def state_blocks(entries: Sequence[Entry], spec: ModelSpec) -> set[str]:
-    """The blocks of ``spec`` whose states the ``for_each: state`` entries of ``entries`` visit."""
-    if not any(e.for_each == "state" for e in entries):
-        return set()
+    """The blocks of ``spec`` whose states the entries of ``entries`` read: those the ``for_each:
+    state`` entries visit, and those a ``for_each: block`` entry matches (its expressions read the
+    block's ``<state>_level``: a tank's level where its outflow through an orifice starts)."""
     specific = specific_systems(entries)
-    return {b.name for b in spec.blocks if _state_block(b, specific)}
+    visited = ({b.name for b in spec.blocks if _state_block(b, specific)}
+               if any(e.for_each == "state" for e in entries) else set())
+    matched = {b.name for b in spec.blocks for e in entries
+               if e.for_each == "block" and b.kind == "physics" and b.system in e.where.get("system", ())}
+    return visited | matched
 
 
 def _state_contexts(spec: ModelSpec, values: Mapping[str, float], specific: set[str]
@@ -460,7 +464,7 @@ def _drives(spec: ModelSpec, block: str, channel: str, values: Mapping[str, floa
 
 
 def _knobs(edited: ModelSpec, values: Mapping[str, float],
-           channels: Mapping[str, tuple[float, str]]) -> dict[str, str]:
+           channels: Mapping[str, tuple[float, str]], where: str = "") -> dict[str, str]:
     """Qualified trainable parameter -> unit, over the edited model's blocks."""
     knobs = {}
     for b in edited.blocks:
@@ -472,7 +476,10 @@ def _knobs(edited: ModelSpec, values: Mapping[str, float],
             knobs.update({f"{b.name}/{own}": unit} if own in b.trainable else {})
             continue
         system = b.system_model()
-        specs = {s.name: s for s in system.parameter_specs({**values, **edited.parameters})}
+        try:
+            specs = {s.name: s for s in system.parameter_specs({**values, **edited.parameters})}
+        except ValueError as error:  # a value out of its range (an entry's expression gave a k of 0)
+            raise CatalogueError(f"{where}: {error}") from None
         for t in b.trainable:
             name = f"{b.name}/{t}" if f"{b.name}/{t}" in specs else t
             knobs[name] = specs[name].unit
@@ -597,7 +604,7 @@ def _candidate(entry: Entry, target: str, context: Mapping[str, Any], edited: Mo
                physical_values: Mapping[str, float], channels: Mapping[str, tuple[float, str]], where: str
                ) -> list[Candidate]:
     """The candidate of one edit (none where a state entry finds nothing to fit)."""
-    knobs = _knobs(edited, physical_values, channels) if entry.fit == GRADIENT else {}
+    knobs = _knobs(edited, physical_values, channels, where) if entry.fit == GRADIENT else {}
     if entry.fit == GRADIENT and not knobs and entry.for_each == "state":
         return []  # nothing of this state to fit (no coupling to bend): the entry does not apply
     if entry.fit == GRADIENT and not knobs:
@@ -606,5 +613,7 @@ def _candidate(entry: Entry, target: str, context: Mapping[str, Any], edited: Mo
     if state in channels:  # a state named like a measured channel: its level (a limit) in that unit
         own_level = f"{context['block']}/{state}_"
         knobs = {k: u or (channels[state][1] if k.startswith(own_level) else u) for k, u in knobs.items()}
+    systems = entry.where.get("system", ()) if entry.for_each == "block" else ()
+    replaces = isinstance(systems, Mapping) and any(old != new for old, new in systems.items())
     return [Candidate(entry.id, target, edited, entry.fit, tuple(knobs), knobs,
-                      tuple(_format(b, context) for b in entry.learn))]
+                      tuple(_format(b, context) for b in entry.learn), replaces)]

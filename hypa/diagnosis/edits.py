@@ -36,6 +36,10 @@ class Candidate:
     knobs: tuple[str, ...] = ()
     units: Mapping[str, str] = field(default_factory=dict)
     learn: tuple[str, ...] = ()  # inserted blocks a network may learn instead (the catalogue's ``learn``)
+    # a block's system replaced (a ``for_each: block`` entry's ``where: {system: {old: new}}``): its
+    # values start as a guess in another parametrization, moved first to where it reproduces the
+    # model it replaces (:meth:`hypa.diagnosis.fitting.GradientFit.promise`)
+    replaces: bool = False
 
     @property
     def key(self) -> str:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -71,11 +71,10 @@ class GradientFit:
         self._linearized: tuple[torch.Tensor, torch.Tensor] | None = None  # (residual, Jacobian) at the knobs now
         self.fixed = fixed_windows(problem, windows)
         self.knobs = params
-        # the fit error of the round's base model on the same windows (:meth:`promise`; None: the start's),
-        # and its Jacobian's columns for the knobs of ``refine`` (:func:`base_columns`): a fit that starts
-        # at the base model (a weight at 0) has these columns there, so its first Jacobian needs only its own
-        self.base_cost: float | None = None
-        self.base_columns: Mapping[str, torch.Tensor] = {}
+        # the round's base model on the same windows (:func:`base_model`): its fit error is what
+        # :meth:`promise` measures against (None: the start's), and a fit that starts at it (a weight at 0)
+        # has its Jacobian's columns for the knobs of ``refine``, so its first Jacobian needs only its own
+        self.base: Base | None = None
 
     @property
     def finished(self) -> bool:
@@ -132,36 +131,57 @@ class GradientFit:
         r0 = self._last if self._last is not None else self._residual()  # the previous step's accepted run
         if not math.isfinite(float(r0 @ r0)):
             raise ValueError("the model's error is not finite at the start of a step")
-        shared = self.base_columns if self.done == 0 and self._at_base(r0) else {}
+        shared = self.base.columns if self.base is not None and self.done == 0 and self._at_base(r0) else {}
         names = {id(p): n for n, p in self._knobs.items()}
-        columns = []
-        for knob in self.knobs:
-            if names.get(id(knob)) in shared:
-                columns.append(shared[names[id(knob)]])
-                continue
-            knob += LM_PROBE
-            columns.append((self._residual() - r0) / LM_PROBE)
-            knob -= LM_PROBE
+        columns = _columns(self._residual, [(names.get(id(k), ""), k) for k in self.knobs], r0, shared)
         self._linearized = (r0, torch.stack(columns, 1))
         return self._linearized
 
     def _at_base(self, residual: torch.Tensor) -> bool:
         """Whether the fit starts at the round's base model (its error on the windows the base's, to round-off)."""
-        return self.base_cost is not None and math.isclose(float(residual @ residual), self.base_cost, rel_tol=1e-9)
+        return self.base is not None and math.isclose(float(residual @ residual), self.base.cost, rel_tol=1e-9)
+
+    def _reproduce_base(self) -> None:
+        """A replaced system's knobs moved from their guess to where it reproduces the round's base
+        model on the windows (Levenberg-Marquardt on the distance between the two models' outputs, to
+        convergence): where a new parametrization (k √h for a linear k h) starts, the score test then
+        measures what it adds, not what its guessed values cost. Kept only where it stayed sane."""
+        target = self.base.residual
+        try:
+            for _ in range(LM_ITERATIONS):
+                if self._step(target):
+                    break
+        except (ArithmeticError, ValueError, torch.linalg.LinAlgError):
+            pass
+        if self._check():
+            with torch.no_grad():
+                for name, raw in self._knobs.items():
+                    raw.fill_(self._sane[name])
+            self._last = self._linearized = None
+            return
+        self._sane = {n: float(p.detach()) for n, p in self._knobs.items()}
+        self.damping = LM_DAMPING
 
     def promise(self) -> float | None:
         """The score test of a fit: the share of the round's fit error (the base model's,
-        ``base_cost``, on the same windows) that the first Gauss-Newton step from where the fit
+        ``base.cost``, on the same windows) that the first Gauss-Newton step from where the fit
         starts promises to remove, 1 - (r'r - g' (J'J)⁻¹ g) / base with g = J'r (a
         Lagrange-multiplier test: what the knobs could explain to first order). Most fits start
         at the model as it was (a weight at 0: r'r is the base's); one that cannot (a state's limit
         starts at the 90th percentile of where it goes, clipping the rest) must first win back
-        what its start costs: a step that only undoes the clipping promises nothing. One
+        what its start costs: a step that only undoes the clipping promises nothing. A replaced
+        system (``Candidate.replaces``) whose guessed start is worse than the model it replaces is
+        first moved to where it reproduces that model (:meth:`_reproduce_base`): its guess is no
+        principled start, and a user's Torricelli tanks at a k in the wrong unit promised 0 %. One
         Jacobian, which the fit's first step then reuses. ``None`` for a fit that has started or
         stopped; ``NaN`` where the start is not finite."""
         if self.done or self.finished:
             return None
         try:
+            if self.candidate.replaces and self.base is not None:
+                r0 = self._linearize()[0]
+                if float(r0 @ r0) > (1.0 + LM_TOLERANCE) * self.base.cost:
+                    self._reproduce_base()
             r0, jacobian = self._linearize()
         except (ArithmeticError, ValueError, torch.linalg.LinAlgError):
             return math.nan
@@ -171,34 +191,41 @@ class GradientFit:
         normal = jacobian.T @ jacobian
         solution = torch.linalg.lstsq(normal, gradient.unsqueeze(-1), driver="gelsd").solution.squeeze(-1)
         promised, cost = float(gradient @ solution), float(r0 @ r0)
-        base = cost if self.base_cost is None else self.base_cost
+        base = cost if self.base is None else self.base.cost
         if not (base > 0 and math.isfinite(promised)):
             return math.nan
         return min(max(1.0 - (cost - promised) / base, 0.0), 1.0)
 
-    @torch.no_grad()
     def _least_squares_step(self) -> None:
+        """One Levenberg-Marquardt step towards the data."""
+        self.converged = self._step()
+
+    @torch.no_grad()
+    def _step(self, target: torch.Tensor | None = None) -> bool:
         """One Levenberg-Marquardt step on the raw knobs (relative for positive parameters, so one
-        finite-difference step fits all); the damping grows until the step lowers the error."""
+        finite-difference step fits all), towards the data, or towards the model whose residual is
+        ``target``; the damping grows until the step lowers the error. Whether it has converged: the
+        step lowered the error by less than ``LM_TOLERANCE``, or no step lowers it."""
         r0, jacobian = self._linearize()
         self._linearized = None  # the knobs move: the next step linearizes again
-        cost = float(r0 @ r0)
-        normal, gradient = jacobian.T @ jacobian, jacobian.T @ r0
+        error = r0 if target is None else r0 - target
+        cost = float(error @ error)
+        normal, gradient = jacobian.T @ jacobian, jacobian.T @ error
         while self.damping < 1e6:
             step = torch.linalg.solve(normal + self.damping * torch.diag(torch.diagonal(normal) + 1e-12), -gradient)
             step = step * min(1.0, LM_MAX_STEP / max(float(step.abs().max()), 1e-300))  # a trust region
             for knob, delta in zip(self.knobs, step):
                 knob += delta
             trial = self._residual()
-            if bool(torch.isfinite(trial).all()) and float(trial @ trial) < cost:
+            moved = trial if target is None else trial - target
+            if bool(torch.isfinite(trial).all()) and float(moved @ moved) < cost:
                 self.damping, self._last = max(self.damping / 3.0, 1e-6), trial
-                self.converged = float(trial @ trial) > (1.0 - LM_TOLERANCE) * cost
-                return
+                return float(moved @ moved) > (1.0 - LM_TOLERANCE) * cost
             for knob, delta in zip(self.knobs, step):
                 knob -= delta
             self.damping *= 4.0
-        self.converged = True  # no step lowers the error: a minimum to the finite differences' precision
-        self._last = r0
+        self._last = r0  # no step lowers the error: a minimum to the finite differences' precision
+        return True
 
     def values(self) -> dict[str, float]:
         return {k: float(self.model.parameters_.value(k).detach()) for k in (*self.candidate.knobs, *self.refine)}
@@ -219,24 +246,47 @@ def window_residual(model: torch.nn.Module, fixed: Mapping[str, torch.Tensor], f
     return (model(fixed["u"], fixed["y"][:, :first], fixed.get("s")) - fixed["y"][:, first:]).reshape(-1)
 
 
-def base_columns(problem: Problem, windows: Mapping[str, torch.Tensor], spec: ModelSpec, refine: Sequence[str]
-                 ) -> tuple[float, dict[str, torch.Tensor]]:
-    """The fit error (sum of squares) of a round's base model ``spec`` on the windows every fit of
-    the round takes its steps on, and the columns of its Jacobian for the knobs of ``refine`` (raw
-    knob -> column, finite differences as :class:`GradientFit` takes them): computed once for the
-    round instead of once per candidate (:meth:`GradientFit.promise`)."""
+@dataclasses.dataclass(frozen=True)
+class Base:
+    """A round's base model on the windows its fits take their steps on: its residual (flat) and
+    its Jacobian's columns for the knobs of ``refine`` (raw knob -> column)."""
+
+    residual: torch.Tensor
+    columns: Mapping[str, torch.Tensor]
+
+    @property
+    def cost(self) -> float:
+        return float(self.residual @ self.residual)
+
+
+@torch.no_grad()
+def _columns(residual: Callable[[], torch.Tensor], knobs: Sequence[tuple[str, torch.Tensor]], r0: torch.Tensor,
+             known: Mapping[str, torch.Tensor]) -> list[torch.Tensor]:
+    """The Jacobian's columns for ``knobs`` ((name, raw tensor) each) by forward differences of
+    ``residual`` about ``r0``; a column ``known`` by the knob's name is taken as it is."""
+    columns = []
+    for name, knob in knobs:
+        if name in known:
+            columns.append(known[name])
+            continue
+        knob += LM_PROBE
+        columns.append((residual() - r0) / LM_PROBE)
+        knob -= LM_PROBE
+    return columns
+
+
+def base_model(problem: Problem, windows: Mapping[str, torch.Tensor], spec: ModelSpec, refine: Sequence[str]
+               ) -> Base:
+    """A round's base model ``spec`` on the windows every fit of the round takes its steps on: its
+    residual and its Jacobian's columns for the knobs of ``refine``, computed once for the round
+    instead of once per candidate (:meth:`GradientFit.promise`)."""
     fixed, first = fixed_windows(problem, windows), problem.dm.past + 1
     model = problem.build(set_free(spec, refine) if refine else spec)
     residual = window_residual(model, fixed, first)
     raw = model.parameters_.raw
-    columns = {}
-    with torch.no_grad():
-        for name in raw:
-            if raw[name].requires_grad:
-                raw[name] += LM_PROBE
-                columns[name] = (window_residual(model, fixed, first) - residual) / LM_PROBE
-                raw[name] -= LM_PROBE
-    return float(residual @ residual), columns
+    knobs = [(name, raw[name]) for name in raw if raw[name].requires_grad]
+    columns = _columns(lambda: window_residual(model, fixed, first), knobs, residual, {})
+    return Base(residual, {name: c for (name, _), c in zip(knobs, columns)})
 
 
 def fit_gradient(candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor],

@@ -22,7 +22,7 @@ import torch
 
 from hypa.diagnosis.edits import GRADIENT, Candidate
 from hypa.diagnosis.finding import FIT_ERRORS, Finding, evaluate, failed, scored
-from hypa.diagnosis.fitting import GradientFit, base_columns
+from hypa.diagnosis.fitting import GradientFit, base_model
 from hypa.diagnosis.problem import Problem
 from hypa.diagnosis.workers import Workers, can_fork
 from hypa.identification.stretches import Stretches
@@ -87,9 +87,9 @@ def evaluate_round(candidates: Sequence[Candidate], problem: Problem, windows: M
         except FIT_ERRORS as error:
             findings.append(failed(c, error, time.perf_counter() - started))
     if screen is not None and base is not None and runners:
-        cost, columns = base_columns(problem, windows, base, refine)
+        measured = base_model(problem, windows, base, refine)
         for runner in runners:
-            runner.fit.base_cost, runner.fit.base_columns = cost, columns
+            runner.fit.base = measured
     val = problem.stretches("val")
     count = min(problem.workers, len(runners)) if can_fork() else 1
     jobs = [partial(append_result, findings, evaluate, c, problem, windows, base_score, refine)

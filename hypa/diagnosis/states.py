@@ -23,14 +23,17 @@ if TYPE_CHECKING:
 
 def state_scales(model: ComposedModel, stretches: Stretches | None = None,
                  blocks: Collection[str] | None = None) -> dict[str, tuple[float, float, float, float]]:
-    """Each physics block's states (``<block>/<state>``) -> (operating point, spread) [SI]: the
-    scaling the model gave them (a measured state's from the data, another's from the physics);
+    """Each physics block's states (``<block>/<state>``) -> (operating point, spread) [SI]: a
+    measured state's (or one a measured output reads alone) from the data, the model's scaling;
     then (``low``, ``high``) [SI]: with ``stretches`` (the training records cut into the search's
     scoring stretches, each started from the data), for the states of ``blocks`` (all: None), their
     10th and 90th percentiles in the model's free runs over them (where a state that no sensor reads
     actually goes, which its scaling's spread may miss by a factor), else the operating point ∓ the
-    spread. The stretches run side by side: a model simulated step by step (a curved state, a
-    direction-dependent gain) takes a stretch's length in steps, not a whole record's."""
+    spread. A state no sensor reads takes its operating point and spread from those free runs too
+    (their mean and standard deviation): its scaling is the physics', about 0 for a linear block
+    (an upper tank's level at 0 ± 0.3 V that its free run puts at 4.4 ± 1.2 V). The stretches run
+    side by side: a model simulated step by step (a curved state, a direction-dependent gain) takes a
+    stretch's length in steps, not a whole record's."""
     out: dict[str, tuple[float, float, float, float]] = {}
     for name, block in model.blocks.items():
         if isinstance(block, LTIBlock):
@@ -53,6 +56,9 @@ def state_scales(model: ComposedModel, stretches: Stretches | None = None,
         for j, state in enumerate(model.blocks[name].model.state_names):
             finite = values[:, j][np.isfinite(values[:, j])]
             low, high = np.percentile(finite, [10, 90]) if finite.size else (0.0, 0.0)
-            if high > low:  # else (a state the free runs never move) the scaling's
-                out[f"{name}/{state}"] = (*out[f"{name}/{state}"][:2], float(low), float(high))
+            if not high > low:  # a state the free runs never move: the scaling's
+                continue
+            key = f"{name}/{state}"
+            scale = out[key][:2] if j in model.blocks[name].observed_states else (finite.mean(), finite.std())
+            out[key] = (float(scale[0]), float(scale[1]), float(low), float(high))
     return out

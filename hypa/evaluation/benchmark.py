@@ -63,7 +63,7 @@ def benchmark(dataset: str, scores: Sequence[Score], training_time_s: Mapping[st
               published: Mapping[str, Mapping], units: Mapping[str, tuple[str, float]],
               kept_physics: Mapping[str, Sequence[int]] | None = None,
               capped: Mapping[str, Sequence[str]] | None = None,
-              failed: Mapping[str, str] | None = None) -> Benchmark:
+              failed: Mapping[str, str] | None = None, extends: Mapping[str, str] | None = None) -> Benchmark:
     """The data set's :class:`~hypa.evaluation.benchmark_result.Benchmark` (written by its
     ``to_json`` and ``markdown``): per model, test set and output the scores' mean ± std over seeds.
 
@@ -72,7 +72,8 @@ def benchmark(dataset: str, scores: Sequence[Score], training_time_s: Mapping[st
     (its order: the table's, with the models that have scores and those that failed);
     ``kept_physics``: model -> the seeds whose hybrid run kept its identified physics (its best checkpoint
     the model before its networks' first epoch); ``capped``: model -> where its identification or
-    training stopped at a cap (:func:`stopped_at_caps`); ``failed``: model -> why it failed, one line.
+    training stopped at a cap (:func:`stopped_at_caps`); ``failed``: model -> why it failed, one line;
+    ``extends``: model -> the row of the identified physics it extends (compared under the table).
     """
     rows = summarize(scores)
     failed = dict(failed or {})
@@ -81,7 +82,8 @@ def benchmark(dataset: str, scores: Sequence[Score], training_time_s: Mapping[st
                      {k: {o: dict(f) for o, f in v.items()} for k, v in published.items()},
                      {k: (u, f) for k, (u, f) in units.items()},
                      {m: sorted(s) for m, s in (kept_physics or {}).items() if s},
-                     {m: list(dict.fromkeys(c)) for m, c in (capped or {}).items() if c}, failed)
+                     {m: list(dict.fromkeys(c)) for m, c in (capped or {}).items() if c}, failed,
+                     {m: b for m, b in (extends or {}).items() if m in models and b in models})
 
 
 def stopped_at_caps(run: TrainedRun) -> list[str]:

@@ -3,14 +3,16 @@
 What it holds is computed by :mod:`hypa.evaluation.benchmark` (free-run scores, mean ± std over
 seeds); this module only writes and reads it. ``benchmark.json`` (RMS in SI units)::
 
-    {dataset: {"models": {model: {"training_time_s", "kept_physics_seeds", "capped", "failed",
+    {dataset: {"models": {model: {"training_time_s", "kept_physics_seeds", "capped", "failed", "extends",
      "test_sets": {set: {output: {"rms", "rms_std", "r2", "r2_std", "samples", "seeds": {seed: {"rms", "r2"}}}}}}},
      "published": {set: {output: {label: RMS in display units}}},
      "display_units": {output: {"unit", "factor"}}}}
 
 ``capped``: where the model's identification or training stopped at a cap (one line each, e.g.
 ``identification.max_evaluations``); ``failed``: the one-line reason a model (or one of its seeds)
-failed, null where none did. A number that is not finite is written as null (JSON has none).
+failed, null where none did; ``extends``: the row of the identified physics this model extends
+(``diagnosed``: the nominal model ``hypa.diagnose`` extended), null where none. A number that is
+not finite is written as null (JSON has none).
 Both files are written again after every row the benchmark finishes (:func:`write_report`).
 """
 
@@ -67,6 +69,8 @@ class Benchmark:
     # model -> where its identification or training stopped at a cap, one line each
     capped: dict[str, list[str]] = field(default_factory=dict)
     failed: dict[str, str] = field(default_factory=dict)  # model -> why it (or a seed of it) failed, one line
+    # model -> the row of the identified physics it extends (diagnosed -> the nominal that hypa.diagnose extended)
+    extends: dict[str, str] = field(default_factory=dict)
 
     @property
     def models(self) -> list[str]:
@@ -78,7 +82,7 @@ class Benchmark:
         models: dict[str, dict] = {m: {"training_time_s": self.training_time_s.get(m),
                                        "kept_physics_seeds": list(self.kept_physics.get(m, [])),
                                        "capped": list(self.capped.get(m, [])), "failed": self.failed.get(m),
-                                       "test_sets": {}} for m in self.models}
+                                       "extends": self.extends.get(m), "test_sets": {}} for m in self.models}
         for (model, test_set, output), s in self.rows.items():
             models[model]["test_sets"].setdefault(test_set, {})[output] = s.to_dict()
         return {"models": models,
@@ -96,7 +100,8 @@ class Benchmark:
                    {m: [int(s) for s in e["kept_physics_seeds"]] for m, e in models.items()
                     if e.get("kept_physics_seeds")},
                    {m: [str(c) for c in e["capped"]] for m, e in models.items() if e.get("capped")},
-                   {m: str(e["failed"]) for m, e in models.items() if e.get("failed")})
+                   {m: str(e["failed"]) for m, e in models.items() if e.get("failed")},
+                   {m: str(e["extends"]) for m, e in models.items() if isinstance(e.get("extends"), str)})
 
     def to_json(self, path: Path) -> None:
         """Write this data set's entry into ``benchmark.json``, keeping the other data sets' entries."""
@@ -148,11 +153,38 @@ class Benchmark:
                 kept = ", ".join(map(str, self.kept_physics[m]))
                 lines.append(f"{m}: no epoch of its networks beat its identified physics on validation (seed {kept}), "
                              "so its row is that physics")
+        lines += self._against_extended()
         seeds = {m: sorted(next(s for k, s in self.rows.items() if k[0] == m).seeds) for m in models if m in scored}
         if any(len(v) > 1 for v in seeds.values()):
             lines += ["mean ± standard deviation over seeds " + ", ".join(f"{m} {v}" for m, v in seeds.items())
                       + " (training time: mean per seed); each seed in benchmark.json"]
         return "\n".join(lines)
+
+
+    def against_extended(self) -> dict[str, dict[tuple[str, str], tuple[float, float]]]:
+        """Model -> (test set, output) -> (its RMS, the RMS of the row it extends) [SI], where both scored."""
+        out: dict[str, dict[tuple[str, str], tuple[float, float]]] = {}
+        for model, base in self.extends.items():
+            for (m, test_set, output), s in self.rows.items():
+                other = self.rows.get((base, test_set, output))
+                if m == model and other is not None:
+                    out.setdefault(model, {})[(test_set, output)] = (s.rms, other.rms)
+        return out
+
+    def _against_extended(self) -> list[str]:
+        """Under the table: each model against the identified physics it extends, per test set and output
+        (the diagnosis's promise: its extension is no worse), "worse" in bold where it is."""
+        lines = []
+        for model, pairs in self.against_extended().items():
+            parts = []
+            for (test_set, output), (rms, base) in pairs.items():
+                unit, factor = self.units.get(output, ("", 1.0))
+                change = md.percent_change(base, rms)
+                parts.append(f"{test_set} {output} {base * factor:.3g} → {rms * factor:.3g} {unit} ({change})"
+                             + (" **worse**" if rms > base else ""))
+            lines.append(f"{model} against {self.extends[model]}, the identified physics it extends: "
+                         + "; ".join(parts))
+        return lines
 
 
 def write_report(result: Benchmark, folder: Path) -> tuple[Path, Path]:

@@ -199,6 +199,7 @@ class BlockBuilder:
         nominal = {k: torch.tensor(v, dtype=torch.float64) for k, v in self.params.as_floats().items()}
         ss = system.matrices(nominal)
         n = system.n_states
+        observed: set[int] = set()  # the states the data scale
         if n == 0:
             states, outputs = [], self._gain_scale(b, inputs, ss.d)
         else:
@@ -209,15 +210,15 @@ class BlockBuilder:
                                                   **self.ann_hparams)
             outputs = self._output_scale(b, system, start, inputs)
             if start.mode == MEASURED:
-                states = [self.measured[s] for s in start.measured]
+                states, observed = [self.measured[s] for s in start.measured], set(range(n))
             elif system.outputs_are_states:
-                states = outputs
+                states, observed = outputs, {j for j, o in enumerate(b.outputs) if o in self.measured}
             else:
                 std = default_state_std(ss, self.dt, torch.tensor([s for _, s in inputs], dtype=torch.float64),
                                         self.horizon)
                 states, read = self._observed_state_scales(ss, start, inputs, [(0.0, float(s)) for s in std],
                                                            _rows_read_nonlinearly(system, nominal))
-                unread = [j for j in range(n) if j not in read]
+                unread, observed = [j for j in range(n) if j not in read], set(read)
                 if system.has_nonlinear_output:  # ... where the outputs are the data's means (a state of charge)
                     measured = [self.measured[m] if m is not None else None for m in start.observed or ()]
                     states = output_level_state_scales(system, self.params, inputs, measured, states, unread)
@@ -228,6 +229,7 @@ class BlockBuilder:
         scaling = Scaling(t(states, 0), t(states, 1), t(inputs, 0), t(inputs, 1), t(outputs, 0), t(outputs, 1))
         block = LTIBlock(system, self.params, self.dt, self.horizon, hold=self.hold if n else "zoh",
                          scaling=scaling, scheduled=tuple(b.scheduling), table=b.table)
+        block.observed_states = frozenset(observed)
         if not b.scheduling:  # a scheduled block's stability depends on the signal
             block.check_stable()
         return block

@@ -69,6 +69,9 @@ class LTIBlock(BlockSimulation, nn.Module):
             raise ValueError(f"{model.display_name} needs parameters {sorted(missing)}")
         self.model, self.parameters_, self.dt, self.horizon, self.hold = model, parameters, dt, horizon, hold
         self.scheduled = tuple(scheduled)
+        # the states whose scaling came from the data (measured, or read alone by a measured output);
+        # the others' is the physics' (around 0 for a linear block): set by the model's builder
+        self.observed_states: frozenset[int] = frozenset()
         unknown = [s for s in self.scheduled if s not in model.parameter_names]
         if unknown or len(set(self.scheduled)) != len(self.scheduled):
             raise SchedulingError(f"{model.display_name}: cannot schedule {list(scheduled)}; its parameters are "
