@@ -10,7 +10,16 @@ import torch
 from scipy.integrate import solve_ivp
 
 from hypa.models.spec import ModelSpecError, parse_model_spec, spec_config
-from hypa.physics import LTIBlock, LTIModel, MassSpringDamper, PhysicalParameters, SystemContractError, check_system
+from hypa.physics import (
+    LTIBlock,
+    LTIModel,
+    MassSpringDamper,
+    ParameterSpec,
+    PhysicalParameters,
+    StateSpace,
+    SystemContractError,
+    check_system,
+)
 from hypa.physics.curved import Curved
 from hypa.physics.mass_spring_damper import DuffingOscillator
 from hypa.physics.systems import build_system
@@ -87,7 +96,7 @@ def test_the_model_key_round_trips_and_bad_mappings_are_one_line() -> None:
     assert isinstance(built, Curved) and built.display_name == "MassSpringDamper (curved on position)"
     with pytest.raises(ValueError, match=r"^MassSpringDamper \(curved on position\) needs parameters"):
         LTIBlock(built, PhysicalParameters(MassSpringDamper().parameter_specs({})), dt=0.01)  # named, not "Curved"
-    with pytest.raises(ModelSpecError, match="power, 2 or 3"):
+    with pytest.raises(ModelSpecError, match="power, 2, 3 or root"):
         parse_model_spec({**config, "blocks": {"spring": {**config["blocks"]["spring"], "curved": {"position": 4}}}})
     with pytest.raises(ModelSpecError, match="only physics blocks"):
         parse_model_spec({"name": "m", "outputs": ["y"], "blocks": {"d": {
@@ -108,3 +117,43 @@ def test_a_nonlinear_system_keeps_its_own_feedback_beside_the_curved_one(u: torc
     assert np.abs(run(model, u, hardening=5.0) - duffing).max() < 1e-12 * np.abs(duffing).max()
     damped = run(model, u, hardening=5.0, **{"b/curve_velocity_on_velocity": 0.5})
     assert np.abs(damped - duffing).max() > 0.01 * np.abs(duffing).max()
+
+
+class Drain(LTIModel):
+    """dh/dt = -h / tau + g u: a tank linearised, its level h positive."""
+
+    state_names, input_names, output_names = ("level",), ("inflow",), ("level",)
+    parameters = (ParameterSpec("tau", 50.0, "s"), ParameterSpec("gain", 0.02, "m/(s V)"))
+
+    def matrices(self, p):
+        t = p["tau"]
+        return StateSpace((-1 / t).reshape(1, 1), p["gain"].reshape(1, 1), torch.ones(1, 1, dtype=t.dtype),
+                          t.new_zeros(1, 1))
+
+
+@pytest.mark.parametrize("w", [1.0, 0.4])
+def test_a_root_is_torricellis_outflow_against_scipy(w: float) -> None:
+    """``curved: {level: root}``: -h / tau becomes -(h + w (√(μ h) - h)) / tau; at w = 1 the flow
+    through an orifice, -√(μ h) / tau (the same flow as the linear one at the level μ), against
+    scipy's ODE solver over a fill and a drain; w = 0 is the linear tank."""
+    dt, level = 1.0, 2.0
+    t = np.arange(0, 600, dt)
+    inflow = np.where((t // 150) % 2 == 0, 8.0, 1.0)  # held per sample: a zero-order hold
+    model = Curved(Drain(), {"level": "root"}, "tank")
+    check_system(model)
+    values = {"tank/level_level": level, "tank/level_spread": 1.0, "tank/curve_level_on_level": w}
+    sim = LTIBlock(model, PhysicalParameters(model.parameter_specs(values)), dt=dt, horizon=100, hold="zoh")
+    start = torch.tensor([[0.5]], dtype=torch.float64)
+    with torch.no_grad():
+        x = sim.states(start, torch.tensor(inflow, dtype=torch.float64)[None, :, None])[0, :, 0].numpy()
+
+    def rhs(time: float, h: np.ndarray) -> list[float]:
+        outflow = h[0] + w * (np.sqrt(level * max(h[0], 0.0)) - h[0])
+        return [-outflow / 50.0 + 0.02 * inflow[min(int(time // dt), len(t) - 1)]]
+
+    ref = solve_ivp(rhs, (0, t[-1] + dt), [0.5], t_eval=t + dt, rtol=1e-10, atol=1e-12, max_step=dt / 4).y[0]
+    assert np.abs(x - ref).max() < 1e-3 * np.abs(ref).max(), np.abs(x - ref).max()
+    linear = LTIBlock(Drain(), PhysicalParameters(Drain().parameter_specs({})), dt=dt, horizon=100, hold="zoh")
+    with torch.no_grad():
+        flat = linear.states(start, torch.tensor(inflow, dtype=torch.float64)[None, :, None])[0, :, 0].numpy()
+    assert np.abs(x - flat).max() > 0.05 * np.abs(flat).max()  # the root matters here

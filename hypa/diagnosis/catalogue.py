@@ -164,6 +164,9 @@ def _entry(item: Any, path: Path) -> Entry:
         raise CatalogueError(f"{where}: when maps parameters to zero or nonzero, got {when!r}")
     if item["for_each"] == "block" and not (item.get("where") or {}).get("system"):
         raise CatalogueError(f"{where}: for_each: block needs where: {{system: [...]}}")
+    if item["for_each"] == "state" and (item.get("where") or {}) not in ({}, {"state": "positive"}):
+        raise CatalogueError(f"{where}: for_each: state takes where: {{state: positive}} (a state whose free runs "
+                             f"stay above 0) or none, got {item.get('where')!r}")
     learn = item.get("learn") or []
     learn = [learn] if isinstance(learn, str) else learn
     unknown = [b for b in learn if b not in (patch.get("blocks") or {})]
@@ -533,8 +536,9 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
             continue
         for target, context in _contexts(entry, base, input_names, output_names, scheduling_names,
                                          physical_values, uncertain, specific):
-            if entry.for_each == "state" and target not in states:
-                continue
+            if entry.for_each == "state" and (target not in states or (
+                    entry.where.get("state") == "positive" and not states[target][2:3] > (0,))):
+                continue  # (where: {state: positive}: its free runs' 10th percentile is above 0)
             if entry.for_each == "auxiliary":  # the channel's weights in each state derivative, and their sizes
                 drives = _drives(base, context["block"], context["channel"], known, states,
                                  channels.get(context["channel"], (0.0, ""))[0], dt)

@@ -37,8 +37,8 @@ class Candidate:
     units: Mapping[str, str] = field(default_factory=dict)
     learn: tuple[str, ...] = ()  # inserted blocks a network may learn instead (the catalogue's ``learn``)
     # a block's system replaced (a ``for_each: block`` entry's ``where: {system: {old: new}}``): its
-    # values start as a guess in another parametrization, moved first to where it reproduces the
-    # model it replaces (:meth:`hypa.diagnosis.fitting.GradientFit.promise`)
+    # values start as a guess in another parametrization, so it is fitted whatever its score test
+    # promises (:func:`hypa.diagnosis.race.evaluate_round`)
     replaces: bool = False
 
     @property

@@ -140,6 +140,9 @@ def _curved_note(candidate: Candidate, problem: Problem) -> str:
         return ""
     level, spread = b.parameters.get(f"{state}_level", 0.0), b.parameters.get(f"{state}_spread", 1.0)
     unit = problem.dm.channels[state].unit if state in problem.dm.channels else ""
+    if b.curved[state] == "root":
+        return (f"each coupling from {state} is (1 - w) times the linear one plus w times its root through the "
+                f"same flow at {format_value(level, unit)} (w = 1: all √{state})")
     sign, shift = ("+", -level) if level < 0 else ("-", level)
     return (f"each coupling from {state} is (1 + w z{'²' if b.curved[state] == 3 else ''}) times the linear one, "
             f"z = ({state} {sign} {format_value(shift, unit)}) / {format_value(spread, unit)}")

@@ -141,27 +141,6 @@ class GradientFit:
         """Whether the fit starts at the round's base model (its error on the windows the base's, to round-off)."""
         return self.base is not None and math.isclose(float(residual @ residual), self.base.cost, rel_tol=1e-9)
 
-    def _reproduce_base(self) -> None:
-        """A replaced system's knobs moved from their guess to where it reproduces the round's base
-        model on the windows (Levenberg-Marquardt on the distance between the two models' outputs, to
-        convergence): where a new parametrization (k √h for a linear k h) starts, the score test then
-        measures what it adds, not what its guessed values cost. Kept only where it stayed sane."""
-        target = self.base.residual
-        try:
-            for _ in range(LM_ITERATIONS):
-                if self._step(target):
-                    break
-        except (ArithmeticError, ValueError, torch.linalg.LinAlgError):
-            pass
-        if self._check():
-            with torch.no_grad():
-                for name, raw in self._knobs.items():
-                    raw.fill_(self._sane[name])
-            self._last = self._linearized = None
-            return
-        self._sane = {n: float(p.detach()) for n, p in self._knobs.items()}
-        self.damping = LM_DAMPING
-
     def promise(self) -> float | None:
         """The score test of a fit: the share of the round's fit error (the base model's,
         ``base.cost``, on the same windows) that the first Gauss-Newton step from where the fit
@@ -169,19 +148,14 @@ class GradientFit:
         Lagrange-multiplier test: what the knobs could explain to first order). Most fits start
         at the model as it was (a weight at 0: r'r is the base's); one that cannot (a state's limit
         starts at the 90th percentile of where it goes, clipping the rest) must first win back
-        what its start costs: a step that only undoes the clipping promises nothing. A replaced
-        system (``Candidate.replaces``) whose guessed start is worse than the model it replaces is
-        first moved to where it reproduces that model (:meth:`_reproduce_base`): its guess is no
-        principled start, and a user's Torricelli tanks at a k in the wrong unit promised 0 %. One
+        what its start costs: a step that only undoes the clipping promises nothing. (A swapped
+        system, ``Candidate.replaces``, is fitted whatever it promises: its start is a guess in
+        another parametrization, :func:`hypa.diagnosis.race.evaluate_round`.) One
         Jacobian, which the fit's first step then reuses. ``None`` for a fit that has started or
         stopped; ``NaN`` where the start is not finite."""
         if self.done or self.finished:
             return None
         try:
-            if self.candidate.replaces and self.base is not None:
-                r0 = self._linearize()[0]
-                if float(r0 @ r0) > (1.0 + LM_TOLERANCE) * self.base.cost:
-                    self._reproduce_base()
             r0, jacobian = self._linearize()
         except (ArithmeticError, ValueError, torch.linalg.LinAlgError):
             return math.nan
@@ -196,36 +170,29 @@ class GradientFit:
             return math.nan
         return min(max(1.0 - (cost - promised) / base, 0.0), 1.0)
 
-    def _least_squares_step(self) -> None:
-        """One Levenberg-Marquardt step towards the data."""
-        self.converged = self._step()
-
     @torch.no_grad()
-    def _step(self, target: torch.Tensor | None = None) -> bool:
+    def _least_squares_step(self) -> None:
         """One Levenberg-Marquardt step on the raw knobs (relative for positive parameters, so one
-        finite-difference step fits all), towards the data, or towards the model whose residual is
-        ``target``; the damping grows until the step lowers the error. Whether it has converged: the
-        step lowered the error by less than ``LM_TOLERANCE``, or no step lowers it."""
+        finite-difference step fits all); the damping grows until the step lowers the error."""
         r0, jacobian = self._linearize()
         self._linearized = None  # the knobs move: the next step linearizes again
-        error = r0 if target is None else r0 - target
-        cost = float(error @ error)
-        normal, gradient = jacobian.T @ jacobian, jacobian.T @ error
+        cost = float(r0 @ r0)
+        normal, gradient = jacobian.T @ jacobian, jacobian.T @ r0
         while self.damping < 1e6:
             step = torch.linalg.solve(normal + self.damping * torch.diag(torch.diagonal(normal) + 1e-12), -gradient)
             step = step * min(1.0, LM_MAX_STEP / max(float(step.abs().max()), 1e-300))  # a trust region
             for knob, delta in zip(self.knobs, step):
                 knob += delta
             trial = self._residual()
-            moved = trial if target is None else trial - target
-            if bool(torch.isfinite(trial).all()) and float(moved @ moved) < cost:
+            if bool(torch.isfinite(trial).all()) and float(trial @ trial) < cost:
                 self.damping, self._last = max(self.damping / 3.0, 1e-6), trial
-                return float(moved @ moved) > (1.0 - LM_TOLERANCE) * cost
+                self.converged = float(trial @ trial) > (1.0 - LM_TOLERANCE) * cost
+                return
             for knob, delta in zip(self.knobs, step):
                 knob -= delta
             self.damping *= 4.0
-        self._last = r0  # no step lowers the error: a minimum to the finite differences' precision
-        return True
+        self.converged = True  # no step lowers the error: a minimum to the finite differences' precision
+        self._last = r0
 
     def values(self) -> dict[str, float]:
         return {k: float(self.model.parameters_.value(k).detach()) for k in (*self.candidate.knobs, *self.refine)}

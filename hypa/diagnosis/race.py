@@ -134,11 +134,15 @@ def evaluate_round(candidates: Sequence[Candidate], problem: Problem, windows: M
 
 def _promising(runners: Sequence[_Runner], screen: float) -> list[int]:
     """The screened runners that go on to their fit: a promise of at least ``screen``, or among the
-    ``SCREEN_BEST`` best (a finite, positive promise)."""
+    ``SCREEN_BEST`` best (a finite, positive promise), or a swapped system (``Candidate.replaces``:
+    its start is a guess in another parametrization, a user's Torricelli tanks at a k in another
+    unit, where a first-order promise says little; moved first to where it reproduced the model it
+    replaces, a Coulomb friction went to 0 N, where its gradient vanishes)."""
     promised = {i: r.promise for i, r in enumerate(runners) if r.promise is not None and r.error is None
                 and math.isfinite(r.promise)}
     best = sorted((i for i in promised if promised[i] > 0), key=lambda i: -promised[i])[:SCREEN_BEST]
-    return sorted(set(best) | {i for i, p in promised.items() if p >= screen})
+    swapped = {i for i, r in enumerate(runners) if r.error is None and r.fit.candidate.replaces}
+    return sorted(set(best) | swapped | {i for i, p in promised.items() if p >= screen})
 
 
 def _not_run(runner: _Runner, problem: Problem, screen: float | None) -> Exception:

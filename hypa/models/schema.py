@@ -36,7 +36,7 @@ class BlockConfig:
     scheduling: Any = None  # physics: parameter -> scheduling channel
     observe: Any = None  # physics: block output -> measured output
     table: Any = None  # physics scheduled by one signal: its matrices off a verified table where no gradient needs them
-    curved: Any = None  # physics: state -> power (2, 3), couplings from the state bent (hypa.physics.curved)
+    curved: Any = None  # physics: state -> power (2, 3, root), couplings from the state bent (hypa.physics.curved)
     limited: Any = None  # physics: state -> upper | lower, the state held at a limit (hypa.physics.limited)
     depends: Any = None  # physics: parameter -> {by, kind}, varying with a direction or a state
     modes: Any = None  # physics: inputs each driving a first-order mode added into the outputs (hypa.physics.modes)

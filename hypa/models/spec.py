@@ -78,11 +78,12 @@ class BlockSpec:
         validation, an evaluation, a simulation), read them off an interpolation table over the
         signal's range, verified against the exact matrices to round-off
         (``hypa.physics.table``); otherwise they are computed at every sample.
-    curved: physics only, states whose couplings bend with their deviation, state -> power (2 or
-        3): each coupling A_rj from x_j becomes A_rj (x_j + w_r (x_j - μ_j) z^(p-1)), z = (x_j - μ_j)
-        / σ_j, with the block's own parameters ``<state>_level`` μ_j, ``<state>_spread`` σ_j and
-        ``curve_<state>_on_<row>`` w_r (``hypa.physics.curved``; named by ``hypa.diagnose``'s
-        ``cubic_state`` and ``square_state``).
+    curved: physics only, states whose couplings bend with their deviation, state -> power (2, 3
+        or root): each coupling A_rj from x_j becomes A_rj (x_j + w_r (x_j - μ_j) z^(p-1)), z = (x_j
+        - μ_j) / σ_j (root: A_rj (x_j + w_r (√(μ_j x_j) - x_j)), an orifice's law), with the block's
+        own parameters ``<state>_level`` μ_j, ``<state>_spread`` σ_j and ``curve_<state>_on_<row>``
+        w_r (``hypa.physics.curved``; named by ``hypa.diagnose``'s ``cubic_state``, ``square_state``
+        and ``root_state``).
     limited: physics only, states that cannot pass a level, state -> upper or lower: what would
         carry the state past its limit ``<state>_limit`` spills within ``<state>_limit_time``, a
         share ``spill_<state>_to_<row>`` of it into each other state (``hypa.physics.limited``;
@@ -116,7 +117,7 @@ class BlockSpec:
     scheduling: Mapping[str, str] = field(default_factory=dict)
     observe: Mapping[str, str] = field(default_factory=dict)
     table: bool = False
-    curved: Mapping[str, int] = field(default_factory=dict)
+    curved: Mapping[str, int | str] = field(default_factory=dict)
     limited: Mapping[str, str] = field(default_factory=dict)
     depends: Mapping[str, Mapping[str, str]] = field(default_factory=dict)
     modes: tuple[str, ...] = ()
@@ -250,13 +251,14 @@ def _flag(value: Any, where: str) -> bool:
     return value
 
 
-def _powers(value: Any, where: str) -> dict[str, int]:
-    """A mapping state -> power, 2 or 3 (None: empty)."""
+def _powers(value: Any, where: str) -> dict[str, int | str]:
+    """A mapping state -> power, 2, 3 or root (None: empty)."""
     if value is None:
         return {}
-    if not isinstance(value, Mapping) or any(isinstance(v, bool) or v not in (2, 3) for v in value.values()):
-        raise ModelSpecError(f"{where} must map state names to a power, 2 or 3 (e.g. {{position: 3}}), got {value!r}")
-    return {str(k): int(v) for k, v in value.items()}
+    if not isinstance(value, Mapping) or any(isinstance(v, bool) or v not in (2, 3, "root") for v in value.values()):
+        raise ModelSpecError(f"{where} must map state names to a power, 2, 3 or root (e.g. {{position: 3}}), "
+                             f"got {value!r}")
+    return {str(k): v if v == "root" else int(v) for k, v in value.items()}
 
 
 def _sides(value: Any, where: str) -> dict[str, str]:

@@ -1,15 +1,23 @@
 """Curved couplings: any system's linear couplings from a state made to bend with that state.
 
-A physics block's ``curved: {state: power}`` (power 2 or 3) wraps its system (:class:`Curved`):
-every coupling A_rj from the state x_j into a state derivative ẋ_r becomes
+A physics block's ``curved: {state: power}`` (power 2, 3 or ``root``) wraps its system
+(:class:`Curved`): every coupling A_rj from the state x_j into a state derivative ẋ_r becomes
 
     A_rj (x_j + w_r (x_j - μ_j) z^(p-1)),   z = (x_j - μ_j) / σ_j,
 
 so that at one spread σ_j from the operating point μ_j the coupling is (1 + w_r) times the
 linear one. Power 3 is a symmetric stiffening (w > 0) or softening (w < 0), as a hardening
-spring's or a saturating conductance's; power 2 an asymmetric one, as a tank's outflow through
-an orifice (√h) or a quadratic drag about a speed. At x_j = μ_j the term and its slope are zero:
-the model is its linear self near the operating point, and ``w = 0`` is the model as it was.
+spring's or a saturating conductance's; power 2 an asymmetric one, as a quadratic drag about a
+speed. At x_j = μ_j the term and its slope are zero: the model is its linear self near the
+operating point, and ``w = 0`` is the model as it was.
+
+``root`` is the law of a flow through an orifice (Torricelli's √h) for a state that stays
+positive (a level, a pressure): the coupling becomes
+
+    A_rj (x_j + w_r (√(μ_j x_j) - x_j)),
+
+the linear one at ``w = 0`` and A_rj √(μ_j x_j), the root through the same flow at the level μ_j,
+at ``w = 1`` (x_j is taken as at least 1e-6 μ_j: the root's slope stays finite at an empty tank).
 
 The new parameters are the block's own (``<block>/...``): ``<state>_level`` μ_j and
 ``<state>_spread`` σ_j in the state's unit (fixed: they set the scale of w, not the physics), and
@@ -33,7 +41,8 @@ from hypa.physics.parameters import ParameterSpec
 from hypa.physics.statespace import LTIModel
 from hypa.physics.wrapped import StateFeedback
 
-POWERS = (2, 3)
+ROOT = "root"  # the orifice's law, √(μ x)
+POWERS = (2, 3, ROOT)
 
 
 def curve_name(state: str, row: str) -> str:
@@ -42,7 +51,7 @@ def curve_name(state: str, row: str) -> str:
 
 
 class CurvedError(ValueError):
-    """A ``curved`` mapping that does not fit the system (a state it lacks, a power not 2 or 3)."""
+    """A ``curved`` mapping that does not fit the system (a state it lacks, a power not 2, 3 or root)."""
 
 
 class Curved(StateFeedback):
@@ -50,7 +59,7 @@ class Curved(StateFeedback):
 
     key, error = "curved", CurvedError
 
-    def __init__(self, base: LTIModel, curved: Mapping[str, int], block: str = "") -> None:
+    def __init__(self, base: LTIModel, curved: Mapping[str, int | str], block: str = "") -> None:
         super().__init__(base, curved, POWERS, "power")
         self.curved = self.options
         states = list(base.state_names)
@@ -72,6 +81,10 @@ class Curved(StateFeedback):
     def own_signals(self, x: Tensor, prepared: list[tuple[Tensor, Tensor]]) -> list[Tensor]:
         signals = []
         for (j, power, *_), (level, inverse) in zip(self._columns, prepared):
+            if power == ROOT:
+                h = x[..., j].clamp_min(1e-6 * level)
+                signals.append(torch.sqrt(level * h) - x[..., j])
+                continue
             d = x[..., j] - level
             z = d * inverse
             signals.append(d * z if power == 2 else d * z * z)

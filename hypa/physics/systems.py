@@ -105,7 +105,7 @@ def resolve_system(name: str, block: str = "") -> LTIModel:
     return system
 
 
-def build_system(name: str, block: str = "", curved: Mapping[str, int] | None = None,
+def build_system(name: str, block: str = "", curved: Mapping[str, int | str] | None = None,
                  limited: Mapping[str, str] | None = None, depends: Mapping[str, Mapping[str, str]] | None = None,
                  driven: tuple[str, ...] = (), modes: tuple[str, ...] = ()) -> LTIModel:
     """The system ``name`` for the block ``block`` (``resolve_system``), its couplings from the
