@@ -129,6 +129,21 @@ def test_diagnosis_of_the_race_car_names_the_speed_first_and_no_rear_steering(tm
     assert diagnosis["metrics"]["extended"]["yaw_rate"]["r2"] > 0.97
 
 
+@pytest.mark.slow  # about 80 s on 2 cores
+def test_diagnosis_of_the_real_cascaded_tanks_names_the_orifices_root(tmp_path: Path) -> None:
+    """The issue's real-data case: the linear two tanks (hypa/physics/tanks.py) as the nominal physics
+    of the real cascaded tanks, whose outflows follow Torricelli's √h: a root on a tank's level is
+    named first, with a cross-validated gain of at least 40 %, and the extension beats the nominal."""
+    result = hypa("hypa.diagnose", "dataset=cascaded_tanks", "model=cascaded_tanks_physical", "plot=false",
+                  f"hydra.run.dir={tmp_path}")
+    assert result.returncode == 0, result.stderr[-3000:]
+    diagnosis = json.loads((tmp_path / "diagnosis.json").read_text())
+    first = diagnosis["named"][0]
+    assert first["cause"] == "root_state", diagnosis["causes"]
+    assert first["gain"] >= 0.4, first
+    assert diagnosis["score"]["extended"] < 0.2 * diagnosis["score"]["nominal"]
+
+
 def test_a_residual_hybrid_trains_its_network_on_identified_physics(tmp_path: Path) -> None:
     """identification.enabled=true: the hybrid's physics stage (network bypassed) is identified by the
     output error, as the physics-only model is, and only the correction stage trains by epochs."""
@@ -181,6 +196,7 @@ def test_benchmark_diagnoses_the_nominal_model_and_identifies_its_extension(tmp_
 
 
 @pytest.mark.parametrize("dataset, model", [("racecar", "racecar_physical"), ("emps", "emps_physical"),
+                                            ("cascaded_tanks", "cascaded_tanks_physical"),
                                             ("silverbox", "silverbox_physical")])
 def test_simulate_runs_each_data_sets_physics(dataset: str, model: str, tmp_path: Path) -> None:
     """``python -m hypa.simulate dataset=D`` with the data set's own model, a dead time (the race
