@@ -197,6 +197,7 @@ def test_benchmark_diagnoses_the_nominal_model_and_identifies_its_extension(tmp_
 
 @pytest.mark.parametrize("dataset, model", [("racecar", "racecar_physical"), ("emps", "emps_physical"),
                                             ("cascaded_tanks", "cascaded_tanks_physical"),
+                                            ("wiener_hammerstein", "wiener_hammerstein_physical"),
                                             ("silverbox", "silverbox_physical")])
 def test_simulate_runs_each_data_sets_physics(dataset: str, model: str, tmp_path: Path) -> None:
     """``python -m hypa.simulate dataset=D`` with the data set's own model, a dead time (the race

@@ -42,7 +42,7 @@ from hypa.diagnosis.finding import ALTERNATIVE, SIMPLER, Finding, alternatives
 from hypa.diagnosis.fitting import fit_offsets
 from hypa.diagnosis.generic import MARGIN as GENERIC_MARGIN
 from hypa.diagnosis.generic import GenericFit
-from hypa.diagnosis.problem import Problem
+from hypa.diagnosis.problem import Problem, format_value
 from hypa.diagnosis.race import append_result
 from hypa.diagnosis.scales import duration
 from hypa.diagnosis.states import state_scales
@@ -358,8 +358,10 @@ def _identify(nominal: ModelSpec, candidates: Callable[[ModelSpec], list[Candida
 
 
 def _shift(name: str, before: float, after: float, unit: str) -> str:
-    """``k1 0.02 → 0.0101 1/s``."""
-    return f"{name} {before:.3g} → {after:.3g}{' ' + unit if unit else ''}"
+    """``k1 0.02 → 0.0101 1/s``, ``tau 0.1 → 0.236 ms``, ``gain 1 → 0.721`` (a dimensionless one)."""
+    before_text, after_text = format_value(before, unit), format_value(after, unit)
+    same_unit = before_text.partition(" ")[2] == after_text.partition(" ")[2]
+    return f"{name} {before_text.partition(' ')[0] if same_unit else before_text} → {after_text}"
 
 
 def _not_fitted(rounds: Sequence[Sequence[Finding]]) -> list[str]:
