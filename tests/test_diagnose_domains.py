@@ -37,13 +37,14 @@ noise). A negative control per domain: no hidden effect, a nominal parameter 30 
 sensor bias (something besides the value to name, and a drift or a level that a slow mode or a
 direction could bend towards): neither ``missing_mode`` nor ``direction_parameter`` is named.
 
-Expected to fail today (``xfail``, not strict, the figures in the reasons): the cell's second
-seed, whose mode the score test screens out (``CELL_MODE_XFAIL``); with the accelerometer, the
-direction's part of the output equation (-c d |v| / m) is left to a stand-in (``OUTPUT_EQUATION``).
-(Found by these tests and fixed: the score test's least squares zeroed the whole step where the
-time constant's column is 0 at weights 0, so ``missing_mode`` never ran where the nominal's values
-were right; a scanned candidate's key carried its start value, which moves with each fold's
-identified values, so it never reached the second fold.)
+Expected to fail today (``xfail``, not strict, the figures in the reason): the cell's second
+seed, whose mode the score test screens out (``CELL_MODE_XFAIL``). (Found by these tests and
+fixed: the score test's least squares zeroed the whole step where the time constant's column is 0
+at weights 0, so ``missing_mode`` never ran where the nominal's values were right; a scanned
+candidate's key carried its start value, which moves with each fold's identified values, so it
+never reached the second fold; a dependent parameter kept C and D at its nominal value, so the
+accelerometer's part of the direction, -c d |v| / m, was left to a stand-in: d -0.242 -> -0.175
+and an acceleration offset of 0.292 m/s² named on seed 0.)
 """
 
 from __future__ import annotations
@@ -317,21 +318,12 @@ def test_a_structures_creeping_frame_is_named_as_a_missing_mode_of_the_force(
     assert "direction_parameter" not in named, described
 
 
-# Dependent (hypa/physics/dependent.py) varies a parameter in the state equation alone and evaluates C and
-# D at its nominal value; the accelerometer reads (F - k x - c v) / m, so the direction's part of it,
-# -c d |v| / m, is left to a stand-in (an offset of the acceleration: its mean)
-OUTPUT_EQUATION = ("a dependent parameter acts on the state equation only (hypa.physics.dependent.Dependent keeps "
-                   "C and D at the nominal c): the accelerometer's -c d |v| / m is left to a stand-in; d -0.242 -> "
-                   "-0.175 and output_offset on acceleration 0.292 m/s^2 named (seed 0), d 0.480 -> 0.331 and -0.68 "
-                   "m/s^2 (seed 1); the position alone: -0.241, 0.479")
 DIRECTION_CASES = [(("position",), 0), (tuple(SENSORS), 0), (("position",), 1), (tuple(SENSORS), 1)]
 
 
 @pytest.mark.parametrize("sensors, seed", [
     pytest.param(sensors, seed, id=f"{'+'.join(sensors)}-{seed}",
-                 marks=[*(() if seed == 0 and sensors == ("position",) else (pytest.mark.slow,)),
-                        *(() if sensors == ("position",) else
-                          (pytest.mark.xfail(strict=False, raises=AssertionError, reason=OUTPUT_EQUATION),))])
+                 marks=() if seed == 0 and sensors == ("position",) else (pytest.mark.slow,))
     for sensors, seed in DIRECTION_CASES])
 def test_a_structures_damping_by_direction_is_named_with_its_size(
         tmp_path: Path, user_systems: Path, sensors: tuple[str, ...], seed: int) -> None:

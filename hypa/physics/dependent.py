@@ -23,10 +23,11 @@ with M = [A B e]. That is exact for a parameter that enters A, B and e affinely 
 quadratically (a friction coefficient over a mass, a mass in a numerator) whatever s, and for
 any dependence where the modification is at its full size (tanh(s / w) = ±1: away from zero
 speed; the state one spread from its operating point); elsewhere it is second-order accurate
-in δ. It assumes the parameter acts on the state equation: C and D are the wrapped system's
-(a parameter that enters only the outputs, a series resistance seen at the terminals alone,
-has nothing to depend here; the catalogue does not propose it). The wrapped system is
-nonlinear (Lur'e form, ``hypa.physics.simulation``): F is the identity, its signal the sum above.
+in δ. The wrapped system is nonlinear (Lur'e form, ``hypa.physics.simulation``): F is the
+identity, its signal the sum above. Where the parameter also enters C or D (an accelerometer
+reads -c v / m: the damping c that differs by the direction of motion), the outputs take the
+same quadratic in [C D] [x; u] as a nonlinear output h(x, u) (``output_nonlinearity``): the
+measured acceleration moves with the damping the dynamics use.
 
 The new parameters are the block's own (``<block>/...``): ``<p>_direction_<s>`` d and
 ``<p>_direction_<s>_width`` w (in s's unit), or ``<p>_slope_<s>`` a, ``<p>_slope_<s>_level`` μ
@@ -98,10 +99,42 @@ class Dependent(LTIModel):
                 own += [ParameterSpec(local[1], 0.0, "", positive=False), ParameterSpec(local[2], 1.0, "")]
         self.parameters = (*base.parameters, *own)
         self.added = frozenset(getattr(base, "added", frozenset())) | {s.name for s in own}
+        nominal = {spec.name: torch.tensor(spec.value, dtype=torch.float64) for spec in base.parameters}
+        self._in_outputs = any(not torch.equal(self._outputs(nominal), self._outputs(
+            {**nominal, q: nominal[q] + 1e-2 * max(abs(float(nominal[q])), 1.0)})) for q, *_ in self._terms)
 
     @property
     def display_name(self) -> str:
         return f"{self.base.display_name} ({self.key} on {', '.join(self.depends)})"
+
+    def _outputs(self, p: Mapping[str, Tensor]) -> Tensor:
+        """[C D] (p, n + m) of the wrapped system at ``p``."""
+        ss = self.base.matrices(p)
+        return torch.cat([ss.c, ss.d.to(ss.c.dtype)], 1)
+
+    @property
+    def has_nonlinear_output(self) -> bool:
+        """Whether a dependent parameter enters C or D (or the wrapped system measures through an h)."""
+        return self._in_outputs or self.base.has_nonlinear_output
+
+    def output_nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
+        """δ S_y [x; u] + ½ δ² K_y [x; u] (the module docstring's quadratic, of [C D]), plus the wrapped
+        system's h where it has one."""
+        u = u.to(x.dtype)
+        own = x.new_zeros((*x.shape[:-1], len(self.output_names)))
+        if self._in_outputs:
+            middle, xu = self._outputs(p), torch.cat([x, u], -1)
+            for qualified, kind, (where, j), local in self._terms:
+                p0, weight = p[qualified], p[local[0]]
+                h = p0 * torch.sqrt(weight * weight + EPSILON**2)
+                up, down = self._outputs({**p, qualified: p0 + h}), self._outputs({**p, qualified: p0 - h})
+                slope, curvature = (up - down) / (2 * h), (up - 2 * middle + down) / (h * h)
+                signal = (x if where == "x" else u)[..., j]
+                shape = (torch.tanh(signal / p[local[1]]) if kind == "direction"
+                         else (signal - p[local[1]]) / p[local[2]])
+                delta = (p0 * weight * shape)[..., None]
+                own = own + delta * (xu @ slope.T.to(x.dtype) + 0.5 * delta * (xu @ curvature.T.to(x.dtype)))
+        return own + self.base.output_nonlinearity(x, u, p) if self.base.has_nonlinear_output else own
 
     def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
         return self.base.matrices(p)

@@ -1,0 +1,82 @@
+"""Dependent parameters (``depends: {p: {by: s, kind: direction | state}}``, ``hypa.physics.dependent``):
+the outputs follow the parameter too where it enters C or D (an accelerometer reads -c v / m), against
+scipy's ODE solver; a parameter of the state equation alone leaves the outputs linear."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from scipy.integrate import solve_ivp
+
+from hypa.physics import LTIBlock, LTIModel, ParameterSpec, PhysicalParameters, StateSpace, check_system
+from hypa.physics.dependent import Dependent
+
+M, K, C, D, WIDTH = 2.0, 800.0, 12.0, 0.4, 0.02  # [kg], [N/m], [N s/m], [-], [m/s]
+DT = 1e-3
+
+
+class Mount(LTIModel):
+    """m q'' = F - k q - c q': position and acceleration measured."""
+
+    state_names, input_names, output_names = ("position", "velocity"), ("force",), ("position", "acceleration")
+    parameters = (ParameterSpec("mass", M, "kg"), ParameterSpec("stiffness", K, "N/m"),
+                  ParameterSpec("damping", C, "N s/m"))
+
+    def matrices(self, p):
+        m, k, c = p["mass"], p["stiffness"], p["damping"]
+        zero, one = torch.zeros_like(m), torch.ones_like(m)
+        a = torch.stack([torch.stack([zero, one]), torch.stack([-k / m, -c / m])])
+        b = torch.stack([zero, 1 / m]).reshape(2, 1)
+        return StateSpace(a, b, torch.stack([torch.stack([one, zero]), a[1]]), torch.stack([zero, 1 / m]).reshape(2, 1))
+
+
+def force(t):
+    return 40 * np.sin(2 * np.pi * 3 * t) + 15 * np.sin(2 * np.pi * 7.7 * t + 0.5)
+
+
+def test_a_damping_by_direction_moves_the_accelerometer_too() -> None:
+    model = Dependent(Mount(), {"damping": {"by": "velocity", "kind": "direction"}}, "mount")
+    check_system(model)
+    assert model.has_nonlinear_output  # c enters C: the acceleration reads it
+    values = {"mount/damping_direction_velocity": D, "mount/damping_direction_velocity_width": WIDTH}
+    block = LTIBlock(model, PhysicalParameters(model.parameter_specs(values)), dt=DT, horizon=100, hold="foh")
+    t = np.arange(0, 2, DT)
+    u = torch.tensor(force(t), dtype=torch.float64)[None, :, None]
+    with torch.no_grad():
+        states = block.states(torch.zeros(1, 2, dtype=torch.float64), u)[0]
+        y = block.output(states[None], u[:, 1:])[0].numpy()
+
+    def damping(v):
+        return C * (1 + D * np.tanh(v / WIDTH))
+
+    def rhs(time, x):
+        return [x[1], (force(time) - K * x[0] - damping(x[1]) * x[1]) / M]
+
+    ref = solve_ivp(rhs, (0, t[-1]), [0.0, 0.0], t_eval=t[1:], rtol=1e-10, atol=1e-12, max_step=DT).y
+    acceleration = (force(t[1:]) - K * ref[0] - damping(ref[1]) * ref[1]) / M
+    for got, want in ((y[:, 0], ref[0]), (y[:, 1], acceleration)):
+        assert np.abs(got - want).max() < 2e-3 * np.abs(want).max(), np.abs(got - want).max() / np.abs(want).max()
+    # the nominal damping in C (what Dependent did before): the acceleration misses the direction's part
+    linear_c = (force(t[1:]) - K * ref[0] - C * ref[1]) / M
+    assert np.abs(linear_c - acceleration).max() > 0.05 * np.abs(acceleration).max()
+
+
+def test_a_parameter_of_the_state_equation_alone_leaves_the_outputs_linear() -> None:
+    class PositionOnly(Mount):
+        output_names = ("position",)
+
+        def matrices(self, p):
+            ss = super().matrices(p)
+            return StateSpace(ss.a, ss.b, ss.c[:1], ss.d[:1])
+
+    model = Dependent(PositionOnly(), {"damping": {"by": "velocity", "kind": "direction"}}, "mount")
+    assert not model.has_nonlinear_output
+
+
+@pytest.mark.parametrize("kind", ["direction", "state"])
+def test_zero_weight_is_the_system_itself(kind: str) -> None:
+    model = Dependent(Mount(), {"damping": {"by": "velocity", "kind": kind}}, "mount")
+    p = {s.name: torch.tensor(s.value, dtype=torch.float64) for s in model.parameter_specs({})}
+    x, u = torch.randn(5, 2, dtype=torch.float64), torch.randn(5, 1, dtype=torch.float64)
+    assert torch.equal(model.output_nonlinearity(x, u, p), torch.zeros(5, 2, dtype=torch.float64))
