@@ -141,7 +141,7 @@ def test_a_root_is_torricellis_outflow_against_scipy(w: float) -> None:
     inflow = np.where((t // 150) % 2 == 0, 8.0, 1.0)  # held per sample: a zero-order hold
     model = Curved(Drain(), {"level": "root"}, "tank")
     check_system(model)
-    values = {"tank/level_level": level, "tank/level_spread": 1.0, "tank/curve_level_on_level": w}
+    values = {"tank/level_level": level, "tank/level_spread": 1.0, "tank/curve_level": w}
     sim = LTIBlock(model, PhysicalParameters(model.parameter_specs(values)), dt=dt, horizon=100, hold="zoh")
     start = torch.tensor([[0.5]], dtype=torch.float64)
     with torch.no_grad():

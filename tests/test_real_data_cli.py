@@ -130,17 +130,22 @@ def test_diagnosis_of_the_race_car_names_the_speed_first_and_no_rear_steering(tm
 
 
 @pytest.mark.slow  # about 80 s on 2 cores
-def test_diagnosis_of_the_real_cascaded_tanks_names_the_orifices_root(tmp_path: Path) -> None:
+def test_diagnosis_of_the_real_cascaded_tanks_names_the_orifices_root_and_the_overflow(tmp_path: Path) -> None:
     """The issue's real-data case: the linear two tanks (hypa/physics/tanks.py) as the nominal physics
-    of the real cascaded tanks, whose outflows follow Torricelli's √h: a root on a tank's level is
-    named first, with a cross-validated gain of at least 40 %, and the extension beats the nominal."""
+    of the real cascaded tanks, whose outflows follow Torricelli's √h and whose upper tank overflows:
+    the overflow is named with a cross-validated gain of at least 40 %, a root on the lower level is
+    the first cause or what the data cannot tell from it (a pump gain that grows with the lower level,
+    55 % against 54 %), and the extension beats the nominal."""
     result = hypa("hypa.diagnose", "dataset=cascaded_tanks", "model=cascaded_tanks_physical", "plot=false",
                   f"hydra.run.dir={tmp_path}")
     assert result.returncode == 0, result.stderr[-3000:]
     diagnosis = json.loads((tmp_path / "diagnosis.json").read_text())
+    named = {f["cause"]: f for f in diagnosis["named"]}
+    assert "upper_state_limit" in named and named["upper_state_limit"]["target"] == "tanks/upper", diagnosis["causes"]
+    assert named["upper_state_limit"]["gain"] >= 0.4, named["upper_state_limit"]
     first = diagnosis["named"][0]
-    assert first["cause"] == "root_state", diagnosis["causes"]
-    assert first["gain"] >= 0.4, first
+    root = "root_state on tanks/lower"
+    assert first["cause"] == "root_state" or any(a.startswith(root) for a in first["alternatives"]), first
     assert diagnosis["score"]["extended"] < 0.2 * diagnosis["score"]["nominal"]
 
 

@@ -28,6 +28,7 @@ new block is scheduled like it), ``{system}`` (the
 replacement of the matched block's system, when ``where.system`` is a mapping), ``{state}`` and
 ``{couplings}`` (``for_each: state``: a state of a physics block, and as a whole value the
 names of the ``curve_<state>_on_<row>`` weights of its nonzero couplings, ``hypa.physics.curved``;
+``{curve}`` the one ``curve_<state>`` of a root, empty where the state has no coupling;
 an entry whose trainable list comes out empty does not apply to that state), ``{spills}`` (the
 names of the ``spill_<state>_to_<row>`` shares into the other states, ``hypa.physics.limited``).
 A list placeholder among a list's items is spliced in: ``trainable: ["{state}_limit", "{spills}"]``.
@@ -313,6 +314,7 @@ def _state_contexts(spec: ModelSpec, values: Mapping[str, float], specific: set[
             rows = [r for i, r in enumerate(system.state_names) if float(a[i, j]) != 0.0]
             yield f"{b.name}/{state}", {"block": b.name, "state": state,
                                         "couplings": [curve_name(state, r) for r in rows],
+                                        "curve": [curve_name(state)] if rows else [],
                                         "spills": [spill_name(state, r) for r in system.state_names if r != state]}
 
 

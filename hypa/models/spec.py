@@ -80,10 +80,10 @@ class BlockSpec:
         (``hypa.physics.table``); otherwise they are computed at every sample.
     curved: physics only, states whose couplings bend with their deviation, state -> power (2, 3
         or root): each coupling A_rj from x_j becomes A_rj (x_j + w_r (x_j - μ_j) z^(p-1)), z = (x_j
-        - μ_j) / σ_j (root: A_rj (x_j + w_r (√(μ_j x_j) - x_j)), an orifice's law), with the block's
-        own parameters ``<state>_level`` μ_j, ``<state>_spread`` σ_j and ``curve_<state>_on_<row>``
-        w_r (``hypa.physics.curved``; named by ``hypa.diagnose``'s ``cubic_state``, ``square_state``
-        and ``root_state``).
+        - μ_j) / σ_j, with the block's own parameters ``<state>_level`` μ_j, ``<state>_spread`` σ_j
+        and ``curve_<state>_on_<row>`` w_r (root, an orifice's law: A_rj (x_j + w (√(μ_j x_j) -
+        x_j)), one ``curve_<state>`` w for every row) (``hypa.physics.curved``; named by
+        ``hypa.diagnose``'s ``cubic_state``, ``square_state`` and ``root_state``).
     limited: physics only, states that cannot pass a level, state -> upper or lower: what would
         carry the state past its limit ``<state>_limit`` spills within ``<state>_limit_time``, a
         share ``spill_<state>_to_<row>`` of it into each other state (``hypa.physics.limited``;

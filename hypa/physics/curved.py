@@ -12,12 +12,14 @@ speed. At x_j = μ_j the term and its slope are zero: the model is its linear se
 operating point, and ``w = 0`` is the model as it was.
 
 ``root`` is the law of a flow through an orifice (Torricelli's √h) for a state that stays
-positive (a level, a pressure): the coupling becomes
+positive (a level, a pressure): every coupling from it becomes
 
-    A_rj (x_j + w_r (√(μ_j x_j) - x_j)),
+    A_rj (x_j + w (√(μ_j x_j) - x_j)),
 
-the linear one at ``w = 0`` and A_rj √(μ_j x_j), the root through the same flow at the level μ_j,
-at ``w = 1`` (x_j is taken as at least 1e-6 μ_j: the root's slope stays finite at an empty tank).
+with one weight ``curve_<state>`` w for all rows (the flow that leaves one tank is the flow that
+fills the next: the same law on both ends), the linear one at ``w = 0`` and A_rj √(μ_j x_j), the
+root through the same flow at the level μ_j, at ``w = 1`` (x_j is taken as at least 1e-6 μ_j: the
+root's slope stays finite at an empty tank).
 
 The new parameters are the block's own (``<block>/...``): ``<state>_level`` μ_j and
 ``<state>_spread`` σ_j in the state's unit (fixed: they set the scale of w, not the physics), and
@@ -45,9 +47,10 @@ ROOT = "root"  # the orifice's law, √(μ x)
 POWERS = (2, 3, ROOT)
 
 
-def curve_name(state: str, row: str) -> str:
-    """The local name of the weight w of the coupling from ``state`` into ``row``'s derivative."""
-    return f"curve_{state}_on_{row}"
+def curve_name(state: str, row: str | None = None) -> str:
+    """The local name of the weight w of the coupling from ``state`` into ``row``'s derivative (None:
+    of every coupling from it, a root's one weight)."""
+    return f"curve_{state}" if row is None else f"curve_{state}_on_{row}"
 
 
 class CurvedError(ValueError):
@@ -64,6 +67,7 @@ class Curved(StateFeedback):
         self.curved = self.options
         states = list(base.state_names)
         self._columns = [(states.index(s), p, local_name(block, f"{s}_level"), local_name(block, f"{s}_spread"),
+                          [local_name(block, curve_name(s))] if p == ROOT else
                           [local_name(block, curve_name(s, r)) for r in states]) for s, p in curved.items()]
         own = []
         for _, _, level, spread, weights in self._columns:
