@@ -11,7 +11,7 @@ PYTEST := $(BIN)/python -m pytest -q $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST
 export NO_MKDOCS_2_WARNING := 1
 
 .DEFAULT_GOAL := help
-.PHONY: help install train evaluate reproduce simulate testbench tensorboard test test-slow test-all speed bench benchmark docs serve-docs lint clean
+.PHONY: help install train evaluate reproduce simulate testbench tensorboard test test-slow test-all timing speed bench benchmark docs serve-docs lint clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-12s %s\n", $$1, $$2}'
@@ -26,19 +26,19 @@ $(STAMP): pyproject.toml
 install: $(STAMP) ## create .venv and install hypa with its dependencies
 
 train: $(STAMP) ## main job: the paper's V2 (LSTM) on the default data; more: ARGS="model=v1 ann=s4"
-	$(BIN)/python -m hypa.train model=v2 ann=lstm $(ARGS)
+	$(BIN)/hypa train model=v2 ann=lstm $(ARGS)
 
 evaluate: $(STAMP) ## evaluate a run: make evaluate ARGS="run=outputs/train/v2-lstm/<time>"
-	$(BIN)/python -m hypa.evaluate $(ARGS)
+	$(BIN)/hypa evaluate $(ARGS)
 
 reproduce: $(STAMP) ## train + evaluate every Table 1 row over 3 seeds -> results/REPORT.md
-	$(BIN)/python -m hypa.reproduce $(ARGS)
+	$(BIN)/hypa reproduce $(ARGS)
 
 simulate: $(STAMP) ## a physics model vs measured data: make simulate ARGS="dataset=silverbox model=silverbox_physical"
-	$(BIN)/python -m hypa.simulate $(ARGS)
+	$(BIN)/hypa simulate $(ARGS)
 
 testbench: $(STAMP) ## generate (or find cached) test-bench data and print a summary
-	$(BIN)/python -m hypa.testbench $(ARGS)
+	$(BIN)/hypa testbench $(ARGS)
 
 tensorboard: $(STAMP) ## open TensorBoard over all runs (outputs/ and multirun/)
 	mkdir -p outputs multirun
@@ -58,13 +58,15 @@ test-slow: $(STAMP) ## only the checks marked slow
 test-all: $(STAMP) ## every test
 	$(PYTEST) -m "slow or not slow" $(ARGS)
 
-speed: $(STAMP) ## how fast: the physics blocks (ratios) and the time to name causes; one part: ARGS="physics --min-time 0.1"
-	$(BIN)/python -m hypa.speed $(ARGS)
+timing: $(STAMP) ## how fast: the physics blocks (ratios) and the time to name causes; one part: ARGS="physics --min-time 0.1"
+	$(BIN)/hypa timing $(ARGS)
 
-bench: speed ## the former name of make speed
+speed bench: ## the former names of make timing (deprecated, go in the next release)
+	@echo "make $@ is deprecated: use make timing" >&2
+	@$(MAKE) --no-print-directory timing
 
 benchmark: $(STAMP) ## real data (../shared/data): make benchmark ARGS="dataset=silverbox budget=full"
-	$(BIN)/python -m hypa.benchmark $(ARGS)
+	$(BIN)/hypa benchmark $(ARGS)
 
 docs: $(STAMP) ## the documentation site from docs/ and the docstrings: mkdocs build --strict -> site/
 	$(BIN)/mkdocs build --strict

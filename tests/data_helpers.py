@@ -173,7 +173,7 @@ def user_project(folder: Path, module: str, code: str, dataset: str, dataset_yam
 
 def run_user_benchmark(user: Path, dataset: str, models: list[str], out: Path, timeout: int = 900,
                        extra: list[str] | None = None) -> dict:
-    """``python -m hypa.benchmark --config-dir`` on a :func:`user_project` (its data in data/, budget=full):
+    """``hypa benchmark --config-dir`` on a :func:`user_project` (its data in data/, budget=full):
     benchmark.json's models of ``dataset`` (asserting the command succeeded)."""
     import json
     import os
@@ -181,7 +181,7 @@ def run_user_benchmark(user: Path, dataset: str, models: list[str], out: Path, t
     import sys
 
     result = subprocess.run(
-        [sys.executable, "-m", "hypa.benchmark", "--config-dir", str(user / "conf"), f"dataset={dataset}",
+        [sys.executable, "-m", "hypa", "benchmark", "--config-dir", str(user / "conf"), f"dataset={dataset}",
          f"data.dir={user / 'data'}", "budget=full", f"models=[{','.join(models)}]", f"hydra.run.dir={out}",
          *(extra or [])],
         cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=timeout,

@@ -5,7 +5,6 @@ small learning check per block."""
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import pytest
 import torch
@@ -22,6 +21,7 @@ from hypa.ann import (
     target,
 )
 from hypa.ann.s4 import causal_convolution
+from hypa.conf import CONF
 
 NAMES = sorted(ANN_BLOCKS)
 # Every block with its defaults, plus non-default settings that take other code paths.
@@ -31,7 +31,7 @@ VARIANTS = [pytest.param(name, {}, id=name) for name in NAMES] + [
     pytest.param("s4", {"init": "inv", "n_layers": 1}, id="s4-inv"),
     pytest.param("mamba", {"d_conv": 1, "expand": 2, "dt_rank": 3}, id="mamba-noconv-x2"),
 ]
-CONF_ANN = Path(__file__).resolve().parents[1] / "conf" / "ann"
+CONF_ANN = CONF / "ann"
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -327,7 +327,7 @@ def test_every_block_has_a_config_with_its_defaults() -> None:
             assert cfg.pop("_target_") == target(name)  # the block instantiate builds
             defaults = ann_hyperparameters(name)
             defaults.pop("zero_init")
-            cfg = {k: defaults.get(k) if v is None else v for k, v in cfg.items()}  # null: the block's (see hypa.train)
+            cfg = {k: defaults.get(k) if v is None else v for k, v in cfg.items()}  # null: the block's (see hypa train)
             assert cfg == defaults, f"conf/ann/{name}.yaml differs from the code defaults"
             block = build_ann(name, 2, 1, **cfg)
             assert block(torch.zeros(1, 3, 2))[0].shape == (1, 3, 1)

@@ -1,4 +1,4 @@
-"""hypa.benchmark keeps what it has: a row that fails is a row of the table ("failed: <why>") and the
+"""hypa benchmark keeps what it has: a row that fails is a row of the table ("failed: <why>") and the
 others are written after each one; the table carries each model's training time and says where it
 stopped at a cap; diagnose=PATH reuses a diagnosis folder, read as data."""
 
@@ -15,7 +15,7 @@ from types import SimpleNamespace
 import pytest
 
 from hypa.commands.benchmark import Rows, diagnosis_folder, model_file_override, reused_diagnosis, trust_of
-from hypa.errors import UserError
+from hypa.core.errors import UserError
 from hypa.evaluation.benchmark import Score, benchmark
 from hypa.evaluation.benchmark_result import Benchmark
 
@@ -98,7 +98,7 @@ DATA = SimpleNamespace(input_names=["u"], output_names=["y"])
 
 
 def diagnosis(folder: Path, inputs: list[str] = ("u",), outputs: list[str] = ("y",)) -> Path:
-    """A diagnosis folder as hypa.diagnose leaves it (the parts the benchmark reads)."""
+    """A diagnosis folder as hypa diagnose leaves it (the parts the benchmark reads)."""
     (folder / "conf" / "model").mkdir(parents=True)
     (folder / "diagnosis.json").write_text(json.dumps({"causes": ["hardening"], "system": {
         "model": "silverbox_physical", "inputs": list(inputs), "outputs": list(outputs), "scheduling": []}}))
@@ -153,7 +153,7 @@ def test_a_crafted_model_file_is_refused_before_any_row_trains(tmp_path: Path) -
         reused_diagnosis(folder, ["diagnosed_hybrid"], DATA, ())
 
 
-@pytest.mark.slow  # about 30 s: two rows through hypa.train (make test-slow)
+@pytest.mark.slow  # about 30 s: two rows through hypa train (make test-slow)
 @pytest.mark.skipif(not SHARED.is_dir(), reason="../shared/data is not beside the project")
 def test_a_row_that_fails_leaves_the_others_in_the_table(tmp_path: Path) -> None:
     """The first model cannot be built: its row says why, the next one trains and is scored, both files
@@ -163,11 +163,11 @@ def test_a_row_that_fails_leaves_the_others_in_the_table(tmp_path: Path) -> None
     (conf / "broken.yaml").write_text(MODEL.replace("mass_spring_damper", "no_such_system").replace(
         "name: diagnosed", "name: broken"))
     result = subprocess.run(
-        [sys.executable, "-m", "hypa.benchmark", "--config-dir", str(tmp_path / "conf"), "dataset=racecar",
+        [sys.executable, "-m", "hypa", "benchmark", "--config-dir", str(tmp_path / "conf"), "dataset=racecar",
          "models=[broken,physical]", "train_overrides=['identification.max_evaluations=3']",
          f"hydra.run.dir={tmp_path / 'run'}"], cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
     assert result.returncode == 1, result.stderr[-3000:]
-    assert result.stderr.strip().splitlines()[-1].startswith("hypa.benchmark: error: 1 of 2 models failed (broken)")
+    assert result.stderr.strip().splitlines()[-1].startswith("hypa benchmark: error: 1 of 2 models failed (broken)")
     assert "[1/2] broken failed: " in result.stdout and "[2/2] physical: trained in " in result.stdout
     table = (tmp_path / "run" / "benchmark.md").read_text()
     assert "failed: block 'oscillator': unknown physics system 'no_such_system'" in table

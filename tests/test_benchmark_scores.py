@@ -80,7 +80,7 @@ def test_a_file_written_before_the_typed_result_reads_back(tmp_path: Path) -> No
 
 
 def test_a_hybrid_that_kept_its_identified_physics_is_said_under_the_table(tmp_path: Path) -> None:
-    """hypa.benchmark passes the seeds whose run kept the model before its networks' first epoch."""
+    """hypa benchmark passes the seeds whose run kept the model before its networks' first epoch."""
     result = benchmark("emps", scores(), {"physical": 80.0, "hybrid": 300.0}, PUBLISHED, UNITS,
                        kept_physics={"hybrid": [1, 0], "physical": []})
     table = result.markdown()

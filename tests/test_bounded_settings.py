@@ -3,9 +3,9 @@ end in one line, never a traceback.
 
 - the test bench's sizes (durations, the sample rate, ...) are checked for type and range, and what they
   ask for is compared with this machine's memory before a sample is generated: ``hypa.testbench`` and a
-  run folder's stored configuration (``hypa.evaluate`` regenerates its data from it) alike;
-- Ctrl-C (SIGINT to the process group, as a terminal sends it) ends ``hypa.diagnose``, its forked
-  workers included, with ``hypa.diagnose: interrupted`` and exit status 130;
+  run folder's stored configuration (``hypa evaluate`` regenerates its data from it) alike;
+- Ctrl-C (SIGINT to the process group, as a terminal sends it) ends ``hypa diagnose``, its forked
+  workers included, with ``hypa diagnose: interrupted`` and exit status 130;
 - a fleet folder's YAML with a ``!!python`` tag runs no code and is that job's error in the summary.
 """
 
@@ -21,6 +21,8 @@ from pathlib import Path
 
 import pytest
 
+from hypa.conf import CONF
+
 from conftest import SHORT_OVERRIDES
 from data_helpers import make_data_dir
 
@@ -30,7 +32,8 @@ ROOT = Path(__file__).resolve().parents[1]
 def hypa(command: str, *args: str, cache: Path, timeout: float = 120) -> subprocess.CompletedProcess:
     environment = {k: v for k, v in os.environ.items() if k not in ("HYDRA_FULL_ERROR", "HYPA_FULL_ERROR")}
     environment.update(HYPA_CACHE_DIR=str(cache), OMP_NUM_THREADS="1")
-    return subprocess.run([sys.executable, "-m", command, *args], cwd=ROOT, env=environment, capture_output=True,
+    return subprocess.run([sys.executable, "-m", *command.split(), *args],
+                          cwd=ROOT, env=environment, capture_output=True,
                           text=True, timeout=timeout, check=False)
 
 
@@ -60,8 +63,8 @@ BAD_SIZES = [
 def test_a_setting_that_sizes_the_data_is_refused_in_one_line_before_anything_is_made(
         override: str, parts: list[str], tmp_path: Path) -> None:
     started = time.perf_counter()
-    result = hypa("hypa.testbench", override, f"hydra.run.dir={tmp_path / 'run'}", cache=tmp_path / "cache")
-    assert_one_line(result, "hypa.testbench", *parts)
+    result = hypa("hypa testbench", override, f"hydra.run.dir={tmp_path / 'run'}", cache=tmp_path / "cache")
+    assert_one_line(result, "hypa testbench", *parts)
     assert time.perf_counter() - started < 60  # refused, not generated (a record takes minutes to simulate)
     assert not (tmp_path / "cache" / "testbench").exists() or not any((tmp_path / "cache" / "testbench").iterdir())
 
@@ -98,7 +101,7 @@ def test_every_value_the_simulation_sizes_or_divides_by_is_checked(override: str
                                                                   tmp_path: Path) -> None:
     from omegaconf import OmegaConf
 
-    from hypa.errors import UserError, settings
+    from hypa.core.errors import UserError, settings
     from hypa.paper.testbench import TestbenchConfig, ensure_dataset
 
     with pytest.raises(UserError) as error, settings("testbench"):  # as the commands build the data
@@ -108,8 +111,8 @@ def test_every_value_the_simulation_sizes_or_divides_by_is_checked(override: str
 
 
 def test_the_memory_check_compares_with_this_machine_and_allocates_nothing() -> None:
-    from hypa.errors import UserError
-    from hypa.machine import available_memory
+    from hypa.core.errors import UserError
+    from hypa.core.machine import available_memory
     from hypa.paper.testbench import TestbenchConfig
     from hypa.paper.testbench.memory import check_fits, needed_bytes
 
@@ -124,18 +127,18 @@ def test_the_memory_check_compares_with_this_machine_and_allocates_nothing() -> 
 
 
 def test_a_received_run_config_asking_for_huge_records_is_refused_before_its_data_are_made(tmp_path: Path) -> None:
-    """A run folder's config.yaml (read as hypa.evaluate reads it) whose test-bench records ask for 1e7 s:
+    """A run folder's config.yaml (read as hypa evaluate reads it) whose test-bench records ask for 1e7 s:
     building its data (what evaluation does when the run's data folder is not there) is refused in one
     line, without allocating and without a folder in the cache."""
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
     import hypa.commands  # noqa: F401  (registers the schemas conf/train.yaml extends, as every command does)
+    from hypa.core.errors import UserError
     from hypa.data.from_config import data_dir_from_config
-    from hypa.errors import UserError
     from hypa.evaluation.runs import run_config
 
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="train", overrides=SHORT_OVERRIDES)
     cfg.testbench.records.val.stochastic_duration_s = 1.0e7  # as someone edited the file they sent
     run = tmp_path / "run"
@@ -157,7 +160,7 @@ def test_a_received_run_config_asking_for_huge_records_is_refused_before_its_dat
 def test_evaluate_refuses_a_run_whose_stored_testbench_asks_for_huge_records(tmp_path: Path) -> None:
     cache = tmp_path / "cache"
     tiny = [f"testbench.records.{r}.stochastic_duration_s=5" for r in ("train_1", "train_2", "val")]
-    trained = hypa("hypa.train", "model=physical", "trainer.max_epochs=1", "trainer.limit_train_batches=2",
+    trained = hypa("hypa train", "model=physical", "trainer.max_epochs=1", "trainer.limit_train_batches=2",
                    "trainer.limit_val_batches=1", "trainer.enable_progress_bar=false", "figures.enabled=false",
                    *tiny, "testbench.records.val.maneuvers=[]", f"hydra.run.dir={tmp_path / 'run'}", cache=cache,
                    timeout=600)
@@ -171,8 +174,8 @@ def test_evaluate_refuses_a_run_whose_stored_testbench_asks_for_huge_records(tmp
     record.pop("data_dir", None)  # as a received run folder: its data are made from its configuration
     (tmp_path / "run" / "run.json").write_text(json.dumps(record))
     started = time.perf_counter()
-    result = hypa("hypa.evaluate", f"run={tmp_path / 'run'}", f"hydra.run.dir={tmp_path / 'ev'}", cache=cache)
-    assert_one_line(result, "hypa.evaluate", "samples", "GiB", "stochastic_duration_s")
+    result = hypa("hypa evaluate", f"run={tmp_path / 'run'}", f"hydra.run.dir={tmp_path / 'ev'}", cache=cache)
+    assert_one_line(result, "hypa evaluate", "samples", "GiB", "stochastic_duration_s")
     assert time.perf_counter() - started < 120
 
 
@@ -182,7 +185,7 @@ def test_ctrl_c_ends_diagnose_and_its_workers_with_one_line_and_status_130(tmp_p
     data = make_data_dir(tmp_path / "data", duration_s=150.0)
     environment = {k: v for k, v in os.environ.items() if k not in ("HYDRA_FULL_ERROR", "HYPA_FULL_ERROR")}
     environment.update(OMP_NUM_THREADS="1", PYTHONUNBUFFERED="1")
-    process = subprocess.Popen([sys.executable, "-m", "hypa.diagnose", "dataset=files", f"data.dir={data}",
+    process = subprocess.Popen([sys.executable, "-m", "hypa", "diagnose", "dataset=files", f"data.dir={data}",
                                 "plot=false", "diagnosis.workers=2", f"hydra.run.dir={tmp_path / 'run'}"],
                                cwd=ROOT, env=environment, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                start_new_session=True)  # its own process group: the signal reaches the workers too
@@ -203,13 +206,14 @@ def test_ctrl_c_ends_diagnose_and_its_workers_with_one_line_and_status_130(tmp_p
             process.wait()
     assert process.returncode == 130, stderr[-3000:]
     assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr[-3000:]
-    assert stderr.strip().splitlines() == ["hypa.diagnose: interrupted"], stderr[-3000:]
+    assert stderr.strip().splitlines() == ["hypa diagnose: interrupted"], stderr[-3000:]
 
 
 IDLE_WORKERS = """
 import os, signal, time
+from hypa.conf import CONF
 from hypa.diagnosis.workers import Workers
-from hypa.errors import user_errors
+from hypa.core.errors import user_errors
 
 @user_errors("hypa.test")
 def main():
@@ -233,7 +237,7 @@ def test_ctrl_c_while_the_diagnosis_workers_wait_is_one_line_not_one_traceback_p
 
 INTERRUPTED = """
 import sys
-from hypa.errors import user_errors
+from hypa.core.errors import user_errors
 
 def lightning():  # what Lightning does when Ctrl-C stops a fit, a validation or a prediction
     try:
@@ -286,7 +290,7 @@ def test_a_python_tag_in_a_fleet_folder_runs_nothing_and_is_that_jobs_error(tmp_
     (bad_error / "error.json").write_text("{not json")
     (_job(sweep, "4", "hydra: {job: {name: diagnose}}\n", "- data.dir=e\n") / "diagnosis.json").write_text(
         json.dumps({"causes": "input_delay"}))
-    result = hypa("hypa.diagnosis.fleet", "summary", str(sweep), cache=tmp_path / "cache")
+    result = hypa("hypa fleet", "summary", str(sweep), cache=tmp_path / "cache")
     assert "Traceback" not in result.stderr, result.stderr[-3000:]
     assert result.returncode == 0, result.stderr[-3000:]
     assert not marker.exists()
@@ -296,14 +300,14 @@ def test_a_python_tag_in_a_fleet_folder_runs_nothing_and_is_that_jobs_error(tmp_
     assert errors[0] == "a: no train* file"
     assert "overrides.yaml: not a readable Hydra overrides file" in errors[1] and "python/object" in errors[1]
     assert "hydra.yaml: not a readable Hydra configuration file" in errors[2]
-    assert "error.json: not an error.json of hypa.diagnose" in errors[3]
-    assert "diagnosis.json: not a diagnosis.json of hypa.diagnose (causes is the string" in errors[4]
+    assert "error.json: not an error.json of hypa diagnose" in errors[3]
+    assert "diagnosis.json: not a diagnosis.json of hypa diagnose (causes is the string" in errors[4]
     assert all("\n" not in e for e in errors)
 
 
 def test_a_huge_error_json_is_not_read(tmp_path: Path) -> None:
+    from hypa.core.trust import MAX_TEXT_BYTES
     from hypa.diagnosis import fleet
-    from hypa.trust import MAX_TEXT_BYTES
 
     folder = _job(tmp_path, "0", "hydra: {job: {name: diagnose}}\n", "- data.dir=a\n")
     with (folder / "error.json").open("wb") as file:

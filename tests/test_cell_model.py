@@ -288,7 +288,7 @@ def _write_cell_project(folder: Path, seed: int, offset: float = 0.0, records: t
 
 
 def _run(args: list[str], user: Path, timeout: int = 600) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", args[0], "--config-dir", str(user / "conf"), "dataset=cell",
+    return subprocess.run([sys.executable, "-m", *args[0].split(), "--config-dir", str(user / "conf"), "dataset=cell",
                            f"data.dir={user / 'data'}", *args[1:]], cwd=ROOT, capture_output=True, text=True,
                           timeout=timeout,
                           env={**os.environ, "PYTHONPATH": str(user)}, check=False)
@@ -296,11 +296,11 @@ def _run(args: list[str], user: Path, timeout: int = 600) -> subprocess.Complete
 
 @pytest.mark.slow
 def test_train_identifies_capacity_and_resistance_written_in_ah_and_mohm(tmp_path: Path) -> None:
-    """(b) hypa.train through the CLI: the identification finds the capacity (2.3 Ah, nominal 2.0 Ah)
-    and R0 (45 mOhm, nominal 30 mOhm) through the nonlinear output; hypa.evaluate scores the run."""
+    """(b) hypa train through the CLI: the identification finds the capacity (2.3 Ah, nominal 2.0 Ah)
+    and R0 (45 mOhm, nominal 30 mOhm) through the nonlinear output; hypa evaluate scores the run."""
     user = _write_cell_project(tmp_path / "user", seed=1)
     run = tmp_path / "run"
-    result = _run(["hypa.train", "model=cell", "trainer.max_epochs=1", "trainer.enable_progress_bar=false",
+    result = _run(["hypa train", "model=cell", "trainer.max_epochs=1", "trainer.enable_progress_bar=false",
                    f"hydra.run.dir={run}"], user)
     assert result.returncode == 0, result.stderr[-3000:]
     sys.path.insert(0, str(user))
@@ -313,7 +313,7 @@ def test_train_identifies_capacity_and_resistance_written_in_ah_and_mohm(tmp_pat
         sys.modules.pop("cellmodel", None)
     assert fitted["capacity"] / 3600 == pytest.approx(TRUE["capacity_ah"], rel=0.01)
     assert fitted["r0"] == pytest.approx(TRUE["r0"], rel=0.02)
-    evaluated = subprocess.run([sys.executable, "-m", "hypa.evaluate", f"run={run}", f"out={tmp_path / 'eval'}",
+    evaluated = subprocess.run([sys.executable, "-m", "hypa", "evaluate", f"run={run}", f"out={tmp_path / 'eval'}",
                                 "trust=[cellmodel]", "tensorboard=false", f"hydra.run.dir={tmp_path / 'hydra'}"],
                                cwd=ROOT, capture_output=True, text=True, timeout=300,
                                env={**os.environ, "PYTHONPATH": str(user)}, check=False)
@@ -350,11 +350,11 @@ def test_a_unit_of_another_kind_is_refused_in_one_line(tmp_path: Path) -> None:
 
 
 def test_a_free_run_at_zero_volts_is_flagged_in_one_line(tmp_path: Path) -> None:
-    """(c) The OCV as a leaking state started steady sits at 0 V while the cell sits near 3.9 V: hypa.simulate
+    """(c) The OCV as a leaking state started steady sits at 0 V while the cell sits near 3.9 V: hypa simulate
     says so in one line naming the output and the state (the cell with its OCV read through the nonlinear
     output, started from the estimate, simulates at the data's level: test (a))."""
     user = _write_cell_project(tmp_path / "user", seed=2, records=(300, 900))
-    flagged = _run(["hypa.simulate", "model=ocv_leak", "plot=false", f"hydra.run.dir={tmp_path / 'leak'}"], user)
+    flagged = _run(["hypa simulate", "model=ocv_leak", "plot=false", f"hydra.run.dir={tmp_path / 'leak'}"], user)
     assert flagged.returncode == 0, flagged.stderr[-3000:]
     lines = [line for line in flagged.stdout.splitlines() if line.startswith("warning: the free run")]
     assert len(lines) == 1, flagged.stdout[-2000:]
@@ -362,16 +362,17 @@ def test_a_free_run_at_zero_volts_is_flagged_in_one_line(tmp_path: Path) -> None
     assert level and abs(float(level[1])) < 0.5 and 3.5 < float(level[2]) < 4.2, lines[0]
     assert lines[0].endswith("a state that no data initialize (ocv?) or an output offset")
     # the diagnosis says the same before it names anything
-    diagnosed = _run(["hypa.diagnose", "model=ocv_leak", "plot=false", "diagnosis.max_causes=0",
+    diagnosed = _run(["hypa diagnose", "model=ocv_leak", "plot=false", "diagnosis.max_causes=0",
                       f"hydra.run.dir={tmp_path / 'diagnosis'}"], user)
     assert diagnosed.returncode == 0, diagnosed.stderr[-3000:]
     warned = [line.strip() for line in diagnosed.stdout.splitlines() if "warning: the free run" in line]
     assert warned == [lines[0]], diagnosed.stdout[-2000:]
-    # ... and so does hypa.evaluate of a run trained from it (one epoch: its values stay where they are)
-    trained = _run(["hypa.train", "model=ocv_leak", "trainer.max_epochs=1",
+    # ... and so does hypa evaluate of a run trained from it (one epoch: its values stay where they are)
+    trained = _run(["hypa train", "model=ocv_leak", "trainer.max_epochs=1",
                     f"hydra.run.dir={tmp_path / 'run'}"], user)
     assert trained.returncode == 0, trained.stderr[-3000:]
-    evaluated = subprocess.run([sys.executable, "-m", "hypa.evaluate", f"run={tmp_path / 'run'}", "tensorboard=false",
+    evaluated = subprocess.run([sys.executable, "-m", "hypa", "evaluate",
+                                f"run={tmp_path / 'run'}", "tensorboard=false",
                                 "trust=[cellmodel:OcvLeak]"], cwd=ROOT, capture_output=True, text=True, timeout=600,
                                env={**os.environ, "PYTHONPATH": str(user)}, check=False)
     assert evaluated.returncode == 0, evaluated.stderr[-3000:]
@@ -398,7 +399,7 @@ def test_the_level_check_reads_the_datas_own_spread() -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [11, 12])
 def test_the_diagnosis_runs_on_the_nonlinear_output_and_tries_an_output_offset(tmp_path: Path, seed: int) -> None:
-    """(d) hypa.diagnose through the CLI on the cell with its OCV in the output and a voltage sensor
+    """(d) hypa diagnose through the CLI on the cell with its OCV in the output and a voltage sensor
     offset it does not know (20-60 mV, either sign): the search runs end to end through the nonlinear
     output (every candidate keeps h: the wrappers read it through ``base``) and fits the output offset.
 
@@ -408,7 +409,7 @@ def test_the_diagnosis_runs_on_the_nonlinear_output_and_tries_an_output_offset(t
     rng = np.random.default_rng(seed)
     offset = float(rng.uniform(0.02, 0.06) * rng.choice([-1.0, 1.0]))
     user = _write_cell_project(tmp_path / "user", seed=seed, offset=offset, records=(1500, 900), soc=(0.15, 0.35))
-    result = _run(["hypa.diagnose", "model=cell_true", f"hydra.run.dir={tmp_path / 'diag'}"], user, timeout=900)
+    result = _run(["hypa diagnose", "model=cell_true", f"hydra.run.dir={tmp_path / 'diag'}"], user, timeout=900)
     assert result.returncode == 0, result.stderr[-3000:]
     diagnosis = json.loads((tmp_path / "diag" / "diagnosis.json").read_text())
     tried = {(c["cause"], c["target"]): c for c in diagnosis["candidates"]}

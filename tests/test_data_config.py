@@ -12,13 +12,15 @@ from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
 import hypa.commands  # noqa: F401  (registers the schemas, as every command does)
+from hypa.conf import CONF
 from hypa.data import DataError, HypaDataModule, datamodule_from_config, decimate
 from hypa.data.from_config import data_dir_from_config, validated
 from hypa.paper.testbench.sensors import TESTBENCH_CHANNELS
 
 from data_helpers import synthetic_channels, write_table
 
-CONF = Path(__file__).resolve().parents[1] / "conf"
+ROOT = Path(__file__).resolve().parents[1]
+
 DATASETS = ("testbench", "files", "silverbox", "emps", "racecar")
 
 
@@ -173,7 +175,7 @@ def test_the_docs_example_dataset_loads(tmp_path):
     import re
     import shutil
 
-    page = (CONF.parent / "docs" / "data.md").read_text()
+    page = (ROOT / "docs" / "data.md").read_text()
     pattern = r"```yaml\n(# @package _global_\n# conf/dataset/my_rig\.yaml.*?)```"
     block = re.search(pattern, page, re.DOTALL).group(1)
     conf = tmp_path / "conf"

@@ -1,6 +1,6 @@
 """ASAM MDF files as measured data: channels by name on time bases of their own, units from the
 file, resampled onto one time base (anti-aliased where a channel is faster), and trained on
-through ``python -m hypa.train dataset=files``.
+through ``hypa train dataset=files``.
 
 The files are written with asammdf from systems whose responses are known in closed form (the
 steady state of a mass-spring-damper and of a first-order yaw response to sums of sines), so
@@ -19,6 +19,7 @@ import pytest
 
 asammdf = pytest.importorskip("asammdf")
 
+from hypa.conf import CONF  # noqa: E402 -- after the importorskip
 from hypa.data import ChannelSpec, DataError, decimate, find_split_files, load_record  # noqa: E402 -- after the importorskip
 from hypa.data.decimation import lowpass  # noqa: E402 -- after the importorskip
 from hypa.data.mdf import read_signals  # noqa: E402 -- after the importorskip
@@ -278,7 +279,7 @@ def test_dataset_files_reads_an_mdf_folder_in_si_at_the_model_rate(tmp_path: Pat
     folder = _vehicle_folder(tmp_path / "mdf")
     assert {s: [p.name for p in f] for s, f in find_split_files(folder).items()} == {
         "train": ["train.mf4"], "val": ["val.mf4"]}
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="train", overrides=[*FILES_OVERRIDES, f"data.dir={folder}"])
     dm = datamodule_from_config(cfg.data, folder)
     dm.setup()
@@ -294,7 +295,7 @@ def test_dataset_files_reads_an_mdf_folder_in_si_at_the_model_rate(tmp_path: Pat
 
 
 def _train(folder: Path, run: Path, *overrides: str) -> subprocess.CompletedProcess:
-    command = [sys.executable, "-m", "hypa.train", *FILES_OVERRIDES, f"data.dir={folder}",
+    command = [sys.executable, "-m", "hypa", "train", *FILES_OVERRIDES, f"data.dir={folder}",
                "model=blackbox", "ann=lstm", "ann.hidden_size=8", "trainer.max_epochs=1",
                "trainer.enable_progress_bar=false", "figures.enabled=false", *overrides,
                f"hydra.run.dir={run}"]

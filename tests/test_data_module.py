@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from hypa.conf import CONF
 from hypa.data import (
     ChannelSpec,
     DataError,
@@ -21,7 +22,7 @@ from hypa.paper.testbench.sensors import TESTBENCH_CHANNELS
 from data_helpers import make_data_dir, synthetic_channels, write_table
 
 WINDOW, STRIDE, EVAL_STRIDE = 20, 3, 7
-CONF = Path(__file__).resolve().parents[1] / "conf" / "dataset"
+DATASETS = CONF / "dataset"
 
 
 def _module(data_dir: Path, **kwargs) -> HypaDataModule:

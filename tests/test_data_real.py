@@ -13,6 +13,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 import hypa  # noqa: F401  (registers the schema, as every entry point does)
+from hypa.conf import CONF
 from hypa.data import HypaDataModule, datamodule_from_config, read_columns
 from hypa.data.from_config import data_dir_from_config
 
@@ -25,7 +26,7 @@ pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason=f"real data not found 
 def _load(name: str, monkeypatch, *overrides: str) -> HypaDataModule:
     monkeypatch.chdir(ROOT)  # the YAMLs name ../shared/data relative to where hypa runs
     monkeypatch.delenv("HYPA_DATA", raising=False)
-    with initialize_config_dir(str(ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(str(CONF), version_base="1.3"):
         cfg = compose("train", overrides=[f"dataset={name}", *overrides])
     dm = datamodule_from_config(cfg.data, data_dir_from_config(cfg))
     dm.setup()

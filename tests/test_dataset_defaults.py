@@ -1,5 +1,5 @@
-"""dataset=NAME brings its own default models: hypa.diagnose takes conf/model/<dataset>_nominal.yaml,
-hypa.simulate <dataset>_physical.yaml (python -m hypa.diagnose dataset=racecar once failed on the
+"""dataset=NAME brings its own default models: hypa diagnose takes conf/model/<dataset>_nominal.yaml,
+hypa simulate <dataset>_physical.yaml (hypa diagnose dataset=racecar once failed on the
 vehicle test bench's nominal model); model=M still chooses any other."""
 
 from pathlib import Path
@@ -8,6 +8,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 import hypa  # noqa: F401  (registers the data schema the data sets build on)
+from hypa.conf import CONF
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -25,6 +26,6 @@ ROOT = Path(__file__).resolve().parents[1]
     ("simulate", ["dataset=silverbox"], "silverbox_physical"),
 ])
 def test_a_data_set_brings_its_default_model(command: str, overrides: list[str], model: str) -> None:
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name=command, overrides=overrides)
     assert cfg.model.name == model

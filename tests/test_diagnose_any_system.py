@@ -1,10 +1,10 @@
-"""``python -m hypa.diagnose model=M`` on a user's own system, through the command a user types.
+"""``hypa diagnose model=M`` on a user's own system, through the command a user types.
 
 The DC motor of ``examples/user_system`` (a class by import path, its dataset and model YAMLs in
 the user's config folder): its data come from a motor whose torque constant is 0.065 N m/A
 where the nominal model believes 0.05, with a load torque of 4 mN m it does not know. The
 diagnosis must name the torque constant's mismatch first, with its value, write an extended
-model that ``hypa.train`` trains, and report what remains. The voltage is a staircase, so the
+model that ``hypa train`` trains, and report what remains. The voltage is a staircase, so the
 nominal hold is ZOH (with FOH the half-sample difference comes out, correctly, as a 0.5 ms lag).
 """
 
@@ -28,7 +28,7 @@ EXAMPLE = ROOT / "examples" / "user_system"
 def diagnosed(tmp_path_factory) -> Path:
     data, out = tmp_path_factory.mktemp("dc_motor_data"), tmp_path_factory.mktemp("dc_motor_diagnosis")
     env = make_dc_motor_data(data, 20)
-    command = [sys.executable, "-m", "hypa.diagnose", "--config-dir", str(EXAMPLE / "conf"), "dataset=dc_motor",
+    command = [sys.executable, "-m", "hypa", "diagnose", "--config-dir", str(EXAMPLE / "conf"), "dataset=dc_motor",
                "model=dc_motor", f"data.dir={data}", "physics.hold=zoh", f"hydra.run.dir={out}"]
     result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, env=env, check=False)
     assert result.returncode == 0, result.stderr[-3000:]
@@ -55,7 +55,7 @@ def test_the_extended_model_is_a_hypa_model_that_trains(diagnosed: Path, tmp_pat
     assert written["parameters"]["torque_constant"] == pytest.approx(0.065, rel=0.05)
     assert set(written["blocks"]["motor"]["trainable"]) == {"torque_constant", "friction", "load_torque"}
     command = json.loads((diagnosed / "diagnosis.json").read_text())["extended"]["train_command"]["diagnosed"]
-    assert command.startswith("python -m hypa.train --config-dir")
+    assert command.startswith("hypa train --config-dir")
     env = {**os.environ, "PYTHONPATH": str(EXAMPLE)}
     assert f"--config-dir {EXAMPLE / 'conf'}" in command  # the user's dataset YAML is found again
     args = [*shlex.split(command)[1:], "trainer.max_epochs=1",

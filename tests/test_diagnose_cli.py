@@ -1,4 +1,4 @@
-"""python -m hypa.diagnose end to end: a hidden steering delay is named, fixed and gains; bad input fails clearly.
+"""hypa diagnose end to end: a hidden steering delay is named, fixed and gains; bad input fails clearly.
 
 The delay case: the test bench's truth is the nominal linear single track (tires, relaxation,
 rear steering and sensor biases off; white sensor noise on) plus a 60 ms dead time on the
@@ -33,7 +33,7 @@ DELAY_ONLY = ["testbench.tires.enabled=false", "testbench.relaxation.enabled=fal
 
 def run_diagnose(tmp_path: Path, *overrides: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "HYPA_CACHE_DIR": str(tmp_path / "cache")}
-    return subprocess.run([sys.executable, "-m", "hypa.diagnose", f"hydra.run.dir={tmp_path / 'run'}", *overrides],
+    return subprocess.run([sys.executable, "-m", "hypa", "diagnose", f"hydra.run.dir={tmp_path / 'run'}", *overrides],
                           cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)
 
 
@@ -87,7 +87,7 @@ def test_extended_model_is_a_hypa_model_that_trains(delay_run, tmp_path: Path) -
     command = diagnosis["extended"]["train_command"]["diagnosed"]
     assert command in (run / "diagnosis.md").read_text()
     words = shlex.split(command)
-    assert words[:3] == ["python", "-m", "hypa.train"] and "testbench.steering.delay_s=0.06" in words
+    assert words[:3] == ["python", "-m", "hypa", "train"] and "testbench.steering.delay_s=0.06" in words
     env = {**os.environ, "HYPA_CACHE_DIR": str(run.parent / "cache")}
     trained = subprocess.run([sys.executable, *words[1:], f"hydra.run.dir={tmp_path / 'train'}",
                               "trainer.max_epochs=1", "trainer.limit_train_batches=3", "figures.enabled=false"],
@@ -125,18 +125,18 @@ def test_unstable_nominal_parameters_fail_in_one_line(delay_run) -> None:
     result = run_diagnose(first.parent / "unstable", *SHORT, "vehicle.cr=20000")
     assert result.returncode != 0
     error = result.stderr.strip().splitlines()[-1]
-    assert error.startswith("hypa.diagnose: error:") and "unstable" in error, result.stderr[-2000:]
+    assert error.startswith("hypa diagnose: error:") and "unstable" in error, result.stderr[-2000:]
     assert "cr=20000" in error and "Traceback" not in result.stderr
 
 
 def test_extension_train_true_trains_and_reports_the_trained_gain(delay_run) -> None:
-    """extension.train=true runs hypa.train on the written model inside the diagnosis folder and
+    """extension.train=true runs hypa train on the written model inside the diagnosis folder and
     puts its free-run metrics beside the nominal and parametric ones (one short epoch here)."""
     _, first = delay_run
     env = {**os.environ, "HYPA_CACHE_DIR": str(first.parent / "cache")}  # the fixture's generated data
     run = first.parent / "run_trained"
     result = subprocess.run(
-        [sys.executable, "-m", "hypa.diagnose", f"hydra.run.dir={run}", *SHORT, *DELAY_ONLY, "plot=false",
+        [sys.executable, "-m", "hypa", "diagnose", f"hydra.run.dir={run}", *SHORT, *DELAY_ONLY, "plot=false",
          "extension.train=true",
          'extension.train_overrides=["trainer.max_epochs=1","trainer.limit_train_batches=3","figures.enabled=false"]'],
         cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)
@@ -161,7 +161,7 @@ def test_the_trained_correction_network_is_explained(delay_run) -> None:
     env = {**os.environ, "HYPA_CACHE_DIR": str(first.parent / "cache")}
     run = first.parent / "run_explained"
     result = subprocess.run(
-        [sys.executable, "-m", "hypa.diagnose", f"hydra.run.dir={run}", *SHORT, *DELAY_ONLY, "plot=false",
+        [sys.executable, "-m", "hypa", "diagnose", f"hydra.run.dir={run}", *SHORT, *DELAY_ONLY, "plot=false",
          "diagnosis.max_causes=0", "extension.train=true",
          'extension.train_overrides=["trainer.max_epochs=1","trainer.limit_train_batches=3","figures.enabled=false"]'],
         cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)

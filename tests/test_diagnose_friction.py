@@ -105,7 +105,7 @@ def test_names_a_partly_cubic_friction_at_its_share(tmp_path: Path, seed: int) -
                delimiter=",", header="time,force,position", comments="")
     out = tmp_path / "diagnosis"
     result = subprocess.run(
-        [sys.executable, "-m", "hypa.diagnose", "--config-dir", str(folder / "conf"), "dataset=axis", "model=axis",
+        [sys.executable, "-m", "hypa", "diagnose", "--config-dir", str(folder / "conf"), "dataset=axis", "model=axis",
          f"data.dir={folder / 'data'}", "plot=false", f"hydra.run.dir={out}"],
         cwd=ROOT, capture_output=True, text=True, timeout=600, env=dict(os.environ), check=False)
     assert result.returncode == 0, result.stderr[-3000:]

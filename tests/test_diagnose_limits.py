@@ -17,7 +17,7 @@ The truth comes from scipy's ODE solver; the nominal models carry the parameters
 Where the tanks overflow at only 3-6 % of the samples (10.6-10.8 V), the search names the overflow
 on some records and not on others: after k1's mismatch, with k3 still nominal, the limit then
 lowers the error by about 10 % (under ``min_gain``, 15 %). Identified together with k3, as
-``hypa.train`` does, the limit finds its level (0.24 % of the output variance), so the structure is
+``hypa train`` does, the limit finds its level (0.24 % of the output variance), so the structure is
 right and the greedy order is what stops it. Before the spill's share was held positive it went
 negative in that round (a spill that drains the lower tank) and no rare overflow was named. The
 overflows here are reached at 8-18 % of the samples.

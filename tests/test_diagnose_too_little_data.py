@@ -1,4 +1,4 @@
-"""python -m hypa.diagnose on records too short to trust: refused, or not named, and said why.
+"""hypa diagnose on records too short to trust: refused, or not named, and said why.
 
 The data are the test bench with its effects off and its sensors on (white noise and the
 yaw-rate and side-slip biases), written as files so that one training record can be given
@@ -51,7 +51,7 @@ def folders(tmp_path_factory) -> dict[str, Path]:
 
 def diagnose(folder: Path, run: Path, *overrides: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "HYPA_CACHE_DIR": str(run.parent / "cache")}
-    return subprocess.run([sys.executable, "-m", "hypa.diagnose", f"hydra.run.dir={run}", "dataset=files",
+    return subprocess.run([sys.executable, "-m", "hypa", "diagnose", f"hydra.run.dir={run}", "dataset=files",
                            f"data.dir={folder}", *SHORT, *overrides],
                           cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)
 
@@ -60,7 +60,7 @@ def test_records_too_short_for_any_fit_are_refused_in_one_line(folders, tmp_path
     result = diagnose(folders["tiny"], tmp_path / "run")
     assert result.returncode == 1, result.stdout[-2000:] + result.stderr[-2000:]
     assert "Traceback" not in result.stderr
-    errors = [line for line in result.stderr.splitlines() if line.startswith("hypa.diagnose: error:")]
+    errors = [line for line in result.stderr.splitlines() if line.startswith("hypa diagnose: error:")]
     assert len(errors) == 1 and errors[0] == result.stderr.strip().splitlines()[-1], result.stderr[-2000:]
     assert "1 s of training data in 1 record: 1 window of 17 samples" in errors[0]
     assert "too short to fit even one number" in errors[0] and "give at least 1.06 s" in errors[0]

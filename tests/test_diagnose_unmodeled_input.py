@@ -11,7 +11,7 @@ exact recursion under the inputs held over each sample, 0.05 K noise. The search
 near the truth; with an outside temperature that does not reach the zone, it must not name it.
 
 The diagnosed model reads the auxiliary channel: :func:`hypa.data.from_config.read_as_inputs`
-declares it an input, so ``hypa.train`` with the written model builds on the same data.
+declares it an input, so ``hypa train`` with the written model builds on the same data.
 """
 
 from __future__ import annotations

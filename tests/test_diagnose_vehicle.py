@@ -1,4 +1,4 @@
-"""The vehicle through the one diagnosis engine: ``python -m hypa.diagnose model=vehicle_nominal``.
+"""The vehicle through the one diagnosis engine: ``hypa diagnose model=vehicle_nominal``.
 
 The test bench hides effects (one at a time, or two at once) in data of a nonlinear truth with
 its own ECU and tire models; the nominal model is the linear front-steered single track. The
@@ -34,7 +34,7 @@ LINEAR = ["testbench.tires.enabled=false", "testbench.relaxation.enabled=false",
 
 def diagnose(tmp_path: Path, *overrides: str) -> dict:
     env = {**os.environ, "HYPA_CACHE_DIR": str(tmp_path / "cache")}
-    result = subprocess.run([sys.executable, "-m", "hypa.diagnose", "model=vehicle_nominal", "plot=false",
+    result = subprocess.run([sys.executable, "-m", "hypa", "diagnose", "model=vehicle_nominal", "plot=false",
                              f"hydra.run.dir={tmp_path / 'run'}", *SHORT, *overrides],
                             cwd=ROOT, env=env, capture_output=True, text=True, timeout=600, check=False)
     assert result.returncode == 0, result.stderr[-3000:]
@@ -103,7 +103,7 @@ def test_tire_relaxation_is_named_and_no_dead_time_stands_in(tmp_path: Path) -> 
     arguments = [*shlex.split(command)[3:], f"hydra.run.dir={tmp_path / 'trained'}", "trainer.max_epochs=1",
                  "trainer.limit_train_batches=2", "trainer.limit_val_batches=2", "trainer.enable_progress_bar=false",
                  "figures.enabled=false"]
-    trained = subprocess.run([sys.executable, "-m", "hypa.train", *arguments], cwd=ROOT, env=env,
+    trained = subprocess.run([sys.executable, "-m", "hypa", "train", *arguments], cwd=ROOT, env=env,
                              capture_output=True, text=True, timeout=600, check=False)
     assert trained.returncode == 0, trained.stderr[-3000:]
 
@@ -198,7 +198,8 @@ def test_the_default_bench_names_every_effect_and_no_proxy(tmp_path: Path) -> No
     """The default test bench (conf/testbench/default.yaml, full length): rear steering with its
     phase reversal, tire relaxation, saturation and both sensor biases; no dead time or lag."""
     env = {**os.environ, "HYPA_CACHE_DIR": str(tmp_path / "cache")}
-    result = subprocess.run([sys.executable, "-m", "hypa.diagnose", "plot=false", f"hydra.run.dir={tmp_path / 'run'}"],
+    result = subprocess.run([sys.executable, "-m", "hypa", "diagnose",
+                             "plot=false", f"hydra.run.dir={tmp_path / 'run'}"],
                             cwd=ROOT, env=env, capture_output=True, text=True, timeout=900, check=False)
     assert result.returncode == 0, result.stderr[-3000:]
     found = named(json.loads((tmp_path / "run" / "diagnosis.json").read_text()))

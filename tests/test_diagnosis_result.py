@@ -42,7 +42,7 @@ STRUCTURE = {"output": "yaw_rate", "unit": "rad/s", "share": 0.0015, "amplitude_
 SCALES = {"dt": 0.03125, "slowest_s": 0.16, "fastest_s": 0.12, "period_s": 1.2, "integrating": False, "stretch": 392,
           "fit_window": 100, "max_lag": 16, "envelope": 117, "segment": 64, "band_edges_hz": [0.0, 0.5, 16.0],
           "stretch_s": 12.25}
-WRITTEN = {  # every key of diagnosis.json (docs/diagnosis.md), in the order hypa.diagnose writes them
+WRITTEN = {  # every key of diagnosis.json (docs/diagnosis.md), in the order hypa diagnose writes them
     "cause": "input_delay", "estimate": DELAY["values"],
     "system": {"model": "plant", "inputs": ["u"], "outputs": ["yaw_rate"], "scheduling": []},
     "causes": ["input_delay", "output_offset"], "named": [DELAY, OFFSET], "dropped": [DROPPED],
@@ -60,7 +60,7 @@ WRITTEN = {  # every key of diagnosis.json (docs/diagnosis.md), in the order hyp
                   "covered": 1.0, "amplitude": 1.02, "short": False}],
     "not_covered": [], "unexplained": [STRUCTURE], "structure": {"yaw_rate": STRUCTURE},
     "extended": {"config": {"diagnosed": "/out/conf/model/diagnosed.yaml"},
-                 "train_command": {"diagnosed": "python -m hypa.train model=diagnosed"},
+                 "train_command": {"diagnosed": "hypa train model=diagnosed"},
                  "signals": {"rear_wheel_angle": {"correlation": 0.81, "rmse": 0.0016, "measured_rms": 0.0025}},
                  "trained": {"model": "diagnosed", "run": "/out/extended_run",
                              "metrics": {"yaw_rate": {"rmse": 0.008, "mse": 6.4e-5, "r2": 0.985}},

@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hypa.conf import CONF
+
 from conftest import SHORT_OVERRIDES
 from test_train import run_train
 
@@ -36,7 +38,7 @@ def _write_config(folder: Path, overrides: list[str]) -> None:
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="train", overrides=[*SHORT_OVERRIDES, *overrides])
     OmegaConf.save(cfg, folder / ".hydra" / "config.yaml")
 
@@ -64,7 +66,7 @@ def test_free_run_of_physical_model_equals_the_physics_recursion(trained, hypa_c
 def test_evaluate_cli_writes_metrics_figures_and_report(trained, hypa_cache, tmp_path) -> None:
     folder = trained["v1"]
     env = {**os.environ, "HYPA_CACHE_DIR": str(hypa_cache)}
-    result = subprocess.run([sys.executable, "-m", "hypa.evaluate", f"run={folder}", f"out={tmp_path / 'ev'}",
+    result = subprocess.run([sys.executable, "-m", "hypa", "evaluate", f"run={folder}", f"out={tmp_path / 'ev'}",
                              f"hydra.run.dir={tmp_path / 'hydra'}"], cwd=ROOT, env=env, capture_output=True,
                             text=True, timeout=300, check=False)
     assert result.returncode == 0, result.stderr[-3000:]
@@ -82,7 +84,7 @@ def test_evaluate_cli_writes_metrics_figures_and_report(trained, hypa_cache, tmp
 
 
 def test_evaluate_cli_explains_a_wrong_path(tmp_path) -> None:
-    result = subprocess.run([sys.executable, "-m", "hypa.evaluate", f"run={tmp_path / 'nope'}",
+    result = subprocess.run([sys.executable, "-m", "hypa", "evaluate", f"run={tmp_path / 'nope'}",
                              f"hydra.run.dir={tmp_path / 'hydra'}"],
                             cwd=ROOT, capture_output=True, text=True, timeout=120, check=False)
     assert result.returncode != 0 and "does not exist" in result.stderr

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from hypa.evaluation.result import Evaluation, OutputMetrics, RunMetrics, SignalMetrics, SplitMetrics
 
-OLD = {  # metrics.json as hypa.evaluate wrote it before the typed result
+OLD = {  # metrics.json as hypa evaluate wrote it before the typed result
     "model": "v1-lstm", "checkpoint": "checkpoints/best.ckpt",
     "splits": {
         "val": {"windowed": {"all": {"yaw_rate": {"mae": 0.01, "mse": 0.0004, "mape": 5.0, "r2": 0.98},

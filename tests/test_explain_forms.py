@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from hypa.core.errors import UserError
 from hypa.data.units import unit_ratio
-from hypa.errors import UserError
 from hypa.explain import Recording, explain
 from hypa.explain.signals import delayed, filtered, lag_filter, second_order_filters
 

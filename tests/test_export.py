@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from hypa.ann.base import SequenceBlock
+from hypa.conf import CONF
 
 from test_train import run_train
 
@@ -76,7 +77,7 @@ def _replay(folder: Path) -> np.ndarray:
 def test_physical_model_exported_by_the_command_line(physical, hypa_cache, tmp_path) -> None:
     env = {**os.environ, "HYPA_CACHE_DIR": str(hypa_cache)}
     out = tmp_path / "export"
-    result = subprocess.run([sys.executable, "-m", "hypa.export", f"run={physical}", f"hydra.run.dir={out}"],
+    result = subprocess.run([sys.executable, "-m", "hypa", "export", f"run={physical}", f"hydra.run.dir={out}"],
                             cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "per ONNX step" in result.stdout and f"export: {out}" in result.stdout
@@ -274,7 +275,7 @@ def test_refusals_are_one_line(hypa_cache, tmp_path) -> None:
     from hypa.models.composed import ComposedModel
     from hypa.models.spec import parse_model_spec
 
-    spec = parse_model_spec(OmegaConf.to_container(OmegaConf.load(ROOT / "conf" / "model" / "v1.yaml")))
+    spec = parse_model_spec(OmegaConf.to_container(OmegaConf.load(CONF / "model" / "v1.yaml")))
     scale = dict.fromkeys(("steering_wheel_angle", "yaw_rate", "side_slip"), (0.0, 1.0))
     build = lambda ann, hparams: ComposedModel(  # noqa: E731
         spec, None, ["steering_wheel_angle"], ["yaw_rate", "side_slip"], scale, scale, 0.01, horizon=10,
@@ -289,7 +290,7 @@ def test_refusals_are_one_line(hypa_cache, tmp_path) -> None:
     with pytest.raises(ExportError, match="format=mat is not one of onnx, fmu, statespace, all"):
         formats_to_build("mat")
     env = {**os.environ, "HYPA_CACHE_DIR": str(hypa_cache)}
-    result = subprocess.run([sys.executable, "-m", "hypa.export", "run=nowhere", "format=mat",
+    result = subprocess.run([sys.executable, "-m", "hypa", "export", "run=nowhere", "format=mat",
                              f"hydra.run.dir={tmp_path}"], cwd=ROOT, env=env, capture_output=True, text=True,
                             timeout=120, check=False)
     assert result.returncode == 1 and "Traceback" not in result.stderr

@@ -189,7 +189,7 @@ def test_every_format_of_a_hybrid_run(v2, tmp_path) -> None:
 def test_every_format_of_a_physical_run_from_the_command_line(physical, hypa_cache, tmp_path) -> None:  # noqa: F811
     env = {**os.environ, "HYPA_CACHE_DIR": str(hypa_cache)}
     out = tmp_path / "export"
-    result = subprocess.run([sys.executable, "-m", "hypa.export", f"run={physical}", "format=all",
+    result = subprocess.run([sys.executable, "-m", "hypa", "export", f"run={physical}", "format=all",
                              f"hydra.run.dir={out}"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300,
                             check=False)
     assert result.returncode == 0, result.stderr[-3000:]

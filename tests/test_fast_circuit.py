@@ -1,6 +1,6 @@
 """A fast nonlinear system of the user's: a series RLC sampled at 40 kHz, its capacitor shunted by a
 nonlinear conductance i = g1 v + g3 v³, driven by a smooth multisine whose amplitude swells (so the
-cubic term shows), data from scipy's ODE solver, through ``python -m hypa.benchmark --config-dir``:
+cubic term shows), data from scipy's ODE solver, through ``hypa benchmark --config-dir``:
 
 - with no hold given, the data choose a first-order hold (the input is smooth): under a zero-order
   hold the same physics fits ten times worse;
@@ -139,9 +139,9 @@ def test_the_data_choose_the_hold_and_the_nonlinear_physics_comes_near_the_noise
 
 
 def test_the_diagnosis_names_the_cubic_shunt_and_its_model_beats_the_linear_one(user: Path, tmp_path: Path) -> None:
-    """``hypa.diagnose`` on the linear circuit (nominal values 20 % off): the generic ``cubic_state``
+    """``hypa diagnose`` on the linear circuit (nominal values 20 % off): the generic ``cubic_state``
     on the voltage is named, and the model it writes, trained by the command it prints and
-    evaluated by ``hypa.evaluate``, comes within 6x the sensor noise (the linear circuit: 0.59 V)."""
+    evaluated by ``hypa evaluate``, comes within 6x the sensor noise (the linear circuit: 0.59 V)."""
     import os
     import shlex
     import subprocess
@@ -150,22 +150,23 @@ def test_the_diagnosis_names_the_cubic_shunt_and_its_model_beats_the_linear_one(
     env, cwd = {**os.environ, "PYTHONPATH": str(user)}, Path(__file__).resolve().parents[1]
 
     def run(*args: str) -> str:
-        result = subprocess.run([sys.executable, "-m", *args], cwd=cwd, env=env, capture_output=True, text=True,
+        result = subprocess.run([sys.executable, "-m", *args[0].split(), *args[1:]],
+                                cwd=cwd, env=env, capture_output=True, text=True,
                                 timeout=900, check=False)
         assert result.returncode == 0, result.stderr[-3000:]
         return result.stdout
 
     diagnosis = tmp_path / "diagnosis"
-    run("hypa.diagnose", "--config-dir", str(user / "conf"), "dataset=circuit", "model=linear",
+    run("hypa diagnose", "--config-dir", str(user / "conf"), "dataset=circuit", "model=linear",
         f"data.dir={user / 'data'}", f"hydra.run.dir={diagnosis}")
     result = json.loads((diagnosis / "diagnosis.json").read_text())
     named = [(f["cause"], f["target"]) for f in result["named"]]
     assert ("cubic_state", "circuit/voltage") in named, named
     assert result["score"]["extended"] < 1e-3 * result["score"]["nominal"], result["score"]
     command = shlex.split(result["extended"]["train_command"]["diagnosed"])
-    assert command[:3] == ["python", "-m", "hypa.train"]
+    assert command[:3] == ["python", "-m", "hypa", "train"]
     run(*command[2:], f"hydra.run.dir={tmp_path / 'train'}", "trainer.enable_progress_bar=false")
-    run("hypa.evaluate", f"run={tmp_path / 'train'}", "trust=[circuit]", f"hydra.run.dir={tmp_path / 'evaluate'}")
+    run("hypa evaluate", f"run={tmp_path / 'train'}", "trust=[circuit]", f"hydra.run.dir={tmp_path / 'evaluate'}")
     metrics = json.loads((tmp_path / "train" / "evaluation" / "metrics.json").read_text())
     rms = metrics["splits"]["test"]["free_run"]["all"]["voltage"]["mse"] ** 0.5
     assert rms < 6 * NOISE, rms

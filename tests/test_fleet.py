@@ -1,4 +1,4 @@
-"""A fleet of logs: ``python -m hypa.diagnose -m data.dir=A,B,C`` diagnoses each log, then one summary.
+"""A fleet of logs: ``hypa diagnose -m data.dir=A,B,C`` diagnoses each log, then one summary.
 
 End to end: three test-bench logs whose rear cornering stiffness wears from 180 to 140 kN/rad
 (linear truth, white sensor noise, nothing else hidden; the nominal model ``vehicle_nominal``
@@ -26,10 +26,10 @@ import yaml
 from hydra.core.override_parser.overrides_parser import OverridesParser
 
 from hypa.commands import fleet as fleet_command
+from hypa.core.errors import UserError
 from hypa.diagnosis import fleet
 from hypa.diagnosis.result import FindingRow
 from hypa.diagnosis.trained import ExtensionTrainingError
-from hypa.errors import UserError
 from hypa.paper.testbench import TestbenchConfig
 from hypa.paper.testbench.dataset import generate_dataset
 
@@ -41,7 +41,7 @@ RECORDS = {"train_1": {"seed": 1, "stochastic_duration_s": 20.0, "maneuvers": []
 
 
 def write_logs(root: Path) -> list[Path]:
-    """One test-bench log folder per worn cr (what ``python -m hypa.testbench out=DIR`` writes)."""
+    """One test-bench log folder per worn cr (what ``hypa testbench out=DIR`` writes)."""
     return [generate_dataset(TestbenchConfig.linear(noise=True).merged({"records": RECORDS, "vehicle": {"cr": cr}}),
                              root / f"log_{i}") for i, cr in enumerate(WORN_CR)]
 
@@ -49,7 +49,8 @@ def write_logs(root: Path) -> list[Path]:
 def run(module: str, *args: str) -> subprocess.CompletedProcess:
     # one thread: the search's small tensors gain nothing from more, and on a loaded machine
     # OpenMP's spinning threads made a job 20-90x slower (same results)
-    return subprocess.run([sys.executable, "-m", module, *args], check=False, cwd=ROOT, capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", *module.split(), *args],
+                          check=False, cwd=ROOT, capture_output=True, text=True,
                           timeout=600, env={**os.environ, "HYDRA_FULL_ERROR": "0", "OMP_NUM_THREADS": "1"})
 
 
@@ -69,7 +70,7 @@ def sweep(tmp_path_factory) -> tuple[subprocess.CompletedProcess, Path, list[Pat
     bad = tmp / "empty_log"
     bad.mkdir()
     folders = [logs[0], logs[1], bad, logs[2]]
-    result = run("hypa.diagnose", "-m", f"hydra.sweep.dir={tmp / 'sweep'}", "dataset=files",
+    result = run("hypa diagnose", "-m", f"hydra.sweep.dir={tmp / 'sweep'}", "dataset=files",
                  "data.dir=" + ",".join(str(f) for f in folders), "plot=false")
     return result, tmp / "sweep", folders
 
@@ -120,7 +121,7 @@ def test_a_bad_log_fails_alone_with_its_one_line_error(sweep) -> None:
     assert failed["status"] == "failed" and failed["log"] == str(logs[2])
     assert str(logs[2]) in failed["error"] and "train" in failed["error"]
     assert f"**failed**: {failed['error']}" in (folder / "fleet.md").read_text()
-    assert f"hypa.diagnose: error: {failed['error']}" in result.stderr
+    assert f"hypa diagnose: error: {failed['error']}" in result.stderr
     assert "Traceback" not in result.stderr
 
 
@@ -148,11 +149,11 @@ def test_run_command_expands_a_glob_into_the_sweep(tmp_path: Path, capfd, monkey
                        f"hydra.sweep.dir={tmp_path / 'sweep'}"])
     out, err = capfd.readouterr()
     assert code == 1, err[-3000:]
-    assert out.startswith("python -m hypa.diagnose -m dataset=files ")
+    assert out.startswith("python -m hypa diagnose -m dataset=files ")
     summary = json.loads((tmp_path / "sweep" / "fleet.json").read_text())
     assert [job["log"] for job in summary["jobs"]] == [str(log) for log in logs]
     assert {job["error"] for job in summary["jobs"]} == {f"catalogue {missing} does not exist"}
-    assert err.count(f"hypa.diagnose: error: catalogue {missing} does not exist") == 3
+    assert err.count(f"hypa diagnose: error: catalogue {missing} does not exist") == 3
     assert "Traceback" not in err
 
 
@@ -160,7 +161,7 @@ def test_run_command_without_a_match_is_a_one_line_error(tmp_path: Path, capsys)
     with pytest.raises(SystemExit) as exit_:
         fleet_command.main(["run", str(tmp_path / "nothing*")])
     assert exit_.value.code == 1
-    assert "hypa.diagnosis.fleet: error: no log folder matches" in capsys.readouterr().err
+    assert "hypa fleet: error: no log folder matches" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("path", ["/logs/plain", "/logs/a b,c", "/logs/it's", "C:\\logs\\x", "/logs/q$r", "/t\\"])
@@ -289,7 +290,7 @@ def test_same_cause_on_two_targets_and_an_unreadable_report(tmp_path: Path) -> N
     assert logs[0].estimates == {"input_lag: tau": fleet.Estimate(pytest.approx(20.0), "ms"),
                                  "input_lag on u2: tau": fleet.Estimate(pytest.approx(30.0), "ms")}
     assert logs[1].failed
-    assert "diagnosis.json: not a diagnosis.json of hypa.diagnose (causes is missing)" in (logs[1].error or "")
+    assert "diagnosis.json: not a diagnosis.json of hypa diagnose (causes is missing)" in (logs[1].error or "")
 
 
 def test_a_summary_that_cannot_be_written_ends_the_sweep_with_one_line(tmp_path: Path, capsys) -> None:
@@ -300,12 +301,12 @@ def test_a_summary_that_cannot_be_written_ends_the_sweep_with_one_line(tmp_path:
         fleet.FleetSummary().on_multirun_end(OmegaConf.create({"hydra": {"sweep": {"dir": str(tmp_path)}}}))
     assert exit_.value.code == 1
     err = capsys.readouterr().err
-    assert f"hypa.diagnose: error: fleet summary: {tmp_path} holds no hypa.diagnose jobs" in err
+    assert f"hypa diagnose: error: fleet summary: {tmp_path} holds no hypa diagnose jobs" in err
     assert "Traceback" not in err
 
 
 def test_summary_of_a_folder_without_jobs_is_a_user_error(tmp_path: Path) -> None:
-    with pytest.raises(UserError, match=r"no hypa.diagnose jobs"):
+    with pytest.raises(UserError, match=r"no hypa diagnose jobs"):
         fleet.collect(tmp_path)
 
 
@@ -316,5 +317,5 @@ def test_numbers_are_rounded_to_four_digits(value, text) -> None:
 
 
 def test_a_failed_extension_training_is_a_user_error() -> None:
-    """hypa.diagnose reports it as ``hypa.diagnose: error: ...`` (the decorator's types), not a traceback."""
+    """hypa diagnose reports it as ``hypa diagnose: error: ...`` (the decorator's types), not a traceback."""
     assert issubclass(ExtensionTrainingError, UserError)

@@ -13,6 +13,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 import hypa.commands  # noqa: F401  (registers the schemas conf/train.yaml extends)
+from hypa.conf import CONF
 
 from data_helpers import DC_MOTOR_HYBRID, USER_EXAMPLE, make_dc_motor_data
 
@@ -44,7 +45,7 @@ def model_and_data(data: Path, trainable: list[str], parameters: dict[str, float
     from hypa.training import HybridModule
 
     sys.path.insert(0, str(USER_EXAMPLE))
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="train", overrides=[f"hydra.searchpath=[file://{USER_EXAMPLE / 'conf'}]",
                                                       "dataset=dc_motor", "model=dc_motor", f"data.dir={data}"])
     dm = datamodule_from_config(cfg.data, data)
@@ -252,10 +253,10 @@ def test_a_free_run_that_diverges_is_fitted_by_multiple_shooting_or_refused(data
 
 def test_hypa_train_identifies_a_physics_only_model(data: Path, tmp_path: Path) -> None:
     """Through the command line: the run's checkpoint holds the identified parameters, its run.json
-    and identification.md the report, and hypa.evaluate scores it."""
+    and identification.md the report, and hypa evaluate scores it."""
     env = make_dc_motor_data(tmp_path / "unused", 1)
     run = tmp_path / "run"
-    command = [sys.executable, "-m", "hypa.train", "--config-dir", str(USER_EXAMPLE / "conf"), "dataset=dc_motor",
+    command = [sys.executable, "-m", "hypa", "train", "--config-dir", str(USER_EXAMPLE / "conf"), "dataset=dc_motor",
                "model=dc_motor", f"data.dir={data}", "identification.enabled=true", "trainer.enable_progress_bar=false",
                f"hydra.run.dir={run}"]
     result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, env=env, check=False)
@@ -274,7 +275,7 @@ def test_hypa_train_identifies_a_physics_only_model(data: Path, tmp_path: Path) 
     assert {"physics/torque_constant", "val/loss"} <= set(board.Tags()["scalars"])
     assert "identification/text_summary" in board.Tags()["tensors"]
     assert board.Scalars("physics/torque_constant")[0].value == pytest.approx(0.065, rel=0.02)
-    evaluated = subprocess.run([sys.executable, "-m", "hypa.evaluate", f"run={run}", f"out={tmp_path / 'eval'}",
+    evaluated = subprocess.run([sys.executable, "-m", "hypa", "evaluate", f"run={run}", f"out={tmp_path / 'eval'}",
                                 "trust=[dc_motor]",
                                 "tensorboard=false", f"hydra.run.dir={tmp_path / 'hydra'}"],
                                cwd=ROOT, capture_output=True, text=True, timeout=300, env=env, check=False)
@@ -285,13 +286,13 @@ def test_hypa_train_identifies_a_physics_only_model(data: Path, tmp_path: Path) 
 
 
 def train_hybrid(data: Path, tmp_path: Path, *overrides: str) -> tuple[subprocess.CompletedProcess, Path, dict]:
-    """``python -m hypa.train`` on the DC motor's hybrid (a tiny LSTM correction); the result, the run
+    """``hypa train`` on the DC motor's hybrid (a tiny LSTM correction); the result, the run
     folder and its run.json."""
     env = make_dc_motor_data(tmp_path / "unused", 1)
     (tmp_path / "conf" / "model").mkdir(parents=True)
     (tmp_path / "conf" / "model" / "dc_motor_hybrid.yaml").write_text(DC_MOTOR_HYBRID)
     run = tmp_path / "run"
-    command = [sys.executable, "-m", "hypa.train", "--config-dir", str(USER_EXAMPLE / "conf"), "dataset=dc_motor",
+    command = [sys.executable, "-m", "hypa", "train", "--config-dir", str(USER_EXAMPLE / "conf"), "dataset=dc_motor",
                f"hydra.searchpath=[file://{tmp_path / 'conf'}]", "model=dc_motor_hybrid", "ann=lstm",
                "ann.hidden_size=4", f"data.dir={data}", "trainer.enable_progress_bar=false", "figures.enabled=false",
                "optimizer.physics_lr=1e-9", *overrides, f"hydra.run.dir={run}"]
@@ -344,16 +345,16 @@ def test_a_hybrid_whose_network_only_adds_error_keeps_its_identified_physics(dat
     ("identification.enabled=maybe", "identification.enabled=maybe is not true or false"),
 ])
 def test_bad_identification_settings_are_refused(override: str, message: str) -> None:
-    """Read by hypa.train before any data (its UserError is the command's one line, tests/test_cli_errors.py)."""
+    """Read by hypa train before any data (its UserError is the command's one line, tests/test_cli_errors.py)."""
     from hydra.errors import ConfigCompositionException
 
     from hypa.commands.config import TrainConfig, typed
-    from hypa.errors import UserError, one_line
+    from hypa.core.errors import UserError, one_line
 
     # a value of the wrong type fails while Hydra composes (hypa.commands.config), a value out of its range
     # when the command reads its typed configuration: the same one line either way
     with pytest.raises((UserError, ConfigCompositionException)) as error:
-        with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
             cfg = compose(config_name="train", overrides=["identification.enabled=true", override])
         typed(cfg, TrainConfig).identification.settings()
     assert message in one_line(error.value)

@@ -2,7 +2,7 @@
 run without ``physics.hold``, is identified under both holds and keeps the better fit, and every later
 command rebuilds it. A resonance sampled at 12 samples per period, its force smooth (linear between
 samples: a first-order hold is the truth) or held over each sample (a zero-order hold is), through
-``python -m hypa.train`` with a data set of the user's."""
+``hypa train`` with a data set of the user's."""
 
 from __future__ import annotations
 
@@ -72,7 +72,7 @@ def user(tmp_path_factory) -> Path:
 
 def _train(user: Path, data: str, run: Path, *extra: str) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "hypa.train", "--config-dir", str(user / "conf"), "dataset=resonance",
+        [sys.executable, "-m", "hypa", "train", "--config-dir", str(user / "conf"), "dataset=resonance",
          "model=resonance", f"data.dir={user / data}", "trainer.enable_progress_bar=false",
          "figures.enabled=false", *extra, f"hydra.run.dir={run}"],
         cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
@@ -91,7 +91,7 @@ def test_the_data_choose_the_hold_they_were_made_with(user: Path, tmp_path: Path
     assert record["identification"]["error"]["final"] == pytest.approx(choice["output_error"][truth])
     config = yaml.safe_load((tmp_path / "config.yaml").read_text())
     assert config["physics"]["hold"] == truth and config["model"]["hold"] is None  # what later commands rebuild
-    evaluated = subprocess.run([sys.executable, "-m", "hypa.evaluate", f"run={tmp_path}", "tensorboard=false"],
+    evaluated = subprocess.run([sys.executable, "-m", "hypa", "evaluate", f"run={tmp_path}", "tensorboard=false"],
                                cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
     assert evaluated.returncode == 0, evaluated.stderr[-3000:]
     metrics = json.loads((tmp_path / "evaluation" / "metrics.json").read_text())

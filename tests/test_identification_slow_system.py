@@ -109,13 +109,13 @@ def user(tmp_path_factory) -> Path:
 
 def train(user: Path, model: str, run: Path) -> dict:
     env = {**os.environ, "PYTHONPATH": str(user)}
-    command = [sys.executable, "-m", "hypa.train", "--config-dir", str(user / "conf"), "dataset=heated",
+    command = [sys.executable, "-m", "hypa", "train", "--config-dir", str(user / "conf"), "dataset=heated",
                f"model={model}", f"data.dir={user / 'data'}", "trainer.enable_progress_bar=false",
                "figures.enabled=false", f"hydra.run.dir={run}"]
     result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, env=env, check=False)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "after identification" in result.stdout
-    evaluated = subprocess.run([sys.executable, "-m", "hypa.evaluate", f"run={run}", f"out={run / 'eval'}",
+    evaluated = subprocess.run([sys.executable, "-m", "hypa", "evaluate", f"run={run}", f"out={run / 'eval'}",
                                 "trust=[heated_body]",
                                 "tensorboard=false", f"hydra.run.dir={run / 'hydra-eval'}"],
                                cwd=ROOT, capture_output=True, text=True, timeout=300, env=env, check=False)

@@ -1,7 +1,7 @@
 """A slow nonlinear system whose one measured output does not show its other state to the linear
 part: two cascaded tanks sampled every 4 s (records of 1024 samples, as the real benchmark), the
 pump filling the upper tank, its outflow k2 √h1 filling the measured lower one. Data from scipy's
-ODE solver; through ``python -m hypa.benchmark`` with the user's own data set and systems:
+ODE solver; through ``hypa benchmark`` with the user's own data set and systems:
 
 - the nonlinear model reaches the sensor noise on the test record, its linearisation does not;
 - its estimate of the unmeasured upper tank (refined on the block's own steps) starts every record
@@ -135,7 +135,7 @@ def test_the_nonlinear_tanks_reach_the_noise_and_their_linearisation_does_not(us
 
 
 def test_the_diagnosis_of_the_nonlinear_tanks_fits_at_the_benchmarks_size(user: Path, tmp_path: Path) -> None:
-    """``hypa.diagnose`` on the nonlinear tanks (nominal values 10-30 % off) at 1024 samples every
+    """``hypa diagnose`` on the nonlinear tanks (nominal values 10-30 % off) at 1024 samples every
     4 s. Its linear part is empty (all the dynamics are in √h), so its time scales come from the
     model linearised about its operating point (the upper tank, which no sensor reads, where it
     settles under the mean pump voltage): 117 s, not "no mode" (before, stretches of 50 samples and
@@ -148,7 +148,7 @@ def test_the_diagnosis_of_the_nonlinear_tanks_fits_at_the_benchmarks_size(user: 
 
     run = tmp_path / "diagnosis"
     result = subprocess.run(
-        [sys.executable, "-m", "hypa.diagnose", "--config-dir", str(user / "conf"), "dataset=tanks", "model=tanks",
+        [sys.executable, "-m", "hypa", "diagnose", "--config-dir", str(user / "conf"), "dataset=tanks", "model=tanks",
          f"data.dir={user / 'data'}", "plot=false", f"hydra.run.dir={run}"],
         cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=300,
         env={**os.environ, "PYTHONPATH": str(user)}, check=False)

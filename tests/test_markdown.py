@@ -1,8 +1,8 @@
-"""hypa.markdown: the one way every report writes a table."""
+"""hypa.reporting.markdown: the one way every report writes a table."""
 
 import pytest
 
-from hypa.markdown import cell, row, table
+from hypa.reporting.markdown import cell, row, table
 
 
 def test_table_lines_header_alignment_rows():

@@ -1,4 +1,4 @@
-"""hypa.metrics: the errors every report uses; the Table 1 metrics against hand-computed values and
+"""hypa.core.metrics: the errors every report uses; the Table 1 metrics against hand-computed values and
 the floored MAPE near zero crossings."""
 
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 import torch
 from torchmetrics.functional import mean_absolute_percentage_error
 
-from hypa.metrics import METRICS, MeanStd, floored_mape, mean_std, regression_metrics, state_metrics
+from hypa.core.metrics import METRICS, MeanStd, floored_mape, mean_std, regression_metrics, state_metrics
 
 
 def test_regression_metrics_hand_computed():
@@ -91,8 +91,8 @@ def test_state_metrics_rejects_bad_names():
 
 
 def test_errors_are_the_hand_computed_rmse_r2_and_nrmse():
-    """hypa.metrics.errors: the one RMSE / R² / NRMSE every report uses, against the definitions."""
-    from hypa.metrics import errors
+    """hypa.core.metrics.errors: the one RMSE / R² / NRMSE every report uses, against the definitions."""
+    from hypa.core.metrics import errors
 
     rng = np.random.default_rng(3)
     y = rng.normal(2.0, 0.5, 400)
@@ -110,7 +110,7 @@ def test_errors_are_the_hand_computed_rmse_r2_and_nrmse():
 def test_errors_never_drop_a_bad_prediction():
     """A non-finite prediction makes the figures NaN (never a score over the finite rest); a
     constant target has no R²; mismatched or empty arrays are refused."""
-    from hypa.metrics import errors
+    from hypa.core.metrics import errors
 
     y = np.linspace(0.0, 1.0, 50)
     p = y.copy()
@@ -125,7 +125,7 @@ def test_errors_never_drop_a_bad_prediction():
 
 
 def test_rms_and_correlation():
-    from hypa.metrics import correlation, rms
+    from hypa.core.metrics import correlation, rms
 
     assert rms(np.array([3.0, -4.0])) == pytest.approx(np.sqrt(12.5))
     assert np.isnan(rms(np.array([])))

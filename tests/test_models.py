@@ -1,18 +1,18 @@
 """Compositions from YAML: wiring, scaling and alignment checked against the physics itself."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 import yaml
 
+from hypa.conf import CONF
 from hypa.models import ComposedModel, ModelSpecError, parse_model_spec
 from hypa.vehicle import VehicleParameters
 
 from vehicle_reference import simulate_vehicle
 
-CONF = Path(__file__).resolve().parents[1] / "conf" / "model"
+MODELS = CONF / "model"
 INPUTS, STATES = ("steering_wheel_angle",), ("yaw_rate", "side_slip")
 INPUT_SCALE = {"steering_wheel_angle": (0.01, 0.15)}
 STATE_SCALE = {"yaw_rate": (0.002, 0.09), "side_slip": (-0.0005, 0.012)}
@@ -29,7 +29,7 @@ def load(name: str) -> dict:
             return [n for role in node[len("${channels:"):-1].split(",") for n in roles[role]]
         return node
 
-    return resolve(yaml.safe_load((CONF / f"{name}.yaml").read_text()))
+    return resolve(yaml.safe_load((MODELS / f"{name}.yaml").read_text()))
 
 
 def build(config: dict, hold: str = "zoh", values: VehicleParameters = VehicleParameters(), **kw) -> ComposedModel:

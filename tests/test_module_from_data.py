@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import torch
 
+from hypa.core.errors import UserError
 from hypa.data import ChannelSpec, DataError, DataSignature, HypaDataModule
 from hypa.diagnosis import Problem
-from hypa.errors import UserError
 from hypa.models import ComposedModel, parse_model_spec
 from hypa.physics.systems import build_system
 from hypa.training import HybridModule

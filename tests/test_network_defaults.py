@@ -14,6 +14,7 @@ from omegaconf import OmegaConf
 
 import hypa.commands.train  # noqa: F401  (registers the ${channels:...} resolver the models use)
 from hypa.ann import build_ann
+from hypa.conf import CONF
 from hypa.data import datamodule_from_config
 from hypa.training.baseline import (
     FIXED_DEFAULTS,
@@ -68,7 +69,7 @@ def data(tmp_path_factory) -> Path:
 
 
 def defaults(data: Path, *overrides: str, lr: float = LR) -> tuple[dict, float, int, int, object]:
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="train", overrides=["dataset=files", f"data.dir={data}", *overrides])
     dm = datamodule_from_config(cfg.data, data)
     dm.setup()

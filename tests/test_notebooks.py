@@ -46,7 +46,8 @@ def test_reproduce_notebook_runs_on_a_tiny_reproduction(tmp_path: Path, hypa_cac
             "ann.hidden_size=8", *SHORT_OVERRIDES]
     env = {**os.environ, "HYPA_CACHE_DIR": str(hypa_cache)}
     result = subprocess.run(
-        [sys.executable, "-m", "hypa.reproduce", "rows=[physical,v1_lstm]", "seeds=[0]", f"out={tmp_path / 'results'}",
+        [sys.executable, "-m", "hypa", "reproduce",
+         "rows=[physical,v1_lstm]", "seeds=[0]", f"out={tmp_path / 'results'}",
          f"hydra.run.dir={tmp_path / 'hydra'}", "n_jobs=1",
          "train_overrides=[" + ",".join(f"'{o}'" for o in tiny) + "]"],
         cwd=ROOT, env=env, capture_output=True, text=True, timeout=600, check=False)

@@ -1,4 +1,4 @@
-"""One command, one folder (hypa/folders.py, hypa/commands/output_folder.py): every command that writes a folder
+"""One command, one folder (hypa/core/folders.py, hypa/commands/output_folder.py): every command that writes a folder
 holds it, a received folder with a link in it is written by none, Hydra's record of a run survives a
 refused second writer, and default folder names do not collide.
 
@@ -17,19 +17,20 @@ from pathlib import Path
 
 import pytest
 
-from hypa.errors import UserError
-from hypa.folders import FolderRefused, claim, take, write_atomic, write_text_atomic
+from hypa.conf import CONF
+from hypa.core.errors import UserError
+from hypa.core.folders import FolderRefused, claim, take, write_atomic, write_text_atomic
 
 from data_helpers import make_data_dir
 from test_run_trust import FAST, copy_run, hypa, one_line_error
 
 ROOT = Path(__file__).resolve().parents[1]
-HELD_BY_TESTS = "hypa.diagnose"
+HELD_BY_TESTS = "hypa diagnose"
 
 
 def start(command: str, *args: str) -> subprocess.Popen:
     environment = {k: v for k, v in os.environ.items() if k not in ("HYDRA_FULL_ERROR", "HYPA_FULL_ERROR")}
-    return subprocess.Popen([sys.executable, "-m", command, *args], cwd=ROOT, env=environment, text=True,
+    return subprocess.Popen([sys.executable, "-m", *command.split(), *args], cwd=ROOT, env=environment, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
 
@@ -55,20 +56,20 @@ def snapshot(folder: Path) -> dict[str, bytes]:
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-# --- hypa.folders ---------------------------------------------------------------------------------------------
+# --- hypa.core.folders ---------------------------------------------------------------------------------------------
 
 
 def test_a_held_folder_refuses_a_second_claim_until_released(tmp_path: Path) -> None:
     folder = tmp_path / "out"
-    held = take(folder, "hypa.diagnose")
-    assert (folder / ".lock").read_text() == f"pid {os.getpid()} on {socket.gethostname()} (hypa.diagnose)\n"
+    held = take(folder, "hypa diagnose")
+    assert (folder / ".lock").read_text() == f"pid {os.getpid()} on {socket.gethostname()} (hypa diagnose)\n"
     with pytest.raises(FolderRefused) as refused:  # flock: per open file description, so this process conflicts too
-        take(folder, "hypa.export")
-    assert str(refused.value) == (f"{folder} is being written by another hypa.diagnose (pid {os.getpid()} on "
+        take(folder, "hypa export")
+    assert str(refused.value) == (f"{folder} is being written by another hypa diagnose (pid {os.getpid()} on "
                                   f"{socket.gethostname()}); give hypa.export its own folder (hydra.run.dir=...) or "
                                   "wait for that one to end")
     held.release()
-    with claim(folder, "hypa.export") as claimed:
+    with claim(folder, "hypa export") as claimed:
         assert claimed == folder and "(hypa.export)" in (folder / ".lock").read_text()
 
 
@@ -78,11 +79,11 @@ def test_a_lock_file_that_is_a_link_is_never_opened_through(tmp_path: Path) -> N
     folder.mkdir()
     (folder / ".lock").symlink_to(target)
     with pytest.raises(FolderRefused, match=rf"^{re.escape(str(folder / '.lock'))} is a symbolic link \(to "):
-        take(folder, "hypa.train")
+        take(folder, "hypa train")
     (folder / ".lock").unlink()
     os.link(target, folder / ".lock")  # a hard link would be truncated just the same
     with pytest.raises(FolderRefused, match="is not a plain file of its own"):
-        take(folder, "hypa.train")
+        take(folder, "hypa train")
     assert unchanged(target, content, mtime)
 
 
@@ -97,10 +98,10 @@ def test_a_folder_that_holds_a_link_is_refused(link: str, to_folder: bool, tmp_p
     path.parent.mkdir(parents=True, exist_ok=True)
     path.symlink_to(target.parent if to_folder else target)
     with pytest.raises(FolderRefused) as refused:
-        take(folder, "hypa.evaluate", setting="out")
+        take(folder, "hypa evaluate", setting="out")
     assert str(refused.value).startswith(f"{path} is a symbolic link (to {target.parent if to_folder else target}): "
-                                         "hypa.evaluate writes nothing through a link; remove the link, or give "
-                                         "hypa.evaluate a new folder (out=...)")
+                                         "hypa evaluate writes nothing through a link; remove the link, or give "
+                                         "hypa evaluate a new folder (out=...)")
     assert unchanged(target, content, mtime) and sorted(p.name for p in target.parent.iterdir()) == ["precious.txt"]
 
 
@@ -108,14 +109,14 @@ def test_a_file_is_not_a_folder_and_a_huge_folder_is_not_walked(tmp_path: Path) 
     file = tmp_path / "a-file"
     file.write_text("mine")
     with pytest.raises(FolderRefused, match=rf"^out={re.escape(str(file))} is a file, not a folder; give "):
-        take(file, "hypa.evaluate", setting="out")
+        take(file, "hypa evaluate", setting="out")
     assert file.read_text() == "mine"
-    from hypa.folders import refuse_links
+    from hypa.core.folders import refuse_links
 
     for i in range(5):
         (tmp_path / f"f{i}").write_text("")
     with pytest.raises(FolderRefused, match="holds more than 3 files and folders"):
-        refuse_links(tmp_path, "hypa.export", limit=3)
+        refuse_links(tmp_path, "hypa export", limit=3)
 
 
 def test_an_atomic_write_follows_no_link(tmp_path: Path, monkeypatch) -> None:
@@ -124,9 +125,9 @@ def test_an_atomic_write_follows_no_link(tmp_path: Path, monkeypatch) -> None:
     report.symlink_to(target)  # the file's own name: replaced by the new file, the target untouched
     write_text_atomic(report, "new report\n")
     assert not report.is_symlink() and report.read_text() == "new report\n" and unchanged(target, content, mtime)
-    import hypa.folders
+    import hypa.core.folders
 
-    monkeypatch.setattr(hypa.folders.secrets, "token_hex", lambda n: "guessed")
+    monkeypatch.setattr(hypa.core.folders.secrets, "token_hex", lambda n: "guessed")
     placed = tmp_path / f".run.json.{os.getpid()}.guessed.tmp"
     placed.symlink_to(target)  # someone placed a link at the temporary name
     with pytest.raises(UserError, match="already exists"):
@@ -156,7 +157,7 @@ def test_two_default_folders_made_in_one_second_differ(name: str) -> None:
 
     def folders() -> list[str]:
         names = []
-        with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
             for _ in range(2):
                 cfg = compose(config_name=name, overrides=["run=x"] if name in ("evaluate", "export", "explain")
                               else [], return_hydra_config=True)
@@ -189,7 +190,7 @@ def data(tmp_path_factory) -> Path:
 def run(tmp_path_factory, data: Path) -> Path:
     """One finished physics-only run (read-only for the tests: they copy it)."""
     folder = tmp_path_factory.mktemp("folders") / "run"
-    result = hypa("hypa.train", *FAST, f"data.dir={data}", f"hydra.run.dir={folder}", "seed=3")
+    result = hypa("hypa train", *FAST, f"data.dir={data}", f"hydra.run.dir={folder}", "seed=3")
     assert result.returncode == 0, result.stderr[-3000:]
     return folder
 
@@ -203,15 +204,15 @@ def test_a_run_records_hydra_once_it_holds_its_folder(run: Path) -> None:
     assert yaml.safe_load((record / "config.yaml").read_text())["seed"] == 3
     assert yaml.safe_load((record / "hydra.yaml").read_text())["hydra"]["job"]["name"] == "train"
     assert "seed=3" in yaml.safe_load((record / "overrides.yaml").read_text())
-    assert (run / ".lock").read_text().endswith("(hypa.train)\n")
+    assert (run / ".lock").read_text().endswith("(hypa train)\n")
 
 
 def test_a_command_into_a_held_folder_is_refused_and_leaves_it_intact(run: Path, data: Path, tmp_path: Path) -> None:
     """Two commands into one folder: the second (here while the test holds it, as a first command would)
     gets one line and changes nothing there, Hydra's record and log included."""
-    commands = {  # hypa.export, hypa.explain and hypa.benchmark hold theirs alike (holding_output)
-        "hypa.diagnose": ["plot=false", "dataset=files", f"data.dir={data}"],
-        "hypa.train": [*FAST, f"data.dir={data}", "seed=7"],
+    commands = {  # hypa.export, hypa.explain and hypa benchmark hold theirs alike (holding_output)
+        "hypa diagnose": ["plot=false", "dataset=files", f"data.dir={data}"],
+        "hypa train": [*FAST, f"data.dir={data}", "seed=7"],
     }
     held, before, started = [], {}, {}
     for command, arguments in commands.items():
@@ -224,15 +225,15 @@ def test_a_command_into_a_held_folder_is_refused_and_leaves_it_intact(run: Path,
         before[command] = snapshot(folder)
         started[command] = start(command, *arguments, f"hydra.run.dir={folder}")
     folder = tmp_path / "evaluation"
-    held.append(take(folder, "hypa.evaluate"))
-    before["hypa.evaluate"] = snapshot(folder)
-    started["hypa.evaluate"] = start("hypa.evaluate", f"run={run}", f"out={folder}", "tensorboard=false",
+    held.append(take(folder, "hypa evaluate"))
+    before["hypa evaluate"] = snapshot(folder)
+    started["hypa evaluate"] = start("hypa evaluate", f"run={run}", f"out={folder}", "tensorboard=false",
                                      f"hydra.run.dir={tmp_path / 'evaluate-hydra'}")
     try:
         for command, process in started.items():
-            folder = tmp_path / ("evaluation" if command == "hypa.evaluate" else command)
-            what = "this run" if command == "hypa.train" else command
-            setting = "out" if command == "hypa.evaluate" else "hydra.run.dir"
+            folder = tmp_path / ("evaluation" if command == "hypa evaluate" else command)
+            what = "this run" if command == "hypa train" else command
+            setting = "out" if command == "hypa evaluate" else "hydra.run.dir"
             one_line_error(finish(process), command, f"{folder} is being written by another {command} (pid "
                            f"{os.getpid()} on {socket.gethostname()}); give {what} its own folder ({setting}=...) "
                            "or wait for that one to end")
@@ -247,15 +248,15 @@ def test_a_command_into_a_held_folder_is_refused_and_leaves_it_intact(run: Path,
 def test_no_command_writes_into_a_training_runs_folder(run: Path, data: Path, tmp_path: Path) -> None:
     folder = copy_run(run, tmp_path / "run")
     before = snapshot(folder)
-    processes = {  # hypa.diagnose and hypa.explain hold theirs as hypa.export does (holding_output)
-        "hypa.export": start("hypa.export", f"run={folder}", f"hydra.run.dir={folder}"),
-        "hypa.benchmark": start("hypa.benchmark", "dataset=silverbox", f"hydra.run.dir={folder}"),
-        "hypa.evaluate": start("hypa.evaluate", f"run={folder}", f"out={folder}", "tensorboard=false",
+    processes = {  # hypa diagnose and hypa.explain hold theirs as hypa.export does (holding_output)
+        "hypa export": start("hypa export", f"run={folder}", f"hydra.run.dir={folder}"),
+        "hypa benchmark": start("hypa benchmark", "dataset=silverbox", f"hydra.run.dir={folder}"),
+        "hypa evaluate": start("hypa evaluate", f"run={folder}", f"out={folder}", "tensorboard=false",
                                f"hydra.run.dir={tmp_path / 'evaluate-hydra'}"),
     }
     for command, process in processes.items():
-        setting = "out" if command == "hypa.evaluate" else "hydra.run.dir"
-        one_line_error(finish(process), command, f"{folder} is a hypa.train run's folder (it holds run.json and "
+        setting = "out" if command == "hypa evaluate" else "hydra.run.dir"
+        one_line_error(finish(process), command, f"{folder} is a hypa train run's folder (it holds run.json and "
                        f"checkpoints/): {command} writes nothing into it; give {command} a folder of its own "
                        f"({setting}=...)")
     after = snapshot(folder)
@@ -265,7 +266,7 @@ def test_no_command_writes_into_a_training_runs_folder(run: Path, data: Path, tm
 
 
 def test_no_link_in_a_received_folder_is_written_through(run: Path, data: Path, tmp_path: Path) -> None:
-    """evaluation/summary.md a link (hypa.evaluate), train.log a link (a resumed hypa.train): refused in one
+    """evaluation/summary.md a link (hypa evaluate), train.log a link (a resumed hypa train): refused in one
     line naming the link, the file outside untouched; out= a file: one line. (evaluation/ itself, .lock:
     below, in this process.)"""
     target, content, mtime = outside(tmp_path)
@@ -277,13 +278,13 @@ def test_no_link_in_a_received_folder_is_written_through(run: Path, data: Path, 
     file = tmp_path / "a-file"
     file.write_text("mine\n")
     cases = [
-        (start("hypa.evaluate", f"run={report}", "tensorboard=false", f"hydra.run.dir={tmp_path / 'report-hydra'}"),
-         "hypa.evaluate", f"{report / 'evaluation' / 'summary.md'} is a symbolic link (to {target})"),
-        (start("hypa.train", *FAST, f"data.dir={data}", "trainer.max_epochs=3",
+        (start("hypa evaluate", f"run={report}", "tensorboard=false", f"hydra.run.dir={tmp_path / 'report-hydra'}"),
+         "hypa evaluate", f"{report / 'evaluation' / 'summary.md'} is a symbolic link (to {target})"),
+        (start("hypa train", *FAST, f"data.dir={data}", "trainer.max_epochs=3",
                f"ckpt_path={log / 'checkpoints' / 'last.ckpt'}", f"hydra.run.dir={tmp_path / 'log-hydra'}"),
-         "hypa.train", f"{log / 'train.log'} is a symbolic link (to {target})"),
-        (start("hypa.evaluate", f"run={run}", f"out={file}", "tensorboard=false",
-               f"hydra.run.dir={tmp_path / 'file-hydra'}"), "hypa.evaluate", f"out={file} is a file, not a folder"),
+         "hypa train", f"{log / 'train.log'} is a symbolic link (to {target})"),
+        (start("hypa evaluate", f"run={run}", f"out={file}", "tensorboard=false",
+               f"hydra.run.dir={tmp_path / 'file-hydra'}"), "hypa evaluate", f"out={file} is a file, not a folder"),
     ]
     for process, command, message in cases:
         one_line_error(finish(process), command, message)
@@ -307,21 +308,21 @@ def test_a_resumed_run_folder_with_a_link_is_refused(link: str, run: Path, tmp_p
 
 
 def test_a_refused_training_run_leaves_the_first_runs_hydra_record(run: Path, data: Path, tmp_path: Path) -> None:
-    """The case that was found: a second hypa.train into a run's folder used to replace its .hydra/ (the
+    """The case that was found: a second hypa train into a run's folder used to replace its .hydra/ (the
     survivor's config recorded the refused run's seed)."""
     folder = copy_run(run, tmp_path / "run")
     before = snapshot(folder)
-    result = hypa("hypa.train", *FAST, f"data.dir={data}", f"hydra.run.dir={folder}", "seed=7")
-    one_line_error(result, "hypa.train", "already holds another run's checkpoints")
+    result = hypa("hypa train", *FAST, f"data.dir={data}", f"hydra.run.dir={folder}", "seed=7")
+    one_line_error(result, "hypa train", "already holds another run's checkpoints")
     after = snapshot(folder)
-    assert after.pop(".lock").endswith(b"(hypa.train)\n")  # the refused run held the folder to look inside
+    assert after.pop(".lock").endswith(b"(hypa train)\n")  # the refused run held the folder to look inside
     assert after == before  # train.log too: the refused run logged nothing
     assert "seed: 3" in (folder / ".hydra" / "config.yaml").read_text()
 
 
 def test_nested_folders_of_one_evaluation_are_one_claim(run: Path, tmp_path: Path) -> None:
-    """hypa.evaluate out= its own Hydra folder: held once, not refused as held by itself."""
+    """hypa evaluate out= its own Hydra folder: held once, not refused as held by itself."""
     out = tmp_path / "both"
-    result = hypa("hypa.evaluate", f"run={run}", f"out={out}", "tensorboard=false", f"hydra.run.dir={out}")
+    result = hypa("hypa evaluate", f"run={run}", f"out={out}", "tensorboard=false", f"hydra.run.dir={out}")
     assert result.returncode == 0, result.stderr[-3000:]
     assert (out / "summary.md").is_file() and (out / ".hydra" / "overrides.yaml").is_file()

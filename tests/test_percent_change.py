@@ -1,4 +1,4 @@
-"""hypa.markdown.change_text: one rule for the relative change of an error in every report, and a fit
+"""hypa.reporting.markdown.change_text: one rule for the relative change of an error in every report, and a fit
 that diverged reads "did not converge", never "-8.5e19 %"; the reports' JSON holds null, not NaN."""
 
 import json
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from hypa.markdown import DIVERGED, change_text, json_ready, percent_change, share_text
+from hypa.reporting.markdown import DIVERGED, change_text, json_ready, percent_change, share_text
 
 
 @pytest.mark.parametrize("change, text", [

@@ -8,13 +8,13 @@ and integrated by scipy's ODE solver; the continuous system driven by the smooth
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 from scipy.integrate import solve_ivp
 
+from hypa.conf import CONF
 from hypa.physics import LTIBlock, PhysicalParameters
 from hypa.physics.discretization import discretize
 from hypa.physics.lifted import simulate_recursive
@@ -135,7 +135,7 @@ def test_a_cubic_physics_model_is_refused_by_every_export_in_one_line() -> None:
     from hypa.models.composed import ComposedModel
     from hypa.models.spec import parse_model_spec
 
-    config = OmegaConf.load(Path(__file__).parents[1] / "conf" / "model" / "physical.yaml")
+    config = OmegaConf.load(CONF / "model" / "physical.yaml")
     spec = parse_model_spec(OmegaConf.to_container(config))
     scale = dict.fromkeys(("steering_wheel_angle", "yaw_rate", "side_slip"), (0.0, 1.0))
     for hold, refused in (("foh", False), ("cubic", True)):

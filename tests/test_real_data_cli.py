@@ -1,5 +1,5 @@
 """The real data sets (../shared/data) through the commands a user types: every benchmark model
-trains a few batches on each, and ``python -m hypa.benchmark`` writes its table and JSON."""
+trains a few batches on each, and ``hypa benchmark`` writes its table and JSON."""
 
 import json
 import re
@@ -8,6 +8,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+from hypa.conf import CONF
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
@@ -21,13 +23,13 @@ CASES = [pytest.param(d, m, marks=pytest.mark.slow) if (d, m) == ("emps", "emps_
 
 
 def hypa(module: str, *args: str, timeout: int = 600) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", module, *args], cwd=ROOT, capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", *module.split(), *args], cwd=ROOT, capture_output=True, text=True,
                           timeout=timeout, check=False)
 
 
 @pytest.mark.parametrize("dataset, model", CASES)
 def test_every_benchmark_model_trains_on_the_real_data(dataset: str, model: str, tmp_path: Path) -> None:
-    result = hypa("hypa.train", f"dataset={dataset}", f"model={model}", *TINY, f"hydra.run.dir={tmp_path}")
+    result = hypa("hypa train", f"dataset={dataset}", f"model={model}", *TINY, f"hydra.run.dir={tmp_path}")
     assert result.returncode == 0, result.stderr[-3000:]
     info = json.loads((tmp_path / "run.json").read_text())
     assert info["best_val_loss"] == info["best_val_loss"] and info["best_val_loss"] < 10  # finite, sane
@@ -42,7 +44,7 @@ def test_benchmark_writes_the_table_and_json(tmp_path: Path) -> None:
     log.mkdir()
     for file in (SHARED / "racecar").glob("*.csv"):
         shutil.copy(file, log)
-    result = hypa("hypa.benchmark", "dataset=racecar", "models=[physical]", "seeds=[0,1]", f"data.dir={log}",
+    result = hypa("hypa benchmark", "dataset=racecar", "models=[physical]", "seeds=[0,1]", f"data.dir={log}",
                   "train_overrides=['ann.hidden_size=8']", f"hydra.run.dir={tmp_path}")
     assert result.returncode == 0, result.stderr[-3000:]
     for seed in (0, 1):
@@ -76,7 +78,7 @@ def test_silverbox_state_estimated_from_the_past_starts_the_nominal_physics_righ
     from hypa.models import ComposedModel
     from hypa.models.rollout import free_run
 
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="train", overrides=["dataset=silverbox", "model=silverbox_physical"])
     dm = datamodule_from_config(cfg.data, SHARED / "silverbox")
     dm.setup()
@@ -90,11 +92,11 @@ def test_silverbox_state_estimated_from_the_past_starts_the_nominal_physics_righ
 
 
 @pytest.mark.parametrize("args, message", [
-    (["hypa.train", "dataset=racecar", "data.dir=/nowhere"], "/nowhere does not exist"),
-    (["hypa.train", "dataset=racecar", "data.channels.velocity.unit=furlongz"],
+    (["hypa train", "dataset=racecar", "data.dir=/nowhere"], "/nowhere does not exist"),
+    (["hypa train", "dataset=racecar", "data.channels.velocity.unit=furlongz"],
      "unknown unit 'furlongz' of channel 'velocity'"),
-    (["hypa.train", "dataset=silverbox", "model=silverbox_physical", "data.past=0"], "set data.past to at least 1"),
-    (["hypa.benchmark", "dataset=racecar", "models=[foo]"], "not in the racecar suite"),
+    (["hypa train", "dataset=silverbox", "model=silverbox_physical", "data.past=0"], "set data.past to at least 1"),
+    (["hypa benchmark", "dataset=racecar", "models=[foo]"], "not in the racecar suite"),
 ])
 def test_user_errors_are_one_line_without_traceback(args: list[str], message: str, tmp_path: Path) -> None:
     result = hypa(*args, f"hydra.run.dir={tmp_path}", timeout=300)
@@ -106,7 +108,7 @@ def test_user_errors_are_one_line_without_traceback(args: list[str], message: st
 def test_diagnosis_of_silverbox_names_the_stiffening_spring(tmp_path: Path) -> None:
     """The issue's real-data case: the linear mass-spring-damper as the nominal physics of Silverbox
     (whose spring stiffens with the deflection); the diagnosis must name the Duffing spring."""
-    result = hypa("hypa.diagnose", "dataset=silverbox", "model=silverbox_physical", "plot=false",
+    result = hypa("hypa diagnose", "dataset=silverbox", "model=silverbox_physical", "plot=false",
                   f"hydra.run.dir={tmp_path}")
     assert result.returncode == 0, result.stderr[-3000:]
     diagnosis = json.loads((tmp_path / "diagnosis.json").read_text())
@@ -121,7 +123,7 @@ def test_diagnosis_of_silverbox_names_the_stiffening_spring(tmp_path: Path) -> N
 @pytest.mark.slow
 def test_diagnosis_of_the_race_car_names_the_speed_first_and_no_rear_steering(tmp_path: Path) -> None:
     """The race car's nominal model runs at 20 m/s while the log goes from 5 to 28 m/s above 5 m/s."""
-    result = hypa("hypa.diagnose", "dataset=racecar", "model=racecar_nominal", "plot=false",
+    result = hypa("hypa diagnose", "dataset=racecar", "model=racecar_nominal", "plot=false",
                   f"hydra.run.dir={tmp_path}")
     assert result.returncode == 0, result.stderr[-3000:]
     diagnosis = json.loads((tmp_path / "diagnosis.json").read_text())
@@ -136,7 +138,7 @@ def test_diagnosis_of_the_real_cascaded_tanks_names_the_orifices_root_and_the_ov
     the overflow is named with a cross-validated gain of at least 40 %, a root on the lower level is
     the first cause or what the data cannot tell from it (a pump gain that grows with the lower level,
     55 % against 54 %), and the extension beats the nominal."""
-    result = hypa("hypa.diagnose", "dataset=cascaded_tanks", "model=cascaded_tanks_physical", "plot=false",
+    result = hypa("hypa diagnose", "dataset=cascaded_tanks", "model=cascaded_tanks_physical", "plot=false",
                   f"hydra.run.dir={tmp_path}")
     assert result.returncode == 0, result.stderr[-3000:]
     diagnosis = json.loads((tmp_path / "diagnosis.json").read_text())
@@ -152,7 +154,7 @@ def test_diagnosis_of_the_real_cascaded_tanks_names_the_orifices_root_and_the_ov
 def test_a_residual_hybrid_trains_its_network_on_identified_physics(tmp_path: Path) -> None:
     """identification.enabled=true: the hybrid's physics stage (network bypassed) is identified by the
     output error, as the physics-only model is, and only the correction stage trains by epochs."""
-    result = hypa("hypa.train", "dataset=silverbox", "model=silverbox_hybrid", *TINY, "figures.enabled=false",
+    result = hypa("hypa train", "dataset=silverbox", "model=silverbox_hybrid", *TINY, "figures.enabled=false",
                   "identification.enabled=true", f"hydra.run.dir={tmp_path}")
     assert result.returncode == 0, result.stderr[-3000:]
     assert re.search(r"identified 4 parameter\(s\) on 1 free run\(s\).*converged", result.stdout), result.stdout[-2000:]
@@ -177,17 +179,17 @@ def test_a_run_that_trained_on_other_data_than_asked_is_an_error(tmp_path: Path)
         folder.mkdir()
         for file in (SHARED / "racecar").glob("*.csv"):
             shutil.copy(file, folder)
-    result = hypa("hypa.benchmark", "dataset=racecar", "models=[physical]", f"data.dir={asked}",
+    result = hypa("hypa benchmark", "dataset=racecar", "models=[physical]", f"data.dir={asked}",
                   f"train_overrides=['data.dir={other}']", f"hydra.run.dir={tmp_path / 'run'}")
     assert result.returncode == 1 and "Traceback" not in result.stderr, result.stderr[-3000:]
     assert f"physical trained on {other}, not on the data asked for ({asked})" in result.stderr.strip().splitlines()[-1]
 
 
-@pytest.mark.slow  # about 50 s: a diagnosis and an identification through hypa.benchmark (make test-slow)
+@pytest.mark.slow  # about 50 s: a diagnosis and an identification through hypa benchmark (make test-slow)
 def test_benchmark_diagnoses_the_nominal_model_and_identifies_its_extension(tmp_path: Path) -> None:
-    """The silverbox suite's `diagnosed` row: hypa.diagnose extends the nominal linear physics (a stiffening
+    """The silverbox suite's `diagnosed` row: hypa diagnose extends the nominal linear physics (a stiffening
     spring), and that model, identified by its output error, is tested like every other row."""
-    result = hypa("hypa.benchmark", "dataset=silverbox", "models=[physical,diagnosed]", f"hydra.run.dir={tmp_path}",
+    result = hypa("hypa benchmark", "dataset=silverbox", "models=[physical,diagnosed]", f"hydra.run.dir={tmp_path}",
                   # free runs restarted every 2 s: seconds, not a minute
                   "train_overrides=['identification.stretch_s=2']")
     assert result.returncode == 0, result.stderr[-3000:]
@@ -205,9 +207,9 @@ def test_benchmark_diagnoses_the_nominal_model_and_identifies_its_extension(tmp_
                                             ("wiener_hammerstein", "wiener_hammerstein_physical"),
                                             ("silverbox", "silverbox_physical")])
 def test_simulate_runs_each_data_sets_physics(dataset: str, model: str, tmp_path: Path) -> None:
-    """``python -m hypa.simulate dataset=D`` with the data set's own model, a dead time (the race
+    """``hypa simulate dataset=D`` with the data set's own model, a dead time (the race
     car's steering) counting as physics, not as a network to train first."""
-    result = hypa("hypa.simulate", f"dataset={dataset}", "plot=false", f"hydra.run.dir={tmp_path}")
+    result = hypa("hypa simulate", f"dataset={dataset}", "plot=false", f"hydra.run.dir={tmp_path}")
     assert result.returncode == 0, result.stderr[-3000:]
     assert f"model {model} at its configured values" in result.stdout and "free-run" in result.stdout
 
@@ -219,7 +221,7 @@ def test_the_race_car_with_a_table_validates_as_without(tmp_path: Path) -> None:
     losses = {}
     for table in ("true", "false"):
         run = tmp_path / table
-        result = hypa("hypa.train", "dataset=racecar", "model=racecar_physical", *TINY, "identification.enabled=false",
+        result = hypa("hypa train", "dataset=racecar", "model=racecar_physical", *TINY, "identification.enabled=false",
                       "figures.enabled=false", f"model.blocks.single_track.table={table}", f"hydra.run.dir={run}")
         assert result.returncode == 0, result.stderr[-3000:]
         losses[table] = json.loads((run / "run.json").read_text())["best_val_loss"]

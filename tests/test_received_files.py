@@ -30,7 +30,7 @@ def data(tmp_path_factory) -> Path:
 def run(tmp_path_factory, data: Path) -> Path:
     """One finished physics-only run (read-only for the tests: they copy it)."""
     folder = tmp_path_factory.mktemp("received") / "run"
-    result = hypa("hypa.train", *FAST, f"data.dir={data}", f"hydra.run.dir={folder}")
+    result = hypa("hypa train", *FAST, f"data.dir={data}", f"hydra.run.dir={folder}")
     assert result.returncode == 0, result.stderr[-3000:]
     return folder
 
@@ -38,7 +38,7 @@ def run(tmp_path_factory, data: Path) -> Path:
 def edit_checkpoint(folder: Path, change) -> Path:
     """Change the recorded best checkpoint's stored settings with ``change(hparams)`` and re-record
     its checksum, as a sender who crafts a run would."""
-    from hypa.metadata import sha256
+    from hypa.core.metadata import sha256
 
     checkpoint = folder / recorded(folder)["path"]
     state = torch.load(checkpoint, weights_only=True)
@@ -58,10 +58,10 @@ def with_network(hparams: dict, **network) -> None:
 
 
 @pytest.mark.parametrize("command, argument", [
-    pytest.param("hypa.evaluate", "run={folder}", id="evaluate"),
-    pytest.param("hypa.export", "run={folder}", id="export"),
-    pytest.param("hypa.explain", "run={folder}", id="explain"),
-    pytest.param("hypa.train", "ckpt_path='{checkpoint}'", id="train-resume"),
+    pytest.param("hypa evaluate", "run={folder}", id="evaluate"),
+    pytest.param("hypa export", "run={folder}", id="export"),
+    pytest.param("hypa explain", "run={folder}", id="explain"),
+    pytest.param("hypa train", "ckpt_path='{checkpoint}'", id="train-resume"),
 ])
 def test_a_target_node_among_the_network_settings_is_never_built(command: str, argument: str, run: Path,
                                                                   data: Path, tmp_path: Path) -> None:
@@ -69,7 +69,7 @@ def test_a_target_node_among_the_network_settings_is_never_built(command: str, a
     marker = tmp_path / "payload-ran"
     node = {"_target_": "builtins.open", "file": str(marker), "mode": "w"}
     checkpoint = edit_checkpoint(folder, lambda h: with_network(h, ann_hparams={"hidden_size": node}))
-    extra = [*FAST, f"data.dir={data}"] if command == "hypa.train" else []
+    extra = [*FAST, f"data.dir={data}"] if command == "hypa train" else []
     arguments = argument.format(folder=folder, checkpoint=checkpoint)
     result = hypa(command, arguments, *extra, f"hydra.run.dir={tmp_path / 'out'}")
     one_line_error(result, command, "hyperparameter hidden_size must be", "dict")
@@ -98,8 +98,8 @@ def test_build_ann_calls_the_class_and_never_instantiates_a_value(tmp_path: Path
 def test_a_checkpoint_imports_no_module_it_names(change, imports: str, run: Path, tmp_path: Path) -> None:
     folder = copy_run(run, tmp_path / "run")
     edit_checkpoint(folder, change)
-    result = hypa("hypa.evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}")
-    one_line_error(result, "hypa.evaluate", "not built into hypa", f"trust=[{imports}]")
+    result = hypa("hypa evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}")
+    one_line_error(result, "hypa evaluate", "not built into hypa", f"trust=[{imports}]")
     assert ZEN not in result.stdout + result.stderr  # the module `this` prints it when imported
 
 
@@ -107,11 +107,11 @@ def test_trust_names_the_code_a_run_may_import(run: Path, tmp_path: Path) -> Non
     """Trusted, the import goes ahead (and here fails in one line: `this` has no network)."""
     folder = copy_run(run, tmp_path / "run")
     edit_checkpoint(folder, lambda h: with_network(h, ann_name="this.Nothing"))
-    result = hypa("hypa.evaluate", f"run={folder}", "trust=[this]", f"hydra.run.dir={tmp_path / 'out'}")
-    one_line_error(result, "hypa.evaluate", "this.Nothing")
+    result = hypa("hypa evaluate", f"run={folder}", "trust=[this]", f"hydra.run.dir={tmp_path / 'out'}")
+    one_line_error(result, "hypa evaluate", "this.Nothing")
     assert "not built into hypa" not in result.stderr
-    result = hypa("hypa.evaluate", f"run={folder}", "trust=['os.system rm']", f"hydra.run.dir={tmp_path / 'out'}")
-    one_line_error(result, "hypa.evaluate", "is not an import path")
+    result = hypa("hypa evaluate", f"run={folder}", "trust=['os.system rm']", f"hydra.run.dir={tmp_path / 'out'}")
+    one_line_error(result, "hypa evaluate", "is not an import path")
 
 
 SETTINGS = {
@@ -131,8 +131,8 @@ def test_stored_settings_are_checked_before_anything_is_built(case: str, run: Pa
     change, message = SETTINGS[case]
     folder = copy_run(run, tmp_path / "run")
     edit_checkpoint(folder, change)
-    result = hypa("hypa.evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}")
-    one_line_error(result, "hypa.evaluate", message)
+    result = hypa("hypa evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}")
+    one_line_error(result, "hypa evaluate", message)
 
 
 @pytest.mark.parametrize("case", sorted(SETTINGS))
@@ -140,7 +140,7 @@ def test_every_stored_setting_is_checked_by_the_loader_every_command_shares(case
                                                                           tmp_path: Path) -> None:
     """The same cases in this process, through load_run (what evaluate, export, explain, the benchmark
     and the diagnosis call): a user error, with the message, before anything is built."""
-    from hypa.errors import UserError
+    from hypa.core.errors import UserError
     from hypa.evaluation.runs import load_run
 
     change, message = SETTINGS[case]
@@ -157,13 +157,13 @@ def test_run_json_names_no_file_outside_its_folder(run: Path, tmp_path: Path) ->
     for path in (str(other / recorded(other)["path"]), f"../other/{recorded(other)['path']}"):
         record["best_checkpoint"]["path"] = path
         (folder / "run.json").write_text(json.dumps(record))
-        result = hypa("hypa.evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}")
-        one_line_error(result, "hypa.evaluate", "best_checkpoint.path", "not inside", "not followed")
+        result = hypa("hypa evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}")
+        one_line_error(result, "hypa evaluate", "best_checkpoint.path", "not inside", "not followed")
     record["best_checkpoint"]["path"] = "checkpoints/linked.ckpt"
     (folder / "run.json").write_text(json.dumps(record))
     (folder / "checkpoints" / "linked.ckpt").symlink_to(other / recorded(other)["path"])
-    result = hypa("hypa.evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}")
-    one_line_error(result, "hypa.evaluate", "is a symbolic link")
+    result = hypa("hypa evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}")
+    one_line_error(result, "hypa evaluate", "is a symbolic link")
 
 
 def test_a_missing_checksum_is_a_refusal_with_the_way_to_take_the_file(run: Path, tmp_path: Path) -> None:
@@ -171,10 +171,10 @@ def test_a_missing_checksum_is_a_refusal_with_the_way_to_take_the_file(run: Path
     record = json.loads((folder / "run.json").read_text())
     del record["best_checkpoint"]["sha256"]
     (folder / "run.json").write_text(json.dumps(record))
-    result = hypa("hypa.evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}")
+    result = hypa("hypa evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}")
     checkpoint = folder / record["best_checkpoint"]["path"]
-    one_line_error(result, "hypa.evaluate", "records no checksum", f"run='{checkpoint}'")
-    named = hypa("hypa.evaluate", f"run='{checkpoint}'", f"hydra.run.dir={tmp_path / 'out2'}")
+    one_line_error(result, "hypa evaluate", "records no checksum", f"run='{checkpoint}'")
+    named = hypa("hypa evaluate", f"run='{checkpoint}'", f"hydra.run.dir={tmp_path / 'out2'}")
     assert named.returncode == 0, named.stderr[-2000:]
 
 
@@ -183,8 +183,8 @@ def test_a_missing_best_names_the_newest_one_there_is(run: Path, tmp_path: Path)
     best = folder / recorded(folder)["path"]
     newer = best.with_name("best-epoch=07.ckpt")
     best.rename(newer)
-    result = hypa("hypa.evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}")
-    one_line_error(result, "hypa.evaluate", "is missing", f"run='{newer}'")
+    result = hypa("hypa evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}")
+    one_line_error(result, "hypa evaluate", "is missing", f"run='{newer}'")
 
 
 def test_the_record_names_the_new_best_before_the_old_is_removed(tmp_path: Path) -> None:
@@ -228,8 +228,8 @@ def test_a_zip_bomb_checkpoint_is_refused_before_it_is_unpacked(run: Path, tmp_p
             for _ in range(64):  # 1 GiB of zeros in about 1 MB
                 big.write(chunk)
     assert bomb.stat().st_size < 8 * 2**20
-    result = hypa("hypa.evaluate", f"run={bomb}", f"hydra.run.dir={tmp_path / 'out'}")
-    one_line_error(result, "hypa.evaluate", "compressed", "not read")
+    result = hypa("hypa evaluate", f"run={bomb}", f"hydra.run.dir={tmp_path / 'out'}")
+    one_line_error(result, "hypa evaluate", "compressed", "not read")
 
 
 def test_a_yaml_alias_bomb_is_refused_not_expanded(run: Path, tmp_path: Path) -> None:
@@ -238,16 +238,16 @@ def test_a_yaml_alias_bomb_is_refused_not_expanded(run: Path, tmp_path: Path) ->
     lines += [f"{chr(98 + i)}: &{chr(98 + i)} [{', '.join(['*' + chr(97 + i)] * 10)}]" for i in range(9)]
     original = (folder / "config.yaml").read_text()
     (folder / "config.yaml").write_text(original + "\n".join(lines) + "\n")
-    result = hypa("hypa.evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}")
-    one_line_error(result, "hypa.evaluate", "config.yaml")
+    result = hypa("hypa evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}")
+    one_line_error(result, "hypa evaluate", "config.yaml")
     (folder / "config.yaml").write_text(original + "x: !!python/object/apply:os.system ['touch payload']\n")
-    result = hypa("hypa.evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}", cwd=tmp_path)
-    one_line_error(result, "hypa.evaluate", "config.yaml", "not a readable run configuration")
+    result = hypa("hypa evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}", cwd=tmp_path)
+    one_line_error(result, "hypa evaluate", "config.yaml", "not a readable run configuration")
     assert not (tmp_path / "payload").exists()
 
 
 def test_a_received_model_file_is_data(run: Path, data: Path, tmp_path: Path) -> None:
-    """hypa.diagnose's next step trains its written model by model_file=: a crafted one (re-headed
+    """hypa diagnose's next step trains its written model by model_file=: a crafted one (re-headed
     ``# @package _global_`` with a callback, an import path, an interpolation) runs nothing."""
     written = copy_run(run, tmp_path / "run") / "config.yaml"
     import yaml
@@ -257,18 +257,18 @@ def test_a_received_model_file_is_data(run: Path, data: Path, tmp_path: Path) ->
     crafted = tmp_path / "diagnosed.yaml"
     global_ = {"callbacks": {"x": {"_target_": "builtins.open", "file": str(marker), "mode": "w"}}, **model}
     crafted.write_text("# @package _global_\n" + yaml.safe_dump(global_))
-    result = hypa("hypa.train", *FAST, f"data.dir={data}", f"model_file={crafted}", f"hydra.run.dir={tmp_path / 'a'}")
-    one_line_error(result, "hypa.train", "unknown keys ['callbacks']")
+    result = hypa("hypa train", *FAST, f"data.dir={data}", f"model_file={crafted}", f"hydra.run.dir={tmp_path / 'a'}")
+    one_line_error(result, "hypa train", "unknown keys ['callbacks']")
     assert not marker.exists()
     model["blocks"]["single_track"]["system"] = "this:Zen"
     crafted.write_text(yaml.safe_dump(model))
-    result = hypa("hypa.train", *FAST, f"data.dir={data}", f"model_file={crafted}", f"hydra.run.dir={tmp_path / 'b'}")
-    one_line_error(result, "hypa.train", "not built into hypa", "trust=[this:Zen]")
+    result = hypa("hypa train", *FAST, f"data.dir={data}", f"model_file={crafted}", f"hydra.run.dir={tmp_path / 'b'}")
+    one_line_error(result, "hypa train", "not built into hypa", "trust=[this:Zen]")
     assert ZEN not in result.stdout + result.stderr
     model["blocks"]["single_track"]["system"] = "${oc.env:HOME}"
     crafted.write_text(yaml.safe_dump(model))
-    result = hypa("hypa.train", *FAST, f"data.dir={data}", f"model_file={crafted}", f"hydra.run.dir={tmp_path / 'c'}")
-    one_line_error(result, "hypa.train", "interpolation")
+    result = hypa("hypa train", *FAST, f"data.dir={data}", f"model_file={crafted}", f"hydra.run.dir={tmp_path / 'c'}")
+    one_line_error(result, "hypa train", "interpolation")
 
 
 def test_a_model_file_trains_as_the_model_it_holds(run: Path, data: Path, tmp_path: Path) -> None:
@@ -279,10 +279,10 @@ def test_a_model_file_trains_as_the_model_it_holds(run: Path, data: Path, tmp_pa
     file = tmp_path / "received.yaml"
     file.write_text(yaml.safe_dump(model))
     out = tmp_path / "trained"
-    result = hypa("hypa.train", *FAST, f"data.dir={data}", f"model_file={file}", f"hydra.run.dir={out}")
+    result = hypa("hypa train", *FAST, f"data.dir={data}", f"model_file={file}", f"hydra.run.dir={out}")
     assert result.returncode == 0, result.stderr[-3000:]
     assert yaml.safe_load((out / "config.yaml").read_text())["model"]["name"] == "received"
-    evaluated = hypa("hypa.evaluate", f"run={out}", f"hydra.run.dir={tmp_path / 'eval'}")
+    evaluated = hypa("hypa evaluate", f"run={out}", f"hydra.run.dir={tmp_path / 'eval'}")
     assert evaluated.returncode == 0, evaluated.stderr[-3000:]
 
 
@@ -290,7 +290,7 @@ def test_a_resumed_checkpoint_makes_the_rotation_remove_nothing_outside_its_fold
                                                                                    tmp_path: Path) -> None:
     """The checkpoint callback's stored state names the files the rotation removes when a better epoch
     comes: crafted to name files outside the run, they are dropped, and the files stay."""
-    from hypa.metadata import sha256
+    from hypa.core.metadata import sha256
 
     folder = copy_run(run, tmp_path / "run")
     victims = [tmp_path / "victim.txt", tmp_path / "victim2.txt"]
@@ -308,7 +308,7 @@ def test_a_resumed_checkpoint_makes_the_rotation_remove_nothing_outside_its_fold
     record = json.loads((folder / "run.json").read_text())
     record["best_checkpoint"]["sha256"] = sha256(checkpoint)
     (folder / "run.json").write_text(json.dumps(record))
-    result = hypa("hypa.train", *[o for o in FAST if not o.startswith("trainer.max_epochs")], "trainer.max_epochs=4",
+    result = hypa("hypa train", *[o for o in FAST if not o.startswith("trainer.max_epochs")], "trainer.max_epochs=4",
                   f"data.dir={data}", f"ckpt_path='{checkpoint}'")
     assert result.returncode == 0, result.stderr[-3000:]
     assert all(v.read_text() == "keep me" for v in victims)
@@ -317,7 +317,7 @@ def test_a_resumed_checkpoint_makes_the_rotation_remove_nothing_outside_its_fold
 @pytest.mark.parametrize("name", ["/tmp/received-evil", "../../evil", "a.b"])
 def test_a_name_that_is_a_path_is_refused(name: str, run: Path, tmp_path: Path) -> None:
     """Channel and signal names become figure file names: one that is a path is no name."""
-    from hypa.errors import UserError
+    from hypa.core.errors import UserError
     from hypa.evaluation.runs import load_run
 
     folder = copy_run(run, tmp_path / "run")
@@ -336,11 +336,11 @@ def test_deep_yaml_and_a_linked_run_json_are_one_line(run: Path, tmp_path: Path)
     folder = copy_run(run, tmp_path / "run")
     original = (folder / "config.yaml").read_text()
     (folder / "config.yaml").write_text(original + "deep: " + "[" * 100_000 + "]" * 100_000 + "\n")
-    result = hypa("hypa.evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}")
-    one_line_error(result, "hypa.evaluate", "nested more than")
+    result = hypa("hypa evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out'}")
+    one_line_error(result, "hypa evaluate", "nested more than")
     (folder / "config.yaml").write_text(original)
     outside = tmp_path / "outside.json"
     (folder / "run.json").rename(outside)
     (folder / "run.json").symlink_to(outside)
-    result = hypa("hypa.evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out2'}")
-    one_line_error(result, "hypa.evaluate", "run.json is a symbolic link")
+    result = hypa("hypa evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'out2'}")
+    one_line_error(result, "hypa evaluate", "run.json is a symbolic link")

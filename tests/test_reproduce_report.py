@@ -5,6 +5,7 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
+from hypa.conf import CONF
 from hypa.paper.table1 import (
     CHECKS,
     PAPER_TABLE,
@@ -47,7 +48,7 @@ def section(markdown: str, title: str) -> str:
 def test_the_paper_table_is_packaged_and_names_our_rows() -> None:
     paper = load_paper_table()
     assert PAPER_TABLE.parent == ROOT / "hypa" / "paper"  # package data: "*.yaml" in pyproject
-    ours = {str(OmegaConf.load(p).table1_row) for p in (ROOT / "conf" / "row").glob("*.yaml")}
+    ours = {str(OmegaConf.load(p).table1_row) for p in (CONF / "row").glob("*.yaml")}
     assert set(paper.paper) == ours - {"S4", "V1 S4"}
     assert paper.paper["physical"] == {"mae": 2.45e-3, "mse": 2.1e-5, "mape": 3.44, "r2": 0.962}
     assert paper.paper["LSTM"]["mse"] == pytest.approx(0.3e-5)
@@ -137,7 +138,6 @@ def test_only_some_rows_run() -> None:
 
 def test_a_new_reproduction_moves_the_earlier_runs_aside(tmp_path, monkeypatch) -> None:
     """One run, one folder: training anew into <out>/runs would be refused by the earlier runs there."""
-    from pathlib import Path
 
     from hydra import compose, initialize_config_dir
 
@@ -153,11 +153,11 @@ def test_a_new_reproduction_moves_the_earlier_runs_aside(tmp_path, monkeypatch) 
         raise RuntimeError("no training in this test")
 
     monkeypatch.setattr(reproduce, "train_rows", train_rows)
-    with initialize_config_dir(config_dir=str(Path(reproduce.ROOT) / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="reproduce",
                       overrides=[f"out={tmp_path / 'results'}", "rows=[physical]", "seeds=[0]"])
     with pytest.raises(RuntimeError, match="no training"):
-        reproduce.main(cfg)
+        reproduce.main.job(cfg)
     assert seen["free"] and seen["sweep"] == tmp_path / "results" / "runs"
     kept = [p for p in (tmp_path / "results").iterdir() if p.name.startswith("runs-")]
     assert len(kept) == 1 and (kept[0] / "0_physical-seed0" / ".hydra").is_dir()

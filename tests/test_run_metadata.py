@@ -1,4 +1,4 @@
-"""A run folder says what it was made from, and hypa.evaluate notices other data.
+"""A run folder says what it was made from, and hypa evaluate notices other data.
 
 One tiny run through the command line (a network whose inputs are an interpolation, so the
 resolved ``config.yaml`` differs from Hydra's), then: ``run.json`` holds the hypa version, the
@@ -32,7 +32,7 @@ def run(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("metadata")
     data = make_data_dir(root / "data", duration_s=8.0)
     folder = root / "run"
-    result = subprocess.run([sys.executable, "-m", "hypa.train", "dataset=files", f"data.dir={data}",
+    result = subprocess.run([sys.executable, "-m", "hypa", "train", "dataset=files", f"data.dir={data}",
                              "model=blackbox", *TINY, f"hydra.run.dir={folder}"],
                             cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
     assert result.returncode == 0, result.stderr[-3000:]
@@ -91,7 +91,7 @@ def test_evaluate_warns_when_a_data_file_changed(run: Path, tmp_path: Path) -> N
     row[2] = "0.5"  # one measured value, as a re-export or an edit would change it
     lines[200] = ",".join(row)
     val.write_text("\n".join(lines) + "\n")
-    result = subprocess.run([sys.executable, "-m", "hypa.evaluate", f"run={folder}", "tensorboard=false",
+    result = subprocess.run([sys.executable, "-m", "hypa", "evaluate", f"run={folder}", "tensorboard=false",
                              f"hydra.run.dir={tmp_path / 'evaluate'}"], cwd=ROOT, capture_output=True, text=True,
                             timeout=600, check=False)
     assert result.returncode == 0, result.stderr[-3000:]  # a warning, not an error
@@ -125,7 +125,7 @@ def test_data_module_lists_every_file_it_read(tmp_path: Path) -> None:
 
 
 def test_git_state_of_a_checkout_and_of_a_plain_folder(tmp_path: Path) -> None:
-    from hypa.metadata import git_state
+    from hypa.core.metadata import git_state
 
     if shutil.which("git") is None:
         assert git_state(tmp_path) is None

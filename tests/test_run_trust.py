@@ -16,6 +16,8 @@ from pathlib import Path
 import pytest
 import torch
 
+from hypa.conf import CONF
+
 from data_helpers import make_data_dir
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -32,7 +34,8 @@ def hypa(command: str, *args: str, cwd: Path = ROOT, limit_bytes: int | None = N
     def limit() -> None:  # a full disk, as the process sees it: writes past the size fail (EFBIG)
         resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
 
-    return subprocess.run([sys.executable, "-m", command, *args], cwd=cwd, env=environment, capture_output=True,
+    return subprocess.run([sys.executable, "-m", *command.split(), *args],
+                          cwd=cwd, env=environment, capture_output=True,
                           text=True, timeout=300, preexec_fn=limit if limit_bytes else None, check=False)
 
 
@@ -58,7 +61,7 @@ def data(tmp_path_factory) -> Path:
 def run(tmp_path_factory, data: Path) -> Path:
     """One finished physics-only run (read-only for the tests: they copy it)."""
     folder = tmp_path_factory.mktemp("trust") / "run"
-    result = hypa("hypa.train", *FAST, f"data.dir={data}", f"hydra.run.dir={folder}")
+    result = hypa("hypa train", *FAST, f"data.dir={data}", f"hydra.run.dir={folder}")
     assert result.returncode == 0, result.stderr[-3000:]
     return folder
 
@@ -85,7 +88,7 @@ class Payload:
 
 def craft(checkpoint: Path, marker: Path) -> None:
     """A real hypa checkpoint with a payload added; run.json's checksum follows, as an attacker's would."""
-    from hypa.metadata import sha256
+    from hypa.core.metadata import sha256
 
     state = torch.load(checkpoint, weights_only=True)
     state["callbacks"]["payload"] = Payload(marker)
@@ -98,11 +101,11 @@ def craft(checkpoint: Path, marker: Path) -> None:
 
 
 @pytest.mark.parametrize("command, argument", [
-    pytest.param("hypa.evaluate", "run={folder}", id="evaluate-folder"),
-    pytest.param("hypa.evaluate", "run='{checkpoint}'", id="evaluate-checkpoint"),
-    pytest.param("hypa.explain", "run='{checkpoint}'", id="explain"),
-    pytest.param("hypa.train", "ckpt_path='{checkpoint}'", id="train-resume"),
-    pytest.param("hypa.reproduce", "skip_training=true out={results}", id="reproduce"),  # evaluates <out>/runs/*
+    pytest.param("hypa evaluate", "run={folder}", id="evaluate-folder"),
+    pytest.param("hypa evaluate", "run='{checkpoint}'", id="evaluate-checkpoint"),
+    pytest.param("hypa explain", "run='{checkpoint}'", id="explain"),
+    pytest.param("hypa train", "ckpt_path='{checkpoint}'", id="train-resume"),
+    pytest.param("hypa reproduce", "skip_training=true out={results}", id="reproduce"),  # evaluates <out>/runs/*
 ])
 def test_a_crafted_checkpoint_runs_nothing(command: str, argument: str, run: Path, data: Path,
                                            tmp_path: Path) -> None:
@@ -110,7 +113,7 @@ def test_a_crafted_checkpoint_runs_nothing(command: str, argument: str, run: Pat
     checkpoint = folder / recorded(folder)["path"]
     marker = tmp_path / "payload-ran"
     craft(checkpoint, marker)
-    extra = [*FAST, f"data.dir={data}"] if command == "hypa.train" else []
+    extra = [*FAST, f"data.dir={data}"] if command == "hypa train" else []
     arguments = argument.format(folder=folder, checkpoint=checkpoint, results=tmp_path / "results").split(" ")
     result = hypa(command, *arguments, *extra, f"hydra.run.dir={tmp_path / 'out'}")
     one_line_error(result, command, "not a readable checkpoint", "posix.system", "did not run")
@@ -118,8 +121,8 @@ def test_a_crafted_checkpoint_runs_nothing(command: str, argument: str, run: Pat
 
 
 def test_the_loader_every_command_shares_refuses_a_crafted_checkpoint(run: Path, tmp_path: Path) -> None:
-    """hypa.benchmark, hypa.reproduce and the diagnosis's trained extension load runs by load_run."""
-    from hypa.errors import UserError
+    """hypa benchmark, hypa reproduce and the diagnosis's trained extension load runs by load_run."""
+    from hypa.core.errors import UserError
     from hypa.evaluation.runs import load_run
 
     folder = copy_run(run, tmp_path / "run")
@@ -135,11 +138,11 @@ def test_a_run_folder_holds_one_run(run: Path, data: Path, tmp_path: Path) -> No
     folder = copy_run(run, tmp_path / "run")
     before = {p.name: p.read_bytes() for p in (folder / "checkpoints").iterdir()}
     record, config = (folder / "run.json").read_text(), (folder / "config.yaml").read_text()
-    result = hypa("hypa.train", *FAST, f"data.dir={data}", f"hydra.run.dir={folder}", "seed=7")
-    one_line_error(result, "hypa.train", "already holds another run's checkpoints", "ckpt_path=")
+    result = hypa("hypa train", *FAST, f"data.dir={data}", f"hydra.run.dir={folder}", "seed=7")
+    one_line_error(result, "hypa train", "already holds another run's checkpoints", "ckpt_path=")
     assert {p.name: p.read_bytes() for p in (folder / "checkpoints").iterdir()} == before
     assert (folder / "run.json").read_text() == record and (folder / "config.yaml").read_text() == config
-    # hypa.evaluate still scores that run, under its own settings (the refused run wrote no .hydra/ either)
+    # hypa evaluate still scores that run, under its own settings (the refused run wrote no .hydra/ either)
     from hypa.evaluation.runs import load_run
 
     assert load_run(folder).config.seed == 0
@@ -148,7 +151,7 @@ def test_a_run_folder_holds_one_run(run: Path, data: Path, tmp_path: Path) -> No
 def test_a_resumed_run_continues_in_its_own_folder_and_log(run: Path, data: Path, tmp_path: Path) -> None:
     folder = copy_run(run, tmp_path / "run")
     log_before = (folder / "train.log").read_text()
-    result = hypa("hypa.train", *FAST, f"data.dir={data}", "trainer.max_epochs=3",
+    result = hypa("hypa train", *FAST, f"data.dir={data}", "trainer.max_epochs=3",
                   f"ckpt_path={folder / 'checkpoints' / 'last.ckpt'}", f"hydra.run.dir={tmp_path / 'hydra'}")
     assert result.returncode == 0, result.stderr[-3000:]
     log_after = (folder / "train.log").read_text()
@@ -161,14 +164,15 @@ def test_a_resumed_run_continues_in_its_own_folder_and_log(run: Path, data: Path
 def test_two_runs_into_one_folder_at_once_one_is_refused(data: Path, tmp_path: Path) -> None:
     folder = tmp_path / "run"
     environment = {k: v for k, v in os.environ.items() if k not in ("HYDRA_FULL_ERROR", "HYPA_FULL_ERROR")}
-    runs = [subprocess.Popen([sys.executable, "-m", "hypa.train", *FAST, f"data.dir={data}", f"hydra.run.dir={folder}",
+    runs = [subprocess.Popen([sys.executable, "-m", "hypa", "train",
+                              *FAST, f"data.dir={data}", f"hydra.run.dir={folder}",
                               f"seed={seed}"], cwd=ROOT, env=environment, stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, text=True) for seed in (1, 2)]
     results = [(p.wait(timeout=300), p.stderr.read()) for p in runs]
     assert sorted(code for code, _ in results) == [0, 1], results
     winner = [1, 2][[code for code, _ in results].index(0)]
     loser = next(err for code, err in results if code == 1)
-    assert "is being written by another hypa.train" in loser or "already holds another run's checkpoints" in loser
+    assert "is being written by another hypa train" in loser or "already holds another run's checkpoints" in loser
     assert sorted(p.name for p in (folder / "checkpoints").iterdir()) == ["best-epoch=01.ckpt", "last.ckpt"] or \
         len(list((folder / "checkpoints").glob("best-*.ckpt"))) == 1
     from omegaconf import OmegaConf
@@ -186,14 +190,14 @@ def test_evaluate_scores_the_recorded_checkpoint_not_the_newest_name(run: Path, 
 
     assert load_run(folder).checkpoint == best.resolve()
     best.write_bytes(best.read_bytes()[:-100])  # damaged after it was recorded
-    result = hypa("hypa.evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'eval'}")
-    one_line_error(result, "hypa.evaluate", "is not the checkpoint that", "checksum differs")
+    result = hypa("hypa evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'eval'}")
+    one_line_error(result, "hypa evaluate", "is not the checkpoint that", "checksum differs")
 
 
 def test_a_full_disk_leaves_no_truncated_checkpoint(data: Path, tmp_path: Path) -> None:
     folder = tmp_path / "run"
-    result = hypa("hypa.train", *FAST, f"data.dir={data}", f"hydra.run.dir={folder}", limit_bytes=12_000)
-    one_line_error(result, "hypa.train", "File too large while writing the checkpoint")
+    result = hypa("hypa train", *FAST, f"data.dir={data}", f"hydra.run.dir={folder}", limit_bytes=12_000)
+    one_line_error(result, "hypa train", "File too large while writing the checkpoint")
     assert not list((folder / "checkpoints").glob("*")) if (folder / "checkpoints").is_dir() else True
     assert "best_checkpoint" not in json.loads((folder / "run.json").read_text())
 
@@ -233,7 +237,7 @@ def test_a_diverging_loss_stops_the_run_naming_the_epoch(data: Path, tmp_path: P
         return loss * float("nan") if self.current_epoch == 1 else loss
 
     monkeypatch.setattr(HybridModule, "training_step", diverging)
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="train", overrides=[*FAST, f"data.dir={data}", "trainer.max_epochs=4"],
                       return_hydra_config=True)
     with open_dict(cfg):
@@ -264,9 +268,9 @@ def test_bad_training_values_stop_before_training(override: str, message: str, d
     from omegaconf import open_dict
 
     from hypa.commands.train import train
-    from hypa.errors import UserError
+    from hypa.core.errors import UserError
 
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="train", overrides=[*FAST, f"data.dir={data}", override], return_hydra_config=True)
     with open_dict(cfg):
         cfg.hydra.runtime.output_dir = str(tmp_path / "run")
@@ -278,28 +282,28 @@ def test_bad_training_values_stop_before_training(override: str, message: str, d
 
 
 def test_a_bad_learning_rate_is_one_line_through_the_command(data: Path, tmp_path: Path) -> None:
-    result = hypa("hypa.train", *FAST, f"data.dir={data}", "optimizer.lr=nan", f"hydra.run.dir={tmp_path / 'run'}")
-    one_line_error(result, "hypa.train", "optimizer.lr=nan is not a finite number")
+    result = hypa("hypa train", *FAST, f"data.dir={data}", "optimizer.lr=nan", f"hydra.run.dir={tmp_path / 'run'}")
+    one_line_error(result, "hypa train", "optimizer.lr=nan is not a finite number")
     assert not (tmp_path / "run" / "checkpoints").exists()
 
 
 def test_an_unwritable_output_folder_is_one_line(data: Path, tmp_path: Path) -> None:
     blocker = tmp_path / "a-file"
     blocker.write_text("")
-    result = hypa("hypa.train", *FAST, f"data.dir={data}", f"hydra.run.dir={blocker / 'run'}")
-    one_line_error(result, "hypa.train", "Not a directory")
+    result = hypa("hypa train", *FAST, f"data.dir={data}", f"hydra.run.dir={blocker / 'run'}")
+    one_line_error(result, "hypa train", "Not a directory")
     read_only = tmp_path / "read-only"
     read_only.mkdir()
     command = [*FAST, f"data.dir={data}", f"hydra.run.dir={read_only / 'run'}"]
     if os.geteuid() != 0:
         read_only.chmod(0o555)
-        result = hypa("hypa.train", *command)
+        result = hypa("hypa train", *command)
         read_only.chmod(0o755)
-        one_line_error(result, "hypa.train", "Permission denied")
+        one_line_error(result, "hypa train", "Permission denied")
         return
     # root writes through permissions: a read-only bind mount in a private mount namespace instead
     script = (f"mount --bind {read_only} {read_only} && mount -o remount,ro,bind {read_only} && "
-              f"{sys.executable} -m hypa.train " + " ".join(f"'{c}'" for c in command))
+              f"{sys.executable} -m hypa train " + " ".join(f"'{c}'" for c in command))
     probe = subprocess.run(["unshare", "-m", "sh", "-c", f"mount --bind {read_only} {read_only}"],
                            capture_output=True, text=True, check=False)
     if shutil.which("unshare") is None or probe.returncode != 0:
@@ -307,21 +311,21 @@ def test_an_unwritable_output_folder_is_one_line(data: Path, tmp_path: Path) -> 
     environment = {k: v for k, v in os.environ.items() if k not in ("HYDRA_FULL_ERROR", "HYPA_FULL_ERROR")}
     result = subprocess.run(["unshare", "-m", "sh", "-c", script], cwd=ROOT, env=environment, capture_output=True,
                             text=True, timeout=300, check=False)
-    one_line_error(result, "hypa.train", "Read-only file system")
+    one_line_error(result, "hypa train", "Read-only file system")
 
 
 def test_damaged_run_folders_are_one_line(run: Path, tmp_path: Path) -> None:
     folder = copy_run(run, tmp_path / "run")
     (folder / "config.yaml").write_text("data: [unclosed\n")
-    result = hypa("hypa.evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'eval'}")
-    one_line_error(result, "hypa.evaluate", "config.yaml: not a readable run configuration")
+    result = hypa("hypa evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'eval'}")
+    one_line_error(result, "hypa evaluate", "config.yaml: not a readable run configuration")
     (folder / "run.json").write_text("{not json")
-    result = hypa("hypa.evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'eval'}")
-    one_line_error(result, "hypa.evaluate", "run.json: not a readable run record")
+    result = hypa("hypa evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'eval'}")
+    one_line_error(result, "hypa evaluate", "run.json: not a readable run record")
 
 
 def test_evaluate_refuses_a_model_that_predicts_non_finite_values(run: Path, tmp_path: Path) -> None:
-    from hypa.metadata import sha256
+    from hypa.core.metadata import sha256
 
     folder = copy_run(run, tmp_path / "run")
     checkpoint = folder / recorded(folder)["path"]
@@ -333,5 +337,5 @@ def test_evaluate_refuses_a_model_that_predicts_non_finite_values(run: Path, tmp
     record = json.loads((folder / "run.json").read_text())
     record["best_checkpoint"]["sha256"] = sha256(checkpoint)
     (folder / "run.json").write_text(json.dumps(record))
-    result = hypa("hypa.evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'eval'}")
-    one_line_error(result, "hypa.evaluate", "predicts non-finite", "retrain")
+    result = hypa("hypa evaluate", f"run={folder}", f"hydra.run.dir={tmp_path / 'eval'}")
+    one_line_error(result, "hypa evaluate", "predicts non-finite", "retrain")

@@ -1,5 +1,5 @@
 """End to end: test bench -> files -> DataModule -> a physics model at its configured values, in
-the library and the CLI (``python -m hypa.simulate``, any system)."""
+the library and the CLI (``hypa simulate``, any system)."""
 
 import json
 import os
@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
+from hypa.conf import CONF
 from hypa.data import HypaDataModule
 from hypa.evaluation.nominal import channel_metrics, nominal_module
 from hypa.models.rollout import free_run
@@ -23,7 +24,7 @@ SHORT = {"records": {
     "train_2": {"seed": 2, "stochastic_duration_s": 40.0, "break_frequency_hz": 1.0, "maneuvers": []},
     "val": {"seed": 3, "stochastic_duration_s": 40.0, "break_frequency_hz": 0.8, "maneuvers": []},
 }}
-FRONT_ONLY = OmegaConf.to_container(OmegaConf.load(ROOT / "conf" / "model" / "vehicle_nominal.yaml"))
+FRONT_ONLY = OmegaConf.to_container(OmegaConf.load(CONF / "model" / "vehicle_nominal.yaml"))
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +57,7 @@ def test_wrong_cornering_stiffness_is_visible(clean_data: HypaDataModule) -> Non
 
 
 def test_a_model_with_networks_is_refused(clean_data: HypaDataModule) -> None:
-    v1 = OmegaConf.to_container(OmegaConf.load(ROOT / "conf" / "model" / "v1.yaml"))
+    v1 = OmegaConf.to_container(OmegaConf.load(CONF / "model" / "v1.yaml"))
     with pytest.raises(Exception, match="runs physics only; model v1 has the network blocks rear_steering"):
         nominal_module(v1, VehicleParameters().as_dict(), clean_data, "zoh")
 
@@ -65,7 +66,7 @@ def test_simulate_cli_runs_any_system_on_real_data(tmp_path: Path) -> None:
     """Silverbox's linear physics at its nominal values free-runs near the published linear
     model's level (6.96 mV on the test set; measured here on the validation part: 6.8 mV)."""
     result = subprocess.run(
-        [sys.executable, "-m", "hypa.simulate", "dataset=silverbox", "model=silverbox_physical", "plot=false",
+        [sys.executable, "-m", "hypa", "simulate", "dataset=silverbox", "model=silverbox_physical", "plot=false",
          f"hydra.run.dir={tmp_path}"], cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "model silverbox_physical" in result.stdout and " mV " in result.stdout
@@ -78,7 +79,7 @@ def test_simulate_cli_on_short_testbench_data(tmp_path: Path) -> None:
     overrides = [f"testbench.records.{name}.stochastic_duration_s=30" for name in ("train_1", "train_2", "val")]
     env = {**os.environ, "HYPA_CACHE_DIR": str(tmp_path / "cache")}
     result = subprocess.run(
-        [sys.executable, "-m", "hypa.simulate", f"hydra.run.dir={tmp_path / 'run'}", *overrides],
+        [sys.executable, "-m", "hypa", "simulate", f"hydra.run.dir={tmp_path / 'run'}", *overrides],
         cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False,
     )
     assert result.returncode == 0, result.stderr[-3000:]
@@ -93,7 +94,7 @@ def test_simulate_cli_rejects_unstable_parameters(tmp_path: Path) -> None:
     overrides = [f"testbench.records.{name}.stochastic_duration_s=30" for name in ("train_1", "train_2", "val")]
     env = {**os.environ, "HYPA_CACHE_DIR": str(tmp_path / "cache")}
     result = subprocess.run(
-        [sys.executable, "-m", "hypa.simulate", f"hydra.run.dir={tmp_path / 'run'}", "vehicle.cr=20000",
+        [sys.executable, "-m", "hypa", "simulate", f"hydra.run.dir={tmp_path / 'run'}", "vehicle.cr=20000",
          "vehicle.velocity=60", *overrides],
         cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False,
     )

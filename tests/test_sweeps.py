@@ -18,6 +18,7 @@ from omegaconf import OmegaConf
 
 import hypa.commands.train  # registers the data schema and the resolvers the configs use
 from hypa.ann import ann_hyperparameters
+from hypa.conf import CONF
 
 from conftest import SHORT_OVERRIDES
 
@@ -29,12 +30,12 @@ TINY = ["trainer.max_epochs=1", "trainer.limit_train_batches=2", "trainer.limit_
 
 def hypa_train(*args: str, cwd: Path, cache: Path) -> subprocess.CompletedProcess:
     env = {**os.environ, "HYPA_CACHE_DIR": str(cache)}
-    return subprocess.run([sys.executable, "-m", "hypa.train", *args], cwd=cwd, env=env, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "hypa", "train", *args], cwd=cwd, env=env, capture_output=True,
                           text=True, timeout=300, check=False)
 
 
 def compose_train(*overrides: str):
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         return compose(config_name="train", overrides=list(overrides), return_hydra_config=True)
 
 
@@ -83,7 +84,7 @@ def test_optuna_sweep_two_trials(tmp_path: Path, hypa_cache: Path) -> None:
     assert [t.name.split("_")[0] for t in trials] == ["0", "1"]
     losses = {t: json.loads((t / "run.json").read_text())["best_val_loss"] for t in trials}
     winner = min(losses, key=losses.get)
-    assert best["best_value"] == pytest.approx(losses[winner], rel=1e-12)  # the study saw what hypa.train returned
+    assert best["best_value"] == pytest.approx(losses[winner], rel=1e-12)  # the study saw what hypa train returned
     config = OmegaConf.load(winner / ".hydra" / "config.yaml")
     for key, value in best["best_params"].items():  # and the winner trained with the reported parameters
         assert OmegaConf.select(config, key) == pytest.approx(value)
@@ -92,9 +93,9 @@ def test_optuna_sweep_two_trials(tmp_path: Path, hypa_cache: Path) -> None:
 def test_main_returns_inf_when_no_finite_val_loss(monkeypatch) -> None:
     """Optuna's sweeper aborts the study on a NaN objective; a diverged trial must rank last instead."""
     monkeypatch.setattr(hypa.commands.train, "train", lambda cfg: {"best_val_loss": float("nan")})
-    assert hypa.commands.train.main(OmegaConf.create({})) == math.inf
+    assert hypa.commands.train.main.job(OmegaConf.create({})) == math.inf
     monkeypatch.setattr(hypa.commands.train, "train", lambda cfg: {"best_val_loss": 0.25})
-    assert hypa.commands.train.main(OmegaConf.create({})) == 0.25
+    assert hypa.commands.train.main.job(OmegaConf.create({})) == 0.25
 
 
 def test_submitit_local_two_job_sweep(tmp_path: Path, hypa_cache: Path) -> None:

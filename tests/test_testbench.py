@@ -16,6 +16,7 @@ from omegaconf.errors import ConfigKeyError
 from scipy.signal import lsim, welch
 
 import hypa.commands  # noqa: F401  (registers the schemas conf/testbench.yaml extends: this file alone passes too)
+from hypa.conf import CONF
 from hypa.paper.testbench import (
     TestbenchConfig,
     ensure_dataset,
@@ -37,7 +38,7 @@ from hypa.paper.testbench.truth import (
 from hypa.vehicle import VehicleParameters
 
 FS = 1024.0
-CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+
 
 # Short records (20 s + 10 s stochastic, the val manoeuvres shrunk to 30 s) keep tests fast.
 SHORT = {
@@ -94,7 +95,7 @@ def short_dataset(tmp_path_factory) -> tuple[TestbenchConfig, Path]:
 def test_yaml_mirrors_the_dataclass_defaults():
     from hydra import compose, initialize_config_dir
 
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="testbench")
     assert TestbenchConfig.from_dict(cfg.testbench) == TestbenchConfig()
     assert cfg.out is None
@@ -374,7 +375,7 @@ def test_cli_writes_the_folder_and_prints_a_summary(tmp_path, monkeypatch, capsy
         sys,
         "argv",
         [
-            "hypa.testbench",
+            "hypa testbench",
             f"out={tmp_path / 'data'}",
             f"hydra.run.dir={tmp_path / 'run'}",
             "testbench.records.val.maneuvers=[]",
@@ -383,7 +384,7 @@ def test_cli_writes_the_folder_and_prints_a_summary(tmp_path, monkeypatch, capsy
             *overrides,
         ],
     )
-    runpy.run_module("hypa.testbench", run_name="__main__")  # as python -m hypa.testbench
+    runpy.run_module("hypa testbench", run_name="__main__")  # as hypa testbench
     printed = capsys.readouterr().out
     assert "val.parquet" in printed and "train_2.parquet" in printed and "deg" in printed
     assert (tmp_path / "data" / "dataset.json").is_file()

@@ -16,13 +16,14 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 
+from hypa.conf import CONF
+from hypa.core.metadata import sha256
 from hypa.data.from_config import data_dir_from_config
-from hypa.metadata import sha256
 from hypa.paper.testbench import TestbenchConfig, ensure_dataset, load_description
 from hypa.paper.testbench import dataset as dataset_module
 
 ROOT = Path(__file__).resolve().parents[1]
-CONF = ROOT / "conf"
+
 RECORDS = ("train_1", "train_2", "val")
 TINY = [*(f"testbench.records.{name}.stochastic_duration_s=5" for name in RECORDS),
         "testbench.records.val.maneuvers=[]"]
@@ -52,9 +53,9 @@ def _contents(folder: Path) -> dict[str, bytes]:
 
 
 def _run_cli(tmp_path: Path) -> str:
-    """``python -m hypa.testbench <TINY>`` as a user types it; its output (log included)."""
+    """``hypa testbench <TINY>`` as a user types it; its output (log included)."""
     result = subprocess.run(
-        [sys.executable, "-m", "hypa.testbench", *TINY, f"hydra.run.dir={tmp_path / 'run'}"],
+        [sys.executable, "-m", "hypa", "testbench", *TINY, f"hydra.run.dir={tmp_path / 'run'}"],
         cwd=tmp_path, env=os.environ.copy(), capture_output=True, text=True, timeout=300, check=False,
     )
     output = result.stdout + result.stderr
@@ -171,7 +172,7 @@ def test_ensure_dataset_regenerates_every_kind_of_damage(cache, config, damage, 
 
 
 def test_the_training_data_path_restores_a_deleted_file(cache, caplog):
-    """What ``hypa.train`` does to find its data: half the data is never trained on quietly."""
+    """What ``hypa train`` does to find its data: half the data is never trained on quietly."""
     original = _contents(cache)
     (cache / "train_2.parquet").unlink()
     with caplog.at_level(logging.WARNING, logger=LOGGER):

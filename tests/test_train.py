@@ -12,6 +12,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import open_dict
 
 from hypa.commands.train import train
+from hypa.conf import CONF
 
 from conftest import SHORT_OVERRIDES
 
@@ -26,7 +27,7 @@ TINY_ANN = {"lstm": ["ann.hidden_size=8"], "s4": ["ann.d_model=8", "ann.d_state=
 
 def run_train(tmp_path: Path, overrides: list[str]) -> dict:
     """Compose the real config like the command line does, and train in-process."""
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
         cfg = compose(config_name="train", overrides=[*SHORT_OVERRIDES, *overrides], return_hydra_config=True)
     with open_dict(cfg):
         cfg.hydra.runtime.output_dir = str(tmp_path)
@@ -50,7 +51,7 @@ def test_every_model_and_ann_trains(model: str, ann: str, tmp_path: Path, hypa_c
 def test_cli_run_with_loggers_early_stopping_and_checkpoint(tmp_path: Path, hypa_cache: Path) -> None:
     """The real command line, not fast_dev_run: TensorBoard events and checkpoints are written."""
     env = {**os.environ, "HYPA_CACHE_DIR": str(hypa_cache)}
-    cmd = [sys.executable, "-m", "hypa.train", "model=v1", "ann=lstm", f"hydra.run.dir={tmp_path}",
+    cmd = [sys.executable, "-m", "hypa", "train", "model=v1", "ann=lstm", f"hydra.run.dir={tmp_path}",
            "trainer.max_epochs=3", "trainer.limit_train_batches=3", "trainer.limit_val_batches=2",
            "early_stopping.patience=1", "ann.hidden_size=8", *SHORT_OVERRIDES]
     result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600, check=False)
@@ -134,7 +135,7 @@ def test_same_seed_repeats_the_run(tmp_path: Path, hypa_cache: Path) -> None:
 
 
 def test_misspelled_model_lists_what_exists(tmp_path: Path) -> None:
-    result = subprocess.run([sys.executable, "-m", "hypa.train", "model=v4", f"hydra.run.dir={tmp_path}"],
+    result = subprocess.run([sys.executable, "-m", "hypa", "train", "model=v4", f"hydra.run.dir={tmp_path}"],
                             cwd=ROOT, capture_output=True, text=True, timeout=120, check=False)
     assert result.returncode != 0
     assert "v4" in result.stderr and all(name in result.stderr for name in ("v1", "v2", "v3", "physical", "blackbox"))

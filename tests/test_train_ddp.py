@@ -20,7 +20,7 @@ QUIET = ["trainer.enable_progress_bar=false", "figures.enabled=false"]
 
 
 def hypa_train(run: Path, overrides: list[str], env: dict[str, str]) -> subprocess.CompletedProcess:
-    command = [sys.executable, "-m", "hypa.train", *overrides, f"hydra.run.dir={run}"]
+    command = [sys.executable, "-m", "hypa", "train", *overrides, f"hydra.run.dir={run}"]
     result = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600, check=False)
     assert result.returncode == 0, result.stderr[-3000:]
     return result
@@ -91,9 +91,9 @@ def test_a_hybrid_identified_once_trains_on_its_physics_across_two_processes(tmp
 
 
 def test_ddp_spawn_is_refused_in_one_line(tmp_path: Path) -> None:
-    command = [sys.executable, "-m", "hypa.train", "trainer.strategy=ddp_spawn", "trainer.devices=2",
+    command = [sys.executable, "-m", "hypa", "train", "trainer.strategy=ddp_spawn", "trainer.devices=2",
                f"hydra.run.dir={tmp_path}"]
     result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=120, check=False)
     assert result.returncode == 1
-    assert result.stderr.strip().splitlines()[-1].startswith("hypa.train: error: trainer.strategy=ddp_spawn")
+    assert result.stderr.strip().splitlines()[-1].startswith("hypa train: error: trainer.strategy=ddp_spawn")
     assert "trainer.strategy=ddp" in result.stderr and not (tmp_path / "run.json").exists()

@@ -53,7 +53,7 @@ def _train(tmp_path: Path, *overrides: str) -> subprocess.CompletedProcess:
     (conf / "ann").mkdir(exist_ok=True)
     (conf / "ann" / "tiny_gru.yaml").write_text("# @package ann\nname: tiny_gru\n_target_: mynets.TinyGRU\nwidth: 4\n")
     env = {**env, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(EXAMPLE), env.get("PYTHONPATH", "")])}
-    command = [sys.executable, "-m", "hypa.train", "--config-dir", str(conf), "dataset=dc_motor",
+    command = [sys.executable, "-m", "hypa", "train", "--config-dir", str(conf), "dataset=dc_motor",
                "model=blackbox", f"data.dir={data}", "trainer.max_epochs=1", "trainer.limit_train_batches=3",
                "trainer.enable_progress_bar=false", "figures.enabled=false", f"hydra.run.dir={tmp_path / 'run'}",
                *overrides]
@@ -87,4 +87,4 @@ def test_a_bad_target_is_one_line(tmp_path, overrides):
     result = _train(tmp_path, *overrides)
     lines = [line for line in result.stderr.strip().splitlines() if line.strip()]
     assert result.returncode == 1, (overrides, result.stderr[-2000:])
-    assert len(lines) == 1 and lines[0].startswith("hypa.train: error:"), (overrides, result.stderr[-2000:])
+    assert len(lines) == 1 and lines[0].startswith("hypa train: error:"), (overrides, result.stderr[-2000:])

@@ -1,6 +1,6 @@
 """A user's own system and data set from scratch, through the commands a user types:
 ``examples/user_system`` (a DC motor by import path, its dataset and model YAMLs in a config
-folder of the user's) trained by ``python -m hypa.train`` and evaluated by ``hypa.evaluate``."""
+folder of the user's) trained by ``hypa train`` and evaluated by ``hypa evaluate``."""
 
 import json
 import os
@@ -20,7 +20,7 @@ EXAMPLE = ROOT / "examples" / "user_system"
 def trained(tmp_path_factory) -> Path:
     data, run = tmp_path_factory.mktemp("dc_motor_data"), tmp_path_factory.mktemp("dc_motor_run")
     env = make_dc_motor_data(data, 30)
-    command = [sys.executable, "-m", "hypa.train", "--config-dir", str(EXAMPLE / "conf"), "dataset=dc_motor",
+    command = [sys.executable, "-m", "hypa", "train", "--config-dir", str(EXAMPLE / "conf"), "dataset=dc_motor",
                "model=dc_motor", f"data.dir={data}", "trainer.max_epochs=4", "trainer.enable_progress_bar=false",
                "optimizer.physics_lr=0.05", f"hydra.run.dir={run}"]
     result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, env=env, check=False)
@@ -45,7 +45,7 @@ def test_user_system_trains_and_finds_the_true_parameters(trained: Path) -> None
 
 def test_user_system_evaluates_in_its_own_units(trained: Path, tmp_path: Path) -> None:
     env = {**os.environ, "PYTHONPATH": str(EXAMPLE)}
-    result = subprocess.run([sys.executable, "-m", "hypa.evaluate", f"run={trained}", f"out={tmp_path}",
+    result = subprocess.run([sys.executable, "-m", "hypa", "evaluate", f"run={trained}", f"out={tmp_path}",
                              "trust=[dc_motor]",
                              "tensorboard=false", f"hydra.run.dir={tmp_path / 'hydra'}"],
                             cwd=ROOT, capture_output=True, text=True, timeout=300, env=env, check=False)
@@ -58,12 +58,12 @@ def test_user_system_evaluates_in_its_own_units(trained: Path, tmp_path: Path) -
 
 
 def test_a_users_own_data_set_and_model_are_benchmarked(tmp_path: Path) -> None:
-    """python -m hypa.benchmark --config-dir DIR dataset=NAME models=[M]: no suite needed; without test
+    """hypa benchmark --config-dir DIR dataset=NAME models=[M]: no suite needed; without test
     records it refuses (an empty table would be a silent non-result), and the diagnosis's rows
     without a nominal model to diagnose (diagnose=M) or with one that does not exist."""
     data = tmp_path / "data"
     env = make_dc_motor_data(data, 10)
-    command = [sys.executable, "-m", "hypa.benchmark", "--config-dir", str(EXAMPLE / "conf"), "dataset=dc_motor",
+    command = [sys.executable, "-m", "hypa", "benchmark", "--config-dir", str(EXAMPLE / "conf"), "dataset=dc_motor",
                "models=[dc_motor]", f"data.dir={data}", "train_overrides=['identification.enabled=true']"]
     refused = subprocess.run([*command, f"hydra.run.dir={tmp_path / 'refused'}"], cwd=ROOT, capture_output=True,
                              text=True, timeout=300, env=env, check=False)
@@ -84,7 +84,7 @@ def test_a_users_own_data_set_and_model_are_benchmarked(tmp_path: Path) -> None:
 def test_a_null_past_is_chosen_for_the_model_and_recorded(tmp_path: Path) -> None:
     """data.past=null (the default of a data set that sets none): the motor's current is estimated
     from the measured speed, 2 states from 1 output, so each window sees 4 x 2 - 1 = 7 past samples;
-    hypa.train says so and records 7 (what hypa.evaluate rebuilds), hypa.simulate chooses the same,
+    hypa train says so and records 7 (what hypa evaluate rebuilds), hypa simulate chooses the same,
     and a model that estimates nothing keeps 0. The end-to-end LSTM, which starts from the measured
     outputs over the past, gets 4 times the order of the data's linear predictor (``linear_memory``)."""
     import yaml
@@ -94,18 +94,19 @@ def test_a_null_past_is_chosen_for_the_model_and_recorded(tmp_path: Path) -> Non
     common = ["--config-dir", str(EXAMPLE / "conf"), "dataset=dc_motor", f"data.dir={data}", "data.past=null"]
 
     def run(*args: str) -> str:
-        result = subprocess.run([sys.executable, "-m", *args], cwd=ROOT, capture_output=True, text=True, timeout=600,
+        result = subprocess.run([sys.executable, "-m", *args[0].split(), *args[1:]],
+                                cwd=ROOT, capture_output=True, text=True, timeout=600,
                                 env=env, check=False)
         assert result.returncode == 0, result.stderr[-3000:]
         return result.stdout
 
-    out = run("hypa.train", *common, "model=dc_motor", "trainer.max_epochs=1", "trainer.enable_progress_bar=false",
+    out = run("hypa train", *common, "model=dc_motor", "trainer.max_epochs=1", "trainer.enable_progress_bar=false",
               f"hydra.run.dir={tmp_path / 'train'}")
     assert "data.past: 7 samples before each window (0.007 s), chosen for the model" in out, out[-2000:]
     assert yaml.safe_load((tmp_path / "train" / "config.yaml").read_text())["data"]["past"] == 7
-    out = run("hypa.simulate", *common, "model=dc_motor", "plot=false", f"hydra.run.dir={tmp_path / 'simulate'}")
+    out = run("hypa simulate", *common, "model=dc_motor", "plot=false", f"hydra.run.dir={tmp_path / 'simulate'}")
     assert "data.past: 7 samples" in out, out[-2000:]
-    out = run("hypa.train", *common, "model=blackbox", "trainer.max_epochs=1", "trainer.limit_train_batches=2",
+    out = run("hypa train", *common, "model=blackbox", "trainer.max_epochs=1", "trainer.limit_train_batches=2",
               "trainer.limit_val_batches=2", "trainer.enable_progress_bar=false", f"hydra.run.dir={tmp_path / 'lstm'}")
     assert "network 'network' starts from the measured outputs over the past" in out, out[-2000:]
     past = yaml.safe_load((tmp_path / "lstm" / "config.yaml").read_text())["data"]["past"]
@@ -115,6 +116,6 @@ def test_a_null_past_is_chosen_for_the_model_and_recorded(tmp_path: Path) -> Non
         "initial_state": "steady", "scale_as": ["speed"]}}}
     (tmp_path / "conf" / "model").mkdir(parents=True)
     (tmp_path / "conf" / "model" / "steady.yaml").write_text("# @package model\n" + yaml.safe_dump(measured))
-    out = run("hypa.simulate", *common, "model=steady", "plot=false", f"hydra.searchpath=[file://{tmp_path / 'conf'}]",
+    out = run("hypa simulate", *common, "model=steady", "plot=false", f"hydra.searchpath=[file://{tmp_path / 'conf'}]",
               f"hydra.run.dir={tmp_path / 'steady'}")
     assert "data.past:" not in out

@@ -17,6 +17,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 import hypa.commands  # noqa: F401  (registers the schemas conf/train.yaml extends)
+from hypa.conf import CONF
 from hypa.physics import LTIBlock, PhysicalParameters
 from hypa.physics.scheduled import batch_decisions
 from hypa.vehicle import SideSlipAtSensor
@@ -63,7 +64,7 @@ def test_stiffnesses_and_lever_arm_are_recovered_from_30_percent_off(monkeypatch
 
     monkeypatch.chdir(ROOT)
     monkeypatch.delenv("HYPA_DATA", raising=False)
-    with initialize_config_dir(str(ROOT / "conf"), version_base="1.3"):
+    with initialize_config_dir(str(CONF), version_base="1.3"):
         cfg = compose("train", overrides=["dataset=racecar", "model=racecar_physical"])
     dm = datamodule_from_config(cfg.data, data_dir_from_config(cfg))
     dm.setup()
@@ -144,7 +145,7 @@ def _car_log(path: Path, sensor_x: float, seed: int) -> None:
     t = np.arange(count) * dt
     steer = 0.01 + np.convolve(rng.standard_normal(count + 50), np.ones(50) / 50, "valid")[:count] * 0.15
     speed = 19 + 8 * np.sin(2 * np.pi * t / 47) + 3 * np.sin(2 * np.pi * t / 13 + 1)
-    values = yaml.safe_load((ROOT / "conf" / "vehicle" / "indy_av21.yaml").read_text())
+    values = yaml.safe_load((CONF / "vehicle" / "indy_av21.yaml").read_text())
     system = SingleTrack(rear_steering=False)
     block = LTIBlock(system, PhysicalParameters(system.parameter_specs(values)), dt=dt, horizon=count, hold="foh",
                      scheduled=("velocity",))
@@ -163,7 +164,7 @@ def _car_log(path: Path, sensor_x: float, seed: int) -> None:
 @pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.slow)])  # about 12 s each
 def test_the_diagnosis_names_a_side_slip_sensor_off_the_centre_of_gravity(tmp_path: Path, seed: int) -> None:
     """A lever arm of random length and sign (0.3-1 m) hidden in a simulated log; the nominal model is
-    the scheduled single track at the true stiffnesses. ``hypa.diagnose`` names sensor_location
+    the scheduled single track at the true stiffnesses. ``hypa diagnose`` names sensor_location
     with its length."""
     import json
     import random
@@ -179,7 +180,7 @@ def test_the_diagnosis_names_a_side_slip_sensor_off_the_centre_of_gravity(tmp_pa
     (conf / "dataset" / "car.yaml").write_text(DATASET)
     (conf / "model" / "car_nominal.yaml").write_text(NOMINAL)
     _car_log(data / "car.csv", sensor_x, seed)
-    result = subprocess.run([sys.executable, "-m", "hypa.diagnose", "--config-dir", str(conf), "dataset=car",
+    result = subprocess.run([sys.executable, "-m", "hypa", "diagnose", "--config-dir", str(conf), "dataset=car",
                              "model=car_nominal", f"data.dir={data}", "plot=false", "diagnosis.max_causes=1",
                              f"hydra.run.dir={tmp_path / 'run'}"],
                             cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)

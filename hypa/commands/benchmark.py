@@ -1,16 +1,16 @@
 """Benchmark hypa on a real data set: physics only, an end-to-end LSTM and a hybrid.
 
-    python -m hypa.benchmark dataset=silverbox            # quick budget: minutes
-    python -m hypa.benchmark dataset=emps budget=full     # the benchmark (longer)
-    python -m hypa.benchmark dataset=emps budget=full seeds=[0,1,2]   # mean ± std over seeds
-    python -m hypa.benchmark dataset=racecar data.dir=OTHER_LOG       # the suite on another log
-    python -m hypa.benchmark --config-dir DIR dataset=mine models=[mine_physical,blackbox]   # your own
-    python -m hypa.benchmark --config-dir DIR dataset=mine models=[mine,diagnosed] diagnose=mine   # + its diagnosis
-    python -m hypa.benchmark dataset=silverbox diagnose=outputs/diagnose/silverbox_physical/<time>   # reuse one
+    hypa benchmark dataset=silverbox            # quick budget: minutes
+    hypa benchmark dataset=emps budget=full     # the benchmark (longer)
+    hypa benchmark dataset=emps budget=full seeds=[0,1,2]   # mean ± std over seeds
+    hypa benchmark dataset=racecar data.dir=OTHER_LOG       # the suite on another log
+    hypa benchmark --config-dir DIR dataset=mine models=[mine_physical,blackbox]   # your own
+    hypa benchmark --config-dir DIR dataset=mine models=[mine,diagnosed] diagnose=mine   # + its diagnosis
+    hypa benchmark dataset=silverbox diagnose=outputs/diagnose/silverbox_physical/<time>   # reuse one
     make benchmark ARGS="dataset=racecar budget=full"
 
 Each model of the data set's suite (``conf/benchmark.yaml``; for a data set without one, the
-models named by ``models=[...]``) is trained by ``python -m hypa.train`` in its own run folder
+models named by ``models=[...]``) is trained by ``hypa train`` in its own run folder
 below this run's, with the data overrides of this command line (``data.dir=``, ``data.splits=``;
 a run that trained on other data than asked is an error), then simulated free-running over every
 test set, once per seed of ``seeds``. Prints and writes ``benchmark.md`` and ``benchmark.json``
@@ -24,9 +24,9 @@ status 130. Each row prints its training time, and says where its identification
 stopped at a cap (``identification.max_evaluations``, ``max_seconds``, ``trainer.max_epochs``):
 "(capped)" in the table's time row, the cap under it.
 
-``diagnose=M`` runs ``python -m hypa.diagnose model=M`` into ``<benchmark>/diagnosis/`` for the rows
+``diagnose=M`` runs ``hypa diagnose model=M`` into ``<benchmark>/diagnosis/`` for the rows
 ``diagnosed`` and ``diagnosed_hybrid``; ``diagnose=PATH`` reuses a diagnosis folder instead (one that
-``hypa.diagnose`` wrote, maybe received: read as data, its ``diagnosis.json`` through its schema,
+``hypa diagnose`` wrote, maybe received: read as data, its ``diagnosis.json`` through its schema,
 its ``conf/model/diagnosed*.yaml`` through the model schema and trained by ``model_file=``; no
 symbolic link in it followed; a diagnosis of other inputs or outputs than the data's is refused).
 """
@@ -45,15 +45,15 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-from hypa import markdown as md
 from hypa.commands.config import BenchmarkConfig, typed
+from hypa.commands.launch import hypa_argv, run_hypa
 from hypa.commands.output_folder import holding_output
-from hypa.errors import INTERRUPTED, UserError, hydra_command, is_user_error, one_line
-from hypa.launch import hypa_argv, run_hypa
+from hypa.core.errors import INTERRUPTED, UserError, hydra_command, is_user_error, one_line
+from hypa.reporting import markdown as md
 
 log = logging.getLogger(__name__)
-WRITTEN = ("diagnosed", "diagnosed_hybrid")  # the models hypa.diagnose writes (model=...)
-CHILD_ERROR = "hypa.train: error: "  # how hypa.train says what stopped it (hypa.errors.user_errors), one line
+WRITTEN = ("diagnosed", "diagnosed_hybrid")  # the models hypa diagnose writes (model=...)
+CHILD_ERROR = "hypa train: error: "  # how hypa train says what stopped it (hypa.core.errors.user_errors), one line
 
 
 class RowFailed(UserError):
@@ -67,7 +67,7 @@ class RowFailed(UserError):
 def train_model(label: str, overrides: list[str], folder: Path, config_dirs: list[Path]) -> None:
     """Train one model through the command line a user types (its progress on the console, its
     stderr passed through as it comes). Ctrl-C: KeyboardInterrupt; a failure: :class:`RowFailed`
-    with the child's own one-line error (``hypa.train: error: ...``) as its reason."""
+    with the child's own one-line error (``hypa train: error: ...``) as its reason."""
     argv = hypa_argv("train", [*overrides, f"hydra.run.dir={folder}"], config_dirs)
     log.info("training %s: %s", label, " ".join(argv[1:]))
     said = ""
@@ -81,20 +81,20 @@ def train_model(label: str, overrides: list[str], folder: Path, config_dirs: lis
     if status in (INTERRUPTED, -signal.SIGINT):  # Ctrl-C reached the child too: this command ends the same way
         raise KeyboardInterrupt
     if status != 0:
-        raise RowFailed(said or f"hypa.train ended with exit status {status} (its error above)",
+        raise RowFailed(said or f"hypa train ended with exit status {status} (its error above)",
                         "python " + " ".join(shlex.quote(a) for a in argv[1:]))
 
 
 def diagnose_suite(dataset: str, nominal: str, overrides: list[str], folder: Path, config_dirs: list[Path]) -> Path:
-    """Run ``python -m hypa.diagnose`` on the data set's nominal model; returns the folder of the models it
+    """Run ``hypa diagnose`` on the data set's nominal model; returns the folder of the models it
     writes (``conf``, for ``hydra.searchpath``)."""
     run_hypa("diagnose", [f"dataset={dataset}", f"model={nominal}", *overrides, "plot=false",
                           f"hydra.run.dir={folder}"], f"diagnosing {nominal}", config_dirs)
     return folder / "conf"
 
 
-@hydra_command("hypa.benchmark", "benchmark")
-@holding_output("hypa.benchmark")  # its folder held first (each training run below holds its own)
+@hydra_command("hypa benchmark", "benchmark")
+@holding_output("hypa benchmark")  # its folder held first (each training run below holds its own)
 def main(cfg: DictConfig) -> None:
     from hypa.commands.entry import data_dir_from_config, data_overrides, user_config_dirs
     from hypa.commands.evaluate import run_datamodule
@@ -117,7 +117,7 @@ def main(cfg: DictConfig) -> None:
     if config.diagnose and folder is None and config.diagnose not in configs:
         raise UserError(f"diagnose={config.diagnose} is not a model config (conf/model/*.yaml or your --config-dir)")
     if nominal is None and any(m in WRITTEN and m not in suite_models for m in labels):
-        raise UserError(f"models {[m for m in labels if m in WRITTEN]} are written by hypa.diagnose: give diagnose=M, "
+        raise UserError(f"models {[m for m in labels if m in WRITTEN]} are written by hypa diagnose: give diagnose=M, "
                         "the model it extends (models=[M,diagnosed] diagnose=M)")
     unknown = [m for m in labels if m not in suite_models and m not in configs and not (nominal and m in WRITTEN)]
     if unknown:
@@ -136,7 +136,7 @@ def main(cfg: DictConfig) -> None:
                         "add test files (test*.csv, ...) or a test part in data.splits")
     config_dirs = user_config_dirs()
     out = Path(HydraConfig.get().runtime.output_dir)
-    # the models hypa.diagnose writes (model=diagnosed, diagnosed_hybrid) come from diagnosing the suite's
+    # the models hypa diagnose writes (model=diagnosed, diagnosed_hybrid) come from diagnosing the suite's
     # nominal model on the same data, once for all seeds, or from a diagnosis folder given (diagnose=PATH)
     written = [o for label in labels for o in suite_models.get(label, [f"model={label}"])
                if o.removeprefix("model=") in WRITTEN]
@@ -146,7 +146,7 @@ def main(cfg: DictConfig) -> None:
                                        trust_of(config.train_overrides))
     elif written:
         if nominal is None:
-            raise UserError(f"models {sorted(set(written))} are written by hypa.diagnose, but no nominal model to "
+            raise UserError(f"models {sorted(set(written))} are written by hypa diagnose, but no nominal model to "
                             f"diagnose is named: give diagnose=M (the model the diagnosis extends)"
                             + (f", or diagnose: M in the {dataset} suite of conf/benchmark.yaml" if suite else ""))
         conf = diagnose_suite(dataset, str(nominal), asked, out / "diagnosis", config_dirs)
@@ -225,7 +225,7 @@ class Rows:
     def add(self, label: str, seed: int, scores: list, seconds: float, kept: bool, caps: list[str]) -> None:
         self.scores += scores
         self.times.setdefault(label, []).append(seconds)
-        if kept:  # hypa.train kept the identified physics: said under the table
+        if kept:  # hypa train kept the identified physics: said under the table
             self.kept.setdefault(label, []).append(seed)
         self.caps.setdefault(label, []).extend(caps if len(self.seeds) == 1 else [f"seed {seed}: {c}" for c in caps])
 
@@ -255,7 +255,7 @@ class Rows:
 
 def trust_of(overrides: list[str]) -> tuple[str, ...]:
     """The import paths a ``trust=[...]`` among ``train_overrides`` names: the code a diagnosis folder's
-    model files may name (hypa.train reads them with the same)."""
+    model files may name (hypa train reads them with the same)."""
     for override in overrides:
         key, _, value = override.partition("=")
         if key.lstrip("+") == "trust":
@@ -269,7 +269,7 @@ def model_file_override(path: Path) -> str:
     if re.fullmatch(r"[\w/.@:+~-]+", text):
         return f"model_file={text}"
     if "'" in text or "\\" in text:
-        raise UserError(f"diagnose={path.parents[2]}: a path with a quote or backslash cannot be passed to hypa.train; "
+        raise UserError(f"diagnose={path.parents[2]}: a path with a quote or backslash cannot be passed to hypa train; "
                         "move or link the folder elsewhere")
     return f"model_file='{text}'"
 
@@ -285,7 +285,7 @@ def diagnosis_folder(value: str | None, configs: set[str]) -> Path | None:
     if path.is_dir():
         return path
     if "/" in value or value.startswith((".", "~")):
-        raise UserError(f"diagnose={value}: no such folder (a diagnosis folder of hypa.diagnose, holding "
+        raise UserError(f"diagnose={value}: no such folder (a diagnosis folder of hypa diagnose, holding "
                         "diagnosis.json and conf/model/diagnosed.yaml, or a model name)")
     return None
 
@@ -296,13 +296,13 @@ def reused_diagnosis(folder: Path, models: list[str], data, trust: tuple[str, ..
     ``diagnosis.json`` is read through its schema and its model files through the model schema
     (bounded, no symbolic link followed out of the folder, no import path that ``trust`` does not
     name), and the diagnosis must be of this data's inputs and outputs."""
+    from hypa.core.trust import inside
     from hypa.diagnosis.result import Diagnosis
     from hypa.models.spec import read_model_file
-    from hypa.trust import inside
 
     record = inside(folder, "diagnosis.json", f"diagnose={folder}")
     if not record.is_file():
-        raise UserError(f"diagnose={folder}: no diagnosis.json in it (a folder written by python -m hypa.diagnose)")
+        raise UserError(f"diagnose={folder}: no diagnosis.json in it (a folder written by hypa diagnose)")
     diagnosis = Diagnosis.from_json(record)
     system = diagnosis.system
     for role, theirs, ours in (("inputs", system.inputs, data.input_names), ("outputs", system.outputs,
@@ -315,7 +315,7 @@ def reused_diagnosis(folder: Path, models: list[str], data, trust: tuple[str, ..
     for name in models:
         path = inside(folder, f"conf/model/{name}.yaml", f"diagnose={folder}")
         if not path.is_file():
-            raise UserError(f"diagnose={folder}: no conf/model/{name}.yaml in it (hypa.diagnose writes "
+            raise UserError(f"diagnose={folder}: no conf/model/{name}.yaml in it (hypa diagnose writes "
                             f"{', '.join(WRITTEN)})")
         read_model_file(path, trust)  # refused in one line now, not in the middle of the rows
         files[name] = path
@@ -325,4 +325,4 @@ def reused_diagnosis(folder: Path, models: list[str], data, trust: tuple[str, ..
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

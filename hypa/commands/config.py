@@ -4,7 +4,7 @@ Each ``conf/<command>.yaml`` extends its schema through its defaults list
 (``defaults: [/hypa/<command>_schema, ..., _self_]``, Hydra's "extending a structured config"),
 so a misspelt key (``trainer.max_epoch=3``, ``model.blocks.x.inptus=[u]``, in a file or an
 override) and a value of the wrong type (``trainer.max_epochs=abc``) fail while Hydra composes,
-in one line (:func:`hypa.errors.one_line`). The ranges (``optimizer.lr=-1``, ``physics.hold=xyz``)
+in one line (:func:`hypa.core.errors.one_line`). The ranges (``optimizer.lr=-1``, ``physics.hold=xyz``)
 are checked in ``__post_init__``, when a command turns its node into the typed object:
 ``config: TrainConfig = OmegaConf.to_object(cfg)``; the messages name the override to fix.
 
@@ -26,8 +26,8 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 from omegaconf import MISSING, DictConfig, OmegaConf, open_dict
 
+from hypa.core.errors import UserError, checked, settings
 from hypa.data.schema import DataConfig
-from hypa.errors import UserError, checked, settings
 from hypa.models.schema import ModelConfig
 from hypa.models.spec import HOLDS
 
@@ -40,7 +40,7 @@ C = TypeVar("C")
 
 def trust_list(key: str, value: Any) -> list[str]:
     """``trust``: the import paths (``mypkg.motors:DCMotor``, ``mypkg.nets.MyBlock``) or packages
-    (``mypkg``) whose code a run folder, checkpoint or model file may name (:mod:`hypa.trust`); ``*``: any."""
+    (``mypkg``) whose code a run folder, checkpoint or model file may name (:mod:`hypa.core.trust`); ``*``: any."""
     items = [value] if isinstance(value, str) else list(value or [])
     for item in items:
         if not isinstance(item, str) or not re.fullmatch(r"\*|[A-Za-z_][\w.]*(:[A-Za-z_][\w.]*)?", item):
@@ -53,7 +53,7 @@ class HoldConfig:
     """``physics`` of the commands that simulate a physics model as it is: its hold.
 
     ``None`` (the default): the model's own ``hold:``, else the command's default (``zoh``;
-    ``foh`` for hypa.diagnose). A hold given here that contradicts the model's own is refused in
+    ``foh`` for hypa diagnose). A hold given here that contradicts the model's own is refused in
     one line (:func:`hypa.models.building.model_hold`): the hold belongs to the model.
     """
 
@@ -65,7 +65,7 @@ class HoldConfig:
 
 @dataclass
 class PhysicsConfig(HoldConfig):
-    """``physics`` of hypa.train: the hold and the lifted horizon."""
+    """``physics`` of hypa train: the hold and the lifted horizon."""
 
     horizon: int | None = None  # lifted steps per matrix product; None: the window
 
@@ -154,7 +154,7 @@ class FiguresConfig:
 
 @dataclass
 class TrainConfig:
-    """``conf/train.yaml``: ``python -m hypa.train``."""
+    """``conf/train.yaml``: ``hypa train``."""
 
     model: ModelConfig = field(default_factory=ModelConfig)
     ann: dict[str, Any] = field(default_factory=dict)  # name, _target_ and the network's own arguments
@@ -211,7 +211,7 @@ class DiagnosisConfig:
 
 @dataclass
 class ExtensionConfig:
-    """``extension``: the extended model hypa.diagnose writes, trained now or not."""
+    """``extension``: the extended model hypa diagnose writes, trained now or not."""
 
     train: bool = False
     train_overrides: list[str] = field(default_factory=list)
@@ -219,7 +219,7 @@ class ExtensionConfig:
 
 @dataclass
 class DiagnoseConfig:
-    """``conf/diagnose.yaml``: ``python -m hypa.diagnose``."""
+    """``conf/diagnose.yaml``: ``hypa diagnose``."""
 
     vehicle: Any = None
     testbench: Any = None
@@ -233,7 +233,7 @@ class DiagnoseConfig:
 
 @dataclass
 class SimulateConfig:
-    """``conf/simulate.yaml``: ``python -m hypa.simulate``."""
+    """``conf/simulate.yaml``: ``hypa simulate``."""
 
     vehicle: Any = None
     testbench: Any = None
@@ -245,12 +245,12 @@ class SimulateConfig:
 
 @dataclass
 class EvaluateConfig:
-    """``conf/evaluate.yaml``: ``python -m hypa.evaluate``."""
+    """``conf/evaluate.yaml``: ``hypa evaluate``."""
 
-    run: str = MISSING  # a hypa.train run folder or one of its checkpoints
+    run: str = MISSING  # a hypa train run folder or one of its checkpoints
     out: str | None = None  # None: <run>/evaluation
     tensorboard: bool = True
-    trust: list[str] = field(default_factory=list)  # import paths the run's model may name (hypa.trust)
+    trust: list[str] = field(default_factory=list)  # import paths the run's model may name (hypa.core.trust)
 
     def __post_init__(self) -> None:
         self.trust = trust_list("trust", self.trust)
@@ -258,13 +258,13 @@ class EvaluateConfig:
 
 @dataclass
 class ExportConfig:
-    """``conf/export.yaml``: ``python -m hypa.export``."""
+    """``conf/export.yaml``: ``hypa export``."""
 
-    run: str = MISSING  # a hypa.train run folder or one of its checkpoints
+    run: str = MISSING  # a hypa train run folder or one of its checkpoints
     format: str = "onnx"  # onnx | fmu | statespace (physics-only models) | all (every format the model allows)
     record: int = 0  # the validation record of reference.csv and the check
     tolerance: float = 1e-5  # of each output's standard deviation
-    trust: list[str] = field(default_factory=list)  # import paths the run's model may name (hypa.trust)
+    trust: list[str] = field(default_factory=list)  # import paths the run's model may name (hypa.core.trust)
 
     def __post_init__(self) -> None:
         self.trust = trust_list("trust", self.trust)
@@ -274,7 +274,7 @@ class ExportConfig:
 
 @dataclass
 class ExplainConfig:
-    """``conf/explain.yaml``: ``python -m hypa.explain``."""
+    """``conf/explain.yaml``: ``hypa explain``."""
 
     run: str = MISSING
     block: str | None = None  # None: every ANN block
@@ -285,7 +285,7 @@ class ExplainConfig:
     max_lag: float = 2.0  # [s]
     max_delay: float = 0.25  # [s]
     plot: bool = True
-    trust: list[str] = field(default_factory=list)  # import paths the runs' models may name (hypa.trust)
+    trust: list[str] = field(default_factory=list)  # import paths the runs' models may name (hypa.core.trust)
 
     def __post_init__(self) -> None:
         self.trust = trust_list("trust", self.trust)
@@ -297,7 +297,7 @@ class ExplainConfig:
 
 @dataclass
 class ReproduceConfig:
-    """``conf/reproduce.yaml``: ``python -m hypa.reproduce``."""
+    """``conf/reproduce.yaml``: ``hypa reproduce``."""
 
     rows: Any = field(default_factory=list)  # conf/row/ names; one name alone: rows=v2
     seeds: Any = field(default_factory=lambda: [0, 1, 2])  # a list or one seed
@@ -315,16 +315,16 @@ class ReproduceConfig:
 
 @dataclass
 class SuiteConfig:
-    """A data set's benchmark suite: model label -> hypa.train overrides, published figures."""
+    """A data set's benchmark suite: model label -> hypa train overrides, published figures."""
 
-    diagnose: str | None = None  # the nominal model hypa.diagnose extends into model=diagnosed(_hybrid)
+    diagnose: str | None = None  # the nominal model hypa diagnose extends into model=diagnosed(_hybrid)
     models: dict[str, list[str]] = field(default_factory=dict)
     published: dict[str, Any] = field(default_factory=dict)  # test set -> output -> figure
 
 
 @dataclass
 class BenchmarkConfig:
-    """``conf/benchmark.yaml``: ``python -m hypa.benchmark``."""
+    """``conf/benchmark.yaml``: ``hypa benchmark``."""
 
     vehicle: Any = None
     testbench: Any = None
@@ -333,7 +333,7 @@ class BenchmarkConfig:
     models: list[str] | None = None  # None: the suite's
     seeds: list[int] = field(default_factory=lambda: [0])
     train_overrides: list[str] = field(default_factory=list)
-    diagnose: str | None = None  # the nominal model whose hypa.diagnose extension model=diagnosed(_hybrid) trains
+    diagnose: str | None = None  # the nominal model whose hypa diagnose extension model=diagnosed(_hybrid) trains
     budgets: dict[str, list[str]] = field(default_factory=dict)
     suites: dict[str, SuiteConfig] = field(default_factory=dict)
 
@@ -346,7 +346,7 @@ class BenchmarkConfig:
 
 @dataclass
 class TestbenchCommandConfig:
-    """``conf/testbench.yaml``: ``python -m hypa.testbench``."""
+    """``conf/testbench.yaml``: ``hypa testbench``."""
 
     __test__ = False  # not a pytest test class
 

@@ -1,10 +1,10 @@
 """Diagnose what the nominal physics gets wrong, name the cause, extend the model and measure the gain.
 
-    python -m hypa.diagnose                                          # the test bench, model=vehicle_nominal
-    python -m hypa.diagnose testbench.rear_steering.enabled=false    # hide / reveal effects
-    python -m hypa.diagnose dataset=racecar                          # a real log and its own nominal model
-    python -m hypa.diagnose dataset=files data.dir=PATH vehicle.cf=140000
-    python -m hypa.diagnose -m dataset=files data.dir=LOG1,LOG2,LOG3   # a fleet: fleet.md in the sweep folder
+    hypa diagnose                                          # the test bench, model=vehicle_nominal
+    hypa diagnose testbench.rear_steering.enabled=false    # hide / reveal effects
+    hypa diagnose dataset=racecar                          # a real log and its own nominal model
+    hypa diagnose dataset=files data.dir=PATH vehicle.cf=140000
+    hypa diagnose -m dataset=files data.dir=LOG1,LOG2,LOG3   # a fleet: fleet.md in the sweep folder
 
 Works on any system: the nominal model is a hypa model config (``model=M``), its candidate causes
 come from the catalogues (built-in and ``diagnosis.catalogue=[mine.yaml]``), and everything is
@@ -16,6 +16,7 @@ that holds a symbolic link or a training run's).
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -23,13 +24,13 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from hypa.commands.output_folder import holding_output
+from hypa.core.errors import hydra_command
 from hypa.diagnosis.fleet import record_failures
-from hypa.errors import hydra_command
 
 
-@hydra_command("hypa.diagnose", "diagnose")
-@holding_output("hypa.diagnose")  # the run folder held first: a refused job records nothing into another's
-@record_failures("hypa.diagnose")  # -m over many logs: a bad log is reported in the fleet summary, the others run
+@hydra_command("hypa diagnose", "diagnose")
+@holding_output("hypa diagnose")  # the run folder held first: a refused job records nothing into another's
+@record_failures("hypa diagnose")  # -m over many logs: a bad log is reported in the fleet summary, the others run
 def main(cfg: DictConfig) -> None:
     from hypa.commands.config import DiagnoseConfig, typed
     from hypa.commands.entry import (
@@ -40,13 +41,13 @@ def main(cfg: DictConfig) -> None:
         user_config_dirs,
         vehicle_from_config,
     )
+    from hypa.core.errors import UserError
     from hypa.diagnosis.catalogue import load_catalogue
     from hypa.diagnosis.problem import Problem, nominal_hold
     from hypa.diagnosis.system import diagnose_system
-    from hypa.errors import UserError
-    from hypa.markdown import change_text
     from hypa.models.schema import plain_model
     from hypa.models.spec import parse_model_spec, spec_config
+    from hypa.reporting.markdown import change_text
 
     config = typed(cfg, DiagnoseConfig)  # every value checked (hypa.commands.config)
     if config.model is None:
@@ -98,4 +99,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -14,9 +14,9 @@ from typing import Any
 import lightning as L
 from omegaconf import DictConfig, OmegaConf
 
+from hypa.core.errors import UserError, checked, settings
 from hypa.data import HypaDataModule, datamodule_from_config
 from hypa.data.from_config import data_dir_from_config
-from hypa.errors import UserError, checked, settings
 from hypa.vehicle import VehicleParameters
 
 log = logging.getLogger(__name__)
@@ -92,7 +92,7 @@ def model_datamodule(cfg: DictConfig, data_dir: Path, model_config: Mapping[str,
 
 def data_overrides(overrides: Sequence[str]) -> list[str]:
     """The command-line overrides that choose the data and the vehicle (``dataset``, ``data``,
-    ``testbench``, ``vehicle`` groups and their keys): what ``hypa.train`` needs to see the same data."""
+    ``testbench``, ``vehicle`` groups and their keys): what ``hypa train`` needs to see the same data."""
     groups = ("dataset", "data", "testbench", "vehicle")
     return [o for o in overrides if o.lstrip("+~").split("=", 1)[0].split(".", 1)[0] in groups]
 

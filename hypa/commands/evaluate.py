@@ -1,7 +1,7 @@
 """Evaluate a trained run on the validation (and test) data.
 
-    python -m hypa.evaluate run=outputs/train/v2-lstm/2026-11-22_10-00-00-000000    # its recorded best checkpoint
-    python -m hypa.evaluate run='path/to/checkpoints/best-epoch=12.ckpt'   # another checkpoint of it
+    hypa evaluate run=outputs/train/v2-lstm/2026-11-22_10-00-00-000000    # its recorded best checkpoint
+    hypa evaluate run='path/to/checkpoints/best-epoch=12.ckpt'   # another checkpoint of it
 
 Writes ``metrics.json``, ``metrics.csv``, PNG figures and ``summary.md`` into
 ``<run>/evaluation/`` (or ``out=``: held while it runs; refused when it, or anything in it, is a
@@ -13,34 +13,35 @@ figures into the run's TensorBoard log
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 from omegaconf import DictConfig
 
 from hypa.commands.config import EvaluateConfig, typed
 from hypa.commands.output_folder import claim_output, holding_output
-from hypa.errors import hydra_command
+from hypa.core.errors import hydra_command
 from hypa.evaluation.evaluation import Evaluation, evaluate_run, run_datamodule
 from hypa.evaluation.runs import load_run
 
 __all__ = ["Evaluation", "evaluate_run", "main", "run_datamodule"]
 
 
-@hydra_command("hypa.evaluate", "evaluate")
-@holding_output("hypa.evaluate")  # Hydra's folder (its .hydra/, the log)
+@hydra_command("hypa evaluate", "evaluate")
+@holding_output("hypa evaluate")  # Hydra's folder (its .hydra/, the log)
 def main(cfg: DictConfig) -> None:
     from hypa.commands.entry import from_cwd
-    from hypa.folders import FolderRefused
+    from hypa.core.folders import FolderRefused
 
     config = typed(cfg, EvaluateConfig)
     run = load_run(from_cwd(config.run), config.trust)
     out = Path(config.out) if config.out else run.folder / "evaluation"
     board = run.folder / "tensorboard"
     if config.tensorboard and board.is_symlink():  # written into too: never through a link
-        raise FolderRefused(f"{board} is a symbolic link (to {os.readlink(board)}): hypa.evaluate adds its "
+        raise FolderRefused(f"{board} is a symbolic link (to {os.readlink(board)}): hypa evaluate adds its "
                             "figures to the run's TensorBoard log and writes nothing through a link; remove "
                             "the link, or give tensorboard=false")
-    with claim_output("hypa.evaluate", out, setting="out"):  # held; never a training run's own folder
+    with claim_output("hypa evaluate", out, setting="out"):  # held; never a training run's own folder
         evaluation = evaluate_run(run, out, tensorboard=config.tensorboard)
     units, scale = evaluation.display_units, evaluation.display_factors
     for split, metrics in evaluation.metrics.splits.items():
@@ -54,4 +55,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

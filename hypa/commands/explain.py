@@ -1,8 +1,8 @@
 """Explain what the learned blocks of a trained run learned.
 
-    python -m hypa.explain run=outputs/train/v1-lstm/2026-11-22_10-00-00-000000                    # every ANN block
-    python -m hypa.explain run=outputs/train/v1-lstm/2026-11-22_10-00-00-000000 block=rear_steering
-    python -m hypa.explain run=RUN baseline=outputs/train/physical/...   # the replacement beside a baseline
+    hypa explain run=outputs/train/v1-lstm/2026-11-22_10-00-00-000000                    # every ANN block
+    hypa explain run=outputs/train/v1-lstm/2026-11-22_10-00-00-000000 block=rear_steering
+    hypa explain run=RUN baseline=outputs/train/physical/...   # the replacement beside a baseline
 
 Writes ``explanation.md``, ``explanation.json`` and the figures into the Hydra run folder
 (``outputs/explain/<time>/``, held while it runs: :mod:`hypa.commands.output_folder`; :mod:`hypa.explain.run`
@@ -11,6 +11,7 @@ holds what it computes).
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
@@ -19,11 +20,11 @@ from omegaconf import DictConfig
 
 from hypa.commands.config import ExplainConfig, typed
 from hypa.commands.output_folder import holding_output
-from hypa.errors import hydra_command
+from hypa.core.errors import hydra_command
 
 
-@hydra_command("hypa.explain", "explain")
-@holding_output("hypa.explain")  # its folder held before anything is written
+@hydra_command("hypa explain", "explain")
+@holding_output("hypa explain")  # its folder held before anything is written
 def main(cfg: DictConfig) -> None:
     from hypa.commands.entry import from_cwd
     from hypa.evaluation.evaluation import run_datamodule
@@ -54,4 +55,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,10 +1,10 @@
 """Export a trained run as a one-step model that runs without hypa.
 
-    python -m hypa.export run=outputs/train/v2-lstm/2026-11-22_10-00-00-000000
-    python -m hypa.export run=RUN format=onnx record=1
-    python -m hypa.export run=RUN format=fmu           # + model.fmu, FMI 2.0 co-simulation
-    python -m hypa.export run=RUN format=statespace    # + statespace.mat / .json, physics-only models
-    python -m hypa.export run=RUN format=all           # every format the model allows
+    hypa export run=outputs/train/v2-lstm/2026-11-22_10-00-00-000000
+    hypa export run=RUN format=onnx record=1
+    hypa export run=RUN format=fmu           # + model.fmu, FMI 2.0 co-simulation
+    hypa export run=RUN format=statespace    # + statespace.mat / .json, physics-only models
+    hypa export run=RUN format=all           # every format the model allows
 
 Writes ``model.onnx``, ``reference.csv`` and ``export.json`` (and the format's files) into the
 Hydra run folder (``outputs/export/<time>/``; held while it runs, never a training run's:
@@ -15,6 +15,7 @@ hypa's free run of the reference record: onnxruntime, fmpy, the discrete state s
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from hydra.core.hydra_config import HydraConfig
@@ -22,11 +23,11 @@ from omegaconf import DictConfig
 
 from hypa.commands.config import ExportConfig, typed
 from hypa.commands.output_folder import holding_output
-from hypa.errors import hydra_command
+from hypa.core.errors import hydra_command
 
 
-@hydra_command("hypa.export", "export")
-@holding_output("hypa.export")  # its folder held before anything is written
+@hydra_command("hypa export", "export")
+@holding_output("hypa export")  # its folder held before anything is written
 def main(cfg: DictConfig) -> None:
     from hypa.commands.entry import from_cwd
     from hypa.evaluation.evaluation import run_datamodule
@@ -48,4 +49,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,4 +1,4 @@
-"""``python -m hypa.diagnosis.fleet run 'logs/*/' | summary DIR``: a fleet of logs diagnosed, then summarized.
+"""``hypa fleet run 'logs/*/' | summary DIR``: a fleet of logs diagnosed, then summarized.
 
 The library part (reading each log's diagnosis, the summary table, the Hydra callback that writes it
 after a sweep) is :mod:`hypa.diagnosis.fleet`; this is the command line around it.
@@ -16,10 +16,10 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from hypa.commands.launch import hypa_argv
+from hypa.core.errors import UserError, user_errors
 from hypa.diagnosis.fleet import __doc__ as FLEET_DOC
 from hypa.diagnosis.fleet import report, write_summary
-from hypa.errors import UserError, user_errors
-from hypa.launch import hypa_argv
 
 
 def expand_logs(patterns: Sequence[str]) -> list[Path]:
@@ -42,7 +42,7 @@ def hydra_quoted(text: str) -> str:
 
 
 def diagnose_command(folders: Sequence[Path], overrides: Sequence[str]) -> list[str]:
-    """``python -m hypa.diagnose -m`` over ``folders`` (``dataset=files`` unless a dataset is chosen)."""
+    """``hypa diagnose -m`` over ``folders`` (``dataset=files`` unless a dataset is chosen)."""
     dataset = [] if any(o.lstrip("+~").startswith("dataset=") for o in overrides) else ["dataset=files"]
     return hypa_argv("diagnose", ["-m", *dataset, "data.dir=" + ",".join(hydra_quoted(str(f)) for f in folders),
                                   *overrides])
@@ -55,13 +55,13 @@ def _shell_word(word: str) -> str:
     return shlex.quote(word)
 
 
-@user_errors("hypa.diagnosis.fleet")
+@user_errors("hypa fleet")
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m hypa.diagnosis.fleet", description=FLEET_DOC.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="hypa fleet", description=FLEET_DOC.split("\n\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
     run = commands.add_parser("run", help="diagnose every log folder that the globs match, then summarize")
     run.add_argument("logs", nargs="+", metavar="LOG_OR_GLOB|KEY=VALUE",
-                     help="log folders or globs (quoted: 'logs/*/'); arguments with = go to hypa.diagnose")
+                     help="log folders or globs (quoted: 'logs/*/'); arguments with = go to hypa diagnose")
     summary = commands.add_parser("summary", help="(re)build fleet.md and fleet.json of an existing sweep folder")
     summary.add_argument("sweep_dir", type=Path)
     args = parser.parse_args(argv)
@@ -71,7 +71,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     overrides = [a for a in args.logs if "=" in a]
     patterns = [a for a in args.logs if "=" not in a]
     if not patterns:
-        raise UserError("no log folder given; e.g. python -m hypa.diagnosis.fleet run 'logs/*/'")
+        raise UserError("no log folder given; e.g. hypa fleet run 'logs/*/'")
     command = diagnose_command(expand_logs(patterns), overrides)
     print("python " + " ".join(_shell_word(word) for word in command[1:]), flush=True)
     return subprocess.run(command, check=False).returncode

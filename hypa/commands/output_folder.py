@@ -1,5 +1,5 @@
 """The folder a command writes, under Hydra: held before anything is written there
-(:mod:`hypa.folders`), never a training run's folder, and with Hydra's record of the command
+(:mod:`hypa.core.folders`), never a training run's folder, and with Hydra's record of the command
 (``.hydra/``) written by hypa once the folder is held.
 
 Hydra creates the run folder (``hydra.run.dir``) before the command's code runs, and would write
@@ -12,9 +12,9 @@ hypa's code runs: it creates the folder and opens its log ``<folder>/<command>.l
 (a refused second command writes nothing into it; a link there is opened, not written, and then
 refused), and a sweep (``-m``) writes ``multirun.yaml`` into the sweep folder.
 
-A command's folder is refused when it is a ``hypa.train`` run's (it holds ``run.json`` or
+A command's folder is refused when it is a ``hypa train`` run's (it holds ``run.json`` or
 ``checkpoints/``): ``hypa.export hydra.run.dir=<run>`` would otherwise replace that run's files.
-``hypa.evaluate``'s default, ``<run>/evaluation/``, is a folder of its own inside the run's.
+``hypa evaluate``'s default, ``<run>/evaluation/``, is a folder of its own inside the run's.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
 
-from hypa.folders import FolderRefused, claim, write_text_atomic
+from hypa.core.folders import FolderRefused, claim, write_text_atomic
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -69,12 +69,12 @@ def save_hydra_record(folder: Path, task: Any = None) -> None:
 
 
 def refuse_training_run(folder: Path, command: str, setting: str = "hydra.run.dir") -> None:
-    """Refuse ``folder`` when it is a ``hypa.train`` run's (one line)."""
+    """Refuse ``folder`` when it is a ``hypa train`` run's (one line)."""
     from hypa.training.run_folder import training_run_marks
 
     marks = training_run_marks(folder)
     if marks:
-        raise FolderRefused(f"{folder} is a hypa.train run's folder (it holds {' and '.join(marks)}): {command} "
+        raise FolderRefused(f"{folder} is a hypa train run's folder (it holds {' and '.join(marks)}): {command} "
                             f"writes nothing into it; give {command} a folder of its own ({setting}=...)")
 
 
@@ -88,7 +88,7 @@ def claim_output(command: str, path: Path | None = None, setting: str = "hydra.r
     if path is None:
         raise ValueError(f"{command}: no folder to claim outside Hydra")
     held = Path(os.path.abspath(path))  # as spelt (links are the claim's to refuse)
-    if held in _HELD:  # held already (hypa.evaluate out= Hydra's own folder): the same claim
+    if held in _HELD:  # held already (hypa evaluate out= Hydra's own folder): the same claim
         yield path
         return
     refuse_training_run(path, command, setting)
@@ -102,7 +102,7 @@ def claim_output(command: str, path: Path | None = None, setting: str = "hydra.r
 
 
 def record_training_run(folder: Any, resume: Path | None) -> None:
-    """Hydra's record of a ``hypa.train`` run (``.hydra/``), written once ``folder`` (its
+    """Hydra's record of a ``hypa train`` run (``.hydra/``), written once ``folder`` (its
     :class:`~hypa.training.run_folder.RunFolder`) is held; a resumed run's into the folder Hydra made
     for the resume, held too, as Hydra would have."""
     own = hydra_folder()
@@ -111,7 +111,7 @@ def record_training_run(folder: Any, resume: Path | None) -> None:
     if own.resolve() != folder.path.resolve():
         if resume is None:  # not this run's folder (Hydra runs another command): nothing of it
             return
-        refuse_training_run(own, "hypa.train")
+        refuse_training_run(own, "hypa train")
         folder.hold_also(own)
     save_hydra_record(own)
 

@@ -1,7 +1,7 @@
-"""Reproduce the paper's experiment on the default data: ``python -m hypa.reproduce``.
+"""Reproduce the paper's experiment on the default data: ``hypa reproduce``.
 
 Trains every Table 1 row (``conf/row/``) over several seeds as one Hydra multirun (parallel
-runs on this machine), evaluates each run (``hypa.evaluate``) and writes, into ``results/``:
+runs on this machine), evaluates each run (``hypa evaluate``) and writes, into ``results/``:
 ``table1.md`` / ``table1.csv`` (mean ± std over seeds, windowed and free-run, whole record,
 stochastic part and unseen maneuvers), ``yaw_transfer.png`` (every model against the
 measurement), ``rear_steer.png`` (the implicitly learned rear-wheel angles) and ``REPORT.md``,
@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import csv
 import logging
+import sys
 import time
 from collections import defaultdict
 from pathlib import Path
@@ -20,15 +21,16 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from hypa import markdown as md
 from hypa.commands.config import ReproduceConfig, typed
 from hypa.commands.evaluate import Evaluation, evaluate_run
-from hypa.errors import UserError, hydra_command
+from hypa.commands.launch import run_hypa
+from hypa.conf import CONF
+from hypa.core.errors import UserError, hydra_command
+from hypa.core.metrics import mean_std
 from hypa.evaluation.plots import bode, rear_steer
 from hypa.evaluation.runs import load_run
-from hypa.launch import run_hypa
-from hypa.metrics import mean_std
 from hypa.paper.table1 import comparison_markdown
+from hypa.reporting import markdown as md
 
 log = logging.getLogger(__name__)
 ROOT = Path(__file__).resolve().parents[2]  # the repository
@@ -45,7 +47,7 @@ def train_rows(rows: list[str], seeds: list[int], sweep_dir: Path, n_jobs: int, 
 
 def aggregate(evaluations: dict[str, list[Evaluation]]) -> list[dict[str, Any]]:
     """Mean and std over seeds of each Table 1 metric, per row (validation split): ``(mean, std)``,
-    the sample std (``hypa.metrics.mean_std``; 0 for one seed), over the seeds that have the metric."""
+    the sample std (``hypa.core.metrics.mean_std``; 0 for one seed), over the seeds that have the metric."""
     table = []
     for label, evals in evaluations.items():
         row: dict[str, Any] = {"model": label, "seeds": len(evals)}
@@ -99,7 +101,7 @@ def write_csv(table: list[dict[str, Any]], path: Path) -> None:
 
 def report(table: list[dict[str, Any]], config: ReproduceConfig, wall_s: float, runs: int) -> str:
     seeds = sorted({row["seeds"] for row in table})
-    experiment = OmegaConf.load(ROOT / "conf" / "experiment" / "table1.yaml")
+    experiment = OmegaConf.load(CONF / "experiment" / "table1.yaml")
     return "\n".join([
         "# HyPA-Net: the paper's experiment on the hypa test bench", "",
         (f"{runs} runs ({len(table)} models x {'/'.join(map(str, seeds))} seeds), "
@@ -124,7 +126,7 @@ def report(table: list[dict[str, Any]], config: ReproduceConfig, wall_s: float, 
         "Per-run evaluations: `runs/*/evaluation/summary.md`."), ""])
 
 
-@hydra_command("hypa.reproduce", "reproduce")
+@hydra_command("hypa reproduce", "reproduce")
 def main(cfg: DictConfig) -> None:
     from hypa.commands.entry import from_cwd
 
@@ -133,9 +135,9 @@ def main(cfg: DictConfig) -> None:
     out = from_cwd(config.out)
     sweep = out / "runs"
     rows = config.rows  # rows=v2: one
-    unknown = [r for r in rows if not (ROOT / "conf" / "row" / f"{r}.yaml").is_file()]
+    unknown = [r for r in rows if not (CONF / "row" / f"{r}.yaml").is_file()]
     if unknown:
-        known = sorted(p.stem for p in (ROOT / "conf" / "row").glob("*.yaml"))
+        known = sorted(p.stem for p in (CONF / "row").glob("*.yaml"))
         raise UserError(f"rows {unknown} are not in conf/row/; known: {', '.join(known)}")
     if not config.skip_training:
         if sweep.is_dir() and any(sweep.iterdir()):  # one run, one folder: an earlier reproduction's runs move aside
@@ -148,8 +150,8 @@ def main(cfg: DictConfig) -> None:
     if not folders:
         raise FileNotFoundError(f"no runs in {sweep}")
     # Table 1's order: the default rows, then any others asked for
-    rows = list(dict.fromkeys([*OmegaConf.load(ROOT / "conf" / "reproduce.yaml").rows, *rows]))
-    order = {str(OmegaConf.load(ROOT / "conf" / "row" / f"{r}.yaml").table1_row): i for i, r in enumerate(rows)}
+    rows = list(dict.fromkeys([*OmegaConf.load(CONF / "reproduce.yaml").rows, *rows]))
+    order = {str(OmegaConf.load(CONF / "row" / f"{r}.yaml").table1_row): i for i, r in enumerate(rows)}
     evaluations: dict[str, list[Evaluation]] = defaultdict(list)
     for i, folder in enumerate(folders, 1):
         run = load_run(folder, trust=() if config.skip_training else ("*",))  # "*": a run it trained just now
@@ -185,4 +187,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,10 +1,10 @@
 """Simulate a physics model at its configured values on measured data and report how far off it is.
 
-    python -m hypa.simulate                                  # the vehicle physics, default test bench
-    python -m hypa.simulate physics.hold=foh vehicle.cf=140000
-    python -m hypa.simulate model=vehicle_nominal            # front steering only
-    python -m hypa.simulate dataset=silverbox                # its own model (<dataset>_physical)
-    python -m hypa.simulate dataset=files data.dir=PATH data.channels.<input>.unit=deg
+    hypa simulate                                  # the vehicle physics, default test bench
+    hypa simulate physics.hold=foh vehicle.cf=140000
+    hypa simulate model=vehicle_nominal            # front steering only
+    hypa simulate dataset=silverbox                # its own model (<dataset>_physical)
+    hypa simulate dataset=files data.dir=PATH data.channels.<input>.unit=deg
 
 The entry point only reads the settings; :func:`hypa.evaluation.nominal.simulate_nominal` runs
 the model (windowed and free-running on each validation record, through the same engine as
@@ -15,6 +15,7 @@ likely state (:func:`hypa.models.rollout.free_run_levels`).
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,10 +23,10 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from hypa.commands.config import SimulateConfig, typed
-from hypa.errors import hydra_command, settings
+from hypa.core.errors import hydra_command, settings
 
 
-@hydra_command("hypa.simulate", "simulate")
+@hydra_command("hypa simulate", "simulate")
 def main(cfg: DictConfig) -> float:
     from hypa.commands.entry import data_dir_from_config, model_datamodule, vehicle_from_config
     from hypa.evaluation.nominal import nominal_module, report, simulate_nominal
@@ -59,4 +60,4 @@ def main(cfg: DictConfig) -> float:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

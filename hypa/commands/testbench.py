@@ -1,15 +1,16 @@
-"""Generate (or find cached) test-bench data: ``python -m hypa.testbench [overrides]``.
+"""Generate (or find cached) test-bench data: ``hypa testbench [overrides]``.
 
 Examples::
 
-    python -m hypa.testbench                                   # default data, cached
-    python -m hypa.testbench out=data/testbench plot=true      # into a folder, with PNGs
-    python -m hypa.testbench testbench.rear_steering.enabled=false
+    hypa testbench                                   # default data, cached
+    hypa testbench out=data/testbench plot=true      # into a folder, with PNGs
+    hypa testbench testbench.rear_steering.enabled=false
 """
 
 from __future__ import annotations
 
 import logging
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ from omegaconf import DictConfig
 from scipy.signal import welch
 
 from hypa.commands.config import TestbenchCommandConfig, typed
-from hypa.errors import UserError, hydra_command, settings
+from hypa.core.errors import UserError, hydra_command, settings
 from hypa.paper.testbench.config import TestbenchConfig
 from hypa.paper.testbench.dataset import ensure_dataset, generate_dataset, load_description
 from hypa.paper.testbench.plots import plot_axle_characteristics, plot_record, plot_spectrum
@@ -100,7 +101,7 @@ def write_plots(folder: Path, record: str, config: TestbenchConfig, plot_dir: Pa
     return paths
 
 
-@hydra_command("hypa.testbench", "testbench")
+@hydra_command("hypa testbench", "testbench")
 def main(cfg: DictConfig) -> None:
     command = typed(cfg, TestbenchCommandConfig)  # every value checked (hypa.commands.config)
     with settings("testbench"):  # the settings, and generating the records from them
@@ -121,4 +122,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,12 +1,12 @@
 """Train a HyPA-Net (or a baseline) on measured data.
 
-    python -m hypa.train model=v2 ann=lstm                 # the paper's V2 on the default data
-    python -m hypa.train model=physical                    # physics only, parameters fitted
-    python -m hypa.train model=blackbox ann=transformer    # a pure network
-    python -m hypa.train -m model=v1,v2,v3 ann=lstm,s4 seed=0,1,2     # a sweep (parallel)
-    python -m hypa.train dataset=files data.dir=PATH vehicle.cf=...    # your data
+    hypa train model=v2 ann=lstm                 # the paper's V2 on the default data
+    hypa train model=physical                    # physics only, parameters fitted
+    hypa train model=blackbox ann=transformer    # a pure network
+    hypa train -m model=v1,v2,v3 ann=lstm,s4 seed=0,1,2     # a sweep (parallel)
+    hypa train dataset=files data.dir=PATH vehicle.cf=...    # your data
 
-    python -m hypa.train trainer.strategy=ddp trainer.devices=2            # across 2 processes (GPUs)
+    hypa train trainer.strategy=ddp trainer.devices=2            # across 2 processes (GPUs)
 
 Writes the best and last checkpoints and TensorBoard logs into the Hydra run folder and prints
 where; returns the best validation loss (for Hydra sweepers). Across processes rank 0 writes all
@@ -31,7 +31,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from hypa.commands.config import TrainConfig, typed
-from hypa.errors import UserError, hydra_command, settings
+from hypa.core.errors import UserError, hydra_command, settings
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +40,7 @@ def run_name(model: str, ann: str, blocks: Any, model_file: str | None = None) -
     """Folder name of a run: the model, and its network where it has one (``model_file``: the model
     that file holds; its own checks come when the run reads it)."""
     if model_file:
-        from hypa.trust import read_yaml
+        from hypa.core.trust import read_yaml
 
         try:
             read = read_yaml(Path(model_file).expanduser())
@@ -76,7 +76,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
         vehicle_from_config,
     )
     from hypa.commands.output_folder import record_training_run
-    from hypa.metadata import run_metadata
+    from hypa.core.metadata import run_metadata
     from hypa.models import parse_model_spec
     from hypa.models.building import model_hold
     from hypa.models.schema import ModelConfig, plain_model
@@ -153,14 +153,14 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             data_dir = data_dir_from_config(cfg)
         dm = model_datamodule(cfg, data_dir, model_config, physical_values)  # data.past null: chosen for the model
         # the settings left null: an end-to-end network's from its training data, the fixed defaults otherwise;
-        # written into the run's configuration (what was trained, for hypa.evaluate and TensorBoard)
+        # written into the run's configuration (what was trained, for hypa evaluate and TensorBoard)
         ann, weight_decay, epochs, patience = network_defaults(model_config, ann_name, ann, dm, lr, weight_decay,
                                                                epochs, patience, config.trainer.limit_train_batches)
         for key, value in (("optimizer.weight_decay", weight_decay), ("trainer.max_epochs", epochs),
                            ("early_stopping.patience", patience), *((f"ann.{k}", v) for k, v in ann.items())):
             OmegaConf.update(cfg, key, value)
-        # where the data were, resolved, so hypa.evaluate finds them from any working directory; what
-        # the run was made from (code, packages, data checksums), so hypa.evaluate notices other data
+        # where the data were, resolved, so hypa evaluate finds them from any working directory; what
+        # the run was made from (code, packages, data checksums), so hypa evaluate notices other data
         folder.update_record(data_dir=str(data_dir.resolve()), **run_metadata(dm.files, data_dir))
         # the run's own resolved configuration, written while this process holds the folder (a refused
         # second run may already have overwritten Hydra's .hydra/config.yaml)
@@ -267,7 +267,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     return result
 
 
-@hydra_command("hypa.train", "train")
+@hydra_command("hypa train", "train")
 def main(cfg: DictConfig) -> float:
     """The best validation loss, for sweepers; inf for a run without a finite one (diverged, or no
     validation): Optuna's sweeper aborts the whole study on a NaN, whereas inf ranks the trial last.
@@ -281,10 +281,10 @@ def main(cfg: DictConfig) -> float:
     except DivergedError as error:
         if not HydraConfig.initialized() or HydraConfig.get().mode != RunMode.MULTIRUN:
             raise
-        print(f"hypa.train: {error}", file=sys.stderr, flush=True)
+        print(f"hypa train: {error}", file=sys.stderr, flush=True)
         return math.inf
     return loss if math.isfinite(loss) else math.inf
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

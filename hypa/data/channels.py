@@ -20,11 +20,11 @@ import difflib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
+from hypa.core.errors import UserError
+from hypa.core.trust import check_name
 from hypa.data.errors import DataError
 from hypa.data.expressions import Expression
 from hypa.data.units import display_factor, unit
-from hypa.errors import UserError
-from hypa.trust import check_name
 
 ROLES: tuple[str, ...] = ("input", "output", "scheduling", "evaluation", "auxiliary")
 MODEL_ROLES: tuple[str, ...] = ("input", "output", "scheduling")  # what a training batch holds

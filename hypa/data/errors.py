@@ -1,6 +1,6 @@
 """The one exception type of the data pipeline."""
 
-from hypa.errors import UserError
+from hypa.core.errors import UserError
 
 
 class DataError(UserError):

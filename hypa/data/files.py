@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hypa.core.trust import read_bounded
 from hypa.data.errors import DataError
-from hypa.trust import read_bounded
 
 TABLE_SUFFIXES: tuple[str, ...] = (".csv", ".parquet", ".mat")  # one time base, columns
 MDF_SUFFIXES: tuple[str, ...] = (".mf4", ".mdf")  # ASAM MDF 4 (and 3): a time base per group

@@ -20,13 +20,13 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from hypa.core.errors import UserError
 from hypa.data.channels import ChannelSpec
 from hypa.data.errors import DataError
 from hypa.data.normalization import Normalization
 from hypa.data.schema import ChannelConfig, DataConfig, PieceConfig
 from hypa.data.splits import Piece, SplitSpec
 from hypa.data.units import define_units
-from hypa.errors import UserError
 
 log = logging.getLogger(__name__)
 

@@ -75,7 +75,7 @@ class DataConfig:
     units: dict[str, str] = field(default_factory=dict)  # the data set's own unit names -> pint definition
     window: int = 100  # predicted samples N per window
     past: int | None = None  # past samples P before the window start; null: as many as the model's estimated
-    # starts want (hypa.train, hypa.diagnose, hypa.simulate choose it and record it; 0 where no model is built)
+    # starts want (hypa train, hypa diagnose, hypa simulate choose it and record it; 0 where no model is built)
     stride: int = 5
     eval_stride: int = 50
     batch_size: int = 32

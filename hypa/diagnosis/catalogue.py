@@ -72,8 +72,8 @@ from typing import Any
 
 import yaml
 
+from hypa.core.errors import UserError
 from hypa.diagnosis.edits import AFFINE, GRADIENT, NONE, Candidate, frozen
-from hypa.errors import UserError
 from hypa.models.spec import ELEMENT_PARAMETER, ModelSpec, ModelSpecError, parse_model_spec
 from hypa.physics.systems import PHYSICS_SYSTEMS
 

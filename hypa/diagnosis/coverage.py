@@ -22,8 +22,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from hypa.core.metrics import rms
 from hypa.data import HypaDataModule
-from hypa.metrics import rms
 
 COVERED = 0.7  # share of the training's 1-99 % span the validation's must overlap
 AMPLITUDE = 0.5  # the validation's RMS about the training mean, at least this share of the training's

@@ -2,7 +2,7 @@
 
 A cause is not a formula of its own: it is a change to the nominal :class:`~hypa.models.ModelSpec`
 (a block inserted, a parameter set free, a scheduling channel connected, a sensor offset),
-so the model that names it is the model ``hypa.train`` trains, simulated by the one physics
+so the model that names it is the model ``hypa train`` trains, simulated by the one physics
 engine (``hypa.physics``). The catalogue of such edits is data (:mod:`hypa.diagnosis.catalogue`).
 """
 

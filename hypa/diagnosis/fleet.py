@@ -1,8 +1,8 @@
 """A fleet of logs: diagnose each log as one job of a Hydra multirun, then one summary table.
 
-    python -m hypa.diagnose -m dataset=files data.dir=logs/a,logs/b,logs/c
-    python -m hypa.diagnosis.fleet run 'logs/*/' [hypa.diagnose overrides]   # a glob instead of a list
-    python -m hypa.diagnosis.fleet summary outputs/diagnose/fleet_...         # (re)build the summary
+    hypa diagnose -m dataset=files data.dir=logs/a,logs/b,logs/c
+    hypa fleet run 'logs/*/' [hypa diagnose overrides]   # a glob instead of a list
+    hypa fleet summary outputs/diagnose/fleet_...         # (re)build the summary
 
 Every job writes its ``diagnosis.json`` (or, if it failed, ``error.json`` with its one-line error:
 :func:`record_failures`) into its job folder; after the last job, :class:`FleetSummary` (a Hydra
@@ -32,18 +32,18 @@ import numpy as np
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
-from hypa import markdown as md
+from hypa.core.errors import UserError, full_error_requested, is_user_error, one_line
+from hypa.core.metrics import mean_std
+from hypa.core.trust import read_bounded, read_yaml
 from hypa.data.units import readable
 from hypa.diagnosis.result import Diagnosis, FindingRow
-from hypa.errors import UserError, full_error_requested, is_user_error, one_line
-from hypa.metrics import mean_std
-from hypa.trust import read_bounded, read_yaml
+from hypa.reporting import markdown as md
 
 F = TypeVar("F", bound=Callable[..., Any])
 
 DIAGNOSIS_FILE = "diagnosis.json"
 ERROR_FILE = "error.json"
-JOB_NAME = "diagnose"  # hydra.job.name of python -m hypa.diagnose
+JOB_NAME = "diagnose"  # hydra.job.name of hypa diagnose
 
 
 @dataclass(frozen=True)
@@ -84,7 +84,7 @@ class Spread:
         return np.array([v for v in self.values if v is not None], dtype=float)
 
     def stats(self) -> dict[str, float | int | None]:
-        """``hypa.metrics.mean_std`` over the logs that name the cause; ``std`` None for one log."""
+        """``hypa.core.metrics.mean_std`` over the logs that name the cause; ``std`` None for one log."""
         s = mean_std(self.present)
         return {"logs": s.count, "mean": s.mean, "std": s.std if s.count > 1 else None, "min": s.min, "max": s.max}
 
@@ -166,7 +166,7 @@ def read_log(folder: Path) -> LogDiagnosis:
     A report without ``named`` rows (written before the one-engine diagnosis) gives its causes
     but no estimates. A file of the folder that cannot be read (too large, not what hypa writes, a
     ``!!python`` tag in its YAML) is that job's error: the folder is data, read as such
-    (:mod:`hypa.trust`), and the other jobs are summarized."""
+    (:mod:`hypa.core.trust`), and the other jobs are summarized."""
     try:
         job_name(folder / ".hydra" / "hydra.yaml")
         overrides = read_overrides(folder / ".hydra" / "overrides.yaml")
@@ -203,15 +203,15 @@ def read_error(path: Path) -> str:
     except UserError as refused:
         return one_line(refused)
     except (ValueError, RecursionError) as bad:  # not JSON, not UTF-8, nested without end
-        return f"{path}: not an {ERROR_FILE} of hypa.diagnose ({type(bad).__name__}); the job failed"
+        return f"{path}: not an {ERROR_FILE} of hypa diagnose ({type(bad).__name__}); the job failed"
     if not isinstance(error, dict) or not isinstance(error.get("error"), str):
-        return f"{path}: not an {ERROR_FILE} of hypa.diagnose (no one-line error in it); the job failed"
+        return f"{path}: not an {ERROR_FILE} of hypa diagnose (no one-line error in it); the job failed"
     return " ".join(error["error"].split())[:2000]
 
 
 def read_overrides(path: Path) -> tuple[str, ...]:
     """A job's command-line overrides (``.hydra/overrides.yaml``, a list of strings; none without the
-    file), read as data (:func:`hypa.trust.read_yaml`); anything else is one line."""
+    file), read as data (:func:`hypa.core.trust.read_yaml`); anything else is one line."""
     if not path.is_file():
         return ()
     overrides = read_yaml(path, "Hydra overrides file")
@@ -224,7 +224,7 @@ def read_overrides(path: Path) -> tuple[str, ...]:
 
 def job_name(path: Path) -> str | None:
     """``hydra.job.name`` of a job folder's ``.hydra/hydra.yaml`` (``None`` without one), read as data
-    (:func:`hypa.trust.read_yaml`); a file that cannot be read is one line."""
+    (:func:`hypa.core.trust.read_yaml`); a file that cannot be read is one line."""
     if not path.is_file():
         return None
     config = read_yaml(path, "Hydra configuration file")
@@ -241,8 +241,8 @@ def _at(node: Any, *keys: str) -> Any:
 
 
 def find_jobs(sweep_dir: Path) -> list[Path]:
-    """The ``hypa.diagnose`` job folders under ``sweep_dir`` (by their ``.hydra/hydra.yaml``; a
-    trained extension's ``hypa.train`` run inside a job is not one), in natural order (2 < 10).
+    """The ``hypa diagnose`` job folders under ``sweep_dir`` (by their ``.hydra/hydra.yaml``; a
+    trained extension's ``hypa train`` run inside a job is not one), in natural order (2 < 10).
     A folder whose ``hydra.yaml`` cannot be read is a job too: its summary row says why."""
     folders = []
     for path in Path(sweep_dir).rglob("hydra.yaml"):
@@ -285,8 +285,8 @@ def collect(sweep_dir: Path) -> Fleet:
     sweep_dir = Path(sweep_dir)
     folders = find_jobs(sweep_dir)
     if not folders:
-        raise UserError(f"{sweep_dir} holds no hypa.diagnose jobs (no .hydra/hydra.yaml of one); give the sweep "
-                        "folder of a `python -m hypa.diagnose -m ...` run")
+        raise UserError(f"{sweep_dir} holds no hypa diagnose jobs (no .hydra/hydra.yaml of one); give the sweep "
+                        "folder of a `hypa diagnose -m ...` run")
     logs = [read_log(f) for f in folders]
     names = labels([log.overrides for log in logs])
     return Fleet(sweep_dir, tuple(replace(log, label=name) for log, name in zip(logs, names)))
@@ -303,7 +303,7 @@ def number(value: float | None) -> str:
 
 
 def percent(change: float | None) -> str:
-    """A log's MSE change (:func:`hypa.markdown.change_text`), empty where it has none."""
+    """A log's MSE change (:func:`hypa.reporting.markdown.change_text`), empty where it has none."""
     return "" if change is None else md.change_text(change)
 
 
@@ -385,7 +385,7 @@ class FleetSummary(Callback):
         except Exception as error:  # noqa: BLE001 (Hydra would turn it into a warning and exit 0)
             if not is_user_error(error) or full_error_requested():
                 traceback.print_exc()
-            print(f"hypa.{JOB_NAME}: error: fleet summary: {one_line(error)}", file=sys.stderr, flush=True)
+            print(f"hypa {JOB_NAME}: error: fleet summary: {one_line(error)}", file=sys.stderr, flush=True)
             sys.exit(1)
         print(report(fleet), flush=True)
         if len(fleet.diagnosed) < len(fleet.logs):
@@ -397,7 +397,7 @@ def record_failures(command: str) -> Callable[[F], F]:
     and returns, so one bad log does not end the sweep (Hydra's sweepers stop at a failed job and
     skip the callbacks) and the summary shows it as failed. A user error prints
     ``<command>: error: <message>``, a bug its traceback. In a single run the error passes on
-    (to :func:`hypa.errors.user_errors` above)."""
+    (to :func:`hypa.core.errors.user_errors` above)."""
     def decorate(main: F) -> F:
         @functools.wraps(main)
         def wrapped(*args: Any, **kwargs: Any) -> Any:
@@ -425,8 +425,10 @@ def record_failures(command: str) -> Callable[[F], F]:
     return decorate
 
 
-# python -m hypa.diagnosis.fleet, its documented spelling: the command is hypa.commands.fleet
-if __name__ == "__main__":
-    from hypa.commands.fleet import main as command
+if __name__ == "__main__":  # `python -m hypa.diagnosis.fleet`, the spelling before `hypa fleet` (one release)
+    import runpy
 
-    sys.exit(command())
+    print("python -m hypa.diagnosis.fleet is deprecated and goes in the next release: use `hypa fleet`",
+          file=sys.stderr)
+    sys.argv[1:1] = ["fleet"]
+    runpy.run_module("hypa", run_name="__main__", alter_sys=True)

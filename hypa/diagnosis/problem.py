@@ -29,11 +29,11 @@ from dataclasses import dataclass, field
 
 import torch
 
+from hypa.core.errors import UserError
 from hypa.data import HypaDataModule, Record
 from hypa.data.units import readable
 from hypa.diagnosis.scales import FOLDS, Scales, block_bounds  # FOLDS: each candidate is fitted once per fold
 from hypa.diagnosis.workers import default_workers
-from hypa.errors import UserError
 from hypa.identification.stretches import Stretches
 from hypa.models import ComposedModel
 from hypa.models.building import model_hold

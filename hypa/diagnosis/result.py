@@ -17,19 +17,19 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from hypa import markdown as md
+from hypa.core.errors import UserError
+from hypa.core.trust import read_bounded
 from hypa.diagnosis.coverage import ChannelCoverage
 from hypa.diagnosis.generic import GenericFit
 from hypa.diagnosis.scales import Scales, duration
 from hypa.diagnosis.structure import OutputStructure
-from hypa.errors import UserError
-from hypa.trust import read_bounded
+from hypa.reporting import markdown as md
 
 WRITTEN = {"diagnosed": "the named causes at their fitted values, the uncertain ones trainable",
            "diagnosed_hybrid": "the same with a correction network on the outputs",
            "diagnosed_learned": ("the subsystems the named causes stand in for learned by networks in the frozen "
-                                 "physics; then `python -m hypa.explain run=<its run>` says what they learned")}
-MIN_GAIN = 0.15  # hypa.diagnose's default diagnosis.min_gain
+                                 "physics; then `hypa explain run=<its run>` says what they learned")}
+MIN_GAIN = 0.15  # hypa diagnose's default diagnosis.min_gain
 
 
 @dataclass
@@ -176,7 +176,7 @@ class NetworkExplanation:
 
 @dataclass
 class TrainedSummary:
-    """The extension trained by ``hypa.train`` (``extension.train=true``): its free-run metrics per
+    """The extension trained by ``hypa train`` (``extension.train=true``): its free-run metrics per
     output, its ``gain`` (``all``: relative MSE change per output and ``overall``) and what its
     networks learned."""
 
@@ -298,7 +298,7 @@ class Diagnosis:
 
     @classmethod
     def from_json(cls, path: Path) -> Diagnosis:
-        """A ``diagnosis.json`` read back: bounded in size (:func:`hypa.trust.read_bounded`), every value
+        """A ``diagnosis.json`` read back: bounded in size (:func:`hypa.core.trust.read_bounded`), every value
         checked against the fields' types first, so that a file hypa did not write (a wrong type, a
         missing key, not JSON) is one line naming the file and the value, never a traceback later."""
         path = Path(path)
@@ -307,14 +307,14 @@ class Diagnosis:
         except (ValueError, RecursionError) as error:  # not JSON, not UTF-8, nested without end
             if isinstance(error, UserError):
                 raise
-            raise UserError(f"{path}: not a diagnosis.json of hypa.diagnose ({type(error).__name__}: "
+            raise UserError(f"{path}: not a diagnosis.json of hypa diagnose ({type(error).__name__}: "
                             f"{' '.join(str(error).split())[:200]})") from None
         try:
             return cls.from_dict(_conform(data, Diagnosis, ""))
         except _Mismatch as error:
-            raise UserError(f"{path}: not a diagnosis.json of hypa.diagnose ({error})") from None
+            raise UserError(f"{path}: not a diagnosis.json of hypa diagnose ({error})") from None
         except (KeyError, TypeError, AttributeError, ValueError) as error:  # what the types do not say
-            raise UserError(f"{path}: not a diagnosis.json of hypa.diagnose ({type(error).__name__}: "
+            raise UserError(f"{path}: not a diagnosis.json of hypa diagnose ({type(error).__name__}: "
                             f"{' '.join(str(error).split())[:200]})") from None
 
     def headline(self) -> dict[str, str]:
@@ -554,7 +554,7 @@ def _markdown(d: Diagnosis, units: Mapping[str, tuple[str, float]], min_gain: fl
               *md.table(["output", *(f"{m} RMS" for m in models), *(f"{m} R²" for m in models)], output_rows)]
     trained = d.extended.trained
     if trained:
-        lines += ["", (f"The trained extension is `{trained.model}` trained by hypa.train (run `{trained.run}`): "
+        lines += ["", (f"The trained extension is `{trained.model}` trained by hypa train (run `{trained.run}`): "
                   f"validation error {md.change_text(trained.change)} against the nominal model.")]
         if trained.explained:
             lines += ["", ("What its networks learned (hypa.explain; fitted on the training records, R² on the "
@@ -602,5 +602,5 @@ def _markdown(d: Diagnosis, units: Mapping[str, tuple[str, float]], min_gain: fl
 
 def _lower(gain: float | None) -> str:
     """A row's ``gain`` (how much lower its error is than before it, a share) as the change of that
-    error (:func:`hypa.markdown.change_text`: ``-80 %``; a diverged fit's ``did not converge``)."""
+    error (:func:`hypa.reporting.markdown.change_text`: ``-80 %``; a diverged fit's ``did not converge``)."""
     return md.change_text(None if gain is None else -gain)

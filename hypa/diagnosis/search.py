@@ -2,7 +2,7 @@
 
 The nominal model is a :class:`~hypa.models.ModelSpec` (the physics a user trusts, frozen). Each
 candidate cause (:mod:`hypa.diagnosis.edits`) is an edit of it; the edited model is built as a
-:class:`~hypa.models.ComposedModel` (the class ``hypa.train`` trains), its knobs are fitted on
+:class:`~hypa.models.ComposedModel` (the class ``hypa train`` trains), its knobs are fitted on
 the training windows (:mod:`hypa.diagnosis.fitting`: gradient fits of the physical parameters,
 least squares for an offset; on worker processes, :mod:`hypa.diagnosis.workers`), and it is
 scored free-running over held-out data (:mod:`hypa.diagnosis.problem`; one candidate:

@@ -1,4 +1,4 @@
-"""``hypa.diagnose model=M``: the diagnosis of any system, from its nominal hypa model.
+"""``hypa diagnose model=M``: the diagnosis of any system, from its nominal hypa model.
 
 Steps: (1) the nominal model free-running on the validation records; (2) the named causes
 (:func:`hypa.diagnosis.search.name_causes`); (3) what remains and where it lives
@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from hypa.core.metrics import correlation, errors, rms
 from hypa.diagnosis.catalogue import Entry
 from hypa.diagnosis.coverage import coverage, short_lines
 from hypa.diagnosis.edits import frozen, set_free
@@ -41,10 +42,9 @@ from hypa.diagnosis.result import (
 from hypa.diagnosis.search import name_causes
 from hypa.diagnosis.structure import analyze_output
 from hypa.diagnosis.trained import TrainedExtension
-from hypa.metrics import correlation, errors, rms
 from hypa.models.rollout import Prediction, free_run, free_run_levels, free_run_metrics
 from hypa.models.spec import DIAGNOSED, ModelSpec, model_imports, read_model_file, spec_config
-from hypa.plots import time_series
+from hypa.reporting.plots import time_series
 
 
 def with_correction(spec: ModelSpec, inputs: Sequence[str]) -> ModelSpec:
@@ -127,9 +127,9 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     """Steps 1-4 for the nominal model on the problem's data; returns the :class:`Diagnosis`
     (written to ``out`` as ``diagnosis.json`` and ``diagnosis.md``).
 
-    ``train_overrides`` select the same data for ``hypa.train``; ``config_dir``: the user's own
+    ``train_overrides`` select the same data for ``hypa train``; ``config_dir``: the user's own
     config folder (``--config-dir``) that the train command needs too (their dataset YAML).
-    ``train_extension(arguments)``: trains the written model with those ``hypa.train`` arguments
+    ``train_extension(arguments)``: trains the written model with those ``hypa train`` arguments
     and returns its free runs over the validation records and what its networks learned
     (:mod:`hypa.diagnosis.trained`); its gain and those explanations join the report."""
     problem = problem.scaled(frozen(nominal))
@@ -194,7 +194,7 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     trained = None
     if train_extension is not None:
         name = "diagnosed_hybrid" if unexplained else "diagnosed"
-        progress(f"          training {name} with hypa.train (progress below)")
+        progress(f"          training {name} with hypa train (progress below)")
         extension = train_extension(train_arguments(out / "conf", name, train_overrides, name != "diagnosed",
                                                     config_dir))
         runs = list(extension.predictions)
@@ -249,7 +249,7 @@ def _candidate(f: Finding, nominal_score: float) -> CandidateRow:
 
 
 def _write(path: Path, spec: ModelSpec, named: Sequence[Finding]) -> Path:
-    header = ["# @package model", "# Written by hypa.diagnose: the nominal model extended by the named causes:"]
+    header = ["# @package model", "# Written by hypa diagnose: the nominal model extended by the named causes:"]
     header += [f"#   {f.describe()}" for f in named] or ["#   (none named)"]
     path.write_text("\n".join(header) + "\n" + yaml.safe_dump(spec_config(spec), sort_keys=False))
     return path
@@ -269,7 +269,7 @@ def with_past(overrides: Sequence[str], problem: Problem, spec: ModelSpec) -> li
 
 def train_arguments(written: Path, model: str, overrides: Sequence[str], with_ann: bool,
                     config_dir: Path | None = None) -> list[str]:
-    """``python -m hypa.train`` arguments that train a written model on the same data: the model is
+    """``hypa train`` arguments that train a written model on the same data: the model is
     read as data (``model_file=``, through the model schema only), so following the command from a
     diagnosis folder someone sent runs none of its YAML as configuration; a user's own
     ``--config-dir`` (their dataset) still applies. The user's own systems that the model names
@@ -283,7 +283,7 @@ def train_arguments(written: Path, model: str, overrides: Sequence[str], with_an
 def train_command(written: Path, model: str, overrides: Sequence[str], with_ann: bool,
                   config_dir: Path | None = None) -> str:
     """The shell command of :func:`train_arguments`."""
-    return " ".join(["python -m hypa.train",
+    return " ".join(["hypa train",
                      *(shlex.quote(w) for w in train_arguments(written, model, overrides, with_ann, config_dir))])
 
 

@@ -1,7 +1,7 @@
-"""Step 4 with training: train the written extension through ``hypa.train``, free-run it and
+"""Step 4 with training: train the written extension through ``hypa train``, free-run it and
 explain the networks it added.
 
-``python -m hypa.diagnose extension.train=true`` runs the printed train command (its progress
+``hypa diagnose extension.train=true`` runs the printed train command (its progress
 on the console, its run folder inside the diagnosis folder), loads the best checkpoint and
 free-runs it over the validation records, so the report can put the trained model (the named
 causes, plus a correction network where structure stays unexplained) beside the nominal one.
@@ -15,19 +15,19 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from hypa.commands.launch import run_hypa
+from hypa.core.errors import UserError
 from hypa.data import HypaDataModule
 from hypa.diagnosis.result import NetworkExplanation
-from hypa.errors import UserError
 from hypa.evaluation.evaluation import run_datamodule
 from hypa.evaluation.runs import load_run
 from hypa.explain.run import Settings, ann_blocks, explain_run
-from hypa.launch import run_hypa
 from hypa.models.rollout import Prediction, free_run
 
 
 class ExtensionTrainingError(UserError):
-    """``hypa.train`` failed on the written extension (its own output says why; the message gives
-    the command to rerun it alone), so ``hypa.diagnose`` reports it in one line."""
+    """``hypa train`` failed on the written extension (its own output says why; the message gives
+    the command to rerun it alone), so ``hypa diagnose`` reports it in one line."""
 
 
 @dataclass
@@ -43,9 +43,9 @@ class TrainedExtension:
 def train_extension(arguments: Sequence[str], run_dir: Path, dm: HypaDataModule,
                     extra_overrides: Sequence[str] = (), explain: bool = True, plot: bool = True,
                     progress: Callable[[str], None] = lambda text: None) -> TrainedExtension:
-    """Run ``python -m hypa.train ARGUMENTS`` into ``run_dir``, free-run its best checkpoint over
+    """Run ``hypa train ARGUMENTS`` into ``run_dir``, free-run its best checkpoint over
     ``dm``'s validation records and (``explain``) explain its networks. ``extra_overrides``: more
-    ``hypa.train`` overrides (e.g. a shorter training: ``trainer.max_epochs=5``)."""
+    ``hypa train`` overrides (e.g. a shorter training: ``trainer.max_epochs=5``)."""
     run_hypa("train", [*arguments, f"hydra.run.dir={run_dir}", *extra_overrides], "training the extended model",
              error=ExtensionTrainingError)
     run = load_run(run_dir, trust=("*",))  # the run it trained just now, from its own model

@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hypa.core.metrics import mean_std, regression_metrics
 from hypa.data import HypaDataModule
 from hypa.evaluation.benchmark_result import Benchmark, Summary
 from hypa.evaluation.runs import TrainedRun
-from hypa.metrics import mean_std, regression_metrics
 from hypa.models.rollout import free_run
 
 
@@ -115,8 +115,8 @@ def _staged(run: TrainedRun) -> bool:
 
 def _epochs_at_cap(run: TrainedRun) -> int | None:
     """``trainer.max_epochs`` where the run's training used it up (see :func:`stopped_at_caps`), else None."""
+    from hypa.core.trust import inside
     from hypa.training.checkpoints import read_checkpoint
-    from hypa.trust import inside
 
     last, best = run.info.get("last_checkpoint"), run.info.get("best_checkpoint")
     max_epochs = (run.config.get("trainer") or {}).get("max_epochs")

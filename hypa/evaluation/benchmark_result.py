@@ -11,7 +11,7 @@ seeds); this module only writes and reads it. ``benchmark.json`` (RMS in SI unit
 ``capped``: where the model's identification or training stopped at a cap (one line each, e.g.
 ``identification.max_evaluations``); ``failed``: the one-line reason a model (or one of its seeds)
 failed, null where none did; ``extends``: the row of the identified physics this model extends
-(``diagnosed``: the nominal model ``hypa.diagnose`` extended), null where none. A number that is
+(``diagnosed``: the nominal model ``hypa diagnose`` extended), null where none. A number that is
 not finite is written as null (JSON has none).
 Both files are written again after every row the benchmark finishes (:func:`write_report`).
 """
@@ -24,7 +24,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from hypa import markdown as md
+from hypa.reporting import markdown as md
 
 
 @dataclass(frozen=True)
@@ -69,7 +69,7 @@ class Benchmark:
     # model -> where its identification or training stopped at a cap, one line each
     capped: dict[str, list[str]] = field(default_factory=dict)
     failed: dict[str, str] = field(default_factory=dict)  # model -> why it (or a seed of it) failed, one line
-    # model -> the row of the identified physics it extends (diagnosed -> the nominal that hypa.diagnose extended)
+    # model -> the row of the identified physics it extends (diagnosed -> the nominal that hypa diagnose extended)
     extends: dict[str, str] = field(default_factory=dict)
 
     @property

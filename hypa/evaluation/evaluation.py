@@ -16,15 +16,15 @@ from pathlib import Path
 
 import numpy as np
 
+from hypa.core.errors import UserError
+from hypa.core.metrics import correlation, errors, state_metrics
 from hypa.data import HypaDataModule
-from hypa.errors import UserError
 from hypa.evaluation.plots import bode
 from hypa.evaluation.result import Evaluation, RunMetrics, SignalMetrics, SplitMetrics, segments
 from hypa.evaluation.runs import TrainedRun, windowed
 from hypa.evaluation.transfer import TransferEstimate, h1_estimate
-from hypa.metrics import correlation, errors, state_metrics
 from hypa.models.rollout import Prediction, free_run, free_run_levels
-from hypa.plots import time_series
+from hypa.reporting.plots import time_series
 
 log = logging.getLogger(__name__)
 MANEUVERS = "maneuvers"
@@ -47,9 +47,9 @@ def check_data_files(run: TrainedRun, dm: HypaDataModule, data_dir: Path) -> lis
 
     Evaluating on other data is allowed (new measurements of the same system), so it is no
     error, but it must not pass unnoticed: the run's ``run.json`` holds the checksums of its
-    files (:mod:`hypa.metadata`). Returns the differences; none for a run without checksums.
+    files (:mod:`hypa.core.metadata`). Returns the differences; none for a run without checksums.
     """
-    from hypa.metadata import data_differences
+    from hypa.core.metadata import data_differences
 
     recorded = run.info.get("data_files")
     if recorded is None:

@@ -1,4 +1,4 @@
-"""A physics model at its configured values, untrained, against measured data (``python -m hypa.simulate``).
+"""A physics model at its configured values, untrained, against measured data (``hypa simulate``).
 
 Any physics-only model of any system runs the way training and evaluation run it (one engine:
 ``ComposedModel`` over ``hypa.physics``), two ways on each validation record:
@@ -20,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
+from hypa.core.errors import UserError
+from hypa.core.metrics import errors
 from hypa.data import HypaDataModule
-from hypa.errors import UserError
 from hypa.evaluation.runs import windowed
-from hypa.metrics import errors
 from hypa.models import parse_model_spec
 from hypa.models.rollout import free_run
 from hypa.training.module import HybridModule
@@ -43,15 +43,15 @@ def nominal_module(model_config: Mapping[str, Any], physical_values: Mapping[str
     spec = parse_model_spec(dict(model_config))
     networks = [b.name for b in spec.blocks if b.kind == "ann"]  # a dead time or a limit is physics too
     if networks:
-        raise UserError(f"hypa.simulate runs physics only; model {spec.name} has the network blocks "
-                        f"{', '.join(networks)}: train it (python -m hypa.train) and evaluate the run instead")
+        raise UserError(f"hypa simulate runs physics only; model {spec.name} has the network blocks "
+                        f"{', '.join(networks)}: train it (hypa train) and evaluate the run instead")
     module = HybridModule.from_data(dm, dict(model_config), physical_values=physical_values, hold=hold)
     return module.eval()
 
 
 def channel_metrics(measured: np.ndarray, simulated: np.ndarray) -> dict[str, float]:
     """RMSE, mean error (SI), R² = 1 - SSE/SST and NRMSE = RMSE / σ(measured) of one channel
-    (``hypa.metrics.errors``)."""
+    (``hypa.core.metrics.errors``)."""
     e = errors(simulated, measured)
     return {k: e[k] for k in ("rmse", "mean_error", "r2", "nrmse")}
 
@@ -62,7 +62,7 @@ def simulate_nominal(module: HybridModule, dm: HypaDataModule, out: Path, plot: 
 
     Returns {label: {output: metrics}}, labels ``windowed (N steps)`` and ``free-run <record>``.
     """
-    from hypa.plots import time_series
+    from hypa.reporting.plots import time_series
 
     outputs = dm.output_names
     windows = windowed(module, dm, "val")

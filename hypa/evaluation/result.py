@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hypa import markdown as md
 from hypa.evaluation.transfer import TransferEstimate
+from hypa.reporting import markdown as md
 
 OVERALL = "overall"  # the mean over the outputs, beside them
 
@@ -30,7 +30,7 @@ OVERALL = "overall"  # the mean over the outputs, beside them
 @dataclass(frozen=True)
 class OutputMetrics:
     """One output's (or ``overall``'s: the mean over the outputs) metrics: MAE [unit], MSE [unit²],
-    floored MAPE [%] and R² (:func:`hypa.metrics.regression_metrics`)."""
+    floored MAPE [%] and R² (:func:`hypa.core.metrics.regression_metrics`)."""
 
     mae: float
     mse: float
@@ -61,7 +61,7 @@ Segments = dict[str, dict[str, OutputMetrics]]  # segment -> output (and "overal
 
 
 def segments(data: dict[str, dict[str, dict[str, float]]]) -> Segments:
-    """``{segment: {output: {metric: value}}}`` (e.g. of :func:`hypa.metrics.state_metrics`) typed."""
+    """``{segment: {output: {metric: value}}}`` (e.g. of :func:`hypa.core.metrics.state_metrics`) typed."""
     return {s: {o: OutputMetrics.from_dict(m) for o, m in outputs.items()} for s, outputs in data.items()}
 
 

@@ -17,27 +17,27 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
+from hypa.core.errors import UserError, one_line
+from hypa.core.metadata import sha256
+from hypa.core.trust import check_links, has_interpolation, inside, read_yaml
 from hypa.data import HypaDataModule
-from hypa.errors import UserError, one_line
-from hypa.metadata import sha256
 from hypa.models.rollout import Prediction, free_run, free_run_metrics, model_inputs  # their former home
 from hypa.training import HybridModule
 from hypa.training.checkpoints import load_module
 from hypa.training.run_folder import CONFIG_FILE, RECORD_FILE, read_record
-from hypa.trust import check_links, has_interpolation, inside, read_yaml
 
 log = logging.getLogger(__name__)
 
 @dataclass
 class TrainedRun:
-    """A run folder of ``python -m hypa.train``: its best checkpoint and its configuration."""
+    """A run folder of ``hypa train``: its best checkpoint and its configuration."""
 
     folder: Path
     checkpoint: Path
     config: DictConfig
     module: HybridModule
     data_dir: Path | None = None  # the resolved data folder the run was trained on (run.json)
-    info: dict = field(default_factory=dict)  # the run's run.json (data checksums, versions; hypa.metadata)
+    info: dict = field(default_factory=dict)  # the run's run.json (data checksums, versions; hypa.core.metadata)
 
     @property
     def label(self) -> str:
@@ -52,13 +52,13 @@ def recorded_checkpoint(folder: Path, record: dict) -> Path:
 
     Never "the last ``best-*`` by name": a checkpoint that is not the recorded one (another run's,
     a damaged or replaced file) would be scored under this run's settings without a word. The
-    record is data: its path must stay inside the folder (:func:`hypa.trust.inside`), and a record
+    record is data: its path must stay inside the folder (:func:`hypa.core.trust.inside`), and a record
     without a checksum is refused, with the way to take the file anyway (name it).
     """
     best = record.get("best_checkpoint")
     if not isinstance(best, dict) or "path" not in best:
         if not (folder / RECORD_FILE).is_file() and not (folder / "checkpoints").is_dir():
-            raise FileNotFoundError(f"no checkpoint in {folder / 'checkpoints'} (is {folder} a hypa.train run folder?)")
+            raise FileNotFoundError(f"no checkpoint in {folder / 'checkpoints'} (is {folder} a hypa train run folder?)")
         raise UserError(f"{folder / RECORD_FILE} records no best checkpoint (a run of an older hypa, or one that "
                         f"stopped before its first validation); {_choice(folder)}")
     path = inside(folder, best["path"], f"{folder / RECORD_FILE}: best_checkpoint.path")
@@ -92,11 +92,11 @@ def _choice(folder: Path) -> str:
 def load_run(path: Path | str, trust: Collection[str] = ()) -> TrainedRun:
     """Load a run from its folder (its recorded best checkpoint) or from one of its checkpoints (CPU).
 
-    The folder is data (:mod:`hypa.trust`): ``trust`` names the import paths (a user's system or
+    The folder is data (:mod:`hypa.core.trust`): ``trust`` names the import paths (a user's system or
     network) its model may import."""
     path = Path(path).expanduser().absolute()
     if not path.exists():
-        raise FileNotFoundError(f"{path} does not exist: give a hypa.train run folder or a .ckpt file")
+        raise FileNotFoundError(f"{path} does not exist: give a hypa train run folder or a .ckpt file")
     if path.is_file():
         checkpoint, folder = path, path.parent.parent if path.parent.name == "checkpoints" else path.parent
         info = read_record(folder)
@@ -115,22 +115,22 @@ def load_run(path: Path | str, trust: Collection[str] = ()) -> TrainedRun:
 
 
 def run_config(folder: Path) -> DictConfig:
-    """A run folder's configuration: the ``config.yaml`` that hypa.train wrote while it held the
+    """A run folder's configuration: the ``config.yaml`` that hypa train wrote while it held the
     folder (Hydra's ``.hydra/config.yaml`` for runs of older versions), read as data
-    (:func:`hypa.trust.read_yaml`: bounded, plain values, no aliases expanded, no interpolation
+    (:func:`hypa.core.trust.read_yaml`: bounded, plain values, no aliases expanded, no interpolation
     resolved). A broken file is one line."""
     config_file = folder / CONFIG_FILE
     if not config_file.is_file():
         config_file = folder / ".hydra" / "config.yaml"
     if not config_file.is_file():
-        raise FileNotFoundError(f"{folder / CONFIG_FILE} is missing: {folder} is not a hypa.train run folder")
+        raise FileNotFoundError(f"{folder / CONFIG_FILE} is missing: {folder} is not a hypa train run folder")
     check_links(config_file, folder)
     values = read_yaml(config_file, "run configuration")
     if not isinstance(values, dict) or not isinstance(values.get("data"), dict):
-        raise UserError(f"{config_file}: not a hypa.train run configuration (no data settings); the run folder "
+        raise UserError(f"{config_file}: not a hypa train run configuration (no data settings); the run folder "
                         "is damaged")
     if has_interpolation(values):
-        raise UserError(f"{config_file}: holds an interpolation (${{...}}), which hypa.train never writes there "
+        raise UserError(f"{config_file}: holds an interpolation (${{...}}), which hypa train never writes there "
                         "(it records resolved values); the run folder is damaged or crafted")
     try:
         config = OmegaConf.create(values)

@@ -1,4 +1,4 @@
-"""The figures of ``python -m hypa.explain``: the learned and the explained signal over time, the
+"""The figures of ``hypa explain``: the learned and the explained signal over time, the
 frequency response of the learned block (H1 from its own input and output) with the chosen
 form's, and the static curve of the output against the input."""
 
@@ -14,7 +14,7 @@ from hypa.evaluation.transfer import TransferEstimate, h1_estimate
 from hypa.explain.forms import frequency_response, predict
 from hypa.explain.problem import BlockExplanation, gain_unit
 from hypa.explain.signals import Recording
-from hypa.plots import subplots
+from hypa.reporting.plots import subplots
 
 if TYPE_CHECKING:
     from hypa.data import HypaDataModule

@@ -12,9 +12,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize
 
+from hypa.core.metrics import errors
 from hypa.data.units import unit_ratio
 from hypa.explain.signals import Recording, delayed, filtered, lag_filter, second_order_filters
-from hypa.metrics import errors
 
 NONLINEAR = {"static": (), "lag": ("lag",), "lag_delay": ("lag", "delay"),
              "second_order": ("natural_frequency", "damping", "delay")}

@@ -38,7 +38,7 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from hypa.errors import UserError
+from hypa.core.errors import UserError
 from hypa.explain.fitting import LADDER, Data, FittedForm, Fitter, Form, Value, to_data
 from hypa.explain.residual import Remainder, remainder
 from hypa.explain.signals import Recording, check_recordings

@@ -4,7 +4,7 @@ A form of rungs 1-4 with one input is an LTI system: a gain (``gain``), a gain t
 (``gain_lag``), either behind a dead time (a ``delay`` block), or a second-order form
 (``second_order``). The network block is swapped for those blocks, with the fitted values as
 their parameters; the rest of the trained model (its physics, its other networks) stays as
-trained. The replaced model is written as a model YAML (``hypa.train model=...`` trains it on)
+trained. The replaced model is written as a model YAML (``hypa train model=...`` trains it on)
 and free-run over the validation records beside the trained one, so the gain or loss of the
 replacement is measured. Forms that no physics block holds (an odd cubic, extra signals that
 are the model's own outputs fed back, several inputs, a correction's) are not written; the best

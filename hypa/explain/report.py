@@ -1,4 +1,4 @@
-"""What ``python -m hypa.explain`` writes: ``explanation.json`` (:func:`to_dict`, documented in the
+"""What ``hypa explain`` writes: ``explanation.json`` (:func:`to_dict`, documented in the
 docs/explain.md) and ``explanation.md``, an engineer's report with rounded numbers and units, and the
 one-line summary of a replacement."""
 
@@ -9,9 +9,9 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
-from hypa import markdown as md
 from hypa.evaluation.runs import TrainedRun
 from hypa.explain.problem import FIT_SPLIT, SCORE_SPLIT, BlockExplanation, rounded
+from hypa.reporting import markdown as md
 
 
 def replacement_line(rp: dict) -> str:

@@ -23,7 +23,7 @@ from itertools import pairwise
 import numpy as np
 from scipy import signal
 
-from hypa.metrics import rms
+from hypa.core.metrics import rms
 
 Spectrum = tuple[np.ndarray, np.ndarray]  # (frequencies [Hz], power spectral density [unit²/Hz])
 

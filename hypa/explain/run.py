@@ -1,4 +1,4 @@
-"""Explain the learned blocks of a trained run: ``python -m hypa.explain run=RUN [block=NAME]``.
+"""Explain the learned blocks of a trained run: ``hypa explain run=RUN [block=NAME]``.
 
 The trained model is driven (free run, :func:`hypa.models.rollout.free_run`) over the run's
 training and validation records; each output of an ANN block is the explained signal, the
@@ -22,8 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
+from hypa.core.errors import UserError
+from hypa.core.metrics import correlation, errors, rms
 from hypa.data import HypaDataModule
-from hypa.errors import UserError
 from hypa.evaluation.runs import TrainedRun
 from hypa.explain.figures import write_figures
 from hypa.explain.forms import explain, frequency_response, predict
@@ -40,7 +41,6 @@ from hypa.explain.problem import (
 from hypa.explain.replace import replace_and_score, validation_errors, writable_form
 from hypa.explain.report import write_json, write_report
 from hypa.explain.signals import Recording
-from hypa.metrics import correlation, errors, rms
 from hypa.models import ComposedModel
 from hypa.models.rollout import Prediction, free_run
 from hypa.models.spec import DIAGNOSED, BlockSpec, ModelSpec

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from scipy import signal
 
-from hypa.errors import UserError
+from hypa.core.errors import UserError
 from hypa.physics.discretization import discretize
 from hypa.physics.elements import DeadTime, FirstOrderLag, SecondOrder
 from hypa.physics.lti import LTIModel

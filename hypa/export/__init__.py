@@ -1,4 +1,4 @@
-"""A trained hypa model as one step, exported: ``python -m hypa.export run=RUN`` (:mod:`hypa.commands.export`).
+"""A trained hypa model as one step, exported: ``hypa export run=RUN`` (:mod:`hypa.commands.export`).
 
 ``ModelStep`` is the step (physics and networks together, SI in and out), ``export_run``
 writes ``model.onnx``, ``reference.csv`` and ``export.json`` and checks the ONNX step with

@@ -30,7 +30,7 @@ from torch import Tensor, nn
 from torch.utils import _pytree as pytree
 
 from hypa.ann.base import SequenceBlock
-from hypa.errors import UserError
+from hypa.core.errors import UserError
 from hypa.physics.elements import DeadTime, Saturation
 from hypa.physics.lti import LTIBlock
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from hypa.errors import one_line
+from hypa.core.errors import one_line
 from hypa.export.blocks import ExportError
 from hypa.export.reference import Reference
 from hypa.export.step import ModelStep

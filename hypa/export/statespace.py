@@ -235,8 +235,8 @@ def load_statespace(path: Path | str, discrete: bool = False):
     system has them, are in the file's ``affine``: python-control has none."""
     import control
 
-    from hypa.errors import UserError
-    from hypa.trust import read_bounded
+    from hypa.core.errors import UserError
+    from hypa.core.trust import read_bounded
 
     path = Path(path)
     path = path / "statespace.json" if path.is_dir() else path

@@ -39,14 +39,14 @@ import torch
 from scipy import sparse
 from scipy.optimize import least_squares
 
-from hypa import markdown as md
+from hypa.core.errors import UserError
 from hypa.data import HypaDataModule, Record
-from hypa.errors import UserError
 from hypa.identification.report import Estimate, Identification
 from hypa.identification.shooting import CONTINUITY, Refused, Shooting
 from hypa.identification.stretches import Stretches
 from hypa.models import ComposedModel
 from hypa.physics.parameters import BOUNDED, LOG, ParameterSpec
+from hypa.reporting import markdown as md
 
 log = logging.getLogger(__name__)
 

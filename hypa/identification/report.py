@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from hypa import markdown as md
+from hypa.reporting import markdown as md
 
 
 @dataclass(frozen=True)

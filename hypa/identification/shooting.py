@@ -40,8 +40,8 @@ import numpy as np
 import torch
 from scipy import sparse
 
+from hypa.core.metrics import rms
 from hypa.identification.stretches import Stretches
-from hypa.metrics import rms
 from hypa.models import ComposedModel
 from hypa.physics import SchedulingError, UnstablePhysicsError
 

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from hypa.metrics import errors
+from hypa.core.metrics import errors
 
 if TYPE_CHECKING:
     from hypa.data import HypaDataModule, Record

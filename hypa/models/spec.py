@@ -14,14 +14,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hypa.core.errors import UserError
+from hypa.core.trust import check_name
 from hypa.data.errors import DataError
 from hypa.data.units import GivenQuantity, given_value
-from hypa.errors import UserError
 from hypa.models.schema import BlockConfig, ModelConfig, StageConfig, keys, unknown_keys
 from hypa.physics.discretization import HOLDS
 from hypa.physics.statespace import LTIModel
 from hypa.physics.systems import PHYSICS_SYSTEMS, build_system, is_import_path
-from hypa.trust import check_name
 
 BLOCK_KINDS = ("physics", "ann", "delay", "saturation")
 # elements: blocks that map each input to one output through one own parameter (not a state space)
@@ -83,25 +83,25 @@ class BlockSpec:
         - μ_j) / σ_j, with the block's own parameters ``<state>_level`` μ_j, ``<state>_spread`` σ_j
         and ``curve_<state>_on_<row>`` w_r (root, an orifice's law: A_rj (x_j + w (√(μ_j x_j) -
         x_j)), one ``curve_<state>`` w for every row) (``hypa.physics.curved``; named by
-        ``hypa.diagnose``'s ``cubic_state``, ``square_state`` and ``root_state``).
+        ``hypa diagnose``'s ``cubic_state``, ``square_state`` and ``root_state``).
     limited: physics only, states that cannot pass a level, state -> upper or lower: what would
         carry the state past its limit ``<state>_limit`` spills within ``<state>_limit_time``, a
         share ``spill_<state>_to_<row>`` of it into each other state (``hypa.physics.limited``;
-        named by ``hypa.diagnose``'s ``upper_state_limit`` and ``lower_state_limit``).
+        named by ``hypa diagnose``'s ``upper_state_limit`` and ``lower_state_limit``).
     depends: physics only, parameters that vary per sample with a direction or a state, parameter
         -> {by: a state or input of the system, kind: direction | state}: p (1 + d tanh(s / w)) or
         p (1 + a (s - μ) / σ), with the block's own parameters ``<p>_direction_<s>`` d and
         ``<p>_direction_<s>_width`` w, or ``<p>_slope_<s>`` a, ``<p>_slope_<s>_level`` μ and
-        ``<p>_slope_<s>_spread`` σ (``hypa.physics.dependent``; named by ``hypa.diagnose``'s
+        ``<p>_slope_<s>_spread`` σ (``hypa.physics.dependent``; named by ``hypa diagnose``'s
         ``direction_parameter`` and ``state_parameter``).
     modes: physics only, inputs of the system (its own names) that each drive a first-order mode
         the system lacks, added into its outputs: the block's own ``mode_<input>_tau_s``,
         ``mode_<input>_on_<output>`` and the fixed ``mode_<input>_scale_on_<output>``
-        (``hypa.physics.modes``; named by ``hypa.diagnose``'s ``missing_mode``).
+        (``hypa.physics.modes``; named by ``hypa diagnose``'s ``missing_mode``).
     driven: physics only, signals read after the system's own inputs that enter every state
         derivative through the block's own weights ``drive_<signal>_on_<state>`` times the fixed
         ``drive_<signal>_scale_on_<state>`` (``hypa.physics.dependent.Driven``; named by
-        ``hypa.diagnose``'s ``unread_channel`` for a measured channel the model did not read).
+        ``hypa diagnose``'s ``unread_channel`` for a measured channel the model did not read).
     """
 
     name: str
@@ -158,7 +158,7 @@ class ModelSpec:
 
     hold: the physics' hold (``zoh`` | ``foh`` | ``cubic``), overriding ``physics.hold`` of the run.
     parameters: values of shared physical parameters, overriding the ``vehicle`` config
-        (e.g. a stiffness re-fitted by ``hypa.diagnose``); with a unit or not, as a block's.
+        (e.g. a stiffness re-fitted by ``hypa diagnose``); with a unit or not, as a block's.
     sensor_offsets: constant biases [SI] of measured signals (measured - true): subtracted from
         a measured input and from a measured initial state, added to the model output.
     """
@@ -193,7 +193,7 @@ def _names(value: Any, where: str) -> tuple[str, ...]:
 
 
 def _signals(value: Any, where: str) -> tuple[str, ...]:
-    """Signal names: names that become file names and module keys (:func:`hypa.trust.check_name`)."""
+    """Signal names: names that become file names and module keys (:func:`hypa.core.trust.check_name`)."""
     names = _names(value, where)
     try:
         return tuple(check_name(n, where) for n in names)
@@ -370,7 +370,7 @@ def model_imports(config: Mapping[str, Any], ann_name: str | None = None) -> dic
     """The import paths a model config names that are not built into hypa (its blocks' user systems,
     and ``ann_name`` where a block is or starts from a network and ``ann_name`` is not a built-in
     network): what -> import path. They are code: a model read from a file (a checkpoint's, a
-    written ``diagnosed.yaml``) imports them only when the user trusts them (:mod:`hypa.trust`)."""
+    written ``diagnosed.yaml``) imports them only when the user trusts them (:mod:`hypa.core.trust`)."""
     from hypa.ann import ANN_BLOCKS
 
     found = {}
@@ -390,11 +390,11 @@ def builds_networks(config: Mapping[str, Any]) -> bool:
 
 
 def read_model_file(path: Path, trust: Collection[str] = ()) -> dict[str, Any]:
-    """A model YAML read as data (``hypa.train model_file=...``, e.g. a diagnosis's
-    ``conf/model/diagnosed.yaml``): bounded plain YAML (:func:`hypa.trust.read_yaml`), the model
+    """A model YAML read as data (``hypa train model_file=...``, e.g. a diagnosis's
+    ``conf/model/diagnosed.yaml``): bounded plain YAML (:func:`hypa.core.trust.read_yaml`), the model
     schema's keys only (no ``_target_``, no ``# @package`` that reaches other settings), no
     interpolation, and no import path that ``trust`` does not name. Returns the checked mapping."""
-    from hypa.trust import check_imports, has_interpolation, read_yaml
+    from hypa.core.trust import check_imports, has_interpolation, read_yaml
 
     config = read_yaml(path, "model file")
     if not isinstance(config, Mapping):

@@ -1,7 +1,7 @@
 """The paper's instance of hypa: what reproduces "HyPA-Net" on its own vehicle test bench.
 
 - :mod:`hypa.paper.testbench`: the simulated vehicle test bench, the paper's data (``dataset=testbench``);
-- :mod:`hypa.paper.table1`: the paper's Table 1 beside hypa's reproduction (``python -m hypa.reproduce``).
+- :mod:`hypa.paper.table1`: the paper's Table 1 beside hypa's reproduction (``hypa reproduce``).
 
 The generic library never imports this package. The data layer finds the test bench's data by
 the import path in ``hypa.data.from_config.DATA_SOURCES``, as the physics finds the vehicle's systems.

@@ -21,7 +21,7 @@ from typing import Any
 
 import yaml
 
-from hypa import markdown as md
+from hypa.reporting import markdown as md
 
 PAPER_TABLE = Path(__file__).with_name("paper_table1.yaml")
 R2 = "free_run/all/r2"

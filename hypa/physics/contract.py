@@ -11,7 +11,7 @@ from collections.abc import Sequence
 
 import torch
 
-from hypa.errors import UserError
+from hypa.core.errors import UserError
 from hypa.physics.lti import LTIModel, StateSpace
 from hypa.physics.parameters import ParameterSpec
 

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor, nn
 
-from hypa.errors import UserError
+from hypa.core.errors import UserError
 from hypa.physics.discretization import HOLDS, DiscreteLTI, Hold, HoldForm, discretize, hold_form
 from hypa.physics.lifted import LiftedMatrices, lifted_from_rows
 from hypa.physics.normalized import NormalizedLTI, NormalizingMaps, Scaling

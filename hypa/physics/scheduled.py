@@ -23,7 +23,7 @@ maps f_j(x) = Φ_j x + c_j (c_j = Σ_t B̂_{t,j} û_{j+t} + Ĥ_j), and compositi
 so all prefix compositions F_j = f_j ∘ ... ∘ f_0 come from a parallel-prefix scan in ⌈log2 N⌉
 batched steps (``hypa.physics.scan``) instead of N dependent ones, and x̂_{j+1} = F_j(x̂_0): exact.
 Its gradient is the adjoint recursion run as the same scan backwards, reusing the forward's
-products (``scan._AffineStates``). Cost at N = 100, batch 32 (``python -m hypa.speed physics``): the batched
+products (``scan._AffineStates``). Cost at N = 100, batch 32 (``hypa timing physics``): the batched
 hold (``NormalizingMaps.state_rows``, φ-functions of the n x n A dt) and the scan take about a
 third of the forward each; the per-sample matrices (``per_sample_matrices``) about a tenth when
 the system's code is batch-safe (one plain call, verified once against vmap: ``batch_layout``),
@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from hypa.errors import UserError
+from hypa.core.errors import UserError
 from hypa.physics.scan import _AffineStates, _apply, _scan
 from hypa.physics.statespace import LTIModel, StateSpace
 

@@ -18,7 +18,7 @@ sample as before.
 
 **What it costs.** Building: the exact rows at 2G - 1 points (G the table's points), once for a
 set of parameter values and a range of ρ; memory: G x (the rows' entries). The velocity-scheduled
-single track over 5-31 m/s in float32 verifies at 129 points, 20 KiB (``python -m hypa.speed
+single track over 5-31 m/s in float32 verifies at 129 points, 20 KiB (``hypa timing
 physics`` prints its points, error, build time and memory). In float64 a cubic would need ~10^5
 points for round-off, so a double-precision run keeps its per-sample rows.
 """

@@ -6,7 +6,7 @@
 The levels are in the unit of the lower tank's level sensor (V on the cascaded-tanks benchmark,
 ``../shared/data/cascaded_tanks``), the pump in its input unit. This is the physics an engineer
 writes first: the outflows linearised about a level. Real outflows through an orifice follow
-Torricelli's √h, and the upper tank overflows at its rim: what ``hypa.diagnose`` is for (its
+Torricelli's √h, and the upper tank overflows at its rim: what ``hypa diagnose`` is for (its
 ``root_state`` entry bends a positive state's couplings towards √h, ``upper_state_limit`` lets a
 state spill over a level). The upper level is not measured: a window starts from the estimate
 over its past samples (``initial_state: estimate``).

@@ -2,7 +2,7 @@
 
 A baseline is only honest if it is trained as well as its data allow, so its width, weight decay,
 epoch budget and patience are not constants (which suit one data set and starve another) but follow
-from the training data and the optimizer. ``hypa.train`` fills in each one the configuration leaves
+from the training data and the optimizer. ``hypa train`` fills in each one the configuration leaves
 ``null`` (a value given is kept):
 
 - width (``ann=lstm``): the width whose weights equal the training values (samples x outputs), about

@@ -4,10 +4,10 @@
   place, so a full disk or a killed process never leaves a truncated ``best-*.ckpt``.
 - :class:`RecordedCheckpoint` is Lightning's ``ModelCheckpoint`` that records the best checkpoint
   (path, validation loss, epoch, SHA-256) in the run folder's ``run.json`` each time it changes:
-  ``hypa.evaluate`` and every other reader take that record, never "the last ``best-*`` by name".
+  ``hypa evaluate`` and every other reader take that record, never "the last ``best-*`` by name".
   A hybrid's training starts with its identified physics as the best so far
   (:meth:`RecordedCheckpoint.keep_the_start`): an epoch must beat it on validation to replace it.
-- :func:`load_module` reads a checkpoint as data (:mod:`hypa.trust`): bounded before it is read
+- :func:`load_module` reads a checkpoint as data (:mod:`hypa.core.trust`): bounded before it is read
   (torch's zip format, no compressed member), ``torch.load(weights_only=True)`` (only tensors,
   numbers, strings and containers), its settings checked by the schema of :class:`HybridModule`'s
   arguments before anything is built, and no import path in it imported unless the user trusts it.
@@ -31,15 +31,15 @@ from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.plugins.io import TorchCheckpointIO
 
 from hypa.ann import ann_hyperparameters, build_ann, check_hyperparameters
-from hypa.errors import UserError, one_line
-from hypa.machine import available_memory
-from hypa.metadata import sha256
+from hypa.core.errors import UserError, one_line
+from hypa.core.machine import available_memory
+from hypa.core.metadata import sha256
+from hypa.core.trust import check_imports, check_name, count_nodes
 from hypa.models import ModelSpecError, parse_model_spec
 from hypa.models.spec import builds_networks, model_imports
 from hypa.physics.discretization import HOLDS
 from hypa.training.module import HybridModule
 from hypa.training.run_folder import RunFolder, write_atomic
-from hypa.trust import check_imports, check_name, count_nodes
 
 log = logging.getLogger(__name__)
 
@@ -154,7 +154,7 @@ def read_checkpoint(checkpoint: Path) -> dict[str, Any]:
       never more than the file.
     - ``torch.load(weights_only=True, mmap=True)``: only tensors, numbers, strings and containers,
       the tensors mapped from the file rather than read (the model decides what is copied).
-    - The nested values are counted before any is walked (:func:`hypa.trust.count_nodes`).
+    - The nested values are counted before any is walked (:func:`hypa.core.trust.count_nodes`).
 
     A file that is no checkpoint (a text file, a truncated download, a pickle that would run
     code) or one of another program is the user's error, named by the file.
@@ -168,12 +168,12 @@ def read_checkpoint(checkpoint: Path) -> dict[str, Any]:
         what = f" ({next(g for g in found.groups() if g)})" if found else ""
         raise UserError(f"{checkpoint}: not a readable checkpoint: it holds objects that a hypa checkpoint never "
                         f"holds{what}, which were not loaded and did not run; "
-                        "give a .ckpt written by hypa.train") from None
+                        "give a .ckpt written by hypa train") from None
     except Exception as error:  # noqa: BLE001 -- a zip or EOF error: a text file, a truncated download
         raise UserError(f"{checkpoint}: not a readable checkpoint ({type(error).__name__}: {one_line(error)[:200]}); "
-                        "give a .ckpt written by hypa.train") from None
+                        "give a .ckpt written by hypa train") from None
     if not isinstance(state, dict) or not isinstance(state.get("state_dict"), dict):
-        raise UserError(f"{checkpoint}: not a checkpoint of hypa.train (it holds no model weights)")
+        raise UserError(f"{checkpoint}: not a checkpoint of hypa train (it holds no model weights)")
     count_nodes({k: v for k, v in state.items() if k != "state_dict"}, str(checkpoint))
     return state
 
@@ -189,13 +189,13 @@ def _check_archive(checkpoint: Path) -> None:
         raise
     except (OSError, zipfile.BadZipFile, ValueError) as error:
         raise UserError(f"{checkpoint}: not a readable checkpoint ({one_line(error)[:200]}); give a .ckpt written "
-                        "by hypa.train") from None
+                        "by hypa train") from None
     if len(members) > MAX_MEMBERS:
-        raise UserError(f"{checkpoint}: {len(members):,} members, more than a checkpoint of hypa.train holds; not read")
+        raise UserError(f"{checkpoint}: {len(members):,} members, more than a checkpoint of hypa train holds; not read")
     compressed = [m.filename for m in members if m.compress_type != zipfile.ZIP_STORED]
     if compressed:
         raise UserError(f"{checkpoint}: {compressed[0]} is compressed, which torch.save never does (a zip bomb?); "
-                        "not read: give a .ckpt written by hypa.train")
+                        "not read: give a .ckpt written by hypa train")
     unpacked = sum(m.file_size for m in members)
     if unpacked > size:
         raise UserError(f"{checkpoint}: its members add up to {unpacked:,} bytes, more than the file's {size:,}; "
@@ -210,7 +210,7 @@ def checked_settings(state: dict[str, Any], source: Path | str, trust: Collectio
     Returns them as plain Python values."""
     hparams = state.get("hyper_parameters")
     if not isinstance(hparams, dict) or "model_config" not in hparams:
-        raise UserError(f"{source}: not a checkpoint of hypa.train (it holds no hypa model configuration)")
+        raise UserError(f"{source}: not a checkpoint of hypa train (it holds no hypa model configuration)")
     accepted = inspect.signature(HybridModule.__init__).parameters
     unknown = sorted(set(map(str, hparams)) - set(accepted))
     missing = sorted(n for n, p in accepted.items() if n != "self" and p.default is p.empty and n not in hparams)
@@ -221,7 +221,7 @@ def checked_settings(state: dict[str, Any], source: Path | str, trust: Collectio
 
     def bad(key: str, expected: str) -> UserError:
         return UserError(f"{source}: its setting {key} is {str(out[key])[:80]!r}, not {expected}; the checkpoint is "
-                         "damaged or was not written by hypa.train")
+                         "damaged or was not written by hypa train")
 
     if not isinstance(out["model_config"], dict):
         raise bad("model_config", "a model (blocks wired by signals)")
@@ -319,7 +319,7 @@ def _network_bytes(hparams: dict[str, Any]) -> int:
 
 
 def load_module(checkpoint: Path, trust: Collection[str] = ()) -> HybridModule:
-    """The trained module of a ``hypa.train`` checkpoint, on the CPU, in eval mode.
+    """The trained module of a ``hypa train`` checkpoint, on the CPU, in eval mode.
 
     The file is read as data (:func:`read_checkpoint`), its settings checked
     (:func:`checked_settings`; ``trust``: the import paths the user trusts), the module built from

@@ -1,6 +1,6 @@
 """Training across processes (``trainer.strategy=ddp``): one process owns the run, every process trains the same model.
 
-With ``trainer.strategy=ddp trainer.devices=N``, Lightning's launcher starts ``hypa.train`` again
+With ``trainer.strategy=ddp trainer.devices=N``, Lightning's launcher starts ``hypa train`` again
 for ranks 1..N-1 (the same command line, the same run folder) when the first process reaches
 ``trainer.fit``; torchrun or SLURM start every rank at once. In either case:
 
@@ -28,7 +28,7 @@ from lightning.fabric.utilities.rank_zero import rank_zero_only
 from lightning.pytorch.callbacks import Callback
 from lightning.pytorch.strategies import DDPStrategy
 
-from hypa.errors import UserError
+from hypa.core.errors import UserError
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +50,7 @@ def lightning_strategy(name: Any, staged: bool) -> Any:
     if not isinstance(name, str):
         return name
     if name.startswith(("ddp_spawn", "ddp_fork", "ddp_notebook")):
-        raise UserError(f"trainer.strategy={name}: not supported by hypa.train (the run folder is held by one "
+        raise UserError(f"trainer.strategy={name}: not supported by hypa train (the run folder is held by one "
                         "process, which these would copy); use trainer.strategy=ddp")
     if name == "ddp" and staged:
         return DDPStrategy(find_unused_parameters=True)

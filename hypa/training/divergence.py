@@ -17,7 +17,7 @@ import lightning as L
 import torch
 from lightning.pytorch.callbacks import Callback
 
-from hypa.errors import UserError
+from hypa.core.errors import UserError
 
 
 class DivergedError(UserError):

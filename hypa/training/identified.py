@@ -6,7 +6,7 @@ physical parameters gets one of:
 - ``model``: a model without networks has its trainable physical parameters identified by their
   output error over the training records (:func:`hypa.identification.identify`: trust-region
   least squares, deterministic), then validated once and saved as the run's best checkpoint, so
-  every reader of the run (``hypa.evaluate``, ``hypa.explain``, the benchmark) sees the
+  every reader of the run (``hypa evaluate``, ``hypa.explain``, the benchmark) sees the
   identified model. No epochs.
 - ``stage``: a staged hybrid whose first stage trains physics only, with every network bypassed
   (the residual hybrids: ``silverbox_hybrid``, ``emps_hybrid``, ``racecar_hybrid``), has that
@@ -37,9 +37,9 @@ from typing import Any, Literal
 import lightning as L
 from lightning.pytorch.loggers import Logger
 
+from hypa.core.metadata import sha256
 from hypa.data import HypaDataModule
 from hypa.identification import Identification, IdentificationError, IdentificationSettings, identify_records
-from hypa.metadata import sha256
 from hypa.models.spec import StageSpec
 from hypa.training.divergence import DivergedError
 from hypa.training.module import HybridModule

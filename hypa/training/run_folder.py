@@ -1,11 +1,11 @@
-"""One run, one folder: a ``hypa.train`` run folder is written by one process, for one run.
+"""One run, one folder: a ``hypa train`` run folder is written by one process, for one run.
 
 A run folder holds ``checkpoints/``, ``tensorboard/``, ``config.yaml`` (the run's resolved
 configuration) and ``run.json`` (what the run was made from and its result, with the record of
 its best checkpoint: path, validation loss, epoch and SHA-256). :class:`RunFolder` owns it:
 
-- it is held with :mod:`hypa.folders` (``.lock``, an exclusive ``flock`` held while the run trains,
-  opened without following a link): a second writer is kept out, since two ``hypa.train`` with the
+- it is held with :mod:`hypa.core.folders` (``.lock``, an exclusive ``flock`` held while the run trains,
+  opened without following a link): a second writer is kept out, since two ``hypa train`` with the
   same ``hydra.run.dir`` would otherwise mix their checkpoints, ``run.json`` and ``config.yaml``; a
   folder that holds a symbolic link is refused, so that neither a new run nor a resumed one
   (``ckpt_path=``, which appends to the folder's ``train.log``) writes through one;
@@ -33,10 +33,10 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from hypa.errors import UserError
-from hypa.folders import LOCK_FILE, HeldFolder, take, write_atomic, write_text_atomic
-from hypa.metadata import file_name
-from hypa.trust import check_links, read_bounded
+from hypa.core.errors import UserError
+from hypa.core.folders import LOCK_FILE, HeldFolder, take, write_atomic, write_text_atomic
+from hypa.core.metadata import file_name
+from hypa.core.trust import check_links, read_bounded
 
 __all__ = ["CHECKPOINTS", "CONFIG_FILE", "LOCK_FILE", "RECORD_FILE", "RunFolder", "read_record",
            "training_run_marks", "write_atomic", "write_text_atomic"]
@@ -46,11 +46,11 @@ log = logging.getLogger(__name__)
 RECORD_FILE = "run.json"
 CONFIG_FILE = "config.yaml"
 CHECKPOINTS = "checkpoints"
-COMMAND = "hypa.train"
+COMMAND = "hypa train"
 
 
 def training_run_marks(folder: Path) -> list[str]:
-    """What makes ``folder`` a ``hypa.train`` run's (``run.json``, ``checkpoints/``); empty for another."""
+    """What makes ``folder`` a ``hypa train`` run's (``run.json``, ``checkpoints/``); empty for another."""
     folder = Path(folder)
     return [name for name, there in ((RECORD_FILE, (folder / RECORD_FILE).exists()),
                                      (f"{CHECKPOINTS}/", (folder / CHECKPOINTS).exists())) if there]

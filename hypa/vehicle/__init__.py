@@ -39,7 +39,7 @@ SYSTEMS: dict[str, Callable[[str], LTIModel]] = {
     "side_slip_at_sensor": lambda block: SideSlipAtSensor(),
 }
 
-CATALOGUE = Path(__file__).with_name("catalogue.yaml")  # the vehicle's causes for hypa.diagnose model=M
+CATALOGUE = Path(__file__).with_name("catalogue.yaml")  # the vehicle's causes for hypa diagnose model=M
 
 __all__ = ["CATALOGUE", "SYSTEMS", "SideSlipAtSensor", "SingleTrack", "SingleTrackRelaxation",
            "SingleTrackRelaxationSaturation", "SingleTrackSaturation", "SteeringGain", "VehicleParameters",

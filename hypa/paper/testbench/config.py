@@ -15,7 +15,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from hypa.errors import UserError, checked
+from hypa.core.errors import UserError, checked
 from hypa.vehicle import VehicleParameters
 
 

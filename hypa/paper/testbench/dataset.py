@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from hypa.metadata import sha256
+from hypa.core.metadata import sha256
 from hypa.paper.testbench.config import TestbenchConfig
 from hypa.paper.testbench.memory import check_fits
 from hypa.paper.testbench.records import COLUMNS, SimulatedRecord, simulate_record, write_record
@@ -233,7 +233,7 @@ def ensure_dataset(config: TestbenchConfig, cache_dir: Path | None = None) -> Pa
 def folder_from_config(cfg: Any) -> Path:
     """The test bench's data folder for a command's configuration (its ``testbench`` node): cached,
     or generated now (``data.source: testbench``, :data:`hypa.data.from_config.DATA_SOURCES`)."""
-    from hypa.errors import settings
+    from hypa.core.errors import settings
 
     with settings("testbench"):  # the test bench's settings build its data: a bad one is the user's, in one line
         folder = ensure_dataset(TestbenchConfig.from_hydra(cfg.get("testbench")))

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import math
 
-from hypa.errors import UserError
-from hypa.machine import available_memory
+from hypa.core.errors import UserError
+from hypa.core.machine import available_memory
 from hypa.paper.testbench.config import KEY, MANEUVERS, TestbenchConfig
 
 # What one sample costs [bytes]. The files hold the time and six channels as float64, and so does

@@ -1,0 +1,11 @@
+"""How fast hypa is, measured: ``hypa timing [physics|diagnosis] [options]``.
+
+- ``physics`` (:mod:`hypa.commands.timing.physics`): the lifted physics block against the step-by-step
+  recursion and a bare matmul, and the speed-scheduled block against both; ratios measured in
+  one run, against their goals.
+- ``diagnosis`` (:mod:`hypa.commands.timing.diagnosis`): how long ``hypa diagnose`` takes to name the
+  causes, on the default test bench and each bundled real data set, against its goals.
+
+Without a part, both run (``make timing``). Speed is measured here, never asserted in a test:
+CI machines are shared and noisy. (The accuracy benchmark on real data is ``hypa benchmark``.)
+"""
