@@ -44,13 +44,15 @@ tensorboard: $(STAMP) ## open TensorBoard over all runs (outputs/ and multirun/)
 	mkdir -p outputs multirun
 	$(BIN)/tensorboard --logdir_spec runs:outputs,sweeps:multirun $(ARGS)
 
-test: $(STAMP) ## ruff (the rules in pyproject.toml), the strict docs build, then the test suite without the slow checks (what CI runs)
+test: $(STAMP) ## ruff and the layers (the rules in pyproject.toml), the strict docs build, then the test suite without the slow checks (what CI runs)
 	$(BIN)/ruff check hypa tests
+	$(BIN)/lint-imports --no-cache
 	$(BIN)/mkdocs build --strict --quiet
 	$(PYTEST) $(ARGS)
 
-lint: $(STAMP) ## ruff over hypa/ and tests/ (the rules of [tool.ruff.lint] in pyproject.toml: the code passes them)
+lint: $(STAMP) ## ruff over hypa/ and tests/, and the layers' import contract (both in pyproject.toml)
 	$(BIN)/ruff check hypa tests
+	$(BIN)/lint-imports --no-cache
 
 test-slow: $(STAMP) ## only the checks marked slow
 	$(PYTEST) -m slow $(ARGS)

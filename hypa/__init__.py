@@ -28,6 +28,7 @@ _MOVED_MODULES = {
     "hypa.plots": "hypa.reporting.plots",
     "hypa.launch": "hypa.commands.launch",
     "hypa.testbench": "hypa.paper.testbench",
+    "hypa.data.units": "hypa.core.units",
 }
 # python -m <module> -> the command's words after `hypa`
 _MOVED_COMMANDS = {

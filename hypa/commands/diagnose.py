@@ -68,10 +68,14 @@ def main(cfg: DictConfig) -> None:
     overrides = data_overrides(HydraConfig.get().overrides.task)
     trainer = None
     if config.extension.train:
-        from hypa.diagnosis.trained import train_extension
+        from hypa.commands.launch import run_hypa
+        from hypa.diagnosis.trained import ExtensionTrainingError, train_extension
+
+        def train(arguments: Sequence[str]) -> None:
+            run_hypa("train", arguments, "training the extended model", error=ExtensionTrainingError)
 
         def trainer(command: Sequence[str]):
-            return train_extension(command, out / "extended_run", dm, list(config.extension.train_overrides),
+            return train_extension(train, command, out / "extended_run", dm, list(config.extension.train_overrides),
                                    plot=config.plot, progress=lambda text: print("          " + text, flush=True))
     result = diagnose_system(spec, problem, out, overrides, plot=config.plot,
                              progress=lambda text: print(text, flush=True),

@@ -143,6 +143,14 @@ def _schema_message(error: BaseException) -> str | None:
     return None
 
 
+class DataError(UserError):
+    """Measured data or the data configuration is unusable.
+
+    The message names the file, the column and the row where that applies, and says what
+    was expected. A ``UserError`` (so a ``ValueError``) so that callers unaware of hypa still catch it sensibly.
+    """
+
+
 def user_errors(command: str) -> Callable[[F], F]:
     """Decorate a command's ``main``, above ``@hydra.main``: a user error ends it with one line and
     exit status 1, Ctrl-C with ``<command>: interrupted`` and exit status 130 (see the module docstring)."""

@@ -1,8 +1,9 @@
 """Measured data: declared channels -> files -> SI records -> pieces -> decimated -> selected
 -> normalized windows.
 
-One module per step: :mod:`units`, :mod:`expressions` and :mod:`channels` (what a channel is),
-:mod:`files` (reading files as they are), :mod:`io` (one file -> an SI record), :mod:`splits`,
+One module per step: :mod:`expressions` and :mod:`channels` (what a channel is; its units are
+:mod:`hypa.core.units`, shared with the physics), :mod:`files` (reading files as they are),
+:mod:`io` (one file -> an SI record), :mod:`splits`,
 :mod:`decimation`, :mod:`selection`, :mod:`dataset` (the steps in order), :mod:`records`,
 :mod:`normalization`, :mod:`windows` and :mod:`datamodule` (the Lightning DataModule that ties
 them together and gives a model its :mod:`signature`); :mod:`schema` and :mod:`from_config` meet
@@ -45,9 +46,9 @@ _EXPORTS: dict[str, str] = {
     "read_metadata": "files",
     "load_record": "io",
     "load_dataset": "dataset",
-    "KNOWN_UNITS": "units",
-    "unit": "units",
-    "unit_factor": "units",
+    "KNOWN_UNITS": "hypa.core.units",
+    "unit": "hypa.core.units",
+    "unit_factor": "hypa.core.units",
 }
 
 __all__ = sorted(_EXPORTS)  # noqa: PLE0605 -- a list of the lazy exports' names
@@ -56,7 +57,8 @@ __all__ = sorted(_EXPORTS)  # noqa: PLE0605 -- a list of the lazy exports' names
 def __getattr__(name: str) -> Any:
     if name not in _EXPORTS:
         raise AttributeError(f"module 'hypa.data' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"hypa.data.{_EXPORTS[name]}"), name)
+    module = _EXPORTS[name] if "." in _EXPORTS[name] else f"hypa.data.{_EXPORTS[name]}"
+    value = getattr(importlib.import_module(module), name)
     globals()[name] = value
     return value
 

@@ -11,7 +11,7 @@ Roles:
   and offered to the diagnosis as a channel the model may miss (``HypaDataModule(auxiliary_inputs=True)``).
 
 A channel is a file ``column`` (default: its name) or an ``expression`` over the file's columns
-(:mod:`hypa.data.expressions`), in ``unit``; inside hypa it is SI (:mod:`hypa.data.units`).
+(:mod:`hypa.data.expressions`), in ``unit``; inside hypa it is SI (:mod:`hypa.core.units`).
 """
 
 from __future__ import annotations
@@ -22,9 +22,9 @@ from dataclasses import dataclass, field
 
 from hypa.core.errors import UserError
 from hypa.core.trust import check_name
+from hypa.core.units import display_factor, unit
 from hypa.data.errors import DataError
 from hypa.data.expressions import Expression
-from hypa.data.units import display_factor, unit
 
 ROLES: tuple[str, ...] = ("input", "output", "scheduling", "evaluation", "auxiliary")
 MODEL_ROLES: tuple[str, ...] = ("input", "output", "scheduling")  # what a training batch holds

@@ -15,6 +15,7 @@ import lightning as L
 import torch
 from torch.utils.data import DataLoader
 
+from hypa.core.units import unit
 from hypa.data.channels import ChannelSpec, check_channels, names_with_role
 from hypa.data.dataset import load_dataset
 from hypa.data.decimation import decimation_factor
@@ -24,7 +25,6 @@ from hypa.data.records import DataSet, Record
 from hypa.data.selection import Condition
 from hypa.data.signature import DataSignature
 from hypa.data.splits import SplitSpec
-from hypa.data.units import unit
 from hypa.data.windows import WindowDataset
 
 

@@ -1,11 +1,6 @@
-"""The one exception type of the data pipeline."""
+"""The one exception type of the data pipeline (it lives with the other user errors in
+:mod:`hypa.core.errors`, where the units raise it too)."""
 
-from hypa.core.errors import UserError
+from hypa.core.errors import DataError
 
-
-class DataError(UserError):
-    """Measured data or the data configuration is unusable.
-
-    The message names the file, the column and the row where that applies, and says what
-    was expected. A ``UserError`` (so a ``ValueError``) so that callers unaware of hypa still catch it sensibly.
-    """
+__all__ = ["DataError"]

@@ -11,7 +11,6 @@ the user's folder into ``data_dir``) and are not read here.
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import logging
 from collections.abc import Mapping
 from pathlib import Path
@@ -21,18 +20,23 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from hypa.core.errors import UserError
+from hypa.core.plugins import plugins
+from hypa.core.units import define_units
 from hypa.data.channels import ChannelSpec
 from hypa.data.errors import DataError
 from hypa.data.normalization import Normalization
 from hypa.data.schema import ChannelConfig, DataConfig, PieceConfig
 from hypa.data.splits import Piece, SplitSpec
-from hypa.data.units import define_units
 
 log = logging.getLogger(__name__)
 
-# data sources that make their files from the configuration: data.source -> "module:function(cfg) -> folder",
-# imported when used (the paper's test bench is an instance above the library, as the vehicle's systems are)
-DATA_SOURCES = {"testbench": "hypa.paper.testbench.dataset:folder_from_config"}
+
+
+def data_sources() -> dict[str, Any]:
+    """The data sources that make their files from their settings: ``data.source`` -> ``folder(settings)
+    -> Path``, registered by the domain packages (the entry points ``hypa.data_sources``,
+    :mod:`hypa.core.plugins`: the paper's test bench, ``dataset=testbench``)."""
+    return plugins("data_sources")
 
 
 def datamodule_from_config(
@@ -163,38 +167,26 @@ def _keys(schema: type) -> str:
     return ", ".join(f.name for f in dataclasses.fields(schema))
 
 
-def data_dir_from_config(cfg: DictConfig) -> Path:
-    """The folder of measured-data files: the test bench's cache, or ``data.dir`` (a relative
-    folder is taken from where the command was run, also when Hydra changed the directory)."""
-    source = cfg.data.source
-    if source in DATA_SOURCES and cfg.data.get("dir") is not None:
-        raise UserError(f"data.dir={cfg.data.dir} is read only for measured files: add dataset=files (data.source="
+def data_dir_from_config(cfg: DictConfig | Mapping[str, Any], cwd: Path | None = None) -> Path:
+    """The folder of measured-data files for a command's configuration ``cfg``: its ``data`` node's
+    ``dir`` (a relative folder taken from ``cwd``, where the command was run: the current directory
+    by default), or, for a data source that makes its files (``data.source: testbench``), the
+    folder it makes (or finds cached) from its own settings, the node of ``cfg`` named like it."""
+    data = cfg["data"]
+    source = data["source"]
+    sources = data_sources() if source != "files" else {}
+    if source in sources and data.get("dir") is not None:
+        raise UserError(f"data.dir={data['dir']} is read only for measured files: add dataset=files (data.source="
                         f"{source} makes its own data)")
-    if source in DATA_SOURCES:  # a simulated source: its folder made (or found cached) from the configuration
-        module, _, function = DATA_SOURCES[source].partition(":")
-        return getattr(importlib.import_module(module), function)(cfg)
+    if source in sources:  # a simulated source: its folder made (or found cached) from its settings
+        return sources[source](cfg.get(source))
     if source == "files":
-        if OmegaConf.is_missing(cfg.data, "dir") or cfg.data.dir is None:
-            from hydra.core.hydra_config import HydraConfig
-
-            choice = HydraConfig.get().runtime.choices.get("dataset", "files") if HydraConfig.initialized() else "files"
-            raise UserError(f"dataset={choice} needs the folder of your files: data.dir=PATH")
-        folder = Path(str(cfg.data.dir)).expanduser()
-        if not folder.is_absolute():
-            folder = _original_cwd() / folder
-        return folder
+        if (OmegaConf.is_config(data) and OmegaConf.is_missing(data, "dir")) or data.get("dir") is None:
+            raise UserError("the data set needs the folder of your files: data.dir=PATH (dataset=files, or a "
+                            "dataset of your own)")
+        folder = Path(str(data["dir"])).expanduser()
+        return folder if folder.is_absolute() else (cwd or Path.cwd()) / folder
     raise UserError(
-        f"unknown data.source {source!r}; use {' or '.join(['files', *DATA_SOURCES])} (dataset=testbench, "
+        f"unknown data.source {source!r}; use {' or '.join(['files', *data_sources()])} (dataset=testbench, "
         f"dataset=files data.dir=PATH, or a conf/dataset/*.yaml)"
     )
-
-
-def _original_cwd() -> Path:
-    """Where the command was run: Hydra's original working directory inside a Hydra app."""
-    from hydra.core.hydra_config import HydraConfig
-
-    if HydraConfig.initialized():
-        from hydra.utils import get_original_cwd
-
-        return Path(get_original_cwd())
-    return Path.cwd()

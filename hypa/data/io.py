@@ -19,13 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
+from hypa.core.units import unit_factor
 from hypa.data.channels import ChannelSpec
 from hypa.data.errors import DataError
 from hypa.data.expressions import Expression
 from hypa.data.files import MDF_SUFFIXES, read_columns
 from hypa.data.mdf import load_mdf_record
 from hypa.data.records import Record
-from hypa.data.units import unit_factor
 
 RATE_TOLERANCE = 0.01  # measured vs configured sample rate (relative)
 STEP_TOLERANCE = 0.10  # a single time step vs the median step (relative)

@@ -14,7 +14,7 @@ and brings every channel it needs onto one regular time base:
   Where the file's unit differs from the declared one but measures the same quantity (``deg``
   in the file, ``rad`` declared), the file wins: its numbers are in its unit, whatever a
   default declaration says. A different quantity (``mm`` in the file, ``rad`` declared) is an
-  error naming both, and so is a unit hypa does not know (:mod:`hypa.data.units`).
+  error naming both, and so is a unit hypa does not know (:mod:`hypa.core.units`).
 * **Time** comes from the file's time stamps, never from an assumed rate. Each channel's
   stamps must increase strictly; a step more than :data:`GAP_STEPS` times its median step is a
   gap (an error; one or two dropped samples are bridged). The record covers the time where
@@ -39,12 +39,12 @@ from pathlib import Path
 
 import numpy as np
 
+from hypa.core.units import KNOWN_UNITS, unit
 from hypa.data.channels import ChannelSpec
 from hypa.data.decimation import lowpass
 from hypa.data.errors import DataError
 from hypa.data.expressions import Expression
 from hypa.data.records import Record
-from hypa.data.units import KNOWN_UNITS, unit
 
 log = logging.getLogger(__name__)
 

@@ -17,10 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hypa.core.units import unit
 from hypa.data.channels import ChannelSpec
 from hypa.data.errors import DataError
 from hypa.data.records import Record
-from hypa.data.units import unit
 
 _OPERATORS = {"<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge}
 _PATTERN = re.compile(

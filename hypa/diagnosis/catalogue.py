@@ -64,7 +64,6 @@ blocks' ``trainable``), or all.
 from __future__ import annotations
 
 import copy
-import importlib
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -73,9 +72,9 @@ from typing import Any
 import yaml
 
 from hypa.core.errors import UserError
+from hypa.core.plugins import plugins
 from hypa.diagnosis.edits import AFFINE, GRADIENT, NONE, Candidate, frozen
 from hypa.models.spec import ELEMENT_PARAMETER, ModelSpec, ModelSpecError, parse_model_spec
-from hypa.physics.systems import PHYSICS_SYSTEMS
 
 GENERIC = Path(__file__).with_name("catalogue.yaml")
 FOR_EACH = ("input", "output", "parameter", "scheduling", "block", "state", "auxiliary", "block_input")
@@ -114,13 +113,9 @@ class Entry:
 
 
 def builtin_catalogues() -> list[Path]:
-    """The generic catalogue and each domain package's (a ``CATALOGUE`` path beside its ``SYSTEMS``)."""
-    paths = [GENERIC]
-    for package in PHYSICS_SYSTEMS.packages:
-        path = getattr(importlib.import_module(package), "CATALOGUE", None)
-        if path is not None:
-            paths.append(Path(path))
-    return paths
+    """The generic catalogue and each domain package's (the entry points ``hypa.catalogues``,
+    :mod:`hypa.core.plugins`: the vehicle's)."""
+    return [GENERIC, *(Path(path) for path in plugins("catalogues").values())]
 
 
 def load_catalogue(paths: Sequence[Path | str] = ()) -> list[Entry]:

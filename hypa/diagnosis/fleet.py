@@ -35,7 +35,7 @@ from omegaconf import DictConfig
 from hypa.core.errors import UserError, full_error_requested, is_user_error, one_line
 from hypa.core.metrics import mean_std
 from hypa.core.trust import read_bounded, read_yaml
-from hypa.data.units import readable
+from hypa.core.units import readable
 from hypa.diagnosis.result import Diagnosis, FindingRow
 from hypa.reporting import markdown as md
 
@@ -148,7 +148,7 @@ def estimates(named: FindingRow) -> dict[str, Estimate]:
     keyed ``"cause: what"``: a value that is its target by the target (``parameter_mismatch: cr``,
     ``output_offset: position``), the knobs of an inserted block by their own name
     (``unmodeled_input: gain``, ``unmodeled_input: tau`` from ``.../tau_s``); in the units an
-    engineer reads (:func:`hypa.data.units.readable`: times in ms, angles in deg)."""
+    engineer reads (:func:`hypa.core.units.readable`: times in ms, angles in deg)."""
     cause, target, units = named.cause, named.target, named.units or {}
     out = {}
     for knob, value in (named.values or {}).items():

@@ -30,8 +30,8 @@ from dataclasses import dataclass, field
 import torch
 
 from hypa.core.errors import UserError
+from hypa.core.units import readable
 from hypa.data import HypaDataModule, Record
-from hypa.data.units import readable
 from hypa.diagnosis.scales import FOLDS, Scales, block_bounds  # FOLDS: each candidate is fitted once per fold
 from hypa.diagnosis.workers import default_workers
 from hypa.identification.stretches import Stretches
@@ -266,7 +266,7 @@ class Evidence:
 
 def format_value(value: float, unit: str) -> str:
     """Rounded to 3 significant digits with its unit (seconds below 1 s as ms, angles in degrees:
-    :func:`hypa.data.units.readable`)."""
+    :func:`hypa.core.units.readable`)."""
     if unit != "s" or abs(value) < 1.0:
         unit, factor = readable(unit)
     else:

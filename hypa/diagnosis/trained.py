@@ -1,8 +1,8 @@
-"""Step 4 with training: train the written extension through ``hypa train``, free-run it and
-explain the networks it added.
+"""Step 4 with training: train the written extension, free-run it and explain the networks it added.
 
-``hypa diagnose extension.train=true`` runs the printed train command (its progress
-on the console, its run folder inside the diagnosis folder), loads the best checkpoint and
+``hypa diagnose extension.train=true`` trains the written model with the printed ``hypa train``
+arguments (the command runs them, its progress on the console, its run folder inside the
+diagnosis folder), loads the best checkpoint and
 free-runs it over the validation records, so the report can put the trained model (the named
 causes, plus a correction network where structure stays unexplained) beside the nominal one.
 Each network of the trained model is then explained by :func:`hypa.explain.explain_run` (what
@@ -15,7 +15,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from hypa.commands.launch import run_hypa
 from hypa.core.errors import UserError
 from hypa.data import HypaDataModule
 from hypa.diagnosis.result import NetworkExplanation
@@ -40,14 +39,14 @@ class TrainedExtension:
     explanations: list[NetworkExplanation] = field(default_factory=list)
 
 
-def train_extension(arguments: Sequence[str], run_dir: Path, dm: HypaDataModule,
-                    extra_overrides: Sequence[str] = (), explain: bool = True, plot: bool = True,
+def train_extension(train: Callable[[Sequence[str]], None], arguments: Sequence[str], run_dir: Path,
+                    dm: HypaDataModule, extra_overrides: Sequence[str] = (), explain: bool = True, plot: bool = True,
                     progress: Callable[[str], None] = lambda text: None) -> TrainedExtension:
-    """Run ``hypa train ARGUMENTS`` into ``run_dir``, free-run its best checkpoint over
-    ``dm``'s validation records and (``explain``) explain its networks. ``extra_overrides``: more
-    ``hypa train`` overrides (e.g. a shorter training: ``trainer.max_epochs=5``)."""
-    run_hypa("train", [*arguments, f"hydra.run.dir={run_dir}", *extra_overrides], "training the extended model",
-             error=ExtensionTrainingError)
+    """Train with ``hypa train ARGUMENTS`` into ``run_dir`` (``train(arguments)``, which the command
+    gives: it raises :class:`ExtensionTrainingError` when the training fails), free-run its best
+    checkpoint over ``dm``'s validation records and (``explain``) explain its networks.
+    ``extra_overrides``: more ``hypa train`` overrides (e.g. a shorter training: ``trainer.max_epochs=5``)."""
+    train([*arguments, f"hydra.run.dir={run_dir}", *extra_overrides])
     run = load_run(run_dir, trust=("*",))  # the run it trained just now, from its own model
     model = run.module.model
     if run.config.data.past != dm.past:  # raised for the extension (hypa.diagnosis.system.with_past)

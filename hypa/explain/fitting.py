@@ -13,7 +13,7 @@ import numpy as np
 from scipy import optimize
 
 from hypa.core.metrics import errors
-from hypa.data.units import unit_ratio
+from hypa.core.units import unit_ratio
 from hypa.explain.signals import Recording, delayed, filtered, lag_filter, second_order_filters
 
 NONLINEAR = {"static": (), "lag": ("lag",), "lag_delay": ("lag", "delay"),

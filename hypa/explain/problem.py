@@ -12,7 +12,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from hypa.data.units import unit_ratio
+from hypa.core.units import unit_ratio
 from hypa.explain.forms import Explanation
 
 FIT_SPLIT, SCORE_SPLIT = "train", "val"

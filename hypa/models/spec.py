@@ -16,8 +16,8 @@ from typing import Any
 
 from hypa.core.errors import UserError
 from hypa.core.trust import check_name
+from hypa.core.units import GivenQuantity, given_value
 from hypa.data.errors import DataError
-from hypa.data.units import GivenQuantity, given_value
 from hypa.models.schema import BlockConfig, ModelConfig, StageConfig, keys, unknown_keys
 from hypa.physics.discretization import HOLDS
 from hypa.physics.statespace import LTIModel
@@ -203,7 +203,7 @@ def _signals(value: Any, where: str) -> tuple[str, ...]:
 
 def _values(value: Any, where: str, units: bool = False) -> dict[str, float]:
     """A mapping name -> finite number (SI); with ``units`` also a number with a unit (``2.5 Ah``,
-    ``{value: 2.5, unit: Ah}``): a :class:`~hypa.data.units.GivenQuantity`, converted to the unit its
+    ``{value: 2.5, unit: Ah}``): a :class:`~hypa.core.units.GivenQuantity`, converted to the unit its
     parameter declares when the model is built."""
     if value is None:
         return {}

@@ -4,5 +4,6 @@
 - :mod:`hypa.paper.table1`: the paper's Table 1 beside hypa's reproduction (``hypa reproduce``).
 
 The generic library never imports this package. The data layer finds the test bench's data by
-the import path in ``hypa.data.from_config.DATA_SOURCES``, as the physics finds the vehicle's systems.
+its entry point (``hypa.data_sources`` in pyproject.toml, :mod:`hypa.core.plugins`), as the physics finds the
+vehicle's systems.
 """

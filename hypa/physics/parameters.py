@@ -30,7 +30,7 @@ class ParameterSpec:
 
     ``value`` may be given with a unit (``"2.5 Ah"``, ``{"value": 2.5, "unit": "Ah"}``, pint's
     spellings): it is converted to ``unit`` (``C``), the unit the parameter is stored, fitted and
-    reported in; a value of another kind is refused in one line (``hypa.data.units.value_in``).
+    reported in; a value of another kind is refused in one line (``hypa.core.units.value_in``).
     """
 
     name: str
@@ -44,7 +44,7 @@ class ParameterSpec:
         if not isinstance(self.name, str) or not self.name:
             raise ValueError(f"a parameter name must be a non-empty string, got {self.name!r}")
         if type(self.value) is not float:  # a unit to convert (or an int, a numpy scalar)
-            from hypa.data.units import value_in
+            from hypa.core.units import value_in
 
             object.__setattr__(self, "value", value_in(self.value, self.unit, self.name))
         if not math.isfinite(self.value):

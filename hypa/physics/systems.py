@@ -13,6 +13,7 @@ import importlib
 import inspect
 from collections.abc import Callable, Iterator, Mapping
 
+from hypa.core.plugins import plugins
 from hypa.physics.contract import SystemContractError, check_system
 from hypa.physics.curved import Curved, CurvedError
 from hypa.physics.dependent import Dependent, DependentError, Driven
@@ -28,25 +29,25 @@ __all__ = ["PHYSICS_SYSTEMS", "SystemContractError", "build_system", "check_syst
            "resolve_system"]
 
 class SystemRegistry(Mapping):
-    """Built-in systems by name: the core's generic ones, and those of the domain packages
-    (``hypa.vehicle``), each of which registers its own in a ``SYSTEMS`` dict. The packages are
-    imported on first use, so the core never imports them at import time."""
+    """Built-in systems by name: the core's generic ones, and those the domain packages register
+    (the entry points ``hypa.systems``, :mod:`hypa.core.plugins`: the vehicle's). Those are read on
+    first use, so the core never imports a domain."""
 
-    def __init__(self, core: Mapping[str, Callable[[str], LTIModel]], packages: tuple[str, ...]) -> None:
-        self._systems, self._packages = dict(core), packages
-        self._loaded = False
+    def __init__(self, core: Mapping[str, Callable[[str], LTIModel]]) -> None:
+        self._core = dict(core)
+        self._systems: dict[str, Callable[[str], LTIModel]] | None = None
 
     def _all(self) -> dict[str, Callable[[str], LTIModel]]:
-        if not self._loaded:
-            for package in self._packages:
-                self._systems.update(importlib.import_module(package).SYSTEMS)
-            self._loaded = True
+        if self._systems is None:
+            systems = dict(self._core)
+            for domain, registered in plugins("systems").items():
+                clash = sorted(set(systems) & set(registered))
+                if clash:
+                    raise SystemContractError(f"the systems of {domain!r} (hypa.systems) take built-in names: "
+                                              f"{', '.join(clash)}")
+                systems.update(registered)
+            self._systems = systems
         return self._systems
-
-    @property
-    def packages(self) -> tuple[str, ...]:
-        """The domain packages whose ``SYSTEMS`` (and ``CATALOGUE`` of causes) join the built-ins."""
-        return self._packages
 
     def __getitem__(self, name: str) -> Callable[[str], LTIModel]:
         return self._all()[name]
@@ -71,7 +72,7 @@ PHYSICS_SYSTEMS = SystemRegistry({
     "mass_with_coulomb_friction": lambda block: MassWithCoulombFriction(),  # the same + Fc sign(v) (nonlinear)
     "mass_with_cubic_friction": lambda block: MassWithCubicFriction(),  # + a partly cubic viscous friction
     "cascaded_tanks": lambda block: CascadedTanks(),  # pump -> lower level, outflows linear (cascaded tanks)
-}, packages=("hypa.vehicle",))
+})
 
 
 def is_import_path(name: str) -> bool:

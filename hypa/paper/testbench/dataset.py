@@ -230,12 +230,12 @@ def ensure_dataset(config: TestbenchConfig, cache_dir: Path | None = None) -> Pa
     return target
 
 
-def folder_from_config(cfg: Any) -> Path:
-    """The test bench's data folder for a command's configuration (its ``testbench`` node): cached,
-    or generated now (``data.source: testbench``, :data:`hypa.data.from_config.DATA_SOURCES`)."""
+def folder_from_settings(testbench: Any) -> Path:
+    """The test bench's data folder for its settings (a command's ``testbench`` node): cached, or
+    generated now (``data.source: testbench``; the entry point ``hypa.data_sources``)."""
     from hypa.core.errors import settings
 
     with settings("testbench"):  # the test bench's settings build its data: a bad one is the user's, in one line
-        folder = ensure_dataset(TestbenchConfig.from_hydra(cfg.get("testbench")))
+        folder = ensure_dataset(TestbenchConfig.from_hydra(testbench))
     log.info("test-bench data: %s", folder)
     return folder

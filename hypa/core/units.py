@@ -37,7 +37,7 @@ from typing import Self
 
 import pint
 
-from hypa.data.errors import DataError
+from hypa.core.errors import DataError
 
 # hypa's spellings -> pint's (what measurement tools and earlier hypa configs write)
 _ALIASES = {"-": "dimensionless", "1": "dimensionless", "": "dimensionless", "%": "percent", "°": "degree",
