@@ -30,6 +30,7 @@ from hypa.core.errors import UserError, checked, settings
 from hypa.data.schema import DataConfig
 from hypa.models.schema import ModelConfig
 from hypa.models.spec import HOLDS
+from hypa.training.baseline import NETWORK_LR, PHYSICS_LR
 
 if TYPE_CHECKING:
     from hypa.identification import IdentificationSettings
@@ -78,8 +79,8 @@ class PhysicsConfig(HoldConfig):
 class OptimizerConfig:
     """``optimizer``: NAdam's learning rates and the networks' weight decay."""
 
-    lr: float = 5.0e-4  # networks
-    physics_lr: float = 1.0e-2  # trainable physical parameters (log space)
+    lr: float = NETWORK_LR  # networks
+    physics_lr: float = PHYSICS_LR  # trainable physical parameters (log space)
     weight_decay: float | None = None  # None: hypa.training.baseline.network_defaults
 
     def __post_init__(self) -> None:

@@ -8,7 +8,7 @@
 
 Works on any system: the nominal model is a hypa model config (``model=M``), its candidate causes
 come from the catalogues (built-in and ``diagnosis.catalogue=[mine.yaml]``), and everything is
-simulated by the one physics engine (:mod:`hypa.diagnosis.system`). Writes ``diagnosis.md``,
+simulated by the one physics engine (:mod:`hypa.diagnosis.api`). Writes ``diagnosis.md``,
 ``diagnosis.json``, the figures and ``conf/model/diagnosed*.yaml`` into the Hydra run folder, which it
 holds while it runs (:mod:`hypa.commands.output_folder`: a second command into it is refused, as is a folder
 that holds a symbolic link or a training run's).
@@ -42,9 +42,9 @@ def main(cfg: DictConfig) -> None:
         vehicle_from_config,
     )
     from hypa.core.errors import UserError
+    from hypa.diagnosis.api import diagnose_system
     from hypa.diagnosis.catalogue import load_catalogue
     from hypa.diagnosis.problem import Problem, nominal_hold
-    from hypa.diagnosis.system import diagnose_system
     from hypa.models.schema import plain_model
     from hypa.models.spec import parse_model_spec, spec_config
     from hypa.reporting.markdown import change_text

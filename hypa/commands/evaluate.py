@@ -7,7 +7,7 @@ Writes ``metrics.json``, ``metrics.csv``, PNG figures and ``summary.md`` into
 ``<run>/evaluation/`` (or ``out=``: held while it runs; refused when it, or anything in it, is a
 symbolic link, or when it is a training run's own folder: :mod:`hypa.commands.output_folder`) and the
 figures into the run's TensorBoard log
-(``hypa.evaluation.evaluation`` holds what it computes).
+(``hypa.evaluation.api`` holds what it computes).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from omegaconf import DictConfig
 from hypa.commands.config import EvaluateConfig, typed
 from hypa.commands.output_folder import claim_output, holding_output
 from hypa.core.errors import hydra_command
-from hypa.evaluation.evaluation import Evaluation, evaluate_run, run_datamodule
+from hypa.evaluation.api import Evaluation, evaluate_run, run_datamodule
 from hypa.evaluation.runs import load_run
 
 __all__ = ["Evaluation", "evaluate_run", "main", "run_datamodule"]

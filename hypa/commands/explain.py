@@ -5,7 +5,7 @@
     hypa explain run=RUN baseline=outputs/train/physical/...   # the replacement beside a baseline
 
 Writes ``explanation.md``, ``explanation.json`` and the figures into the Hydra run folder
-(``outputs/explain/<time>/``, held while it runs: :mod:`hypa.commands.output_folder`; :mod:`hypa.explain.run`
+(``outputs/explain/<time>/``, held while it runs: :mod:`hypa.commands.output_folder`; :mod:`hypa.explain.api`
 holds what it computes).
 """
 
@@ -27,10 +27,10 @@ from hypa.core.errors import hydra_command
 @holding_output("hypa explain")  # its folder held before anything is written
 def main(cfg: DictConfig) -> None:
     from hypa.commands.entry import from_cwd
-    from hypa.evaluation.evaluation import run_datamodule
+    from hypa.evaluation.api import run_datamodule
     from hypa.evaluation.runs import load_run
-    from hypa.explain.report import replacement_line
-    from hypa.explain.run import Settings, explain_run, select_blocks
+    from hypa.explain.api import Settings, explain_run, select_blocks
+    from hypa.explain.result import replacement_line
 
     config = typed(cfg, ExplainConfig)  # every value checked (hypa.commands.config)
     block = config.block

@@ -30,7 +30,7 @@ from hypa.core.errors import hydra_command
 @holding_output("hypa export")  # its folder held before anything is written
 def main(cfg: DictConfig) -> None:
     from hypa.commands.entry import from_cwd
-    from hypa.evaluation.evaluation import run_datamodule
+    from hypa.evaluation.api import run_datamodule
     from hypa.evaluation.runs import load_run
     from hypa.export import export_run, formats_to_build
 

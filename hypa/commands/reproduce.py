@@ -27,7 +27,7 @@ from hypa.commands.launch import run_hypa
 from hypa.conf import CONF
 from hypa.core.errors import UserError, hydra_command
 from hypa.core.metrics import mean_std
-from hypa.evaluation.plots import bode, rear_steer
+from hypa.evaluation.figures import bode, rear_steer
 from hypa.evaluation.runs import load_run
 from hypa.paper.table1 import comparison_markdown
 from hypa.reporting import markdown as md

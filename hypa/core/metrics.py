@@ -16,8 +16,9 @@ A figure over several seeds (the benchmark, the paper's Table 1) or logs (a flee
 reported as ``mean_std``: mean ± the *sample* standard deviation (ddof = 1), the same everywhere.
 
 The Table 1 metrics (``regression_metrics``, ``state_metrics``): all inputs are numpy arrays
-in SI units (rad/s for the yaw rate, rad for the side slip); the numbers are computed with
-torchmetrics' functional API in float64 so they match a hand calculation to ~1e-12.
+in SI units (rad/s for the yaw rate, rad for the side slip), computed in float64 with the same
+MSE and R² as ``errors`` (one formula for each in hypa; training logs its windows' R² with
+torchmetrics' ``R2Score``, the same formula accumulated over the batches on the device).
 
 MAPE is *floored* here, because the plain definition is useless for vehicle states:
 
@@ -38,8 +39,6 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import torch
-from torchmetrics.functional import mean_absolute_error, mean_squared_error, r2_score
 
 METRICS = ("mae", "mse", "mape", "r2")
 
@@ -48,8 +47,8 @@ METRICS = ("mae", "mse", "mape", "r2")
 MAPE_FLOOR_FRACTION = 0.1
 
 
-def _checked(pred: np.ndarray, target: np.ndarray, ndim: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Both arrays as float64 tensors, after checking shape, length and finiteness."""
+def _checked(pred: np.ndarray, target: np.ndarray, ndim: int) -> tuple[np.ndarray, np.ndarray]:
+    """Both arrays as float64, after checking shape, length and finiteness."""
     pred, target = np.asarray(pred, dtype=np.float64), np.asarray(target, dtype=np.float64)
     if pred.shape != target.shape:
         raise ValueError(f"pred and target shapes differ: {pred.shape} vs {target.shape}")
@@ -61,7 +60,7 @@ def _checked(pred: np.ndarray, target: np.ndarray, ndim: int) -> tuple[torch.Ten
         if not np.all(np.isfinite(array)):
             bad = int(np.size(array) - np.count_nonzero(np.isfinite(array)))
             raise ValueError(f"{name} has {bad} non-finite values (NaN or inf)")
-    return torch.from_numpy(pred), torch.from_numpy(target)
+    return pred, target
 
 
 def rms(x: np.ndarray) -> float:
@@ -132,10 +131,11 @@ def mean_std(values: Iterable[float]) -> MeanStd:
                    float(x.min()), float(x.max()))
 
 
-def floored_mape(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+def floored_mape(pred: np.ndarray, target: np.ndarray) -> float:
     """MAPE_δ in percent, δ = ``MAPE_FLOOR_FRACTION`` · RMS(target) (see the module docstring)."""
-    delta = MAPE_FLOOR_FRACTION * target.square().mean().sqrt()
-    return 100.0 * ((pred - target).abs() / target.abs().clamp_min(delta)).mean()
+    pred, target = np.asarray(pred, dtype=np.float64), np.asarray(target, dtype=np.float64)
+    delta = MAPE_FLOOR_FRACTION * rms(target)
+    return float(100.0 * np.mean(np.abs(pred - target) / np.maximum(np.abs(target), delta)))
 
 
 def regression_metrics(pred: np.ndarray, target: np.ndarray) -> dict[str, float]:
@@ -146,18 +146,14 @@ def regression_metrics(pred: np.ndarray, target: np.ndarray) -> dict[str, float]
         MAPE = MAPE_δ               [%]   (floored, see the module docstring)
         R²  = 1 - Σ(ŷ - y)² / Σ(y - ȳ)²   [-]   (1: perfect; 0: as good as predicting ȳ)
 
-    Raises ValueError for mismatched shapes, non-finite values, or a constant target (for
-    which R² is undefined and δ can be 0).
+    MSE and R² are ``errors``'s. Raises ValueError for mismatched shapes, non-finite values, or a
+    constant target (for which R² is undefined and δ can be 0).
     """
     p, y = _checked(pred, target, ndim=1)
-    if torch.all(y == y[0]):
+    if np.all(y == y[0]):
         raise ValueError("target is constant: R² (and the MAPE floor) are undefined")
-    return {
-        "mae": float(mean_absolute_error(p, y)),
-        "mse": float(mean_squared_error(p, y)),
-        "mape": float(floored_mape(p, y)),
-        "r2": float(r2_score(p, y)),
-    }
+    scored = errors(p, y)
+    return {"mae": float(np.mean(np.abs(p - y))), "mse": scored["mse"], "mape": floored_mape(p, y), "r2": scored["r2"]}
 
 
 def state_metrics(pred: np.ndarray, target: np.ndarray, names: Sequence[str]) -> dict[str, dict[str, float]]:

@@ -14,13 +14,13 @@ search (:mod:`hypa.diagnosis.search`); what remains is tested for structure
 (:mod:`hypa.diagnosis.structure`).
 """
 
+from hypa.diagnosis.api import diagnose_system
 from hypa.diagnosis.catalogue import CatalogueError, Entry, load_catalogue
 from hypa.diagnosis.edits import Candidate
 from hypa.diagnosis.finding import Finding
 from hypa.diagnosis.problem import Problem
 from hypa.diagnosis.result import Diagnosis
 from hypa.diagnosis.search import Search, name_causes
-from hypa.diagnosis.system import diagnose_system
 
 __all__ = ["Candidate", "CatalogueError", "Diagnosis", "Entry", "Finding", "Problem", "Search", "diagnose_system",
            "load_catalogue", "name_causes"]

@@ -19,9 +19,10 @@ import torch
 
 from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied
 from hypa.diagnosis.fitting import fit_affine, fit_gradient
-from hypa.diagnosis.problem import Problem, TooLittleData, format_value
+from hypa.diagnosis.problem import Problem, TooLittleData
 from hypa.models.spec import ModelSpecError
 from hypa.physics import SchedulingError, UnstablePhysicsError
+from hypa.reporting.numbers import quantity
 
 ALTERNATIVE = 0.95  # a candidate explaining this share of the named one's gain is reported beside it ...
 SIMPLER = 0.75  # ... and one with fewer numbers from this share on (the data cannot prefer the richer claim)
@@ -59,8 +60,8 @@ class Finding:
         """One line in units: ``input_delay on steering_angle: 236 ms``."""
         if self.error:
             return f"{self.cause} on {self.target}: not fitted ({self.error})"
-        parts = [f"{k.split('/')[-1]} {format_value(v, self.units.get(k, ''))}" for k, v in self.values.items()
-                 if k != self.target] + [format_value(v, self.units.get(k, "")) for k, v in self.values.items()
+        parts = [f"{k.split('/')[-1]} {quantity(v, self.units.get(k, ''))}" for k, v in self.values.items()
+                 if k != self.target] + [quantity(v, self.units.get(k, "")) for k, v in self.values.items()
                                          if k == self.target]
         note = self.note or _limited_note(self.candidate, self.values, self.units)
         parts += [note] if note else []
@@ -142,10 +143,10 @@ def _curved_note(candidate: Candidate, problem: Problem) -> str:
     unit = problem.dm.channels[state].unit if state in problem.dm.channels else ""
     if b.curved[state] == "root":
         return (f"each coupling from {state} is (1 - w) times the linear one plus w times its root through the "
-                f"same flow at {format_value(level, unit)} (w = 1: all √{state})")
+                f"same flow at {quantity(level, unit)} (w = 1: all √{state})")
     sign, shift = ("+", -level) if level < 0 else ("-", level)
     return (f"each coupling from {state} is (1 + w z{'²' if b.curved[state] == 3 else ''}) times the linear one, "
-            f"z = ({state} {sign} {format_value(shift, unit)}) / {format_value(spread, unit)}")
+            f"z = ({state} {sign} {quantity(shift, unit)}) / {quantity(spread, unit)}")
 
 
 INSIDE = 0.1  # a limit that bends more than this share of the samples sits inside the signal's range
@@ -167,8 +168,8 @@ def _inside_note(candidate: Candidate, problem: Problem, values: Mapping[str, fl
         return ""
     unit = problem.dm.channels[channel].unit
     low, high = np.percentile(signal, [10, 90])
-    return (f"the limit sits inside the range {channel} spans ({format_value(float(low), unit)} to "
-            f"{format_value(float(high), unit)}, 10th to 90th percentile) and bends {100 * share:.0f} % of the "
+    return (f"the limit sits inside the range {channel} spans ({quantity(float(low), unit)} to "
+            f"{quantity(float(high), unit)}, 10th to 90th percentile) and bends {100 * share:.0f} % of the "
             "training samples: a gain that falls with the input's size, not a range reached at its peaks")
 
 
@@ -189,7 +190,7 @@ def _limited_note(candidate: Candidate | None, values: Mapping[str, float], unit
     shares = {k[len(prefix):]: v for k, v in values.items() if k.startswith(prefix)}
     spilled = "".join(f", {100 * v:.2g} % of it reaching {row}" for row, v in shares.items())
     rest = ", the rest lost" if shares and sum(shares.values()) < 0.995 else ""
-    return (f"{state} stops {'above' if side == 'lower' else 'below'} {format_value(values[key], units.get(key, ''))}: "
+    return (f"{state} stops {'above' if side == 'lower' else 'below'} {quantity(values[key], units.get(key, ''))}: "
             f"what would carry it further spills{spilled}{rest}" + ("" if shares else " away"))
 
 

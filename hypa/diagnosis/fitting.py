@@ -12,9 +12,10 @@ import numpy as np
 import torch
 
 from hypa.diagnosis.edits import Candidate, set_free
-from hypa.diagnosis.problem import Problem, TooLittleData, format_value
+from hypa.diagnosis.problem import Problem, TooLittleData
 from hypa.models.spec import ModelSpec, ModelSpecError
 from hypa.physics.parameters import LOG, SIGNED
+from hypa.reporting.numbers import quantity
 
 LM_ITERATIONS = 40  # Levenberg-Marquardt steps at most (a fit ends earlier where it converges)
 LM_WINDOWS_PER_BATCH = 2  # its fixed windows: this many batches' worth (256 by default)
@@ -273,11 +274,11 @@ def fit_affine(candidate: Candidate, problem: Problem) -> tuple[dict[str, float]
     span = max(float(np.ptp(r[channel])) for r in problem.records("train"))
     unit = problem.dm.channels[channel].unit
     if not abs(values[channel]) <= span:  # e.g. a position offset the initial-state estimate absorbs
-        raise ValueError(f"offset {format_value(values[channel], unit)} beyond the channel's whole range "
-                         f"({format_value(span, unit)}): not identifiable from these data")
+        raise ValueError(f"offset {quantity(values[channel], unit)} beyond the channel's whole range "
+                         f"({quantity(span, unit)}): not identifiable from these data")
     follows = _follows_inputs(batches, weights, problem)
     if follows:
-        raise ValueError(f"not a constant offset ({format_value(values[channel], unit)} on average): {follows}")
+        raise ValueError(f"not a constant offset ({quantity(values[channel], unit)} on average): {follows}")
     return values, z[channel]
 
 

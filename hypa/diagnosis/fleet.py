@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import functools
 import json
-import math
 import re
 import sys
 import traceback
@@ -38,6 +37,7 @@ from hypa.core.trust import read_bounded, read_yaml
 from hypa.core.units import readable
 from hypa.diagnosis.result import Diagnosis, FindingRow
 from hypa.reporting import markdown as md
+from hypa.reporting.numbers import plain
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -292,16 +292,6 @@ def collect(sweep_dir: Path) -> Fleet:
     return Fleet(sweep_dir, tuple(replace(log, label=name) for log, name in zip(logs, names)))
 
 
-def number(value: float | None) -> str:
-    """4 significant digits without an exponent for what an engineer reads (179500, 61.23, 0.0512)."""
-    if value is None or not math.isfinite(value):
-        return "" if value is None else str(value)
-    if value == 0 or abs(value) < 1e-3:
-        return f"{value:.4g}"
-    decimals = 3 - math.floor(math.log10(abs(value)))
-    return f"{round(value, decimals):.{max(decimals, 0)}f}"
-
-
 def percent(change: float | None) -> str:
     """A log's MSE change (:func:`hypa.reporting.markdown.change_text`), empty where it has none."""
     return "" if change is None else md.change_text(change)
@@ -310,7 +300,7 @@ def percent(change: float | None) -> str:
 def _spread_row(key: str, spread: Spread) -> list[str | int]:
     s = spread.stats()
     relative = "" if s["std"] is None or s["mean"] == 0 else f"{100 * s['std'] / abs(s['mean']):.1f} %"
-    return [key, spread.unit, s["logs"], *(number(s[k]) for k in ("mean", "std", "min", "max")), relative]
+    return [key, spread.unit, s["logs"], *(plain(s[k]) for k in ("mean", "std", "min", "max")), relative]
 
 
 def markdown(fleet: Fleet) -> str:
@@ -335,7 +325,7 @@ def markdown(fleet: Fleet) -> str:
         else:
             cells += [", ".join(log.causes) or "none", percent(log.mse_change.get("all")),
                       *([percent(log.mse_change.get("trained"))] if trained else []),
-                      *(number(log.estimates[k].value) if k in log.estimates else "" for k in spreads)]
+                      *(plain(log.estimates[k].value) if k in log.estimates else "" for k in spreads)]
         rows.append(cells)
     lines += [*md.table(head, rows), "", "## Across logs", ""]
     if not diagnosed:

@@ -30,7 +30,6 @@ from dataclasses import dataclass, field
 import torch
 
 from hypa.core.errors import UserError
-from hypa.core.units import readable
 from hypa.data import HypaDataModule, Record
 from hypa.diagnosis.scales import FOLDS, Scales, block_bounds  # FOLDS: each candidate is fitted once per fold
 from hypa.diagnosis.workers import default_workers
@@ -262,16 +261,6 @@ class Evidence:
                 f"{self.window_samples * self.dt:.3g} s) without overlap, too short to fit even one number (that "
                 f"needs 2 such windows); give at least {2 * self.window_samples * self.dt:.3g} s of training data, "
                 "or a shorter data.window")
-
-
-def format_value(value: float, unit: str) -> str:
-    """Rounded to 3 significant digits with its unit (seconds below 1 s as ms, angles in degrees:
-    :func:`hypa.core.units.readable`)."""
-    if unit != "s" or abs(value) < 1.0:
-        unit, factor = readable(unit)
-    else:
-        factor = 1.0
-    return f"{value * factor:.3g} {'' if unit == '-' else unit}".rstrip()
 
 
 def _cut_windows(dm: HypaDataModule, records: Sequence[Record], length: int, stride: int) -> dict[str, torch.Tensor]:

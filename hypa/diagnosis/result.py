@@ -1,6 +1,6 @@
 """The result of a diagnosis, :class:`Diagnosis`, and its writers: ``diagnosis.json`` and ``diagnosis.md``.
 
-What it holds is computed by :func:`hypa.diagnosis.system.diagnose_system`; this module only
+What it holds is computed by :func:`hypa.diagnosis.api.diagnose_system`; this module only
 writes and reads it (the fleet summary reads every log's ``diagnosis.json`` back through
 :meth:`Diagnosis.from_json`). The JSON keys are documented in docs/diagnosis.md; a report
 written by an older hypa (without ``named`` rows, say) reads back with those parts empty.

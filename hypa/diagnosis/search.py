@@ -42,11 +42,12 @@ from hypa.diagnosis.finding import ALTERNATIVE, SIMPLER, Finding, alternatives
 from hypa.diagnosis.fitting import fit_offsets
 from hypa.diagnosis.generic import MARGIN as GENERIC_MARGIN
 from hypa.diagnosis.generic import GenericFit
-from hypa.diagnosis.problem import Problem, format_value
+from hypa.diagnosis.problem import Problem
 from hypa.diagnosis.race import append_result
 from hypa.diagnosis.scales import duration
 from hypa.diagnosis.states import state_scales
 from hypa.models.spec import ModelSpec
+from hypa.reporting.numbers import percent, quantity
 
 OFFSET_Z = 5.0  # an offset below min_gain is still named this many standard errors away from zero ...
 OFFSET_GAIN = 0.005  # ... when it lowers the validation error by at least this share (a small sensor bias)
@@ -179,7 +180,7 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
         best, bar = findings[0], generic[-1]
         simpler = best.candidate is not None and len(best.candidate.knobs) < bar.numbers
         if not (best.score < (1.0 - GENERIC_MARGIN) * bar.score or (simpler and best.gain >= SIMPLER * bar.gain)):
-            standin = (f"{best.describe()} would lower the {error} by {100 * best.gain:.2g} %, but "
+            standin = (f"{best.describe()} would lower the {error} by {percent(best.gain)}, but "
                        f"{bar.describe()}: not named (a cause must beat it by {100 * GENERIC_MARGIN:.0f} % of its "
                        f"error, or explain {100 * SIMPLER:.0f} % as much with fewer numbers); what is left may be "
                        "dynamics the catalogue cannot express")
@@ -191,7 +192,7 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
             best.alternatives.append(f"{bar.describe()}")
         adopt(best)
         refine += [k for k in best.candidate.knobs if best.candidate.fit == GRADIENT and k not in refine]
-        progress(f"named {best.describe()} ({error} {100 * best.gain:.0f} % lower; a generic linear filter: "
+        progress(f"named {best.describe()} ({error} {percent(best.gain)} lower; a generic linear filter: "
                  f"{100 * generic[-1].gain:.0f} %)"
                  + (f"; the data cannot tell it from {' or '.join(best.alternatives)}" if best.alternatives else ""))
         findings = []
@@ -204,7 +205,7 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
         best.small = True
         best.alternatives = alternatives(best, findings[1:])
         adopt(best)
-        progress(f"named {best.describe()} ({error} {100 * best.gain:.2g} % lower: small, but "
+        progress(f"named {best.describe()} ({error} {percent(best.gain)} lower: small, but "
                  f"{best.z:.0f} standard errors from zero)")
         findings = round_of(lambda c, keys={f.key for f in findings[1:]}: c.key in keys)
         if findings:
@@ -225,7 +226,7 @@ def _search(nominal: ModelSpec, problem: Problem, catalogue: Sequence[Entry] | N
         f.values.update(held or {})  # what the model written holds (an identified value the causes re-fitted)
     for f in identified:
         if any(f is g for g in named):
-            progress(f"named {f.describe()} (identified first: it removed {100 * f.gain:.0f} % of the {error} "
+            progress(f"named {f.describe()} (identified first: it removed {percent(f.gain)} of the {error} "
                      "that its nominal value left, and the causes named still need it)")
     return Search(nominal_score, rounds, named, final, pool(folds, scores), time.perf_counter() - started,
                   dropped, too_short, generic, standin, folds=len(folds),
@@ -308,7 +309,7 @@ def _identify(nominal: ModelSpec, candidates: Callable[[ModelSpec], list[Candida
     rival = max((f for f in offsets if f.error is None and not f.screened), key=lambda f: f.gain, default=None)
     if rival is not None and rival.gain >= ALTERNATIVE * fit.gain:
         progress(f"the nominal's values are kept: {rival.describe()} explains about as much as identifying them "
-                 f"({100 * rival.gain:.2g} % against {100 * fit.gain:.2g} % lower) with fewer numbers")
+                 f"({percent(rival.gain)} against {percent(fit.gain)} lower) with fewer numbers")
         return None
     per_fold = fit.folds or [fit]
     model = folds[0].build(frozen(nominal))
@@ -359,7 +360,7 @@ def _identify(nominal: ModelSpec, candidates: Callable[[ModelSpec], list[Candida
 
 def _shift(name: str, before: float, after: float, unit: str) -> str:
     """``k1 0.02 → 0.0101 1/s``, ``tau 0.1 → 0.236 ms``, ``gain 1 → 0.721`` (a dimensionless one)."""
-    before_text, after_text = format_value(before, unit), format_value(after, unit)
+    before_text, after_text = quantity(before, unit), quantity(after, unit)
     same_unit = before_text.partition(" ")[2] == after_text.partition(" ")[2]
     return f"{name} {before_text.partition(' ')[0] if same_unit else before_text} → {after_text}"
 
@@ -379,7 +380,7 @@ def _small_offsets(findings: Sequence[Finding], unjudged: dict[str, str], error:
     that would be weighed as one but whose standard error the data cannot judge goes to ``unjudged``."""
     for f in findings:
         if f.error is None and f.too_short and f.gain >= OFFSET_GAIN:
-            unjudged[f.key] = (f"{f.cause} on {f.target} lowers the {error} by {100 * f.gain:.2g} %, "
+            unjudged[f.key] = (f"{f.cause} on {f.target} lowers the {error} by {percent(f.gain)}, "
                                f"but {f.too_short}, so it is not named as a small bias")
     return [f for f in findings if _significant(f)]
 
@@ -494,7 +495,7 @@ def _prune(nominal: ModelSpec, named: list[Finding], dropped: list[Finding], bas
         if share >= min_gain and worse > floor:
             continue
         why = (f"with the causes named after it, it lowers the {error} by only {100 * max(share, 0.0):.2g} % "
-               f"(under {100 * min_gain:.0f} %)" if share < min_gain else
+               f"(under {percent(min_gain)})" if share < min_gain else
                f"without it the {error} is {100 * worse:.2g} % of the output variance, below the noise floor "
                f"({100 * floor:.2g} %)")
         f.note = f"dropped: {why}: the other causes named carry what it explained"

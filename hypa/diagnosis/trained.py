@@ -18,9 +18,9 @@ from pathlib import Path
 from hypa.core.errors import UserError
 from hypa.data import HypaDataModule
 from hypa.diagnosis.result import NetworkExplanation
-from hypa.evaluation.evaluation import run_datamodule
+from hypa.evaluation.api import run_datamodule
 from hypa.evaluation.runs import load_run
-from hypa.explain.run import Settings, ann_blocks, explain_run
+from hypa.explain.api import Settings, ann_blocks, explain_run
 from hypa.models.rollout import Prediction, free_run
 
 
@@ -49,7 +49,7 @@ def train_extension(train: Callable[[Sequence[str]], None], arguments: Sequence[
     train([*arguments, f"hydra.run.dir={run_dir}", *extra_overrides])
     run = load_run(run_dir, trust=("*",))  # the run it trained just now, from its own model
     model = run.module.model
-    if run.config.data.past != dm.past:  # raised for the extension (hypa.diagnosis.system.with_past)
+    if run.config.data.past != dm.past:  # raised for the extension (hypa.diagnosis.api.with_past)
         dm = run_datamodule(run)
     trained = TrainedExtension(run_dir, [free_run(model, dm, record) for record in dm.records("val")])
     if explain:

@@ -4,7 +4,7 @@ results (:class:`Evaluation` with its :class:`RunMetrics`, ``metrics.json``; :cl
 
 from hypa.core.metrics import METRICS, floored_mape, regression_metrics, state_metrics
 from hypa.evaluation.benchmark_result import Benchmark
-from hypa.evaluation.plots import bode, rear_steer
+from hypa.evaluation.figures import bode, rear_steer
 from hypa.evaluation.result import Evaluation, RunMetrics
 from hypa.evaluation.transfer import TransferEstimate, frequency_response, h1_estimate
 

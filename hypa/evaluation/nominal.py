@@ -62,7 +62,7 @@ def simulate_nominal(module: HybridModule, dm: HypaDataModule, out: Path, plot: 
 
     Returns {label: {output: metrics}}, labels ``windowed (N steps)`` and ``free-run <record>``.
     """
-    from hypa.reporting.plots import time_series
+    from hypa.reporting.figures import time_series
 
     outputs = dm.output_names
     windows = windowed(module, dm, "val")

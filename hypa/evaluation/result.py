@@ -1,7 +1,7 @@
 """The result of evaluating a run, :class:`Evaluation`, and its writers: ``metrics.json``,
 ``metrics.csv`` and ``summary.md``.
 
-What it holds is computed by :func:`hypa.evaluation.evaluation.evaluate_run`; this module only
+What it holds is computed by :func:`hypa.evaluation.api.evaluate_run`; this module only
 writes and reads it. ``metrics.json`` (SI units)::
 
     {"model", "checkpoint",

@@ -14,7 +14,7 @@ from hypa.evaluation.transfer import TransferEstimate, h1_estimate
 from hypa.explain.forms import frequency_response, predict
 from hypa.explain.problem import BlockExplanation, gain_unit
 from hypa.explain.signals import Recording
-from hypa.reporting.plots import subplots
+from hypa.reporting.figures import subplots
 
 if TYPE_CHECKING:
     from hypa.data import HypaDataModule
@@ -88,7 +88,7 @@ def learned_response(records: Sequence[Recording], input_name: str, output: str,
 def frequency_figure(result: BlockExplanation, records: Sequence[Recording], dt: float):
     """Bode plot: the learned block's H1 (dashed black, with γ²) and the chosen form's response
     from the block's first input; (None, why) where the records are too short or the input constant."""
-    from hypa.evaluation.plots import bode
+    from hypa.evaluation.figures import bode
 
     p = result.problem
     try:

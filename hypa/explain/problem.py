@@ -1,5 +1,6 @@
-"""What an explanation is about and what it found: the explained signal (``Problem``), the ladder's
-settings and result (``Settings``, ``BlockExplanation``), and their formatting.
+"""What an explanation is about and what it found: the explained signal (``ExplainedSignal``; the
+diagnosis's ``Problem`` is another thing), the ladder's settings and result (``Settings``,
+``BlockExplanation``), and their formatting.
 
 The types every part of ``hypa.explain`` reads (the run, the report, the figures), with
 nothing of how they are computed, so those parts import them without a circle.
@@ -7,13 +8,13 @@ nothing of how they are computed, so those parts import them without a circle.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from hypa.core.units import unit_ratio
 from hypa.explain.forms import Explanation
+from hypa.reporting.numbers import significant
 
 FIT_SPLIT, SCORE_SPLIT = "train", "val"
 PAIRS = {"learned_vs_measured": ("measured", "learned"), "explained_vs_measured": ("measured", "explained"),
@@ -33,7 +34,7 @@ class Settings:
 
 
 @dataclass(frozen=True)
-class Problem:
+class ExplainedSignal:
     """One explained signal: an output of an ANN block, its regressors and extra signals, their units.
 
     A correction network (``residual_of``) adds its output to a physics signal: what it learned
@@ -63,7 +64,7 @@ class Problem:
 class BlockExplanation:
     """The ladder fitted to one problem, compared with the measurement where one exists."""
 
-    problem: Problem
+    problem: ExplainedSignal
     explanation: Explanation
     comparison: dict[str, dict[str, float]] | None  # PAIRS -> corr, rms, share (validation)
     figures: dict[str, Path] = field(default_factory=dict)
@@ -78,18 +79,11 @@ class BlockExplanation:
             unit = self.problem.units[self.problem.output]
             lm, em = self.comparison["learned_vs_measured"], self.comparison["explained_vs_measured"]
             line += (f"; vs measured {self.problem.measured}: "
-                     f"learned r {lm['corr']:.2f} (RMS {rounded(lm['rms'])} {unit}), "
-                     f"explained r {em['corr']:.2f} (RMS {rounded(em['rms'])} {unit})")
+                     f"learned r {lm['corr']:.2f} (RMS {significant(lm['rms'])} {unit}), "
+                     f"explained r {em['corr']:.2f} (RMS {significant(em['rms'])} {unit})")
         return line
 
 
-def rounded(x: float) -> str:
-    """Two to three significant digits, as an engineer reads them."""
-    if not math.isfinite(x):
-        return "-"
-    return f"{x:.3g}"
-
-
-def gain_unit(problem: Problem) -> str:
+def gain_unit(problem: ExplainedSignal) -> str:
     """Unit of the gain from the block's first input to its output."""
     return unit_ratio(problem.units[problem.output], problem.units[problem.inputs[0]])

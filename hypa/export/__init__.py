@@ -8,11 +8,11 @@ physics-only model's composed linear state space (``linear_model``, ``statespace
 ``statespace.json``, read back by ``load_statespace`` as a python-control ``StateSpace``).
 """
 
+from hypa.export.api import Export, build_step, export_run, formats_to_build
 from hypa.export.blocks import ExportError, StateSlot
 from hypa.export.fmu import build_fmu, run_fmu
 from hypa.export.onnx import Check, check_onnx, export_onnx, run_onnx
 from hypa.export.reference import Reference, reference_run
-from hypa.export.run import Export, build_step, export_run, formats_to_build
 from hypa.export.statespace import LinearModel, linear_model, load_statespace
 from hypa.export.step import ModelStep, scheduled_squarings
 

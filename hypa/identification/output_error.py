@@ -41,7 +41,7 @@ from scipy.optimize import least_squares
 
 from hypa.core.errors import UserError
 from hypa.data import HypaDataModule, Record
-from hypa.identification.report import Estimate, Identification
+from hypa.identification.result import Estimate, Identification
 from hypa.identification.shooting import CONTINUITY, Refused, Shooting
 from hypa.identification.stretches import Stretches
 from hypa.models import ComposedModel

@@ -32,6 +32,12 @@ from typing import Any
 from hypa.ann import ann_hyperparameters
 from hypa.models import parse_model_spec
 
+# NAdam's learning rates, the defaults of every way to train (hypa train's optimizer.lr and
+# optimizer.physics_lr, HybridModule): the networks', and the physical parameters' (they live in
+# log space, where a step is relative, so they take a larger one)
+NETWORK_LR = 5e-4
+PHYSICS_LR = 1e-2
+
 BUDGET_UNITS = 5    # the epoch budget, in units of 1 / lr optimizer steps
 PATIENCE_UNITS = 2  # the patience, likewise
 

@@ -6,7 +6,7 @@ import lightning as L
 from lightning.pytorch.callbacks import Callback
 
 from hypa.models.rollout import free_run
-from hypa.reporting.plots import time_series
+from hypa.reporting.figures import time_series
 
 
 class ValidationFigures(Callback):

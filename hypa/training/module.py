@@ -13,6 +13,7 @@ from torchmetrics import MeanAbsoluteError, MeanSquaredError, MetricCollection, 
 from hypa.data import DataSignature, HypaDataModule
 from hypa.models import ComposedModel, ModelSpec, ModelSpecError, parse_model_spec, spec_config
 from hypa.models.building import model_hold
+from hypa.training.baseline import NETWORK_LR, PHYSICS_LR
 
 
 class HybridModule(L.LightningModule):
@@ -58,8 +59,8 @@ class HybridModule(L.LightningModule):
         hold: str | None = None,
         ann_name: str = "lstm",
         ann_hparams: Mapping[str, Any] | None = None,
-        lr: float = 5e-4,
-        physics_lr: float = 1e-2,
+        lr: float = NETWORK_LR,
+        physics_lr: float = PHYSICS_LR,
         weight_decay: float = 0.0,
         scheduling_names: Sequence[str] = (),
         past: int = 0,
@@ -95,8 +96,8 @@ class HybridModule(L.LightningModule):
         hold: str | None = None,
         ann_name: str = "lstm",
         ann_hparams: Mapping[str, Any] | None = None,
-        lr: float = 5e-4,
-        physics_lr: float = 1e-2,
+        lr: float = NETWORK_LR,
+        physics_lr: float = PHYSICS_LR,
         weight_decay: float = 0.0,
     ) -> HybridModule:
         """The module of ``model_config`` (a ``conf/model`` dict or a :class:`ModelSpec`) on

@@ -19,12 +19,12 @@ import numpy as np
 from hypa.core.errors import UserError
 from hypa.core.metrics import correlation, errors, state_metrics
 from hypa.data import HypaDataModule
-from hypa.evaluation.plots import bode
+from hypa.evaluation.figures import bode
 from hypa.evaluation.result import Evaluation, RunMetrics, SignalMetrics, SplitMetrics, segments
 from hypa.evaluation.runs import TrainedRun, windowed
 from hypa.evaluation.transfer import TransferEstimate, h1_estimate
 from hypa.models.rollout import Prediction, free_run, free_run_levels
-from hypa.reporting.plots import time_series
+from hypa.reporting.figures import time_series
 
 log = logging.getLogger(__name__)
 MANEUVERS = "maneuvers"

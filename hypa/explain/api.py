@@ -9,7 +9,7 @@ records. Where the records measure the block's output (an evaluation-only channe
 name), the learned block, the explained form and the measurement are
 compared on the validation records.
 
-Writes (:mod:`hypa.explain.report`) ``explanation.md``, ``explanation.json`` and per explained signal three figures (the
+Writes (:mod:`hypa.explain.result`) ``explanation.md``, ``explanation.json`` and per explained signal three figures (the
 signal over time, the frequency response, the static curve) into ``out``.
 """
 
@@ -19,6 +19,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -33,13 +34,12 @@ from hypa.explain.problem import (
     PAIRS,
     SCORE_SPLIT,
     BlockExplanation,
-    Problem,
+    ExplainedSignal,
     Settings,
     gain_unit,
-    rounded,
 )
 from hypa.explain.replace import replace_and_score, validation_errors, writable_form
-from hypa.explain.report import write_json, write_report
+from hypa.explain.result import write_json, write_report
 from hypa.explain.signals import Recording
 from hypa.models import ComposedModel
 from hypa.models.rollout import Prediction, free_run
@@ -88,7 +88,7 @@ def signal_unit(name: str, dm: HypaDataModule, spec: ModelSpec, depth: int = 0) 
 
 
 def problems(spec: ModelSpec, dm: HypaDataModule, blocks: Sequence[BlockSpec],
-             extra: Sequence[str] | None = None) -> list[Problem]:
+             extra: Sequence[str] | None = None) -> list[ExplainedSignal]:
     """One problem per output of each block. ``extra`` None: the measured outputs and scheduling
     channels that are neither the block's inputs nor its outputs."""
     out = []
@@ -109,7 +109,8 @@ def problems(spec: ModelSpec, dm: HypaDataModule, blocks: Sequence[BlockSpec],
             for like in block.scale_as:  # scaled like the output: the same quantity, the same unit
                 if units.get(like) == "-":
                     units[like] = units[output]
-            out.append(Problem(block.name, output, tuple(block.inputs), tuple(chosen), units, corrects, measured))
+            out.append(ExplainedSignal(block.name, output, tuple(block.inputs), tuple(chosen), units, corrects,
+                                       measured))
     return out
 
 
@@ -134,7 +135,7 @@ def free_runs(model: ComposedModel, dm: HypaDataModule, split: str) -> list[Pred
     return runs
 
 
-def recordings(predictions: Sequence[Prediction], problem: Problem) -> list[Recording]:
+def recordings(predictions: Sequence[Prediction], problem: ExplainedSignal) -> list[Recording]:
     """The problem's signals of each free run, on the stretch where all of them exist; the
     measurement of the output (where the record has one) as ``measured:<output>``. A correction
     is the total output less the physics signal it corrects (nothing measures it)."""
@@ -169,7 +170,7 @@ def compare(reference: np.ndarray, other: np.ndarray) -> dict[str, float]:
 
 # --- the explanation ----------------------------------------------------------------------------
 
-def explain_problem(problem: Problem, train: Sequence[Prediction], val: Sequence[Prediction], dt: float,
+def explain_problem(problem: ExplainedSignal, train: Sequence[Prediction], val: Sequence[Prediction], dt: float,
                     settings: Settings = Settings()) -> tuple[BlockExplanation, list[Recording], list[Recording]]:
     """The ladder fitted on ``train``, scored on ``val``, and the comparison with the measurement."""
     rec_train, rec_val = recordings(train, problem), recordings(val, problem)
@@ -271,7 +272,7 @@ __all__ = [
     "PAIRS",
     "SCORE_SPLIT",
     "BlockExplanation",
-    "Problem",
+    "ExplainedSignal",
     "Settings",
     "ann_blocks",
     "compare",
@@ -282,7 +283,17 @@ __all__ = [
     "gain_unit",
     "problems",
     "recordings",
-    "rounded",
     "select_blocks",
     "signal_unit",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """``Problem``, the name of :class:`ExplainedSignal` before it (one release, with a warning)."""
+    if name == "Problem":
+        import warnings
+
+        warnings.warn("hypa.explain's Problem is ExplainedSignal now (the diagnosis's Problem is another thing)",
+                      DeprecationWarning, stacklevel=2)
+        return ExplainedSignal
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

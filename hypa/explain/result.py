@@ -10,8 +10,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from hypa.evaluation.runs import TrainedRun
-from hypa.explain.problem import FIT_SPLIT, SCORE_SPLIT, BlockExplanation, rounded
+from hypa.explain.problem import FIT_SPLIT, SCORE_SPLIT, BlockExplanation
 from hypa.reporting import markdown as md
+from hypa.reporting.numbers import significant
 
 
 def replacement_line(rp: dict) -> str:
@@ -19,8 +20,8 @@ def replacement_line(rp: dict) -> str:
     parts = []
     for name, learned in rp["learned"].items():
         unit, base = rp["units"][name], rp.get("baseline", {}).get(name)
-        parts.append(f"{name} RMS {rounded(learned['rms'])} -> {rounded(rp['explained'][name]['rms'])} {unit}"
-                     + (f" (baseline {rounded(base['rms'])})" if base else ""))
+        parts.append(f"{name} RMS {significant(learned['rms'])} -> {significant(rp['explained'][name]['rms'])} {unit}"
+                     + (f" (baseline {significant(base['rms'])})" if base else ""))
     return f"replaced by its {rp['form']} (validation, trained -> explained): " + "; ".join(parts)
 
 
@@ -78,7 +79,7 @@ def _report_block(r: BlockExplanation) -> list[str]:
               + ", ".join(f"{n} [{u[n]}]" for n in p.inputs)
               + (f"; extra {', '.join(f'{n} [{u[n]}]' for n in p.extra)}" if p.extra else "; no extra signals")
               + f". Sample time {1000 * e.dt:.3g} ms;"
-              + f" validation std of the output {rounded(e.output_std)} {u[p.output]}.",
+              + f" validation std of the output {significant(e.output_std)} {u[p.output]}.",
               "", *md.table(["rung", "form", "parameters", "R² train", "R² validation", "score", ""],
                             [[f.form.rung, f.form.name, f.n_parameters, f"{f.r2_train:.3f}", f"{f.r2_val:.3f}",
                               f"{f.score:.3f}", "**chosen**" if i == e.chosen else ""]
@@ -87,7 +88,8 @@ def _report_block(r: BlockExplanation) -> list[str]:
     lines += ["", f"Chosen: {e.best.form.name} (penalty {e.penalty:g} per parameter, margin {e.margin:g})."
               + (f" {unresolved[0].upper()}{unresolved[1:]}." if unresolved else ""), "",
               *md.table(["value", "signal", "estimate", "1σ", "unit"],
-                        [[v.kind, v.signal or "", rounded(v.value), rounded(v.std), v.unit] for v in e.best.values],
+                        [[v.kind, v.signal or "", significant(v.value), significant(v.std), v.unit]
+                         for v in e.best.values],
                         align="llrrl")]
     rest = e.remainder
     lines += ["", f"What remains: {rest.describe()}.", "",
@@ -98,7 +100,8 @@ def _report_block(r: BlockExplanation) -> list[str]:
     unit = "" if rest.amplitude_unit == "-" else f" {rest.amplitude_unit}"
     lines += ["", *md.table([f"abs({rest.amplitude_signal}){unit}", f"RMS error [{u[p.output]}]",
                              "share of the remainder"],
-                            [[f"{rounded(a.low)}-{rounded(a.high)}", rounded(a.rms_error), f"{100 * a.share:.0f} %"]
+                            [[f"{significant(a.low)}-{significant(a.high)}", significant(a.rms_error),
+                              f"{100 * a.share:.0f} %"]
                              for a in rest.amplitudes], align="lrr")]
     if r.comparison:
         c, unit = r.comparison, u[p.output]
@@ -106,9 +109,9 @@ def _report_block(r: BlockExplanation) -> list[str]:
                  ("explained_vs_measured", "explained form vs measured"),
                  ("explained_vs_learned", "explained form vs learned block"))
         lines += ["", (f"Against the measured {p.measured} (validation records; never seen in training; "
-                      f"RMS of the measurement {rounded(c['measured_rms']['rms'])} {unit}):"), "",
+                      f"RMS of the measurement {significant(c['measured_rms']['rms'])} {unit}):"), "",
                   *md.table(["", "correlation", f"RMS difference [{unit}]", "share of the variance explained"],
-                            [[label, f"{c[pair]['corr']:.3f}", rounded(c[pair]['rms']),
+                            [[label, f"{c[pair]['corr']:.3f}", significant(c[pair]['rms']),
                               f"{100 * c[pair]['share']:.0f} %"] for pair, label in pairs], align="lrrr")]
     else:
         lines += ["", f"The records hold no measurement of {p.output}: no comparison with the truth."
@@ -121,11 +124,11 @@ def _report_block(r: BlockExplanation) -> list[str]:
         rows = []
         for name, learned in rp["learned"].items():
             explained, unit = rp["explained"][name], rp["units"][name]
-            cells = [name, f"{rounded(learned['rms'])} {unit}", f"{learned['r2']:.4f}",
-                     f"{rounded(explained['rms'])} {unit}", f"{explained['r2']:.4f}"]
+            cells = [name, f"{significant(learned['rms'])} {unit}", f"{learned['r2']:.4f}",
+                     f"{significant(explained['rms'])} {unit}", f"{explained['r2']:.4f}"]
             if "baseline" in rp:  # the baseline ran on the same outputs; "-" where one is missing
                 base = rp["baseline"].get(name)
-                cells += [f"{rounded(base['rms'])} {unit}", f"{base['r2']:.4f}"] if base else ["-", "-"]
+                cells += [f"{significant(base['rms'])} {unit}", f"{base['r2']:.4f}"] if base else ["-", "-"]
             rows.append(cells)
         lines += ["", (f"Replaced by its {rp['form']} (`{rp['config']}`: physics blocks with the fitted values; "
                   "the rest of the model as trained), free-running over the validation records:"), "",

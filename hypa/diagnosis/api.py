@@ -44,7 +44,7 @@ from hypa.diagnosis.structure import analyze_output
 from hypa.diagnosis.trained import TrainedExtension
 from hypa.models.rollout import Prediction, free_run, free_run_levels, free_run_metrics
 from hypa.models.spec import DIAGNOSED, ModelSpec, model_imports, read_model_file, spec_config
-from hypa.reporting.plots import time_series
+from hypa.reporting.figures import time_series
 
 
 def with_correction(spec: ModelSpec, inputs: Sequence[str]) -> ModelSpec:

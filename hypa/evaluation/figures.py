@@ -12,7 +12,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import NullFormatter
 
 from hypa.evaluation.transfer import TransferEstimate
-from hypa.reporting.plots import subplots
+from hypa.reporting.figures import subplots
 
 
 def _masked(values: np.ndarray, coherence: np.ndarray, coherence_min: float | None) -> np.ndarray:
