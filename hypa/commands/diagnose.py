@@ -46,7 +46,7 @@ def main(cfg: DictConfig) -> None:
     from hypa.diagnosis.catalogue import load_catalogue
     from hypa.diagnosis.problem import Problem, nominal_hold
     from hypa.models.schema import plain_model
-    from hypa.models.spec import parse_model_spec, spec_config
+    from hypa.models.spec import parse_model_spec
     from hypa.reporting.markdown import change_text
 
     config = typed(cfg, DiagnoseConfig)  # every value checked (hypa.commands.config)
@@ -59,7 +59,7 @@ def main(cfg: DictConfig) -> None:
     values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.get("vehicle") else {}
     print("reading the data", flush=True)
     # data.past null: for the model; the auxiliary channels as inputs a candidate may read (unmodeled_input)
-    dm = model_datamodule(cfg, data_dir_from_config(cfg), spec_config(spec), values, auxiliary_inputs=True)
+    dm = model_datamodule(cfg, data_dir_from_config(cfg), spec, values, auxiliary_inputs=True)
     diagnosis = config.diagnosis
     workers = {} if diagnosis.workers is None else {"workers": diagnosis.workers}
     problem = Problem(dm, values, hold=hold, horizon=config.data.window,

@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import lightning as L
 from omegaconf import DictConfig, OmegaConf
@@ -18,6 +18,9 @@ from hypa.core.errors import UserError, checked, settings
 from hypa.data import HypaDataModule, datamodule_from_config
 from hypa.data.from_config import data_dir_from_config
 from hypa.vehicle import VehicleParameters
+
+if TYPE_CHECKING:
+    from hypa.models import ModelSpec
 
 log = logging.getLogger(__name__)
 
@@ -41,9 +44,9 @@ def datamodule(cfg: DictConfig) -> HypaDataModule:
     return datamodule_from_config(cfg.data, data_dir_from_config(cfg))
 
 
-def model_datamodule(cfg: DictConfig, data_dir: Path, model_config: Mapping[str, Any],
+def model_datamodule(cfg: DictConfig, data_dir: Path, spec: ModelSpec,
                      physical_values: Mapping[str, float], auxiliary_inputs: bool = False) -> HypaDataModule:
-    """The data node's DataModule, set up, for the model ``model_config``: where ``data.past`` is
+    """The data node's DataModule, set up, for the model ``spec``: where ``data.past`` is
     null, with as many past samples as the model's estimated starts want
     (:meth:`~hypa.models.ComposedModel.suggested_past`) and, for a network that starts from the
     measured outputs over the past, ``PAST_MARGIN`` times the past the training data's outputs
@@ -57,7 +60,7 @@ def model_datamodule(cfg: DictConfig, data_dir: Path, model_config: Mapping[str,
     from hypa.models import ComposedModel
     from hypa.models.composed import PAST_MARGIN
 
-    promoted = read_as_inputs(cfg.data, model_config)
+    promoted = read_as_inputs(cfg.data, spec)
     if promoted:
         print(f"data: {', '.join(promoted)} declared auxiliary, read by the model as input(s): held as input(s)",
               flush=True)
@@ -65,7 +68,7 @@ def model_datamodule(cfg: DictConfig, data_dir: Path, model_config: Mapping[str,
     dm.setup()
     if cfg.data.past is not None:
         return dm
-    model = ComposedModel.from_data(dm, dict(model_config), physical_values)
+    model = ComposedModel.from_data(dm, spec, physical_values)
     past, reasons = model.suggested_past(), []
     for name, n in model.past_needed().items():
         reasons.append(f"block {name!r} estimates its {model.blocks[name].model.n_states} states from the "

@@ -155,7 +155,7 @@ def main(cfg: DictConfig) -> None:
     evaluations: dict[str, list[Evaluation]] = defaultdict(list)
     for i, folder in enumerate(folders, 1):
         run = load_run(folder, trust=() if config.skip_training else ("*",))  # "*": a run it trained just now
-        label = run.config.get("table1_row") or run.label
+        label = run.settings.table1_row or run.label
         log.info("evaluating %d/%d: %s (%s)", i, len(folders), label, folder.name)
         print(f"[{i}/{len(folders)}] evaluating {label} ({folder.name})", flush=True)
         evaluations[label].append(evaluate_run(run, folder / "evaluation", tensorboard=False))

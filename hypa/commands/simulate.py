@@ -38,13 +38,14 @@ def main(cfg: DictConfig) -> float:
     config = typed(cfg, SimulateConfig)  # every value checked (hypa.commands.config)
     hold = config.physics.hold
     model_config = plain_model(OmegaConf.to_container(cfg.model, resolve=True))
-    model_hold(parse_model_spec(model_config), hold, "physics.hold")  # against the model's own: refused before the data
+    spec = parse_model_spec(model_config)  # the model, parsed once
+    model_hold(spec, hold, "physics.hold")  # against the model's own: refused before the data
     with settings("vehicle"):
         values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.vehicle else {}
     with settings("testbench"):  # the test bench's settings build its data (files: a folder only)
         data_dir = data_dir_from_config(cfg)
-    dm = model_datamodule(cfg, data_dir, model_config, values)  # data.past null: chosen for the model
-    module = nominal_module(model_config, values, dm, hold)
+    dm = model_datamodule(cfg, data_dir, spec, values)  # data.past null: chosen for the model
+    module = nominal_module(spec, values, dm, hold)
     out = Path(HydraConfig.get().runtime.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     results = simulate_nominal(module, dm, out, plot=config.plot)

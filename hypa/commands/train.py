@@ -21,17 +21,21 @@ import os
 import sys
 import time
 import warnings
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import lightning as L
 import torch
 from hydra.core.hydra_config import HydraConfig
-from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from hypa.commands.config import TrainConfig, typed
 from hypa.core.errors import UserError, hydra_command, settings
+
+if TYPE_CHECKING:
+    from hypa.data import HypaDataModule
+    from hypa.models import ModelSpec
 
 log = logging.getLogger(__name__)
 
@@ -62,68 +66,72 @@ OmegaConf.register_new_resolver("run_name", run_name, replace=True)
 OmegaConf.register_new_resolver("channels", channels, replace=True)
 
 
-def train(cfg: DictConfig) -> dict[str, Any]:
-    """Fit the configured model; returns the best validation loss and the output paths."""
+@dataclass
+class Request:
+    """A training run as its configuration asks for it, every value checked before any data are
+    read (:func:`resolve`)."""
+
+    config: TrainConfig
+    model_config: dict[str, Any]  # the model, read once (model= or model_file=)
+    spec: ModelSpec
+    ann_name: str
+    ann: dict[str, Any]
+    physical_values: dict[str, float]
+    identification: Any  # IdentificationSettings, or None: no identification
+    callbacks: list[L.Callback]  # the user's own (callbacks=)
+    out: Path  # the run folder
+    ckpt_path: Path | None  # a checkpoint to resume from
+    zero: bool  # this process owns the run folder (the only process, or rank 0 of several)
+    distributed: bool
+
+
+@dataclass
+class Prepared:
+    """The data and the model of a run, with what the data chose: the settings left null, the hold
+    (``recorded``: dotted key -> value, what the run's ``config.yaml`` records beside the overrides)."""
+
+    dm: HypaDataModule
+    module: Any  # HybridModule
+    how: str | None  # the identification's plan (hypa.training.identified.plan)
+    stages: list[Any]
+    identified: Any  # an identification already done while choosing the hold
+    weight_decay: float
+    epochs: int
+    patience: int
+    recorded: dict[str, Any] = field(default_factory=dict)
+
+
+def resolve(cfg: DictConfig) -> Request:
+    """The run the configuration asks for, checked (:mod:`hypa.commands.config`): a bad override, a
+    model file that is not a model, a hold the model contradicts, a bad callback or strategy, or a
+    checkpoint of another model fails here, before any data are read or generated."""
     from hydra.types import RunMode
 
-    from hypa.commands.entry import (
-        data_dir_from_config,
-        flat_hparams,
-        from_cwd,
-        model_datamodule,
-        network_settings,
-        user_callbacks,
-        vehicle_from_config,
-    )
-    from hypa.commands.output_folder import record_training_run
-    from hypa.core.metadata import run_metadata
+    from hypa.commands.entry import from_cwd, network_settings, user_callbacks, vehicle_from_config
     from hypa.models import parse_model_spec
     from hypa.models.building import model_hold
-    from hypa.models.schema import ModelConfig, plain_model
+    from hypa.models.schema import plain_model
     from hypa.models.spec import model_imports, read_model_file
-    from hypa.training import HybridModule, StagedTraining, ValidationFigures
-    from hypa.training.baseline import network_defaults
-    from hypa.training.checkpoints import START_CHECKPOINT, AtomicCheckpointIO, RecordedCheckpoint, load_module
-    from hypa.training.distributed import (
-        SameModelOnEveryRank,
-        join_rank_zero_log,
-        launched_as_rank_zero,
-        lightning_strategy,
-    )
-    from hypa.training.divergence import DivergedError, StopOnNonFiniteLoss
-    from hypa.training.identified import (
-        choose_hold,
-        fit_by_identification,
-        identified_elsewhere,
-        identify_physics,
-        plan,
-    )
-    from hypa.training.run_folder import CONFIG_FILE, RunFolder, write_text_atomic
+    from hypa.training.checkpoints import load_module
+    from hypa.training.distributed import launched_as_rank_zero, lightning_strategy
 
-    # every value checked first (hypa.commands.config), so a bad override fails before any data are read or generated
     config = typed(cfg, TrainConfig)
-    lr, physics_lr, weight_decay = config.optimizer.lr, config.optimizer.physics_lr, config.optimizer.weight_decay
-    epochs, patience = config.trainer.max_epochs, config.patience  # None: see network_defaults
-    hold, horizon = config.physics.hold, config.horizon
     if config.model_file:  # a model file is data: read through the model schema, it replaces model=
         model_config = read_model_file(from_cwd(config.model_file), config.trust)
-        cfg.model = OmegaConf.merge(OmegaConf.structured(ModelConfig), model_config)  # what the run records
     else:
         model_config = plain_model(OmegaConf.to_container(cfg.model, resolve=True))
-    model_hold(parse_model_spec(model_config), hold, "physics.hold")  # against the model's own: refused before the data
+    spec = parse_model_spec(model_config)
+    model_hold(spec, config.physics.hold, "physics.hold")  # against the model's own: refused before the data
     ann_name, ann = network_settings(cfg.ann)
     with settings("vehicle"):
         physical_values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.vehicle else {}
-    identification = config.identification.settings()
-    extra_callbacks = user_callbacks(config.callbacks)  # built before any data are read: a bad one fails first
+    callbacks = user_callbacks(config.callbacks)  # built before any data are read: a bad one fails first
     lightning_strategy(config.trainer.strategy, staged=False)  # ddp_spawn: refused before any data are read
-    zero = launched_as_rank_zero()  # the run's only process, or rank 0 of several: it owns the run folder
     distributed = str(config.trainer.strategy).startswith("ddp")
     if distributed and HydraConfig.get().mode == RunMode.MULTIRUN:
         raise UserError("trainer.strategy=ddp in a sweep (-m): Lightning starts the other ranks by running the "
                         "command line again, which would start the sweep again; train each configuration as "
                         "its own command")
-
     out, ckpt_path = Path(HydraConfig.get().runtime.output_dir), None
     if config.ckpt_path:
         ckpt_path = from_cwd(config.ckpt_path)
@@ -136,132 +144,204 @@ def train(cfg: DictConfig) -> dict[str, Any]:
                             f"resume with model={resumed}")
         if ckpt_path.parent.name == "checkpoints":  # resume in the interrupted run's own folder
             out = ckpt_path.parent.parent
+    return Request(config, model_config, spec, ann_name, ann, physical_values, config.identification.settings(),
+                   callbacks, out, ckpt_path, launched_as_rank_zero(), distributed)
+
+
+def prepare(request: Request, cfg: DictConfig, folder: Any) -> Prepared:
+    """The run's data and model (built in the held ``folder``): the data module for the model
+    (``data.past`` null: chosen for it), the settings left null (an end-to-end network's from its
+    training data, the fixed defaults otherwise), the module and, for a model that fixes no hold,
+    the hold the data choose (identifying its physics under each)."""
+    from hypa.commands.entry import data_dir_from_config, model_datamodule
+    from hypa.core.metadata import run_metadata
+    from hypa.training import HybridModule
+    from hypa.training.baseline import network_defaults
+    from hypa.training.identified import choose_hold, plan
+
+    config = request.config
+    with settings("testbench"):  # the test bench's settings build its data (files: a folder only)
+        data_dir = data_dir_from_config(cfg)
+    dm = model_datamodule(cfg, data_dir, request.spec, request.physical_values)
+    ann, weight_decay, epochs, patience = network_defaults(
+        request.spec, request.ann_name, request.ann, dm, config.optimizer.lr, config.optimizer.weight_decay,
+        config.trainer.max_epochs, config.patience, config.trainer.limit_train_batches)
+    recorded = {"optimizer.weight_decay": weight_decay, "trainer.max_epochs": epochs,
+                "early_stopping.patience": patience, **{f"ann.{k}": v for k, v in ann.items()}}
+    # where the data were, resolved, so hypa evaluate finds them from any working directory; what
+    # the run was made from (code, packages, data checksums), so hypa evaluate notices other data
+    folder.update_record(data_dir=str(data_dir.resolve()), **run_metadata(dm.files, data_dir))
+
+    def build(with_hold: str | None) -> HybridModule:  # channels, normalization, dt and past from the data module
+        return HybridModule.from_data(
+            dm, request.spec, physical_values=request.physical_values, horizon=config.horizon,
+            hold=with_hold,  # physics.hold: for a model without its own hold (one that contradicts it is refused)
+            ann_name=request.ann_name, ann_hparams=ann, lr=config.optimizer.lr,
+            physics_lr=config.optimizer.physics_lr, weight_decay=weight_decay)
+
+    hold, stages = config.physics.hold, list(request.spec.stages)
+    module, identified = build(hold), None
+    how = plan(module, stages) if request.identification is not None and request.ckpt_path is None else None
+    if how is not None and hold is None and request.spec.hold is None:  # no hold given: the data choose it
+        if request.distributed:
+            log.info("physics.hold is not set: zoh (across processes the data do not choose it; set it)")
+        elif request.zero:
+            module, identified, choice = choose_hold(build, how, stages, dm, request.identification)
+            print(choice.line(), flush=True)
+            folder.update_record(hold=choice.to_dict())
+            recorded["physics.hold"] = choice.chosen  # what every later command rebuilds
+    return Prepared(dm, module, how, stages, identified, weight_decay, epochs, patience, recorded)
+
+
+def recorded_config(cfg: DictConfig, request: Request, prepared: Prepared) -> DictConfig:
+    """The run's configuration as ``config.yaml`` records it: the composed one, the model that was
+    read, and what the data chose (the input ``cfg`` itself is left as it was)."""
+    from hypa.models.schema import ModelConfig
+
+    recorded = cfg.copy()
+    if request.config.model_file:  # the model the file held, as the run read it
+        recorded.model = OmegaConf.merge(OmegaConf.structured(ModelConfig), request.model_config)
+    for key, value in prepared.recorded.items():
+        OmegaConf.update(recorded, key, value)
+    return recorded
+
+
+def lightning_trainer(request: Request, prepared: Prepared, stages: list[Any], cfg: DictConfig, logger: Any,
+                      checkpoint: Any) -> L.Trainer:
+    """The Lightning trainer of a run: its callbacks (finite losses, early stopping, the user's, the
+    stages, the figures, the recorded checkpoint) and ``cfg.trainer``'s arguments, with the epochs of
+    every stage and the strategy the model needs."""
+    from hydra.utils import instantiate
+
+    from hypa.training import StagedTraining, ValidationFigures
+    from hypa.training.checkpoints import AtomicCheckpointIO
+    from hypa.training.distributed import SameModelOnEveryRank, lightning_strategy
+    from hypa.training.divergence import StopOnNonFiniteLoss
+
+    config, how = request.config, prepared.how
+    lr, physics_lr = config.optimizer.lr, config.optimizer.physics_lr
+    callbacks: list[L.Callback] = [
+        SameModelOnEveryRank(),
+        StopOnNonFiniteLoss(hint=f"lower optimizer.lr={lr:g} or optimizer.physics_lr={physics_lr:g}"),
+        instantiate(config.early_stopping, patience=prepared.patience, min_delta=config.min_delta),
+        *request.callbacks,
+    ]
+    if stages:
+        callbacks.append(StagedTraining(stages, max_epochs=prepared.epochs))
+    if config.figures.enabled:
+        figures = config.figures
+        callbacks.append(ValidationFigures(figures.seconds, figures.start_s, figures.every_n_epochs))
+    callbacks.append(checkpoint)
+    trainer_args = OmegaConf.to_container(cfg.trainer, resolve=True)  # with any +trainer.<Lightning argument>
+    trainer_args["max_epochs"] = prepared.epochs * max(len(stages), 1)
+    if how == "model" and request.distributed:  # no epochs: one process validates the identified model
+        log.info("physics-only model: identified and validated in one process (trainer.strategy=%s is for "
+                 "epochs)", config.trainer.strategy)
+        trainer_args.update(strategy="auto", devices=1, num_nodes=1)
+    elif how != "model":  # a stage leaves networks or fixed physical parameters unused: DDP must be told
+        unused = bool(stages) or any(not p.requires_grad for p in prepared.module.parameters())
+        trainer_args["strategy"] = lightning_strategy(trainer_args.get("strategy", "auto"), staged=unused)
+    with settings("trainer"):  # passed to Lightning as given: its ValueError / TypeError is the user's
+        return L.Trainer(**trainer_args, callbacks=callbacks, logger=logger, default_root_dir=str(request.out),
+                         plugins=[AtomicCheckpointIO()])
+
+
+def fit(request: Request, prepared: Prepared, cfg: DictConfig, folder: Any, logger: Any) -> dict[str, Any]:
+    """Train the prepared model: a hybrid's physics identified first, then its networks for the
+    configured epochs; a physics-only model identified (no epochs). Returns the best validation
+    loss, the checkpoints, the epochs and the time (``cfg``: the recorded configuration)."""
+    from hypa.training.checkpoints import START_CHECKPOINT, RecordedCheckpoint
+    from hypa.training.divergence import DivergedError
+    from hypa.training.identified import fit_by_identification, identified_elsewhere, identify_physics
+
+    module, how, stages, dm = prepared.module, prepared.how, prepared.stages, prepared.dm
+    started = time.perf_counter()
+    if how in ("stage", "first"):  # a hybrid: its physics identified, then its networks train on it
+        if request.zero:
+            identify_physics(module, how, stages, dm, folder, request.identification, logger, prepared.identified)
+        else:  # rank 0's values arrive when training starts (SameModelOnEveryRank)
+            identified_elsewhere(module, how, stages)
+        stages = stages[1:] if how == "stage" else stages
+    elif how == "model" and not request.zero:  # started by torchrun or SLURM: rank 0 identifies alone, without epochs
+        log.info("physics-only model: identified by rank 0 alone")
+        return {"best_val_loss": math.nan}
+    checkpoint = RecordedCheckpoint(folder)
+    trainer = lightning_trainer(request, prepared, stages, cfg, logger, checkpoint)
+    log.info("model %s:\n%s", request.model_config["name"], module.model)
+    if how == "model":
+        result = fit_by_identification(trainer, module, dm, folder, request.identification, logger,
+                                       prepared.identified)
+        result["ended"] = "identification"
+    else:
+        kept_start = how in ("stage", "first") and request.ckpt_path is None and not request.distributed
+        if kept_start:
+            start = checkpoint.keep_the_start(trainer, module, dm)  # the networks must beat the physics
+            log.info("before the networks' first epoch (the identified physics): val/loss %.5g", start)
+        try:
+            with warnings.catch_warnings():
+                if kept_start:  # Lightning's warning of a folder it did not write: best-start.ckpt is this run's
+                    warnings.filterwarnings("ignore", message="Checkpoint directory .* exists and is not empty")
+                trainer.fit(module, datamodule=dm, ckpt_path=request.ckpt_path, weights_only=True)
+        except DivergedError as error:
+            best = folder.record.get("best_checkpoint")
+            kept = (f"the best checkpoint before it (epoch {best['epoch']}, val/loss {best['val_loss']:.5g}) "
+                    "stays the run's record" if best else "no checkpoint was recorded")
+            folder.update_record(stopped=str(error), training_time_s=time.perf_counter() - started)
+            raise DivergedError(f"{error}; {kept}") from None
+        if trainer.interrupted:  # Ctrl-C: Lightning stops gracefully; the run is not finished, say how to go on
+            folder.update_record(stopped=f"interrupted at epoch {trainer.current_epoch}")
+            log.warning("interrupted at epoch %d; resume with ckpt_path=%s", trainer.current_epoch,
+                        folder.checkpoints / "last.ckpt")
+        best = checkpoint.best_model_score
+        result = {"best_val_loss": float(best) if best is not None else float("nan"),
+                  "checkpoint": checkpoint.best_model_path, "last_checkpoint": checkpoint.last_model_path,
+                  "epochs": trainer.current_epoch, "ended": f"{trainer.current_epoch} epochs"}
+        if Path(checkpoint.best_model_path).name == START_CHECKPOINT:
+            result["ended"] += "; no epoch beat the model it started from (the identified physics), which the run keeps"
+    result.update(tensorboard=str(request.out / "tensorboard"), training_time_s=time.perf_counter() - started)
+    return result
+
+
+def train(cfg: DictConfig) -> dict[str, Any]:
+    """Fit the configured model (:func:`resolve`, :func:`prepare`, :func:`fit`) in its own run
+    folder; returns the best validation loss and the output paths."""
+    from hydra.utils import instantiate
+
+    from hypa.commands.entry import flat_hparams
+    from hypa.commands.output_folder import record_training_run
+    from hypa.training.distributed import join_rank_zero_log
+    from hypa.training.run_folder import CONFIG_FILE, RunFolder, write_text_atomic
+
+    request = resolve(cfg)
+    out, zero, config = request.out, request.zero, request.config
     with settings("logger"):
         logger = instantiate(config.logger, save_dir=str(out))
     # one run, one folder: refused before any data are read; the other ranks of a run across processes follow it
-    with RunFolder.claim(out, resume=ckpt_path) if zero else RunFolder.follow(out) as folder:
+    with RunFolder.claim(out, resume=request.ckpt_path) if zero else RunFolder.follow(out) as folder:
         if zero:
-            record_training_run(folder, ckpt_path)  # Hydra's .hydra/, now that the folder is held
+            record_training_run(folder, request.ckpt_path)  # Hydra's .hydra/, now that the folder is held
         else:
             join_rank_zero_log(out)
-        if ckpt_path is not None:
-            log.info("resuming %s in %s", ckpt_path.name, out)
+        if request.ckpt_path is not None:
+            log.info("resuming %s in %s", request.ckpt_path.name, out)
         L.seed_everything(config.seed, workers=True)
         torch.set_num_threads(config.torch_threads)
         os.environ.setdefault("OMP_NUM_THREADS", str(config.torch_threads))  # else Lightning's ddp sets cores / ranks
-        with settings("testbench"):  # the test bench's settings build its data (files: a folder only)
-            data_dir = data_dir_from_config(cfg)
-        dm = model_datamodule(cfg, data_dir, model_config, physical_values)  # data.past null: chosen for the model
-        # the settings left null: an end-to-end network's from its training data, the fixed defaults otherwise;
-        # written into the run's configuration (what was trained, for hypa evaluate and TensorBoard)
-        ann, weight_decay, epochs, patience = network_defaults(model_config, ann_name, ann, dm, lr, weight_decay,
-                                                               epochs, patience, config.trainer.limit_train_batches)
-        for key, value in (("optimizer.weight_decay", weight_decay), ("trainer.max_epochs", epochs),
-                           ("early_stopping.patience", patience), *((f"ann.{k}", v) for k, v in ann.items())):
-            OmegaConf.update(cfg, key, value)
-        # where the data were, resolved, so hypa evaluate finds them from any working directory; what
-        # the run was made from (code, packages, data checksums), so hypa evaluate notices other data
-        folder.update_record(data_dir=str(data_dir.resolve()), **run_metadata(dm.files, data_dir))
-        # the run's own resolved configuration, written while this process holds the folder (a refused
-        # second run may already have overwritten Hydra's .hydra/config.yaml)
-        if folder.writer:
-            write_text_atomic(out / CONFIG_FILE, OmegaConf.to_yaml(cfg, resolve=True))
-        def build(with_hold: str | None) -> HybridModule:  # channels, normalization, dt and past from the data module
-            return HybridModule.from_data(
-                dm, model_config, physical_values=physical_values, horizon=horizon,
-                hold=with_hold,  # physics.hold: for a model without its own hold (one that contradicts it is refused)
-                ann_name=ann_name, ann_hparams=ann, lr=lr, physics_lr=physics_lr, weight_decay=weight_decay,
-            )
-
-        module = build(hold)
-        spec = parse_model_spec(model_config)
-        stages = spec.stages
-        started = time.perf_counter()
-        how = plan(module, stages) if identification is not None and ckpt_path is None else None
-        identified = None
-        if how is not None and hold is None and spec.hold is None:  # no hold given: the data choose it
-            if distributed:
-                log.info("physics.hold is not set: zoh (across processes the data do not choose it; set it)")
-            elif zero:
-                module, identified, choice = choose_hold(build, how, stages, dm, identification)
-                print(choice.line(), flush=True)
-                folder.update_record(hold=choice.to_dict())
-                OmegaConf.update(cfg, "physics.hold", choice.chosen)  # what every later command rebuilds
-                if folder.writer:
-                    write_text_atomic(out / CONFIG_FILE, OmegaConf.to_yaml(cfg, resolve=True))
-        if how in ("stage", "first"):  # a hybrid: its physics identified, then its networks train on it
-            if zero:
-                identify_physics(module, how, stages, dm, folder, identification, logger, identified)
-            else:  # rank 0's values arrive when training starts (SameModelOnEveryRank)
-                identified_elsewhere(module, how, stages)
-            stages = stages[1:] if how == "stage" else stages
-        elif how == "model" and not zero:  # started by torchrun or SLURM: rank 0 identifies alone, without epochs
-            log.info("physics-only model: identified by rank 0 alone")
-            return {"best_val_loss": math.nan}
-        checkpoint = RecordedCheckpoint(folder)
-        callbacks: list[L.Callback] = [
-            SameModelOnEveryRank(),
-            StopOnNonFiniteLoss(hint=f"lower optimizer.lr={lr:g} or optimizer.physics_lr={physics_lr:g}"),
-            instantiate(config.early_stopping, patience=patience, min_delta=config.min_delta),
-            *extra_callbacks,
-        ]
-        if stages:
-            callbacks.append(StagedTraining(stages, max_epochs=epochs))
-        if config.figures.enabled:
-            figures = config.figures
-            callbacks.append(ValidationFigures(figures.seconds, figures.start_s, figures.every_n_epochs))
-        callbacks.append(checkpoint)
-        trainer_args = OmegaConf.to_container(cfg.trainer, resolve=True)  # with any +trainer.<Lightning argument>
-        trainer_args["max_epochs"] = epochs * max(len(stages), 1)
-        if how == "model" and distributed:  # no epochs: one process validates the identified model
-            log.info("physics-only model: identified and validated in one process (trainer.strategy=%s is for "
-                     "epochs)", config.trainer.strategy)
-            trainer_args.update(strategy="auto", devices=1, num_nodes=1)
-        elif how != "model":  # a stage leaves networks or fixed physical parameters unused: DDP must be told
-            unused = bool(stages) or any(not p.requires_grad for p in module.parameters())
-            trainer_args["strategy"] = lightning_strategy(trainer_args.get("strategy", "auto"), staged=unused)
-        with settings("trainer"):  # passed to Lightning as given: its ValueError / TypeError is the user's
-            trainer = L.Trainer(**trainer_args, callbacks=callbacks, logger=logger, default_root_dir=str(out),
-                                plugins=[AtomicCheckpointIO()])
-        log.info("model %s:\n%s", model_config["name"], module.model)
-        if how == "model":
-            result = fit_by_identification(trainer, module, dm, folder, identification, logger, identified)
-            ended = "identification"
-        else:
-            kept_start = how in ("stage", "first") and ckpt_path is None and not distributed
-            if kept_start:
-                start = checkpoint.keep_the_start(trainer, module, dm)  # the networks must beat the physics
-                log.info("before the networks' first epoch (the identified physics): val/loss %.5g", start)
-            try:
-                with warnings.catch_warnings():
-                    if kept_start:  # Lightning's warning of a folder it did not write: best-start.ckpt is this run's
-                        warnings.filterwarnings("ignore", message="Checkpoint directory .* exists and is not empty")
-                    trainer.fit(module, datamodule=dm, ckpt_path=ckpt_path, weights_only=True)
-            except DivergedError as error:
-                best = folder.record.get("best_checkpoint")
-                kept = (f"the best checkpoint before it (epoch {best['epoch']}, val/loss {best['val_loss']:.5g}) "
-                        "stays the run's record" if best else "no checkpoint was recorded")
-                folder.update_record(stopped=str(error), training_time_s=time.perf_counter() - started)
-                raise DivergedError(f"{error}; {kept}") from None
-            if trainer.interrupted:  # Ctrl-C: Lightning stops gracefully; the run is not finished, say how to go on
-                folder.update_record(stopped=f"interrupted at epoch {trainer.current_epoch}")
-                log.warning("interrupted at epoch %d; resume with ckpt_path=%s", trainer.current_epoch,
-                            folder.checkpoints / "last.ckpt")
-            best = checkpoint.best_model_score
-            result = {"best_val_loss": float(best) if best is not None else float("nan"),
-                      "checkpoint": checkpoint.best_model_path, "last_checkpoint": checkpoint.last_model_path,
-                      "epochs": trainer.current_epoch}
-            ended = f"{result['epochs']} epochs"
-            if Path(checkpoint.best_model_path).name == START_CHECKPOINT:
-                ended += "; no epoch beat the model it started from (the identified physics), which the run keeps"
-        result.update(tensorboard=str(out / "tensorboard"), training_time_s=time.perf_counter() - started)
+        prepared = prepare(request, cfg, folder)
+        recorded = recorded_config(cfg, request, prepared)
+        if folder.writer:  # written once, while this process holds the folder (a refused second run may
+            # already have overwritten Hydra's .hydra/config.yaml)
+            write_text_atomic(out / CONFIG_FILE, OmegaConf.to_yaml(recorded, resolve=True))
+        result = fit(request, prepared, recorded, folder, logger)
+        if "training_time_s" not in result:  # a rank > 0 of a physics-only model: rank 0 identifies
+            return result
         folder.update_record(training_time_s=result["training_time_s"], best_val_loss=result["best_val_loss"])
-        logger.log_hyperparams(flat_hparams(OmegaConf.to_container(cfg, resolve=True)),
+        logger.log_hyperparams(flat_hparams(OmegaConf.to_container(recorded, resolve=True)),
                                {"hp/best_val_loss": result["best_val_loss"]})
         logger.finalize("success")  # written now: after fit, nothing else flushes it before the process ends
     if not zero:
         return result
-    print(f"best val/loss {result['best_val_loss']:.5g} after {ended}\n"
+    print(f"best val/loss {result['best_val_loss']:.5g} after {result['ended']}\n"
           f"checkpoint:  {result['checkpoint']}\n"
           f"tensorboard: tensorboard --logdir {result['tensorboard']}")
     return result

@@ -94,7 +94,7 @@ def refuse_links(folder: Path, command: str, setting: str = "hydra.run.dir", lim
 def holder_of(text: str) -> str:
     """Who holds a folder, in words, from its lock file's content (``pid 7 on host (hypa train)``)."""
     text = text.strip()
-    match = re.fullmatch(r"(pid \d+ on \S+) \((hypa\.\w+)\)", text)
+    match = re.fullmatch(r"(pid \d+ on \S+) \((hypa[. ]\w+)\)", text)  # hypa.train: a lock of an older hypa
     if match:
         return f"another {match.group(2)} ({match.group(1)})"
     return f"another process ({text})" if text else "another process"

@@ -73,13 +73,16 @@ def datamodule_from_config(
     )
 
 
-def read_as_inputs(data_cfg: Any, model_config: Mapping[str, Any]) -> list[str]:
-    """The auxiliary channels of the ``data`` node that a block of ``model_config`` reads (a
-    diagnosed model's ``unread_channel``), declared inputs in the node, in place: a channel the
-    model reads is an input, and the run's recorded configuration says so (so that evaluating or
-    resuming the run builds the same data). Returns their names."""
-    read = {s for b in (model_config.get("blocks") or {}).values() if isinstance(b, Mapping)
-            for s in (b.get("inputs") or ())}
+def read_as_inputs(data_cfg: Any, model: Any) -> list[str]:
+    """The auxiliary channels of the ``data`` node that a block of ``model`` (a parsed model, or its
+    config as a dict) reads (a diagnosed model's ``unread_channel``), declared inputs in the node,
+    in place: a channel the model reads is an input, and the run's recorded configuration says so
+    (so that evaluating or resuming the run builds the same data). Returns their names."""
+    if isinstance(model, Mapping):
+        read = {s for b in (model.get("blocks") or {}).values() if isinstance(b, Mapping)
+                for s in (b.get("inputs") or ())}
+    else:  # a ModelSpec (the data layer does not import the models: its blocks are read by their fields)
+        read = {s for b in model.blocks for s in b.inputs}
     channels = data_cfg.get("channels") or {}
     promoted = [str(n) for n, c in channels.items()
                 if str(n) in read and isinstance(c, Mapping) and c.get("role") == "auxiliary"]

@@ -49,7 +49,7 @@ def train_extension(train: Callable[[Sequence[str]], None], arguments: Sequence[
     train([*arguments, f"hydra.run.dir={run_dir}", *extra_overrides])
     run = load_run(run_dir, trust=("*",))  # the run it trained just now, from its own model
     model = run.module.model
-    if run.config.data.past != dm.past:  # raised for the extension (hypa.diagnosis.api.with_past)
+    if run.settings.data.get("past") != dm.past:  # raised for the extension (hypa.diagnosis.api.with_past)
         dm = run_datamodule(run)
     trained = TrainedExtension(run_dir, [free_run(model, dm, record) for record in dm.records("val")])
     if explain:

@@ -35,8 +35,9 @@ def run_datamodule(run: TrainedRun) -> HypaDataModule:
     from hypa.data import datamodule_from_config
     from hypa.data.from_config import data_dir_from_config
 
-    data_dir = run.data_dir if run.data_dir is not None and run.data_dir.is_dir() else data_dir_from_config(run.config)
-    dm = datamodule_from_config(run.config.data, data_dir, normalization=run.module.hparams.normalization)
+    recorded = run.data_dir is not None and run.data_dir.is_dir()
+    data_dir = run.data_dir if recorded else data_dir_from_config(run.settings)
+    dm = datamodule_from_config(run.settings.data, data_dir, normalization=run.module.hparams.normalization)
     dm.setup()
     check_data_files(run, dm, data_dir)
     return dm

@@ -119,7 +119,7 @@ def _epochs_at_cap(run: TrainedRun) -> int | None:
     from hypa.training.checkpoints import read_checkpoint
 
     last, best = run.info.get("last_checkpoint"), run.info.get("best_checkpoint")
-    max_epochs = (run.config.get("trainer") or {}).get("max_epochs")
+    max_epochs = run.settings.max_epochs
     if not isinstance(last, str) or not isinstance(max_epochs, int) or max_epochs < 1:
         return None
     if isinstance(best, dict) and str(best.get("path", "")).endswith("best-identified.ckpt"):

@@ -24,28 +24,28 @@ from hypa.core.errors import UserError
 from hypa.core.metrics import errors
 from hypa.data import HypaDataModule
 from hypa.evaluation.runs import windowed
-from hypa.models import parse_model_spec
+from hypa.models import ModelSpec, parse_model_spec
 from hypa.models.rollout import free_run
 from hypa.training.module import HybridModule
 
 log = logging.getLogger(__name__)
 
 
-def nominal_module(model_config: Mapping[str, Any], physical_values: Mapping[str, float] | None,
+def nominal_module(model: ModelSpec | Mapping[str, Any], physical_values: Mapping[str, float] | None,
                    dm: HypaDataModule, hold: str | None) -> HybridModule:
-    """The model of ``model_config`` built on ``dm``'s channels with its configured parameter
+    """The model ``model`` (parsed, or its config) built on ``dm``'s channels with its configured parameter
     values (``physical_values`` for the parameter group's names, else the systems' nominal ones).
     ``hold``: the run's ``physics.hold``, for a model whose spec fixes no ``hold:`` of its own
     (``None``: the spec's, else ``zoh``; a different one than the spec's is a ``ModelSpecError``).
 
     Raises ``UserError`` for a model with networks: untrained, they would simulate nothing.
     """
-    spec = parse_model_spec(dict(model_config))
+    spec = model if isinstance(model, ModelSpec) else parse_model_spec(dict(model))
     networks = [b.name for b in spec.blocks if b.kind == "ann"]  # a dead time or a limit is physics too
     if networks:
         raise UserError(f"hypa simulate runs physics only; model {spec.name} has the network blocks "
                         f"{', '.join(networks)}: train it (hypa train) and evaluate the run instead")
-    module = HybridModule.from_data(dm, dict(model_config), physical_values=physical_values, hold=hold)
+    module = HybridModule.from_data(dm, spec, physical_values=physical_values, hold=hold)
     return module.eval()
 
 

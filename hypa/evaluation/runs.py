@@ -9,13 +9,14 @@ never sees a measured state again).
 from __future__ import annotations
 
 import logging
-from collections.abc import Collection
+from collections.abc import Collection, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import OmegaConf
 
 from hypa.core.errors import UserError, one_line
 from hypa.core.metadata import sha256
@@ -28,16 +29,70 @@ from hypa.training.run_folder import CONFIG_FILE, RECORD_FILE, read_record
 
 log = logging.getLogger(__name__)
 
+class RunSettings(Mapping[str, Any]):
+    """A run's recorded configuration (its ``config.yaml``), read as data: plain values, read-only,
+    with the settings the readers use typed (:func:`run_config`)."""
+
+    def __init__(self, values: Mapping[str, Any]) -> None:
+        self._values = dict(values)
+
+    def __getitem__(self, key: str) -> Any:
+        return self._values[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._values)
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+    def _at(self, path: str, kind: type) -> Any:
+        node: Any = self._values
+        for key in path.split("."):
+            node = node.get(key) if isinstance(node, Mapping) else None
+        return node if isinstance(node, kind) and not isinstance(node, bool) else None
+
+    @property
+    def data(self) -> Mapping[str, Any]:
+        """The ``data`` node (channels, splits, window, past, ...)."""
+        return self._values["data"]
+
+    @property
+    def model_name(self) -> str | None:
+        return self._at("model.name", str)
+
+    @property
+    def seed(self) -> int | None:
+        return self._at("seed", int)
+
+    @property
+    def max_epochs(self) -> int | None:
+        """``trainer.max_epochs`` as the run resolved it (its default by data size filled in)."""
+        return self._at("trainer.max_epochs", int)
+
+    @property
+    def table1_row(self) -> str | None:
+        """The paper's Table 1 row the run trained for (``hypa reproduce``), if any."""
+        return self._at("table1_row", str)
+
+
 @dataclass
 class TrainedRun:
-    """A run folder of ``hypa train``: its best checkpoint and its configuration."""
+    """A run folder of ``hypa train``: its best checkpoint and its recorded configuration."""
 
     folder: Path
     checkpoint: Path
-    config: DictConfig
+    settings: RunSettings
     module: HybridModule
     data_dir: Path | None = None  # the resolved data folder the run was trained on (run.json)
     info: dict = field(default_factory=dict)  # the run's run.json (data checksums, versions; hypa.core.metadata)
+
+    @property
+    def config(self) -> RunSettings:
+        """The former name of :attr:`settings` (one release, with a warning)."""
+        import warnings
+
+        warnings.warn("TrainedRun.config is TrainedRun.settings now", DeprecationWarning, stacklevel=2)
+        return self.settings
 
     @property
     def label(self) -> str:
@@ -104,17 +159,17 @@ def load_run(path: Path | str, trust: Collection[str] = ()) -> TrainedRun:
         folder, info = path, read_record(path)
         checkpoint = recorded_checkpoint(folder, info)
     module = load_module(checkpoint, trust)
-    config = run_config(folder)
-    trained, configured = module.hparams.model_config.get("name"), OmegaConf.select(config, "model.name")
+    settings = run_config(folder)
+    trained, configured = module.hparams.model_config.get("name"), settings.model_name
     if configured is not None and trained != configured:
         raise UserError(f"{checkpoint} holds model {trained}, but its run folder {folder} trained model "
                         f"{configured}; give the run folder (or a checkpoint) of the run to evaluate")
     data_dir = Path(info["data_dir"]) if isinstance(info.get("data_dir"), str) and info["data_dir"] else None
-    return TrainedRun(folder=folder, checkpoint=checkpoint, config=config, module=module, data_dir=data_dir,
+    return TrainedRun(folder=folder, checkpoint=checkpoint, settings=settings, module=module, data_dir=data_dir,
                       info=info)
 
 
-def run_config(folder: Path) -> DictConfig:
+def run_config(folder: Path) -> RunSettings:
     """A run folder's configuration: the ``config.yaml`` that hypa train wrote while it held the
     folder (Hydra's ``.hydra/config.yaml`` for runs of older versions), read as data
     (:func:`hypa.core.trust.read_yaml`: bounded, plain values, no aliases expanded, no interpolation
@@ -133,11 +188,11 @@ def run_config(folder: Path) -> DictConfig:
         raise UserError(f"{config_file}: holds an interpolation (${{...}}), which hypa train never writes there "
                         "(it records resolved values); the run folder is damaged or crafted")
     try:
-        config = OmegaConf.create(values)
+        OmegaConf.create(values)  # what the readers' schemas take: keys and values OmegaConf can hold
     except Exception as error:  # noqa: BLE001 -- OmegaConf refuses a key or value it cannot hold
         raise UserError(f"{config_file}: not a readable run configuration ({one_line(error)[:200]}); "
                         "the run folder is damaged") from None
-    return config
+    return RunSettings(values)
 
 
 @torch.no_grad()
@@ -158,5 +213,15 @@ def windowed(module: HybridModule, dm: HypaDataModule, split: str) -> dict[str, 
     return {k: torch.cat(v).double().numpy() for k, v in out.items()}
 
 
-__all__ = ["Prediction", "TrainedRun", "free_run", "free_run_metrics", "load_run", "model_inputs",
-           "recorded_checkpoint", "run_config", "windowed"]
+__all__ = [
+    "Prediction",
+    "RunSettings",
+    "TrainedRun",
+    "free_run",
+    "free_run_metrics",
+    "load_run",
+    "model_inputs",
+    "recorded_checkpoint",
+    "run_config",
+    "windowed",
+]

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from hypa.ann import ann_hyperparameters
-from hypa.models import parse_model_spec
+from hypa.models import ModelSpec, parse_model_spec
 
 # NAdam's learning rates, the defaults of every way to train (hypa train's optimizer.lr and
 # optimizer.physics_lr, HybridModule): the networks', and the physical parameters' (they live in
@@ -97,7 +97,7 @@ def training_defaults(values: int, batches: int, lr: float) -> TrainingDefaults:
 FIXED_DEFAULTS = {"weight_decay": 0.0, "max_epochs": 50, "patience": 5}  # the paper's, for a model with physics
 
 
-def network_defaults(model_config: dict[str, Any], ann_name: str, ann: dict[str, Any], dm: Any, lr: float,
+def network_defaults(model: ModelSpec | dict[str, Any], ann_name: str, ann: dict[str, Any], dm: Any, lr: float,
                      weight_decay: float | None, epochs: int | None, patience: int | None,
                      limit_train_batches: float) -> tuple[dict[str, Any], float, int, int]:
     """The network settings, weight decay, epoch budget and patience, each ``None`` (null) one filled in.
@@ -109,7 +109,7 @@ def network_defaults(model_config: dict[str, Any], ann_name: str, ann: dict[str,
     than the same ``5 / lr`` and ``2 / lr`` optimizer steps: on a short record 50 epochs are a few hundred
     steps, and the correction stopped before it had learnt anything. A value set is kept."""
     accepted = ann_hyperparameters(ann_name)
-    blocks = parse_model_spec(model_config).blocks
+    blocks = (model if isinstance(model, ModelSpec) else parse_model_spec(model)).blocks
     networks = [b for b in blocks if b.kind == "ann"]
     fixed = FIXED_DEFAULTS
     if networks:

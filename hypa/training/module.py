@@ -25,7 +25,8 @@ class HybridModule(L.LightningModule):
     restores the model with its normalization.
 
     Args:
-        model_config: the ``model`` config group (blocks, outputs, stages) as a plain dict.
+        model_config: the model, parsed (a :class:`ModelSpec`) or as the ``model`` config group (blocks,
+            outputs, stages) in a plain dict; the checkpoint stores the plain dict.
         physical_values: nominal physical parameters by name (SI units); ``None``: the systems'
             nominal values.
         normalization: training-set statistics (``Normalization.state_dict()``).
@@ -48,7 +49,7 @@ class HybridModule(L.LightningModule):
 
     def __init__(
         self,
-        model_config: Mapping[str, Any],
+        model_config: Mapping[str, Any] | ModelSpec,
         physical_values: Mapping[str, float] | None,
         normalization: Mapping[str, Any],
         input_names: Sequence[str],
@@ -66,8 +67,10 @@ class HybridModule(L.LightningModule):
         past: int = 0,
     ) -> None:
         super().__init__()
-        self.save_hyperparameters()
-        spec = parse_model_spec(model_config)
+        # a spec (from_data) is kept as it is; the checkpoint stores its plain config (read back as data)
+        spec = model_config if isinstance(model_config, ModelSpec) else parse_model_spec(model_config)
+        self.save_hyperparameters(ignore=["model_config"])
+        self.hparams["model_config"] = spec_config(spec) if isinstance(model_config, ModelSpec) else dict(model_config)
         # the checkpoint stores no data window: the horizon stands in (the model takes the horizon only)
         data = DataSignature(input_names, output_names, normalization, dt, horizon, past, eval_names, scheduling_names)
         self.model = ComposedModel.from_data(data, spec, physical_values, horizon=horizon,
@@ -110,12 +113,12 @@ class HybridModule(L.LightningModule):
         ``ModelSpecError``); the rest as in the class.
         """
         data = DataSignature.of(data)
-        config = spec_config(model_config) if isinstance(model_config, ModelSpec) else dict(model_config)
+        spec = model_config if isinstance(model_config, ModelSpec) else parse_model_spec(dict(model_config))
         return cls(
-            model_config=config, physical_values=None if physical_values is None else dict(physical_values),
+            model_config=spec, physical_values=None if physical_values is None else dict(physical_values),
             normalization=data.normalization.state_dict(), input_names=list(data.input_names),
             output_names=list(data.output_names), eval_names=list(data.eval_names), dt=data.dt,
-            horizon=data.window if horizon is None else int(horizon), hold=model_hold(parse_model_spec(config), hold),
+            horizon=data.window if horizon is None else int(horizon), hold=model_hold(spec, hold),
             ann_name=ann_name, ann_hparams=None if ann_hparams is None else dict(ann_hparams), lr=lr,
             physics_lr=physics_lr, weight_decay=weight_decay, scheduling_names=list(data.scheduling_names),
             past=data.past,
