@@ -1,9 +1,24 @@
-"""Shared fixtures: a short test-bench data set in a per-session cache (never the user's cache)."""
+"""Shared fixtures and constants: a short test-bench data set in a per-session cache (never the user's
+cache), the repository's root, and the real data sets beside it.
+
+The tests mirror hypa's layers (tests/core, tests/physics, ..., tests/commands, tests/docs). This file,
+``data_helpers.py`` and ``vehicle_reference.py`` stay at tests/, which is on ``sys.path`` with every
+layer's folder (``pythonpath`` in pyproject.toml): ``from data_helpers import ...`` and a test module
+reusing another's system (``from test_identification_tanks import SYSTEM``) work from any folder, in
+any order, and in a file run alone.
+
+Tests marked ``shared_data`` read the real data sets in ../shared/data (beside the repository, see
+``SHARED_DATA``). Without them such a test fails with one line saying where they belong; set
+``HYPA_SKIP_SHARED_DATA=1`` to skip those tests instead (a machine that has no copy of the data).
+"""
 
 import os
 from pathlib import Path
 
 import pytest
+
+ROOT = Path(__file__).resolve().parents[1]  # the repository
+SHARED_DATA = ROOT.parent / "shared" / "data"  # the real data sets, as conf/dataset/*.yaml name them
 
 SHORT_RECORDS = {
     "train_1": {"seed": 1, "stochastic_duration_s": 40.0, "break_frequency_hz": 1.0, "maneuvers": []},
@@ -32,3 +47,16 @@ def _no_hydra_app_left_running():
     from hydra.core.hydra_config import HydraConfig
 
     HydraConfig.instance().cfg = None  # type: ignore[assignment]
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """A test marked ``shared_data`` (or ``shared_data("racecar")``, one data set's folder) fails in one
+    line when ../shared/data lacks what it reads, or skips where ``HYPA_SKIP_SHARED_DATA=1`` asks to."""
+    for marker in item.iter_markers("shared_data"):
+        folder = SHARED_DATA.joinpath(*marker.args)
+        if folder.is_dir():
+            continue
+        if os.environ.get("HYPA_SKIP_SHARED_DATA") == "1":
+            pytest.skip(f"{folder} is missing (HYPA_SKIP_SHARED_DATA=1)")
+        pytest.fail(f"the real data are missing: {folder} (../shared/data beside the repository); "
+                    "put them there, or set HYPA_SKIP_SHARED_DATA=1 to skip the tests that read them", pytrace=False)

@@ -12,6 +12,8 @@ from scipy.io import savemat
 
 from hypa.paper.testbench.sensors import CHANNELS
 
+from conftest import ROOT
+
 SAMPLE_RATE_HZ = 1024.0
 ALL_CHANNELS = CHANNELS  # every channel the test bench measures
 
@@ -95,7 +97,7 @@ def fake_mat73(path: Path) -> Path:
     return path
 
 
-USER_EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "user_system"
+USER_EXAMPLE = ROOT / "examples" / "user_system"
 
 
 def make_dc_motor_data(folder: Path, seconds: float) -> dict[str, str]:
@@ -184,7 +186,7 @@ def run_user_benchmark(user: Path, dataset: str, models: list[str], out: Path, t
         [sys.executable, "-m", "hypa", "benchmark", "--config-dir", str(user / "conf"), f"dataset={dataset}",
          f"data.dir={user / 'data'}", "budget=full", f"models=[{','.join(models)}]", f"hydra.run.dir={out}",
          *(extra or [])],
-        cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=timeout,
+        cwd=ROOT, capture_output=True, text=True, timeout=timeout,
         env={**os.environ, "PYTHONPATH": str(user)}, check=False)
     assert result.returncode == 0, result.stderr[-3000:]
     return json.loads((out / "benchmark.json").read_text())[dataset]["models"]
