@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 
-from hypa.reporting.plots import subplots, time_series
+from hypa.reporting.figures import subplots, time_series
 
 
 def test_importing_hypa_leaves_the_matplotlib_backend_alone(tmp_path):
@@ -14,11 +14,11 @@ def test_importing_hypa_leaves_the_matplotlib_backend_alone(tmp_path):
     figure hypa makes is saved to PNG without one (on a machine without a screen)."""
     code = (
         "import matplotlib\n"
-        "import hypa, hypa.reporting.plots, hypa.evaluation.plots, hypa.explain.figures\n"
-        "import hypa.diagnosis.system, hypa.training\n"
+        "import hypa, hypa.reporting.figures, hypa.evaluation.figures, hypa.explain.figures\n"
+        "import hypa.diagnosis.api, hypa.training\n"
         "assert matplotlib.rcParams._get_backend_or_none() is None, matplotlib.rcParams._get_backend_or_none()\n"
         "import numpy as np\n"
-        "from hypa.reporting.plots import time_series\n"
+        "from hypa.reporting.figures import time_series\n"
         f"time_series(np.arange(5.0), {{'y': np.zeros(5)}}, {{'m': {{'y': np.ones(5)}}}})"
         f".savefig({str(tmp_path / 'f.png')!r})\n"
         "assert matplotlib.rcParams._get_backend_or_none() is None\n"

@@ -151,7 +151,7 @@ def test_h1_estimate_rejects_bad_signals():
 def test_bode_and_rear_steer_figures(record):
     import matplotlib.pyplot as plt
 
-    from hypa.evaluation.plots import bode, rear_steer
+    from hypa.evaluation.figures import bode, rear_steer
 
     measured = h1_estimate(record["u"], record["y_noisy"], FS)
     physics = TransferEstimate.analytic(measured.frequency_hz, reference(measured.frequency_hz))

@@ -23,7 +23,7 @@ import pytest
 import yaml
 
 from hypa.core.errors import UserError
-from hypa.explain.run import compare, select_blocks
+from hypa.explain.api import compare, select_blocks
 from hypa.models.spec import parse_model_spec
 
 from conftest import ROOT, SHORT_OVERRIDES

@@ -34,7 +34,7 @@ def physical(tmp_path_factory, hypa_cache) -> Path:
 
 
 def _export(folder: Path, out: Path, **kwargs):
-    from hypa.evaluation.evaluation import run_datamodule
+    from hypa.evaluation.api import run_datamodule
     from hypa.evaluation.runs import load_run
     from hypa.export import export_run
 
@@ -89,7 +89,7 @@ def test_physical_model_exported_by_the_command_line(physical, hypa_cache, tmp_p
 def test_v2_with_lstm_networks_is_exact(tmp_path_factory, hypa_cache, tmp_path) -> None:
     import torch
 
-    from hypa.evaluation.evaluation import run_datamodule
+    from hypa.evaluation.api import run_datamodule
     from hypa.evaluation.runs import load_run
     from hypa.export import export_run
 
@@ -141,7 +141,7 @@ def test_network_steps_chain_to_the_networks_forward(name: str, hparams: dict) -
 def test_v1_with_every_other_network_is_exact(ann: str, hparams: list[str], tmp_path_factory, hypa_cache,
                                               tmp_path) -> None:
     """S4 (its real step), Mamba (through the dynamo exporter), the Transformer (its context as state)."""
-    from hypa.evaluation.evaluation import run_datamodule
+    from hypa.evaluation.api import run_datamodule
     from hypa.evaluation.runs import load_run
     from hypa.export import export_run
 
@@ -225,10 +225,10 @@ def test_tampered_model_or_wrong_state_is_caught(physical, hypa_cache, tmp_path)
     import onnx
     from onnx import numpy_helper
 
-    from hypa.evaluation.evaluation import run_datamodule
+    from hypa.evaluation.api import run_datamodule
     from hypa.evaluation.runs import load_run
     from hypa.export import ExportError, check_onnx
-    from hypa.export.run import build_step
+    from hypa.export.api import build_step
 
     export = _export(physical, tmp_path / "good")
     run = load_run(physical)

@@ -27,7 +27,7 @@ def v2(tmp_path_factory, hypa_cache) -> Path:
 def _export(folder: Path, out: Path, heads: tuple[str, ...] = (), **kwargs):
     """``export_run`` of a trained run, its networks' ``heads`` set far from their zero start (so that the
     networks show in the outputs); the export and the model."""
-    from hypa.evaluation.evaluation import run_datamodule
+    from hypa.evaluation.api import run_datamodule
     from hypa.evaluation.runs import load_run
     from hypa.export import export_run
 
