@@ -40,6 +40,7 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
@@ -50,6 +51,9 @@ from hypa.commands.launch import hypa_argv, run_hypa
 from hypa.commands.output_folder import holding_output
 from hypa.core.errors import INTERRUPTED, UserError, hydra_command, is_user_error, one_line
 from hypa.reporting import markdown as md
+
+if TYPE_CHECKING:
+    from hypa.evaluation.runs import TrainedRun
 
 log = logging.getLogger(__name__)
 WRITTEN = ("diagnosed", "diagnosed_hybrid")  # the models hypa diagnose writes (model=...)
@@ -97,33 +101,18 @@ def diagnose_suite(dataset: str, nominal: str, overrides: list[str], folder: Pat
 @holding_output("hypa benchmark")  # its folder held first (each training run below holds its own)
 def main(cfg: DictConfig) -> None:
     from hypa.commands.entry import data_dir_from_config, data_overrides, user_config_dirs
-    from hypa.commands.evaluate import run_datamodule
     from hypa.data import datamodule_from_config
-    from hypa.evaluation.benchmark import score_run, stopped_at_caps
-    from hypa.evaluation.runs import load_run
     from hypa.training.checkpoints import START_CHECKPOINT
 
     config = typed(cfg, BenchmarkConfig)  # every value checked (hypa.commands.config)
     dataset = HydraConfig.get().runtime.choices["dataset"]
     suite = config.suites.get(dataset)  # None: a user's own data set, its models named by models=[...]
-    if suite is None and not config.models:
-        raise UserError(f"dataset={dataset} has no benchmark suite ({', '.join(config.suites)} have): name the models "
-                        "to benchmark, models=[M1,M2] (conf/model/M1.yaml, or in your --config-dir)")
     suite_models = suite.models if suite is not None else {}
     labels = list(config.models) if config.models else list(suite_models)
     configs = set(GlobalHydra.instance().config_loader().get_group_options("model"))  # --config-dir's too
     folder = diagnosis_folder(config.diagnose, configs)  # diagnose=PATH: a diagnosis to reuse
     nominal = config.diagnose or (suite.diagnose if suite is not None else None)
-    if config.diagnose and folder is None and config.diagnose not in configs:
-        raise UserError(f"diagnose={config.diagnose} is not a model config (conf/model/*.yaml or your --config-dir)")
-    if nominal is None and any(m in WRITTEN and m not in suite_models for m in labels):
-        raise UserError(f"models {[m for m in labels if m in WRITTEN]} are written by hypa diagnose: give diagnose=M, "
-                        "the model it extends (models=[M,diagnosed] diagnose=M)")
-    unknown = [m for m in labels if m not in suite_models and m not in configs and not (nominal and m in WRITTEN)]
-    if unknown:
-        where = f"in the {dataset} suite ({', '.join(suite_models)}) nor " if suite is not None else ""
-        raise UserError(f"models {unknown} are {'not ' + where if where else 'not '}model configs "
-                        "(conf/model/*.yaml or your --config-dir)")
+    check_models(config, dataset, labels, configs, folder, nominal)
     seeds = config.seeds
     # the data asked for on this command line reach every run (after the suite's own settings), and
     # every run must have trained on them: never a quiet fallback to the bundled files
@@ -167,15 +156,7 @@ def main(cfg: DictConfig) -> None:
                      *config.train_overrides,
                      f"seed={seed}", f"data.seed={seed}"]  # the networks' start and the windows' order
         try:
-            train_model(label, overrides, run_folder, config_dirs)
-            run = load_run(run_folder, trust=("*",))  # the run it trained just now, from its own configuration
-            trained_on = Path(str(run.info.get("data_dir", ""))).resolve()
-            if trained_on != expected:
-                raise OtherData(f"{label} trained on {trained_on}, not on the data asked for ({expected}); "
-                                f"its run: {run_folder}")
-            dm = run_datamodule(run)
-            scores = score_run(run, dm, label, seed)
-            caps = stopped_at_caps(run)
+            run, scores, caps = trained_row(label, seed, overrides, run_folder, config_dirs, expected)
         except KeyboardInterrupt:  # Ctrl-C: the rows done so far are written, then the command ends (130)
             rows.fail(label, seed, "interrupted")
             table, data_file = rows.write()
@@ -200,6 +181,45 @@ def main(cfg: DictConfig) -> None:
     if rows.failed:
         raise UserError(f"{len(rows.failed)} of {len(labels)} models failed ({'; '.join(rows.failed)}); the table "
                         f"holds the others: {table}")
+
+
+def check_models(config: BenchmarkConfig, dataset: str, labels: list[str], configs: set[str],
+                 folder: Path | None, nominal: str | None) -> None:
+    """Every model asked for is a row of the data set's suite or a model config, and the models
+    ``hypa diagnose`` writes have a nominal model to diagnose (or a diagnosis folder): refused in one
+    line before any data are read."""
+    suite = config.suites.get(dataset)
+    suite_models = suite.models if suite is not None else {}
+    if suite is None and not config.models:
+        raise UserError(f"dataset={dataset} has no benchmark suite ({', '.join(config.suites)} have): name the models "
+                        "to benchmark, models=[M1,M2] (conf/model/M1.yaml, or in your --config-dir)")
+    if config.diagnose and folder is None and config.diagnose not in configs:
+        raise UserError(f"diagnose={config.diagnose} is not a model config (conf/model/*.yaml or your --config-dir)")
+    if nominal is None and any(m in WRITTEN and m not in suite_models for m in labels):
+        raise UserError(f"models {[m for m in labels if m in WRITTEN]} are written by hypa diagnose: give diagnose=M, "
+                        "the model it extends (models=[M,diagnosed] diagnose=M)")
+    unknown = [m for m in labels if m not in suite_models and m not in configs and not (nominal and m in WRITTEN)]
+    if unknown:
+        where = f"in the {dataset} suite ({', '.join(suite_models)}) nor " if suite is not None else ""
+        raise UserError(f"models {unknown} are {'not ' + where if where else 'not '}model configs "
+                        "(conf/model/*.yaml or your --config-dir)")
+
+
+def trained_row(label: str, seed: int, overrides: list[str], run_folder: Path, config_dirs: list[Path],
+                expected: Path) -> tuple[TrainedRun, list, list[str]]:
+    """One row: ``hypa train`` with ``overrides`` into ``run_folder``, its run loaded and scored on the
+    test sets (its caps said); :class:`OtherData` where it trained on other data than ``expected``."""
+    from hypa.evaluation.api import run_datamodule
+    from hypa.evaluation.benchmark import score_run, stopped_at_caps
+    from hypa.evaluation.runs import load_run
+
+    train_model(label, overrides, run_folder, config_dirs)
+    run = load_run(run_folder, trust=("*",))  # the run it trained just now, from its own configuration
+    trained_on = Path(str(run.info.get("data_dir", ""))).resolve()
+    if trained_on != expected:
+        raise OtherData(f"{label} trained on {trained_on}, not on the data asked for ({expected}); "
+                        f"its run: {run_folder}")
+    return run, score_run(run, run_datamodule(run), label, seed), stopped_at_caps(run)
 
 
 class OtherData(UserError):

@@ -22,7 +22,7 @@ import yaml
 
 from hypa.core.metrics import correlation, errors, rms
 from hypa.diagnosis.catalogue import Entry
-from hypa.diagnosis.coverage import coverage, short_lines
+from hypa.diagnosis.coverage import ChannelCoverage, coverage, short_lines
 from hypa.diagnosis.edits import frozen, set_free
 from hypa.diagnosis.finding import Finding
 from hypa.diagnosis.problem import Problem
@@ -39,8 +39,8 @@ from hypa.diagnosis.result import (
     SystemSummary,
     TrainedSummary,
 )
-from hypa.diagnosis.search import name_causes
-from hypa.diagnosis.structure import analyze_output
+from hypa.diagnosis.search import Search, name_causes
+from hypa.diagnosis.structure import OutputStructure, analyze_output
 from hypa.diagnosis.trained import TrainedExtension
 from hypa.models.rollout import Prediction, free_run, free_run_levels, free_run_metrics
 from hypa.models.spec import DIAGNOSED, ModelSpec, model_imports, read_model_file, spec_config
@@ -136,17 +136,8 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     problem.require_data()  # before any step is announced: data too short are refused in one line
     out.mkdir(parents=True, exist_ok=True)
     dm, started = problem.dm, time.perf_counter()
-    progress(f"step 1/4: the nominal model {nominal.name!r} free-running on {len(dm.records('val'))} "
-             "validation record(s)")
-    before = _runs(problem, frozen(nominal))
-    units = {n: dm.channels[n].unit for n in dm.output_names}
-    for line in free_run_levels(before, dm.output_names, problem.build(frozen(nominal)), units):
-        progress(f"          warning: {line}")  # a level no cause can explain: a state the data do not start
-    covered, crossed = coverage(dm), len(problem.folds()) > 1
-    for line in short_lines(dm, covered):
-        progress(f"          validation data: {line}: "
-                 + ("the validation figures cover a part of the operating range" if crossed else
-                    "candidates are judged on a part of the operating range"))
+    before, covered = _nominal_runs(nominal, problem, progress)
+    crossed = len(problem.folds()) > 1
     progress("step 2/4: naming the causes (" + (
         f"each candidate fitted on every other block of all records and scored on the rest, {len(problem.folds())} "
         "folds" if crossed else f"each candidate fitted on {len(dm.records('train'))} training record(s)")
@@ -156,32 +147,10 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     progress(f"          named: {', '.join(f.cause for f in search.named) or 'none'} ({search.seconds:.0f} s)")
     progress("step 3/4: what remains (amplitude, band, correlation with the inputs)")
     after = _runs(problem, search.spec)
-    # every measured channel but the outputs; those the extended model does not read are named as such
-    used = {s for b in search.spec.blocks for s in (*b.inputs, *b.scheduling.values())}
-    held = {r.name: r for r in dm.records("val")}
-    channels = [c for c in dm.channels if c not in dm.output_names
-                and all(c in r.inputs or c in held[r.record].channels for r in after)]
-    structure = [analyze_output(o, dm.channels[o].unit, [r.measured[o][r.first:] for r in after],
-                                [r.predicted[o][r.first:] for r in after],
-                                {c: [r.inputs[c][r.first:] if c in r.inputs else _record(dm, r, c) for r in after]
-                                 for c in channels}, problem.time_scales, unused=set(channels) - used)
-                 for o in dm.output_names]
+    structure = _what_remains(problem, search.spec, after)
     unexplained = [s for s in structure if s.unexplained]
     progress("step 4/4: the extended model as a hypa model, and its gain")
-    conf = out / "conf" / "model"
-    conf.mkdir(parents=True, exist_ok=True)
-    # the written models keep the hold they were diagnosed with (their fitted values belong to it)
-    extended = dataclasses.replace(refittable(search.spec, nominal, search.named), name="diagnosed",
-                                   hold=nominal.hold or problem.hold)
-    # the hybrid is written whatever remains (the benchmark's hybrid row trains it); it is the one to
-    # train when the residual analysis leaves something unexplained
-    hybrid = dataclasses.replace(with_correction(extended, dm.input_names), name="diagnosed_hybrid")
-    written = {"diagnosed": _write(conf / "diagnosed.yaml", extended, search.named),
-               "diagnosed_hybrid": _write(conf / "diagnosed_hybrid.yaml", hybrid, search.named)}
-    learned = [b for f in search.named if f.candidate for b in f.candidate.learn]
-    if learned:
-        written["diagnosed_learned"] = _write(conf / "diagnosed_learned.yaml",
-                                              with_networks(extended, learned), search.named)
+    extended, written = _write_models(out / "conf" / "model", nominal, problem, search)
     train_overrides = with_past(train_overrides, problem, extended)
     commands = {name: train_command(out / "conf", name, train_overrides, name != "diagnosed", config_dir)
                 for name in written}
@@ -191,7 +160,7 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     # own score restarts its free runs every stretch_s: on long records a slightly different figure)
     change["overall"] = _overall(metrics["nominal"], metrics["extended"], dm.output_names)
     error = {m: validation_error(metrics[m], dm.output_names) for m in ("nominal", "extended")}
-    trained = None
+    trained, runs = None, []
     if train_extension is not None:
         name = "diagnosed_hybrid" if unexplained else "diagnosed"
         progress(f"          training {name} with hypa train (progress below)")
@@ -230,11 +199,68 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
         seconds=time.perf_counter() - started,
     )
     if plot:
-        result.figures = _figures(out, before, after, dm, runs if trained else (), list(signals))
+        result.figures = _figures(out, before, after, dm, runs, list(signals))
     result.to_json(out / "diagnosis.json")
     units = {n: (c.display_unit, c.display_factor) for n, c in dm.channels.items()}
     (out / "diagnosis.md").write_text(result.markdown(units, min_gain))
     return result
+
+
+def _nominal_runs(nominal: ModelSpec, problem: Problem,
+                  progress: Callable[[str], None]) -> tuple[list[Prediction], list[ChannelCoverage]]:
+    """Step 1: the nominal model's free runs over the validation records, with a warning for a level
+    no cause can explain and a line for validation data that cover a part of the operating range;
+    returns the runs and the coverage."""
+    dm = problem.dm
+    progress(f"step 1/4: the nominal model {nominal.name!r} free-running on {len(dm.records('val'))} "
+             "validation record(s)")
+    before = _runs(problem, frozen(nominal))
+    units = {n: dm.channels[n].unit for n in dm.output_names}
+    for line in free_run_levels(before, dm.output_names, problem.build(frozen(nominal)), units):
+        progress(f"          warning: {line}")  # a level no cause can explain: a state the data do not start
+    covered, crossed = coverage(dm), len(problem.folds()) > 1
+    for line in short_lines(dm, covered):
+        progress(f"          validation data: {line}: "
+                 + ("the validation figures cover a part of the operating range" if crossed else
+                    "candidates are judged on a part of the operating range"))
+    return before, covered
+
+
+def _what_remains(problem: Problem, spec: ModelSpec, after: Sequence[Prediction]) -> list[OutputStructure]:
+    """Step 3: each output's residual after the named causes (amplitude, band, correlation with every
+    measured channel but the outputs; those the extended model does not read are named as such)."""
+    dm = problem.dm
+    used = {s for b in spec.blocks for s in (*b.inputs, *b.scheduling.values())}
+    held = {r.name: r for r in dm.records("val")}
+    channels = [c for c in dm.channels if c not in dm.output_names
+                and all(c in r.inputs or c in held[r.record].channels for r in after)]
+    return [analyze_output(o, dm.channels[o].unit, [r.measured[o][r.first:] for r in after],
+                           [r.predicted[o][r.first:] for r in after],
+                           {c: [r.inputs[c][r.first:] if c in r.inputs else _record(dm, r, c) for r in after]
+                            for c in channels}, problem.time_scales, unused=set(channels) - used)
+            for o in dm.output_names]
+
+
+def _write_models(conf: Path, nominal: ModelSpec, problem: Problem,
+                  search: Search) -> tuple[ModelSpec, dict[str, Path]]:
+    """Step 4: the extended model (``diagnosed``), its hybrid with a correction network
+    (``diagnosed_hybrid``) and, where a cause lets a network learn a block, that model
+    (``diagnosed_learned``), written into ``conf`` as hypa models; returns the extended model and
+    the files by name."""
+    conf.mkdir(parents=True, exist_ok=True)
+    # the written models keep the hold they were diagnosed with (their fitted values belong to it)
+    extended = dataclasses.replace(refittable(search.spec, nominal, search.named), name="diagnosed",
+                                   hold=nominal.hold or problem.hold)
+    # the hybrid is written whatever remains (the benchmark's hybrid row trains it); it is the one to
+    # train when the residual analysis leaves something unexplained
+    hybrid = dataclasses.replace(with_correction(extended, problem.dm.input_names), name="diagnosed_hybrid")
+    written = {"diagnosed": _write(conf / "diagnosed.yaml", extended, search.named),
+               "diagnosed_hybrid": _write(conf / "diagnosed_hybrid.yaml", hybrid, search.named)}
+    learned = [b for f in search.named if f.candidate for b in f.candidate.learn]
+    if learned:
+        written["diagnosed_learned"] = _write(conf / "diagnosed_learned.yaml",
+                                              with_networks(extended, learned), search.named)
+    return extended, written
 
 
 def _record(dm, run: Prediction, channel: str) -> np.ndarray:
@@ -282,8 +308,9 @@ def train_arguments(written: Path, model: str, overrides: Sequence[str], with_an
 
 def train_command(written: Path, model: str, overrides: Sequence[str], with_ann: bool,
                   config_dir: Path | None = None) -> str:
-    """The shell command of :func:`train_arguments`."""
-    return " ".join(["hypa train",
+    """The shell command of :func:`train_arguments` (``python -m hypa train ...``: it runs with any
+    environment's Python, as the launched commands' lines do)."""
+    return " ".join(["python -m hypa train",
                      *(shlex.quote(w) for w in train_arguments(written, model, overrides, with_ann, config_dir))])
 
 

@@ -113,9 +113,11 @@ class HybridModule(L.LightningModule):
         ``ModelSpecError``); the rest as in the class.
         """
         data = DataSignature.of(data)
-        spec = model_config if isinstance(model_config, ModelSpec) else parse_model_spec(dict(model_config))
+        # a spec travels as it is (stored as its config); a config is stored as given
+        given = model_config if isinstance(model_config, ModelSpec) else dict(model_config)
+        spec = given if isinstance(given, ModelSpec) else parse_model_spec(given)
         return cls(
-            model_config=spec, physical_values=None if physical_values is None else dict(physical_values),
+            model_config=given, physical_values=None if physical_values is None else dict(physical_values),
             normalization=data.normalization.state_dict(), input_names=list(data.input_names),
             output_names=list(data.output_names), eval_names=list(data.eval_names), dt=data.dt,
             horizon=data.window if horizon is None else int(horizon), hold=model_hold(spec, hold),

@@ -87,7 +87,7 @@ def test_extended_model_is_a_hypa_model_that_trains(delay_run, tmp_path: Path) -
     command = diagnosis["extended"]["train_command"]["diagnosed"]
     assert command in (run / "diagnosis.md").read_text()
     words = shlex.split(command)
-    assert words[:3] == ["python", "-m", "hypa", "train"] and "testbench.steering.delay_s=0.06" in words
+    assert words[:4] == ["python", "-m", "hypa", "train"] and "testbench.steering.delay_s=0.06" in words
     env = {**os.environ, "HYPA_CACHE_DIR": str(run.parent / "cache")}
     trained = subprocess.run([sys.executable, *words[1:], f"hydra.run.dir={tmp_path / 'train'}",
                               "trainer.max_epochs=1", "trainer.limit_train_batches=3", "figures.enabled=false"],
