@@ -5,7 +5,8 @@
     hypa fleet summary outputs/diagnose/fleet_...         # (re)build the summary
 
 Every job writes its ``diagnosis.json`` (or, if it failed, ``error.json`` with its one-line error:
-:func:`record_failures`) into its job folder; after the last job, :class:`FleetSummary` (a Hydra
+:func:`hypa.commands.fleet.record_failures`) into its job folder; after the last job,
+:class:`hypa.commands.fleet.FleetSummary` (a Hydra
 callback registered in conf/diagnose.yaml, so it runs with any launcher) reads them all and writes
 ``fleet.md`` and ``fleet.json`` into the sweep folder: per log the named causes, their estimates
 in the units an engineer reads and the validation error change; across logs how often each cause
@@ -17,29 +18,23 @@ the exit status is 1 if any failed.
 
 from __future__ import annotations
 
-import functools
 import json
 import re
 import sys
-import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
-from hydra.experimental.callback import Callback
-from omegaconf import DictConfig
 
-from hypa.core.errors import UserError, full_error_requested, is_user_error, one_line
+from hypa.core.errors import UserError, one_line
 from hypa.core.metrics import mean_std
 from hypa.core.trust import read_bounded, read_yaml
 from hypa.core.units import readable
 from hypa.diagnosis.result import Diagnosis, FindingRow
 from hypa.reporting import markdown as md
 from hypa.reporting.numbers import plain
-
-F = TypeVar("F", bound=Callable[..., Any])
 
 DIAGNOSIS_FILE = "diagnosis.json"
 ERROR_FILE = "error.json"
@@ -197,7 +192,7 @@ def read_log(folder: Path) -> LogDiagnosis:
 
 
 def read_error(path: Path) -> str:
-    """The one-line error that :func:`record_failures` wrote, or why the file is not one."""
+    """The one-line error that :func:`hypa.commands.fleet.record_failures` wrote, or why the file is not one."""
     try:
         error = json.loads(read_bounded(path, what=ERROR_FILE))
     except UserError as refused:
@@ -361,58 +356,6 @@ def report(fleet: Fleet) -> str:
     failures = "" if not failed else f" ({failed} failed: see the per-log table)"
     return (f"{across}\nfleet of {len(fleet.logs)} logs{failures}: "
             f"{fleet.sweep_dir / 'fleet.md'}, {fleet.sweep_dir / 'fleet.json'}")
-
-
-class FleetSummary(Callback):
-    """Hydra callback (``hydra.callbacks`` in conf/diagnose.yaml): after the last job of a
-    multirun, on the machine that launched it, write the fleet summary into the sweep folder.
-    Like ``make -k``, the sweep goes on past a failed log but its exit status is 1 if any failed,
-    or if the summary cannot be written (Hydra would only warn of an error raised here)."""
-
-    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
-        try:
-            fleet = write_summary(Path(str(config.hydra.sweep.dir)))
-        except Exception as error:  # noqa: BLE001 (Hydra would turn it into a warning and exit 0)
-            if not is_user_error(error) or full_error_requested():
-                traceback.print_exc()
-            print(f"hypa {JOB_NAME}: error: fleet summary: {one_line(error)}", file=sys.stderr, flush=True)
-            sys.exit(1)
-        print(report(fleet), flush=True)
-        if len(fleet.diagnosed) < len(fleet.logs):
-            sys.exit(1)
-
-
-def record_failures(command: str) -> Callable[[F], F]:
-    """In a multirun, a job that fails writes its one-line error to ``error.json`` in its folder
-    and returns, so one bad log does not end the sweep (Hydra's sweepers stop at a failed job and
-    skip the callbacks) and the summary shows it as failed. A user error prints
-    ``<command>: error: <message>``, a bug its traceback. In a single run the error passes on
-    (to :func:`hypa.core.errors.user_errors` above)."""
-    def decorate(main: F) -> F:
-        @functools.wraps(main)
-        def wrapped(*args: Any, **kwargs: Any) -> Any:
-            from hydra.core.hydra_config import HydraConfig
-            from hydra.types import RunMode
-
-            try:
-                return main(*args, **kwargs)
-            except Exception as error:
-                if HydraConfig.get().mode != RunMode.MULTIRUN:
-                    raise
-                user = is_user_error(error)
-                message = str(error) if user else f"{type(error).__name__}: {error}"
-                one_line = " ".join(message.split())
-                folder = Path(HydraConfig.get().runtime.output_dir)
-                (folder / ERROR_FILE).write_text(json.dumps({"error": one_line, "user_error": user}, indent=2))
-                if user and not full_error_requested():
-                    print(f"{command}: error: {one_line}", file=sys.stderr, flush=True)
-                else:
-                    traceback.print_exc()
-                return None
-
-        return wrapped  # type: ignore[return-value]
-
-    return decorate
 
 
 if __name__ == "__main__":  # `python -m hypa.diagnosis.fleet`, the spelling before `hypa fleet` (one release)

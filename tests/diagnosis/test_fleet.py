@@ -300,7 +300,7 @@ def test_a_summary_that_cannot_be_written_ends_the_sweep_with_one_line(tmp_path:
     from omegaconf import OmegaConf
 
     with pytest.raises(SystemExit) as exit_:
-        fleet.FleetSummary().on_multirun_end(OmegaConf.create({"hydra": {"sweep": {"dir": str(tmp_path)}}}))
+        fleet_command.FleetSummary().on_multirun_end(OmegaConf.create({"hydra": {"sweep": {"dir": str(tmp_path)}}}))
     assert exit_.value.code == 1
     err = capsys.readouterr().err
     assert f"hypa diagnose: error: fleet summary: {tmp_path} holds no hypa diagnose jobs" in err

@@ -4,8 +4,8 @@
 
 Times the one engine's naming (:func:`hypa.diagnosis.search.name_causes`) from the nominal
 model ``conf/model/vehicle_nominal.yaml`` with the settings ``hypa diagnose`` uses
-(first-order hold, windows of ``data.window`` = 100 samples, the built-in catalogues, at most 5
-causes). Default data: the default test bench (``TestbenchConfig()``: 2 training records of
+(first-order hold, windows of ``data.window`` = 100 samples, the built-in catalogues, at most
+``MAX_CAUSES`` causes). Default data: the default test bench (``TestbenchConfig()``: 2 training records of
 5 min and a 3 min validation record at 1024 Hz), decimated to 32 Hz by ``HypaDataModule`` as
 the entry point does. Data generation (or finding it in the cache) and reading are not timed.
 
