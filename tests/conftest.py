@@ -13,6 +13,7 @@ Tests marked ``shared_data`` read the real data sets in ../shared/data (beside t
 """
 
 import os
+import signal
 from pathlib import Path
 
 import pytest
@@ -47,6 +48,18 @@ def _no_hydra_app_left_running():
     from hydra.core.hydra_config import HydraConfig
 
     HydraConfig.instance().cfg = None  # type: ignore[assignment]
+
+
+@pytest.fixture(autouse=True)
+def _ctrl_c_as_it_was():
+    """A command run in this process that ends on a Ctrl-C ignores further ones (hypa.core.errors) and
+    the diagnosis's workers hold SIGINT while they fork: both are inherited by every process a later
+    test starts, whose Ctrl-C would then reach nothing. Each test starts with SIGINT as before it."""
+    handler = signal.getsignal(signal.SIGINT)
+    yield
+    signal.signal(signal.SIGINT, handler)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 def pytest_runtest_setup(item: pytest.Item) -> None:

@@ -165,7 +165,7 @@ def test_the_diagnosis_names_the_cubic_shunt_and_its_model_beats_the_linear_one(
     assert ("cubic_state", "circuit/voltage") in named, named
     assert result["score"]["extended"] < 1e-3 * result["score"]["nominal"], result["score"]
     command = shlex.split(result["extended"]["train_command"]["diagnosed"])
-    assert command[:3] == ["python", "-m", "hypa", "train"]
+    assert command[:4] == ["python", "-m", "hypa", "train"]
     run(*command[2:], f"hydra.run.dir={tmp_path / 'train'}", "trainer.enable_progress_bar=false")
     run("hypa evaluate", f"run={tmp_path / 'train'}", "trust=[circuit]", f"hydra.run.dir={tmp_path / 'evaluate'}")
     metrics = json.loads((tmp_path / "train" / "evaluation" / "metrics.json").read_text())

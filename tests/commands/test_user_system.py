@@ -57,6 +57,7 @@ def test_user_system_evaluates_in_its_own_units(trained: Path, tmp_path: Path) -
     assert (tmp_path / "transfer_voltage_speed.png").stat().st_size > 1000
 
 
+@pytest.mark.slow  # 51 s; the benchmark: test_real_data_cli's, in make test; --config-dir: the tests above
 def test_a_users_own_data_set_and_model_are_benchmarked(tmp_path: Path) -> None:
     """hypa benchmark --config-dir DIR dataset=NAME models=[M]: no suite needed; without test
     records it refuses (an empty table would be a silent non-result), and the diagnosis's rows

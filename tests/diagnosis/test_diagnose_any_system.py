@@ -55,7 +55,7 @@ def test_the_extended_model_is_a_hypa_model_that_trains(diagnosed: Path, tmp_pat
     assert written["parameters"]["torque_constant"] == pytest.approx(0.065, rel=0.05)
     assert set(written["blocks"]["motor"]["trainable"]) == {"torque_constant", "friction", "load_torque"}
     command = json.loads((diagnosed / "diagnosis.json").read_text())["extended"]["train_command"]["diagnosed"]
-    assert command.startswith("hypa train --config-dir")
+    assert command.startswith("python -m hypa train --config-dir")
     env = {**os.environ, "PYTHONPATH": str(EXAMPLE)}
     assert f"--config-dir {EXAMPLE / 'conf'}" in command  # the user's dataset YAML is found again
     args = [*shlex.split(command)[1:], "trainer.max_epochs=1",

@@ -101,7 +101,7 @@ def test_tire_relaxation_is_named_and_no_dead_time_stands_in(tmp_path: Path) -> 
     command = result["extended"]["train_command"]["diagnosed"]
     assert "data.past=7" in shlex.split(command), command
     env = {**os.environ, "HYPA_CACHE_DIR": str(tmp_path / "cache")}
-    arguments = [*shlex.split(command)[3:], f"hydra.run.dir={tmp_path / 'trained'}", "trainer.max_epochs=1",
+    arguments = [*shlex.split(command)[4:], f"hydra.run.dir={tmp_path / 'trained'}", "trainer.max_epochs=1",
                  "trainer.limit_train_batches=2", "trainer.limit_val_batches=2", "trainer.enable_progress_bar=false",
                  "figures.enabled=false"]
     trained = subprocess.run([sys.executable, "-m", "hypa", "train", *arguments], cwd=ROOT, env=env,

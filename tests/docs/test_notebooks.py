@@ -40,6 +40,7 @@ def test_the_stored_notebooks_show_their_outputs() -> None:
         assert path.stat().st_size < 1_000_000, path.name
 
 
+@pytest.mark.slow  # 28 s; make reproduce's report: test_reproduce_report, in make test
 def test_reproduce_notebook_runs_on_a_tiny_reproduction(tmp_path: Path, hypa_cache: Path) -> None:
     tiny = ["trainer.max_epochs=1", "trainer.limit_train_batches=2", "trainer.limit_val_batches=2",
             "ann.hidden_size=8", *SHORT_OVERRIDES]

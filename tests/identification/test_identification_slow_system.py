@@ -124,6 +124,7 @@ def train(user: Path, model: str, run: Path) -> dict:
             "metrics": json.loads((run / "eval" / "metrics.json").read_text())}
 
 
+@pytest.mark.slow  # 40 s; nonlinear identification through hypa train: test_identification's in make test
 def test_a_slow_nonlinear_system_is_identified_and_beats_its_linearisation(user: Path, tmp_path: Path) -> None:
     nonlinear = train(user, "heated_nonlinear", tmp_path / "nonlinear")
     identified = nonlinear["run"]["identification"]

@@ -122,6 +122,7 @@ def user(tmp_path_factory) -> Path:
     return folder
 
 
+@pytest.mark.slow  # 35 s; the nonlinear tanks: their diagnosis at the benchmark's size, in make test
 def test_the_nonlinear_tanks_reach_the_noise_and_their_linearisation_does_not(user: Path, tmp_path: Path) -> None:
     out = tmp_path / "benchmark"
     models = run_user_benchmark(user, "tanks", ["tanks", "tanks_linear"], out, timeout=600)

@@ -384,7 +384,10 @@ def test_cli_writes_the_folder_and_prints_a_summary(tmp_path, monkeypatch, capsy
             *overrides,
         ],
     )
-    runpy.run_module("hypa testbench", run_name="__main__")  # as hypa testbench
+    monkeypatch.setattr(sys, "argv", [sys.argv[0], "testbench", *sys.argv[1:]])
+    with pytest.raises(SystemExit) as ended:
+        runpy.run_module("hypa", run_name="__main__")  # as python -m hypa testbench
+    assert ended.value.code == 0
     printed = capsys.readouterr().out
     assert "val.parquet" in printed and "train_2.parquet" in printed and "deg" in printed
     assert (tmp_path / "data" / "dataset.json").is_file()

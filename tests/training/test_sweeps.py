@@ -63,6 +63,7 @@ def test_optuna_width_follows_the_ann(ann: str) -> None:
         assert all(width % cfg.ann.n_heads == 0 for width in space["ann.d_model"].list)
 
 
+@pytest.mark.slow  # 34 s; a multirun through a launcher: the submitit sweep, in make test (Optuna itself only here)
 def test_optuna_sweep_two_trials(tmp_path: Path, hypa_cache: Path) -> None:
     sweep = tmp_path / "sweep"
     result = hypa_train("-m", "hydra/sweeper=hybrid_optuna", "model=v2", "ann=lstm", "hydra.sweeper.n_trials=2",

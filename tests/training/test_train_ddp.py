@@ -62,6 +62,7 @@ def test_v2_trains_across_two_processes_as_in_one(tmp_path: Path, hypa_cache: Pa
 TRUE = {"torque_constant": 0.065, "friction": 3e-5, "load_torque": 0.004}  # examples/user_system/make_data.py
 
 
+@pytest.mark.slow  # 34 s; ddp across two processes: the V2 test above, in make test
 def test_a_hybrid_identified_once_trains_on_its_physics_across_two_processes(tmp_path: Path) -> None:
     """Rank 0 identifies the physics (once: one report), rank 1 receives it: both train from the identified
     values (the checkpoint's are, after an epoch at a negligible physics learning rate) to the same weights.
