@@ -52,9 +52,9 @@ def _no_hydra_app_left_running():
 
 @pytest.fixture(autouse=True)
 def _ctrl_c_as_it_was():
-    """A command run in this process that ends on a Ctrl-C ignores further ones (hypa.core.errors) and
-    the diagnosis's workers hold SIGINT while they fork: both are inherited by every process a later
-    test starts, whose Ctrl-C would then reach nothing. Each test starts with SIGINT as before it."""
+    """A command run in this process that ends on a Ctrl-C ignores further ones (hypa.core.errors), and
+    the diagnosis's workers hold SIGINT while they fork: each test leaves SIGINT's handler as it found
+    it, and SIGINT unblocked, so neither reaches a process that a later test starts."""
     handler = signal.getsignal(signal.SIGINT)
     yield
     signal.signal(signal.SIGINT, handler)

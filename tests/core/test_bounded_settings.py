@@ -11,12 +11,14 @@ end in one line, never a traceback.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -177,16 +179,30 @@ def test_evaluate_refuses_a_run_whose_stored_testbench_asks_for_huge_records(tmp
     assert time.perf_counter() - started < 120
 
 
+@contextlib.contextmanager
+def as_in_a_terminal() -> Iterator[None]:
+    """The processes started inside get Ctrl-C (SIGINT) as a command in a terminal does. A suite
+    started in the background by a script (``make test &``) ignores SIGINT, and a started process
+    inherits that: the command under test would never see the Ctrl-C these tests send."""
+    handler = signal.signal(signal.SIGINT, signal.default_int_handler)  # not ignored: exec resets it
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, handler)
+
+
 def test_ctrl_c_ends_diagnose_and_its_workers_with_one_line_and_status_130(tmp_path: Path) -> None:
     # long enough that the search is still fitting a second after its first line (30 s of data: it
     # ended within that second on a quiet machine, and the Ctrl-C reached nothing to interrupt)
     data = make_data_dir(tmp_path / "data", duration_s=150.0)
     environment = {k: v for k, v in os.environ.items() if k not in ("HYDRA_FULL_ERROR", "HYPA_FULL_ERROR")}
     environment.update(OMP_NUM_THREADS="1", PYTHONUNBUFFERED="1")
-    process = subprocess.Popen([sys.executable, "-m", "hypa", "diagnose", "dataset=files", f"data.dir={data}",
-                                "plot=false", "diagnosis.workers=2", f"hydra.run.dir={tmp_path / 'run'}"],
-                               cwd=ROOT, env=environment, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               start_new_session=True)  # its own process group: the signal reaches the workers too
+    with as_in_a_terminal():
+        process = subprocess.Popen([sys.executable, "-m", "hypa", "diagnose", "dataset=files", f"data.dir={data}",
+                                    "plot=false", "diagnosis.workers=2", f"hydra.run.dir={tmp_path / 'run'}"],
+                                   cwd=ROOT, env=environment, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                   start_new_session=True)  # its own process group: the signal reaches the workers too
     try:
         lines = []
         for line in process.stdout:  # the search's rounds (on the forked workers) start after this line
@@ -227,8 +243,9 @@ main()
 
 def test_ctrl_c_while_the_diagnosis_workers_wait_is_one_line_not_one_traceback_per_worker() -> None:
     environment = {k: v for k, v in os.environ.items() if k not in ("HYDRA_FULL_ERROR", "HYPA_FULL_ERROR")}
-    result = subprocess.run([sys.executable, "-c", IDLE_WORKERS], cwd=ROOT, env=environment, capture_output=True,
-                            text=True, timeout=60, check=False, start_new_session=True)
+    with as_in_a_terminal():
+        result = subprocess.run([sys.executable, "-c", IDLE_WORKERS], cwd=ROOT, env=environment, capture_output=True,
+                                text=True, timeout=60, check=False, start_new_session=True)
     assert result.returncode == 130, result.stderr[-3000:]
     assert result.stderr.strip().splitlines() == ["hypa.test: interrupted"], result.stderr[-3000:]
 
