@@ -59,7 +59,7 @@ def main(cfg: DictConfig) -> None:
     values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.get("vehicle") else {}
     print("reading the data", flush=True)
     # data.past null: for the model; the auxiliary channels as inputs a candidate may read (unmodeled_input)
-    dm = model_datamodule(cfg, data_dir_from_config(cfg), spec, values, auxiliary_inputs=True)
+    dm = model_datamodule(cfg, data_dir_from_config(cfg), spec, values, auxiliary_inputs=True).dm
     diagnosis = config.diagnosis
     workers = {} if diagnosis.workers is None else {"workers": diagnosis.workers}
     problem = Problem(dm, values, hold=hold, horizon=config.data.window,

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -44,30 +45,52 @@ def datamodule(cfg: DictConfig) -> HypaDataModule:
     return datamodule_from_config(cfg.data, data_dir_from_config(cfg))
 
 
+@dataclass(frozen=True)
+class ModelData:
+    """The data for a model (:func:`model_datamodule`) and what they chose that the configuration left
+    open: ``past_chosen``, the past samples chosen where ``data.past`` is null (None where it was given), and
+    ``promoted``, the auxiliary channels the model reads, held as inputs. :meth:`recorded` says both as
+    the configuration's keys, for a run's recorded configuration."""
+
+    dm: HypaDataModule
+    past_chosen: int | None
+    promoted: tuple[str, ...] = ()
+
+    def recorded(self) -> dict[str, Any]:
+        """What the data chose as dotted keys of the configuration -> values (``data.past``,
+        ``data.channels.NAME.role``): a configuration with them builds these data again."""
+        chosen: dict[str, Any] = {f"data.channels.{name}.role": "input" for name in self.promoted}
+        if self.past_chosen is not None:
+            chosen["data.past"] = self.past_chosen
+        return chosen
+
+
 def model_datamodule(cfg: DictConfig, data_dir: Path, spec: ModelSpec,
-                     physical_values: Mapping[str, float], auxiliary_inputs: bool = False) -> HypaDataModule:
-    """The data node's DataModule, set up, for the model ``spec``: where ``data.past`` is
-    null, with as many past samples as the model's estimated starts want
+                     physical_values: Mapping[str, float], auxiliary_inputs: bool = False) -> ModelData:
+    """The data node's DataModule, set up, for the model ``spec``, and what it chose: where ``data.past``
+    is null, as many past samples as the model's estimated starts want
     (:meth:`~hypa.models.ComposedModel.suggested_past`) and, for a network that starts from the
     measured outputs over the past, ``PAST_MARGIN`` times the past the training data's outputs
     depend on (:func:`~hypa.data.memory.linear_memory`; at most a window), 0 where nothing reads a
-    past: written into ``cfg`` (the run's recorded configuration) and said on one line. An auxiliary
-    channel the model reads is declared an input in ``cfg`` (:func:`~hypa.data.from_config.read_as_inputs`),
-    said on one line; ``auxiliary_inputs``: every varying auxiliary channel held as an input too (the
-    diagnosis)."""
+    past, said on one line. An auxiliary channel the model reads is held as an input
+    (:func:`~hypa.data.from_config.read_as_inputs`), said on one line; ``auxiliary_inputs``: every
+    varying auxiliary channel held as an input too (the diagnosis). The files are read once (a chosen
+    past: :meth:`~hypa.data.HypaDataModule.with_past`); ``cfg`` is only read: a run records the choices
+    in its configuration (:meth:`ModelData.recorded`)."""
     from hypa.data.from_config import read_as_inputs
     from hypa.data.memory import linear_memory
     from hypa.models import ComposedModel
     from hypa.models.composed import PAST_MARGIN
 
-    promoted = read_as_inputs(cfg.data, spec)
+    promoted = tuple(read_as_inputs(cfg.data, spec))
     if promoted:
         print(f"data: {', '.join(promoted)} declared auxiliary, read by the model as input(s): held as input(s)",
               flush=True)
-    dm = datamodule_from_config(cfg.data, data_dir, auxiliary_inputs=auxiliary_inputs)
+    dm = datamodule_from_config(cfg.data, data_dir, auxiliary_inputs=auxiliary_inputs, as_inputs=promoted)
     dm.setup()
     if cfg.data.past is not None:
-        return dm
+        dm.release_files()
+        return ModelData(dm, None, promoted)
     model = ComposedModel.from_data(dm, spec, physical_values)
     past, reasons = model.suggested_past(), []
     for name, n in model.past_needed().items():
@@ -83,14 +106,12 @@ def model_datamodule(cfg: DictConfig, data_dir: Path, spec: ModelSpec,
         reasons.append(f"{which} from the measured outputs over the past, and a linear predictor of the next output "
                        f"on the training data needs {memory.samples} past sample(s) (its order by BIC; "
                        f"{PAST_MARGIN}x that, at most a window)")
-    OmegaConf.update(cfg, "data.past", past)
-    if not past:
-        return dm
-    print(f"data.past: {past} samples before each window ({past * dm.dt:.3g} s), chosen for the model: "
-          + "; ".join(reasons) + "; set data.past to choose", flush=True)
-    dm = datamodule_from_config(cfg.data, data_dir, auxiliary_inputs=auxiliary_inputs)
-    dm.setup()
-    return dm
+    if past:
+        print(f"data.past: {past} samples before each window ({past * dm.dt:.3g} s), chosen for the model: "
+              + "; ".join(reasons) + "; set data.past to choose", flush=True)
+        dm = dm.with_past(past)  # the files read once: only the records' selection and normalization again
+    dm.release_files()
+    return ModelData(dm, past, promoted)
 
 
 def data_overrides(overrides: Sequence[str]) -> list[str]:

@@ -44,7 +44,7 @@ def main(cfg: DictConfig) -> float:
         values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.vehicle else {}
     with settings("testbench"):  # the test bench's settings build its data (files: a folder only)
         data_dir = data_dir_from_config(cfg)
-    dm = model_datamodule(cfg, data_dir, spec, values)  # data.past null: chosen for the model
+    dm = model_datamodule(cfg, data_dir, spec, values).dm  # data.past null: chosen for the model
     module = nominal_module(spec, values, dm, hold)
     out = Path(HydraConfig.get().runtime.output_dir)
     out.mkdir(parents=True, exist_ok=True)

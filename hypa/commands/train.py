@@ -162,11 +162,13 @@ def prepare(request: Request, cfg: DictConfig, folder: Any) -> Prepared:
     config = request.config
     with settings("testbench"):  # the test bench's settings build its data (files: a folder only)
         data_dir = data_dir_from_config(cfg)
-    dm = model_datamodule(cfg, data_dir, request.spec, request.physical_values)
+    data = model_datamodule(cfg, data_dir, request.spec, request.physical_values)
+    dm = data.dm
     ann, weight_decay, epochs, patience = network_defaults(
         request.spec, request.ann_name, request.ann, dm, config.optimizer.lr, config.optimizer.weight_decay,
         config.trainer.max_epochs, config.patience, config.trainer.limit_train_batches)
-    recorded = {"optimizer.weight_decay": weight_decay, "trainer.max_epochs": epochs,
+    recorded = {**data.recorded(),  # a chosen data.past, the auxiliary channels the model reads as inputs
+                "optimizer.weight_decay": weight_decay, "trainer.max_epochs": epochs,
                 "early_stopping.patience": patience, **{f"ann.{k}": v for k, v in ann.items()}}
     # where the data were, resolved, so hypa evaluate finds them from any working directory; what
     # the run was made from (code, packages, data checksums), so hypa evaluate notices other data

@@ -17,7 +17,7 @@ from torch.utils.data import DataLoader
 
 from hypa.core.units import unit
 from hypa.data.channels import ChannelSpec, check_channels, names_with_role
-from hypa.data.dataset import load_dataset
+from hypa.data.dataset import DataFiles, prepare_dataset, read_files
 from hypa.data.decimation import decimation_factor
 from hypa.data.errors import DataError
 from hypa.data.normalization import Normalization
@@ -95,6 +95,12 @@ class HypaDataModule(L.LightningDataModule):
                 raise DataError(f"data.{name} must be >= 1, got {value}")
         if int(past) < 0:
             raise DataError(f"data.past must be >= 0, got {past}")
+        self._arguments: dict[str, Any] = {  # what with_past builds the same data from, another past aside
+            "data_dir": data_dir, "channels": self.channels, "time_column": time_column, "time_unit": time_unit,
+            "sample_rate_hz": sample_rate_hz, "rate_hz": rate_hz, "splits": splits, "select": tuple(select),
+            "window": window, "past": past, "stride": stride, "eval_stride": eval_stride, "batch_size": batch_size,
+            "num_workers": num_workers, "normalization": normalization, "seed": seed,
+            "auxiliary_inputs": auxiliary_inputs}
         self.data_dir = Path(data_dir)
         self.input_names = names_with_role(self.channels, "input")
         self.output_names = names_with_role(self.channels, "output")
@@ -115,6 +121,7 @@ class HypaDataModule(L.LightningDataModule):
         self.seed = int(seed)
         self.auxiliary_inputs = bool(auxiliary_inputs)
         self._normalization = self._as_normalization(normalization)
+        self._files: DataFiles | None = None  # the files as read, kept for with_past (release_files)
         self._data: DataSet | None = None  # SI records at the model rate
         self._datasets: dict[str, WindowDataset] = {}
 
@@ -196,16 +203,35 @@ class HypaDataModule(L.LightningDataModule):
         Idempotent: Lightning calls it once per stage, the files are read once.
         """
         if self._data is None:
-            self._data = load_dataset(
-                self.data_dir, self.channels, self.split_spec, self.time_column, self.time_unit,
-                self.sample_rate_hz, self.rate_hz, self.select, self.window, self.past,
-            )
+            self._data = prepare_dataset(self._read(), self.rate_hz, self.select, self.window, self.past)
         if self.auxiliary_inputs and self._normalization is None:
             self.input_names = (*self.input_names, *varying_auxiliary(self.channels, self._data.train))
         if self._normalization is None:
             self._normalization = Normalization.fit(self._data.train, self.normalized_names)
         if not self._datasets:
             self._build_datasets()
+
+    def with_past(self, past: int) -> HypaDataModule:
+        """These data with ``past`` samples before each window, set up: the same as a data module built
+        with ``past`` instead (its records selected for ``past + window + 1`` samples, its normalization
+        fitted on them unless one was given, its windows), but from the files this one has read (read
+        now where it has not), without reading them again."""
+        other = type(self)(**{**self._arguments, "past": past})
+        other._files = self._read()
+        other.setup()
+        return other
+
+    def release_files(self) -> None:
+        """Forget the files as read (:meth:`with_past` builds from them): the prepared records and
+        windows stay; a later :meth:`with_past` reads the files again. The files at their own rate
+        may hold many times the prepared records: a data module that trains drops them."""
+        self._files = None
+
+    def _read(self) -> DataFiles:
+        if self._files is None:
+            self._files = read_files(self.data_dir, self.channels, self.split_spec, self.time_column,
+                                     self.time_unit, self.sample_rate_hz)
+        return self._files
 
     def _build_datasets(self) -> None:
         assert self._data is not None and self._normalization is not None

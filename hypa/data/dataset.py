@@ -11,12 +11,17 @@ The order matters and is fixed:
 4. ``select`` cuts each piece into the stretches where its conditions hold; stretches shorter
    than one window (``past + window + 1`` samples) are dropped. Without ``select`` a record
    shorter than one window is an error.
+
+Step 1, the expensive one, is :func:`read_files`; steps 2 to 4, which depend on the window and the
+past, are :func:`prepare_dataset`, run again on the same files for another past;
+:func:`load_dataset` runs both.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from hypa.data.channels import ChannelSpec
@@ -43,13 +48,51 @@ def load_dataset(
     window: int = 1,
     past: int = 0,
 ) -> DataSet:
-    """Read and prepare every record of a data set (see the module docstring).
+    """Read and prepare every record of a data set (see the module docstring): :func:`read_files`,
+    then :func:`prepare_dataset`.
+
+    ``splits`` ``None``: the ``train*``, ``val*`` and ``test*`` files of ``data_dir``.
+    """
+    files = read_files(data_dir, channels, splits, time_column, time_unit, sample_rate_hz)
+    return prepare_dataset(files, rate_hz, select_conditions, window, past)
+
+
+@dataclass(frozen=True, eq=False)
+class DataFiles:
+    """The files of a data set as read (step 1 of the module docstring), before any piece is cut:
+    the expensive part, which :func:`prepare_dataset` turns into a :class:`DataSet` for a window and
+    a past as often as asked, without reading a file again.
+
+    ``records``: file name -> the whole file, SI, with its evaluation channels; ``channels``: the
+    declared channels they were read with; ``metadata``: the folder's ``dataset.json`` (empty when
+    absent); ``paths``: every file read (the data files and the ``dataset.json``), for a run's checksums.
+    """
+
+    directory: Path
+    channels: Mapping[str, ChannelSpec]
+    splits: SplitSpec
+    sample_rate_hz: float
+    records: dict[str, Record]
+    metadata: dict = field(default_factory=dict)
+    paths: tuple[Path, ...] = ()
+
+
+def read_files(
+    data_dir: Path,
+    channels: Mapping[str, ChannelSpec],
+    splits: SplitSpec | None = None,
+    time_column: str | None = "time",
+    time_unit: str = "s",
+    sample_rate_hz: float = 1024.0,
+) -> DataFiles:
+    """Read each file the splits name once (:func:`hypa.data.io.load_record`), SI units, with its
+    evaluation channels, and the folder's ``dataset.json``.
 
     ``splits`` ``None``: the ``train*``, ``val*`` and ``test*`` files of ``data_dir``.
     """
     data_dir = Path(data_dir)
     splits = splits if splits is not None else SplitSpec.from_folder(data_dir)
-    files: dict[str, Record] = {}
+    records: dict[str, Record] = {}
     for name in splits.files():
         path = data_dir / name
         if not path.is_file():
@@ -59,15 +102,38 @@ def load_dataset(
             else:
                 where = f"{data_dir} does not exist"
             raise DataError(f"{path}: no such file (named in data.splits); {where}")
-        files[name] = load_record(path, list(channels.values()), time_column, time_unit,
-                                  sample_rate_hz, with_eval=True)
-    evaluation = [n for n, c in channels.items() if c.role == "evaluation"]
+        records[name] = load_record(path, list(channels.values()), time_column, time_unit,
+                                    sample_rate_hz, with_eval=True)
+    return DataFiles(
+        directory=data_dir,
+        channels=dict(channels),
+        splits=splits,
+        sample_rate_hz=float(sample_rate_hz),
+        records=records,
+        metadata=read_metadata(data_dir) if data_dir.is_dir() else {},
+        paths=(*(data_dir / name for name in records),
+               *((data_dir / METADATA_FILE,) if (data_dir / METADATA_FILE).is_file() else ())),
+    )
+
+
+def prepare_dataset(
+    files: DataFiles,
+    rate_hz: float | None = None,
+    select_conditions: Sequence[Condition] = (),
+    window: int = 1,
+    past: int = 0,
+) -> DataSet:
+    """The records of the files already read, cut, decimated and selected (steps 2 to 4 of the
+    module docstring; cheap beside reading them): what depends on the window and the past is done
+    here, so the same files serve another ``past`` (:meth:`hypa.data.HypaDataModule.with_past`)."""
+    sample_rate_hz = files.sample_rate_hz
+    evaluation = [n for n, c in files.channels.items() if c.role == "evaluation"]
     needed = past + window + 1
 
     def prepare(what: str, pieces: Sequence[Piece], training: bool) -> list[Record]:
         records = []
         for piece in pieces:
-            record = _cut(files[piece.file], piece)
+            record = _cut(files.records[piece.file], piece)
             if training:
                 record = record.without(evaluation)
             if rate_hz is not None and rate_hz != sample_rate_hz:
@@ -90,15 +156,15 @@ def load_dataset(
                  " and ".join(map(str, select_conditions)), sum(len(r) for r in kept))
         return kept
 
+    splits = files.splits
     return DataSet(
-        directory=data_dir,
+        directory=files.directory,
         train=prepare("the training split", splits.train, training=True),
         val=prepare("the validation split", splits.val, training=False),
         test_sets={name: prepare(f"test set {name!r}", pieces, training=False)
                    for name, pieces in splits.test.items()},
-        metadata=read_metadata(data_dir) if data_dir.is_dir() else {},
-        files=(*(data_dir / name for name in files),
-               *((data_dir / METADATA_FILE,) if (data_dir / METADATA_FILE).is_file() else ())),
+        metadata=files.metadata,
+        files=files.paths,
     )
 
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -44,13 +44,20 @@ def datamodule_from_config(
     data_dir: Path,
     normalization: Normalization | Mapping[str, Any] | None = None,
     auxiliary_inputs: bool = False,
+    as_inputs: Sequence[str] = (),
 ):
     """Build the :class:`~hypa.data.HypaDataModule` from the ``data`` node and the resolved
     data folder (``normalization``: e.g. a checkpoint's, instead of fitting it; ``auxiliary_inputs``:
-    every varying auxiliary channel held as an input too, for the diagnosis)."""
+    every varying auxiliary channel held as an input too, for the diagnosis; ``as_inputs``: channels of
+    the node declared inputs, as if the node said so, e.g. those a model reads, :func:`read_as_inputs`).
+    The node itself is only read."""
     from hypa.data.datamodule import HypaDataModule
 
     cfg = validated(data_cfg)
+    for name in as_inputs:
+        if name not in cfg.channels:
+            raise DataError(f"{name} is no channel of the data (data.channels has {', '.join(cfg.channels)})")
+        cfg.channels[name].role = "input"
     define_units(dict(cfg.units or {}))  # before any channel's unit is read
     return HypaDataModule(
         data_dir=Path(data_dir),
@@ -75,20 +82,18 @@ def datamodule_from_config(
 
 def read_as_inputs(data_cfg: Any, model: Any) -> list[str]:
     """The auxiliary channels of the ``data`` node that a block of ``model`` (a parsed model, or its
-    config as a dict) reads (a diagnosed model's ``unread_channel``), declared inputs in the node,
-    in place: a channel the model reads is an input, and the run's recorded configuration says so
-    (so that evaluating or resuming the run builds the same data). Returns their names."""
+    config as a dict) reads (a diagnosed model's ``unread_channel``): a channel the model reads is an
+    input (:func:`datamodule_from_config`'s ``as_inputs``), and the run's recorded configuration says
+    so, ``data.channels.NAME.role: input`` (so that evaluating or resuming the run builds the same
+    data). The node itself is only read."""
     if isinstance(model, Mapping):
         read = {s for b in (model.get("blocks") or {}).values() if isinstance(b, Mapping)
                 for s in (b.get("inputs") or ())}
     else:  # a ModelSpec (the data layer does not import the models: its blocks are read by their fields)
         read = {s for b in model.blocks for s in b.inputs}
     channels = data_cfg.get("channels") or {}
-    promoted = [str(n) for n, c in channels.items()
-                if str(n) in read and isinstance(c, Mapping) and c.get("role") == "auxiliary"]
-    for name in promoted:
-        channels[name]["role"] = "input"
-    return promoted
+    return [str(n) for n, c in channels.items()
+            if str(n) in read and isinstance(c, Mapping) and c.get("role") == "auxiliary"]
 
 
 def validated(data_cfg: DictConfig | Mapping[str, Any]) -> DataConfig:

@@ -11,7 +11,8 @@ exact recursion under the inputs held over each sample, 0.05 K noise. The search
 near the truth; with an outside temperature that does not reach the zone, it must not name it.
 
 The diagnosed model reads the auxiliary channel: :func:`hypa.data.from_config.read_as_inputs`
-declares it an input, so ``hypa train`` with the written model builds on the same data.
+names it, and the data built for the model hold it as an input, so ``hypa train`` with the written
+model builds on the same data.
 """
 
 from __future__ import annotations
@@ -129,11 +130,12 @@ def test_an_unread_outside_temperature_is_named_where_it_acts(tmp_path: Path, us
     assert search.final_score < 0.1 * search.nominal_score, (search.final_score, search.nominal_score)
     print(f"seed {seed}: {truth:.4g} -> {rate:.4g} 1/s, {time.perf_counter() - started:.1f} s")
 
-    # the diagnosed model reads the auxiliary channel: a data config read for it holds the channel as an input
+    # the diagnosed model reads the auxiliary channel: the data built for it hold the channel as an input (the
+    # data config itself is only read)
     config = data_config(user_systems)
     assert read_as_inputs(config, spec_config(search.spec)) == ["outside"]
-    assert config["channels"]["outside"]["role"] == "input"
-    dm = datamodule_from_config(config, user_systems)
+    assert config["channels"]["outside"]["role"] == "auxiliary"
+    dm = datamodule_from_config(config, user_systems, as_inputs=["outside"])
     dm.setup()
     assert dm.input_names == ("heat", "outside")
     model = ComposedModel.from_data(dm, search.spec, TRUE)
