@@ -2,7 +2,8 @@
 cache), the repository's root, and the real data sets beside it.
 
 The tests mirror hypa's layers (tests/core, tests/physics, ..., tests/commands, tests/docs). This file,
-``data_helpers.py`` and ``vehicle_reference.py`` stay at tests/, which is on ``sys.path`` with every
+``data_helpers.py``, ``vehicle_reference.py`` and ``cli_helpers.py`` (``hypa_run``: a command run in the
+test's process, in place of a ``python -m hypa`` child) stay at tests/, which is on ``sys.path`` with every
 layer's folder (``pythonpath`` in pyproject.toml): ``from data_helpers import ...`` and a test module
 reusing another's system (``from test_identification_tanks import SYSTEM``) work from any folder, in
 any order, and in a file run alone.
