@@ -68,11 +68,11 @@ def main(cfg: DictConfig) -> None:
     overrides = data_overrides(HydraConfig.get().overrides.task)
     trainer = None
     if config.extension.train:
-        from hypa.commands.launch import run_hypa
+        from hypa.commands.train import train_here
         from hypa.diagnosis.trained import ExtensionTrainingError, train_extension
 
-        def train(arguments: Sequence[str]) -> None:
-            run_hypa("train", arguments, "training the extended model", error=ExtensionTrainingError)
+        def train(arguments: Sequence[str], run_dir: Path) -> None:
+            train_here(arguments, run_dir, "training the extended model", error=ExtensionTrainingError)
 
         def trainer(command: Sequence[str]):
             return train_extension(train, command, out / "extended_run", dm, list(config.extension.train_overrides),

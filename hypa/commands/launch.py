@@ -1,7 +1,7 @@
 """hypa's commands run as a user types them, in a child process: one way for every caller.
 
-The benchmark trains and diagnoses, the reproduction sweeps, the diagnosis trains its extension:
-each runs ``hypa <command> ...`` (its output on the console is the progress) and, when the
+The benchmark trains and diagnoses, the reproduction sweeps: each runs ``hypa <command> ...``
+(its output on the console is the progress) and, when the
 child fails, stops with one line that gives the command to run alone (the child's own error is
 above it). Running a child rather than calling the command in this process keeps Hydra's global
 state, the random seeds and the run folder of each command its own.

@@ -21,6 +21,7 @@ import os
 import sys
 import time
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -101,10 +102,11 @@ class Prepared:
     recorded: dict[str, Any] = field(default_factory=dict)
 
 
-def resolve(cfg: DictConfig) -> Request:
+def resolve(cfg: DictConfig, out: Path | None = None) -> Request:
     """The run the configuration asks for, checked (:mod:`hypa.commands.config`): a bad override, a
     model file that is not a model, a hold the model contradicts, a bad callback or strategy, or a
-    checkpoint of another model fails here, before any data are read or generated."""
+    checkpoint of another model fails here, before any data are read or generated. ``out``: the run
+    folder (None: the one Hydra made for this command)."""
     from hydra.types import RunMode
 
     from hypa.commands.entry import from_cwd, network_settings, user_callbacks, vehicle_from_config
@@ -128,11 +130,11 @@ def resolve(cfg: DictConfig) -> Request:
     callbacks = user_callbacks(config.callbacks)  # built before any data are read: a bad one fails first
     lightning_strategy(config.trainer.strategy, staged=False)  # ddp_spawn: refused before any data are read
     distributed = str(config.trainer.strategy).startswith("ddp")
-    if distributed and HydraConfig.get().mode == RunMode.MULTIRUN:
+    if distributed and HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
         raise UserError("trainer.strategy=ddp in a sweep (-m): Lightning starts the other ranks by running the "
                         "command line again, which would start the sweep again; train each configuration as "
                         "its own command")
-    out, ckpt_path = Path(HydraConfig.get().runtime.output_dir), None
+    out, ckpt_path = Path(out if out is not None else HydraConfig.get().runtime.output_dir), None
     if config.ckpt_path:
         ckpt_path = from_cwd(config.ckpt_path)
         if not ckpt_path.is_file():
@@ -297,16 +299,18 @@ def fit(request: Request, prepared: Prepared, cfg: DictConfig, folder: Any, logg
         best = checkpoint.best_model_score
         result = {"best_val_loss": float(best) if best is not None else float("nan"),
                   "checkpoint": checkpoint.best_model_path, "last_checkpoint": checkpoint.last_model_path,
-                  "epochs": trainer.current_epoch, "ended": f"{trainer.current_epoch} epochs"}
+                  "epochs": trainer.current_epoch, "ended": f"{trainer.current_epoch} epochs",
+                  "interrupted": trainer.interrupted}
         if Path(checkpoint.best_model_path).name == START_CHECKPOINT:
             result["ended"] += "; no epoch beat the model it started from (the identified physics), which the run keeps"
     result.update(tensorboard=str(request.out / "tensorboard"), training_time_s=time.perf_counter() - started)
     return result
 
 
-def train(cfg: DictConfig) -> dict[str, Any]:
+def train(cfg: DictConfig, out: Path | None = None) -> dict[str, Any]:
     """Fit the configured model (:func:`resolve`, :func:`prepare`, :func:`fit`) in its own run
-    folder; returns the best validation loss and the output paths."""
+    folder ``out`` (None: the one Hydra made for this command; another is a run of its own, without
+    Hydra's record ``.hydra/``); returns the best validation loss and the output paths."""
     from hydra.utils import instantiate
 
     from hypa.commands.entry import flat_hparams
@@ -314,7 +318,7 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     from hypa.training.distributed import join_rank_zero_log
     from hypa.training.run_folder import CONFIG_FILE, RunFolder, write_text_atomic
 
-    request = resolve(cfg)
+    request = resolve(cfg, out)
     out, zero, config = request.out, request.zero, request.config
     with settings("logger"):
         logger = instantiate(config.logger, save_dir=str(out))
@@ -346,6 +350,45 @@ def train(cfg: DictConfig) -> dict[str, Any]:
     print(f"best val/loss {result['best_val_loss']:.5g} after {result['ended']}\n"
           f"checkpoint:  {result['checkpoint']}\n"
           f"tensorboard: tensorboard --logdir {result['tensorboard']}")
+    return result
+
+
+def train_here(arguments: Sequence[str], out: Path, what: str = "training",
+               error: type[UserError] = UserError) -> dict[str, Any]:
+    """``hypa train ARGUMENTS`` in this process, into the run folder ``out``, from inside another
+    command's Hydra job (the diagnosis trains its extension so): the arguments are composed with the
+    running command's configuration search path (a ``--config-dir`` among them must be one the
+    running command was given), the torch threads are restored afterwards. A failure is ``error``
+    in one line that names ``what`` and the command to run it alone; Ctrl-C ends the training as it
+    ends ``hypa train`` (Lightning's graceful stop, then the calling command's exit status 130)."""
+    import shlex
+
+    from hydra import compose
+
+    from hypa.commands.entry import user_config_dirs
+    from hypa.core.errors import one_line, user_error_types
+
+    overrides, dirs, rest = [], [], list(arguments)
+    while rest:
+        word = rest.pop(0)
+        if word == "--config-dir" and rest:
+            dirs.append(Path(rest.pop(0)))
+        else:
+            overrides.append(word)
+    alone = f"run it alone: python -m hypa train {' '.join(shlex.quote(a) for a in arguments)}"
+    known = {d.resolve() for d in user_config_dirs()}
+    missing = [str(d) for d in dirs if d.resolve() not in known]
+    if missing:
+        raise error(f"{what}: --config-dir {missing[0]} is not among this command's; {alone}")
+    threads = torch.get_num_threads()
+    try:
+        result = train(compose(config_name="train", overrides=overrides), out)
+    except user_error_types() as failure:
+        raise error(f"{what} failed: {one_line(failure)}; {alone}") from failure
+    finally:
+        torch.set_num_threads(threads)
+    if result.get("interrupted"):  # Ctrl-C between Lightning's epochs: the calling command stops too
+        raise KeyboardInterrupt
     return result
 
 

@@ -1,8 +1,8 @@
 """Step 4 with training: train the written extension, free-run it and explain the networks it added.
 
 ``hypa diagnose extension.train=true`` trains the written model with the printed ``hypa train``
-arguments (the command runs them, its progress on the console, its run folder inside the
-diagnosis folder), loads the best checkpoint and
+arguments (the command gives the training: in its own process, the progress on the console, the run
+folder inside the diagnosis folder), loads the best checkpoint and
 free-runs it over the validation records, so the report can put the trained model (the named
 causes, plus a correction network where structure stays unexplained) beside the nominal one.
 Each network of the trained model is then explained by :func:`hypa.explain.explain_run` (what
@@ -25,8 +25,8 @@ from hypa.models.rollout import Prediction, free_run
 
 
 class ExtensionTrainingError(UserError):
-    """``hypa train`` failed on the written extension (its own output says why; the message gives
-    the command to rerun it alone), so ``hypa diagnose`` reports it in one line."""
+    """The training of the written extension failed (the message says why and gives the ``hypa
+    train`` command to rerun it alone), so ``hypa diagnose`` reports it in one line."""
 
 
 @dataclass
@@ -39,14 +39,14 @@ class TrainedExtension:
     explanations: list[NetworkExplanation] = field(default_factory=list)
 
 
-def train_extension(train: Callable[[Sequence[str]], None], arguments: Sequence[str], run_dir: Path,
+def train_extension(train: Callable[[Sequence[str], Path], None], arguments: Sequence[str], run_dir: Path,
                     dm: HypaDataModule, extra_overrides: Sequence[str] = (), explain: bool = True, plot: bool = True,
                     progress: Callable[[str], None] = lambda text: None) -> TrainedExtension:
-    """Train with ``hypa train ARGUMENTS`` into ``run_dir`` (``train(arguments)``, which the command
-    gives: it raises :class:`ExtensionTrainingError` when the training fails), free-run its best
+    """Train with ``hypa train ARGUMENTS`` into ``run_dir`` (``train(arguments, run_dir)``, which the
+    command gives: it raises :class:`ExtensionTrainingError` when the training fails), free-run its best
     checkpoint over ``dm``'s validation records and (``explain``) explain its networks.
     ``extra_overrides``: more ``hypa train`` overrides (e.g. a shorter training: ``trainer.max_epochs=5``)."""
-    train([*arguments, f"hydra.run.dir={run_dir}", *extra_overrides])
+    train([*arguments, *extra_overrides], run_dir)
     run = load_run(run_dir, trust=("*",))  # the run it trained just now, from its own model
     model = run.module.model
     if run.settings.data.get("past") != dm.past:  # raised for the extension (hypa.diagnosis.api.with_past)

@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from cli_helpers import hypa_run
 from conftest import ROOT
 from data_helpers import ALL_CHANNELS, make_data_dir
 
@@ -33,8 +34,7 @@ DELAY_ONLY = ["testbench.tires.enabled=false", "testbench.relaxation.enabled=fal
 
 def run_diagnose(tmp_path: Path, *overrides: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "HYPA_CACHE_DIR": str(tmp_path / "cache")}
-    return subprocess.run([sys.executable, "-m", "hypa", "diagnose", f"hydra.run.dir={tmp_path / 'run'}", *overrides],
-                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)
+    return hypa_run(["diagnose", f"hydra.run.dir={tmp_path / 'run'}", *overrides], env=env)
 
 
 @pytest.fixture(scope="module")
@@ -89,9 +89,8 @@ def test_extended_model_is_a_hypa_model_that_trains(delay_run, tmp_path: Path) -
     words = shlex.split(command)
     assert words[:4] == ["python", "-m", "hypa", "train"] and "testbench.steering.delay_s=0.06" in words
     env = {**os.environ, "HYPA_CACHE_DIR": str(run.parent / "cache")}
-    trained = subprocess.run([sys.executable, *words[1:], f"hydra.run.dir={tmp_path / 'train'}",
-                              "trainer.max_epochs=1", "trainer.limit_train_batches=3", "figures.enabled=false"],
-                             cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)
+    trained = hypa_run([*words[3:], f"hydra.run.dir={tmp_path / 'train'}", "trainer.max_epochs=1",
+                        "trainer.limit_train_batches=3", "figures.enabled=false"], env=env)
     assert trained.returncode == 0, trained.stderr[-3000:]
     from hypa.evaluation.runs import load_run
 
@@ -135,11 +134,10 @@ def test_extension_train_true_trains_and_reports_the_trained_gain(delay_run) -> 
     _, first = delay_run
     env = {**os.environ, "HYPA_CACHE_DIR": str(first.parent / "cache")}  # the fixture's generated data
     run = first.parent / "run_trained"
-    result = subprocess.run(
-        [sys.executable, "-m", "hypa", "diagnose", f"hydra.run.dir={run}", *SHORT, *DELAY_ONLY, "plot=false",
-         "extension.train=true",
+    result = hypa_run(
+        ["diagnose", f"hydra.run.dir={run}", *SHORT, *DELAY_ONLY, "plot=false", "extension.train=true",
          'extension.train_overrides=["trainer.max_epochs=1","trainer.limit_train_batches=3","figures.enabled=false"]'],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)
+        env=env)
     assert result.returncode == 0, result.stderr[-3000:]
     diagnosis = json.loads((run / "diagnosis.json").read_text())
     trained = diagnosis["extended"]["trained"]
@@ -160,11 +158,11 @@ def test_the_trained_correction_network_is_explained(delay_run) -> None:
     _, first = delay_run
     env = {**os.environ, "HYPA_CACHE_DIR": str(first.parent / "cache")}
     run = first.parent / "run_explained"
-    result = subprocess.run(
-        [sys.executable, "-m", "hypa", "diagnose", f"hydra.run.dir={run}", *SHORT, *DELAY_ONLY, "plot=false",
-         "diagnosis.max_causes=0", "extension.train=true",
+    result = hypa_run(
+        ["diagnose", f"hydra.run.dir={run}", *SHORT, *DELAY_ONLY, "plot=false", "diagnosis.max_causes=0",
+         "extension.train=true",
          'extension.train_overrides=["trainer.max_epochs=1","trainer.limit_train_batches=3","figures.enabled=false"]'],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)
+        env=env)
     assert result.returncode == 0, result.stderr[-3000:]
     diagnosis = json.loads((run / "diagnosis.json").read_text())
     trained = diagnosis["extended"]["trained"]
@@ -180,3 +178,20 @@ def test_the_trained_correction_network_is_explained(delay_run) -> None:
     assert "yaw_rate_correction = yaw_rate − yaw_rate_physics" in Path(explained[0]["report"]).read_text()
     assert "What its networks learned" in (run / "diagnosis.md").read_text()
     assert "its network correction learned: yaw_rate_correction = " in result.stdout
+
+
+def test_a_failing_extension_training_is_one_line_with_the_command_to_rerun(delay_run) -> None:
+    """The extension trains in the diagnosis's own process: a bad training setting ends the command
+    with one line that names the step and gives the ``hypa train`` command to run it alone."""
+    _, first = delay_run
+    env = {**os.environ, "HYPA_CACHE_DIR": str(first.parent / "cache")}
+    run = first.parent / "run_failing_extension"
+    result = subprocess.run(
+        [sys.executable, "-m", "hypa", "diagnose", f"hydra.run.dir={run}", *SHORT, *DELAY_ONLY, "plot=false",
+         "extension.train=true", 'extension.train_overrides=["trainer.max_epochs=abc"]'],
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)
+    assert result.returncode == 1, result.stderr[-3000:]
+    error = result.stderr.strip().splitlines()[-1]
+    assert error.startswith("hypa diagnose: error: training the extended model failed: "), result.stderr[-2000:]
+    assert "trainer.max_epochs=abc" in error and "run it alone: python -m hypa train " in error
+    assert "model_file=" in error and "Traceback" not in result.stderr
