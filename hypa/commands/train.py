@@ -213,14 +213,16 @@ def recorded_config(cfg: DictConfig, request: Request, prepared: Prepared) -> Di
 def lightning_trainer(request: Request, prepared: Prepared, stages: list[Any], cfg: DictConfig, logger: Any,
                       checkpoint: Any) -> L.Trainer:
     """The Lightning trainer of a run: its callbacks (finite losses, early stopping, the user's, the
-    stages, the figures, the recorded checkpoint) and ``cfg.trainer``'s arguments, with the epochs of
-    every stage and the strategy the model needs."""
+    stages, the figures, the recorded checkpoint; epoch lines instead of the bar where the output is
+    not a terminal) and ``cfg.trainer``'s arguments, with the epochs of every stage and the strategy
+    the model needs."""
     from hydra.utils import instantiate
 
     from hypa.training import StagedTraining, ValidationFigures
     from hypa.training.checkpoints import AtomicCheckpointIO
     from hypa.training.distributed import SameModelOnEveryRank, lightning_strategy
     from hypa.training.divergence import StopOnNonFiniteLoss
+    from hypa.training.progress import EpochLines, wants_lines
 
     config, how = request.config, prepared.how
     lr, physics_lr = config.optimizer.lr, config.optimizer.physics_lr
@@ -237,6 +239,9 @@ def lightning_trainer(request: Request, prepared: Prepared, stages: list[Any], c
         callbacks.append(ValidationFigures(figures.seconds, figures.start_s, figures.every_n_epochs))
     callbacks.append(checkpoint)
     trainer_args = OmegaConf.to_container(cfg.trainer, resolve=True)  # with any +trainer.<Lightning argument>
+    if trainer_args.get("enable_progress_bar", True) and wants_lines():  # a log file or a pipe: lines, not a bar
+        trainer_args["enable_progress_bar"] = False
+        callbacks.insert(0, EpochLines())  # before the stages: the epoch's line is of the stage it trained
     trainer_args["max_epochs"] = prepared.epochs * max(len(stages), 1)
     if how == "model" and request.distributed:  # no epochs: one process validates the identified model
         log.info("physics-only model: identified and validated in one process (trainer.strategy=%s is for "
