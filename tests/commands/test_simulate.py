@@ -3,8 +3,6 @@ the library and the CLI (``hypa simulate``, any system)."""
 
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -18,7 +16,7 @@ from hypa.paper.testbench import TestbenchConfig, ensure_dataset
 from hypa.paper.testbench.sensors import TESTBENCH_CHANNELS
 from hypa.vehicle import VehicleParameters
 
-from conftest import ROOT
+from cli_helpers import hypa_run
 
 SHORT = {"records": {
     "train_1": {"seed": 1, "stochastic_duration_s": 40.0, "break_frequency_hz": 1.0, "maneuvers": []},
@@ -66,9 +64,8 @@ def test_a_model_with_networks_is_refused(clean_data: HypaDataModule) -> None:
 def test_simulate_cli_runs_any_system_on_real_data(tmp_path: Path) -> None:
     """Silverbox's linear physics at its nominal values free-runs near the published linear
     model's level (6.96 mV on the test set; measured here on the validation part: 6.8 mV)."""
-    result = subprocess.run(
-        [sys.executable, "-m", "hypa", "simulate", "dataset=silverbox", "model=silverbox_physical", "plot=false",
-         f"hydra.run.dir={tmp_path}"], cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
+    result = hypa_run(["simulate", "dataset=silverbox", "model=silverbox_physical", "plot=false",
+                       f"hydra.run.dir={tmp_path}"])
     assert result.returncode == 0, result.stderr[-3000:]
     assert "model silverbox_physical" in result.stdout and " mV " in result.stdout
     metrics = json.loads((tmp_path / "simulation.json").read_text())
@@ -79,10 +76,7 @@ def test_simulate_cli_runs_any_system_on_real_data(tmp_path: Path) -> None:
 def test_simulate_cli_on_short_testbench_data(tmp_path: Path) -> None:
     overrides = [f"testbench.records.{name}.stochastic_duration_s=30" for name in ("train_1", "train_2", "val")]
     env = {**os.environ, "HYPA_CACHE_DIR": str(tmp_path / "cache")}
-    result = subprocess.run(
-        [sys.executable, "-m", "hypa", "simulate", f"hydra.run.dir={tmp_path / 'run'}", *overrides],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False,
-    )
+    result = hypa_run(["simulate", f"hydra.run.dir={tmp_path / 'run'}", *overrides], env=env)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "free-run val" in result.stdout and "windowed (100 steps)" in result.stdout
     metrics = json.loads((tmp_path / "run" / "simulation.json").read_text())
@@ -94,10 +88,7 @@ def test_simulate_cli_on_short_testbench_data(tmp_path: Path) -> None:
 def test_simulate_cli_rejects_unstable_parameters(tmp_path: Path) -> None:
     overrides = [f"testbench.records.{name}.stochastic_duration_s=30" for name in ("train_1", "train_2", "val")]
     env = {**os.environ, "HYPA_CACHE_DIR": str(tmp_path / "cache")}
-    result = subprocess.run(
-        [sys.executable, "-m", "hypa", "simulate", f"hydra.run.dir={tmp_path / 'run'}", "vehicle.cr=20000",
-         "vehicle.velocity=60", *overrides],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False,
-    )
+    result = hypa_run(["simulate", f"hydra.run.dir={tmp_path / 'run'}", "vehicle.cr=20000", "vehicle.velocity=60",
+                       *overrides], env=env)
     assert result.returncode != 0
     assert "unstable" in result.stderr

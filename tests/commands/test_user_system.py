@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from cli_helpers import hypa_run
 from conftest import ROOT
 from data_helpers import make_dc_motor_data
 
@@ -20,10 +21,9 @@ EXAMPLE = ROOT / "examples" / "user_system"
 def trained(tmp_path_factory) -> Path:
     data, run = tmp_path_factory.mktemp("dc_motor_data"), tmp_path_factory.mktemp("dc_motor_run")
     env = make_dc_motor_data(data, 30)
-    command = [sys.executable, "-m", "hypa", "train", "--config-dir", str(EXAMPLE / "conf"), "dataset=dc_motor",
-               "model=dc_motor", f"data.dir={data}", "trainer.max_epochs=4", "trainer.enable_progress_bar=false",
-               "optimizer.physics_lr=0.05", f"hydra.run.dir={run}"]
-    result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, env=env, check=False)
+    result = hypa_run(["train", "--config-dir", str(EXAMPLE / "conf"), "dataset=dc_motor", "model=dc_motor",
+                       f"data.dir={data}", "trainer.max_epochs=4", "trainer.enable_progress_bar=false",
+                       "optimizer.physics_lr=0.05", f"hydra.run.dir={run}"], env=env)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "best val/loss" in result.stdout
     return run
@@ -45,10 +45,8 @@ def test_user_system_trains_and_finds_the_true_parameters(trained: Path) -> None
 
 def test_user_system_evaluates_in_its_own_units(trained: Path, tmp_path: Path) -> None:
     env = {**os.environ, "PYTHONPATH": str(EXAMPLE)}
-    result = subprocess.run([sys.executable, "-m", "hypa", "evaluate", f"run={trained}", f"out={tmp_path}",
-                             "trust=[dc_motor]",
-                             "tensorboard=false", f"hydra.run.dir={tmp_path / 'hydra'}"],
-                            cwd=ROOT, capture_output=True, text=True, timeout=300, env=env, check=False)
+    result = hypa_run(["evaluate", f"run={trained}", f"out={tmp_path}", "trust=[dc_motor]", "tensorboard=false",
+                       f"hydra.run.dir={tmp_path / 'hydra'}"], env=env)
     assert result.returncode == 0, result.stderr[-3000:]
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["splits"]["val"]["free_run"]["all"]["speed"]["r2"] > 0.99
@@ -95,9 +93,7 @@ def test_a_null_past_is_chosen_for_the_model_and_recorded(tmp_path: Path) -> Non
     common = ["--config-dir", str(EXAMPLE / "conf"), "dataset=dc_motor", f"data.dir={data}", "data.past=null"]
 
     def run(*args: str) -> str:
-        result = subprocess.run([sys.executable, "-m", *args[0].split(), *args[1:]],
-                                cwd=ROOT, capture_output=True, text=True, timeout=600,
-                                env=env, check=False)
+        result = hypa_run([*args[0].split()[1:], *args[1:]], env=env)
         assert result.returncode == 0, result.stderr[-3000:]
         return result.stdout
 

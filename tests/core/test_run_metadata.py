@@ -13,13 +13,13 @@ import json
 import logging
 import shutil
 import subprocess
-import sys
 from importlib import metadata
 from pathlib import Path
 
 import pytest
 from omegaconf import OmegaConf
 
+from cli_helpers import hypa_run
 from conftest import ROOT
 from data_helpers import make_data_dir
 
@@ -32,9 +32,8 @@ def run(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("metadata")
     data = make_data_dir(root / "data", duration_s=8.0)
     folder = root / "run"
-    result = subprocess.run([sys.executable, "-m", "hypa", "train", "dataset=files", f"data.dir={data}",
-                             "model=blackbox", *TINY, f"hydra.run.dir={folder}"],
-                            cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
+    result = hypa_run(["train", "dataset=files", f"data.dir={data}", "model=blackbox", *TINY,
+                       f"hydra.run.dir={folder}"])
     assert result.returncode == 0, result.stderr[-3000:]
     return folder
 
@@ -91,9 +90,7 @@ def test_evaluate_warns_when_a_data_file_changed(run: Path, tmp_path: Path) -> N
     row[2] = "0.5"  # one measured value, as a re-export or an edit would change it
     lines[200] = ",".join(row)
     val.write_text("\n".join(lines) + "\n")
-    result = subprocess.run([sys.executable, "-m", "hypa", "evaluate", f"run={folder}", "tensorboard=false",
-                             f"hydra.run.dir={tmp_path / 'evaluate'}"], cwd=ROOT, capture_output=True, text=True,
-                            timeout=600, check=False)
+    result = hypa_run(["evaluate", f"run={folder}", "tensorboard=false", f"hydra.run.dir={tmp_path / 'evaluate'}"])
     assert result.returncode == 0, result.stderr[-3000:]  # a warning, not an error
     warnings = [line for line in (result.stdout + result.stderr).splitlines() if "WARNING" in line]
     assert any("differ" in w and "changed: val_00.csv" in w for w in warnings), warnings

@@ -18,6 +18,7 @@ import torch
 
 from hypa.conf import CONF
 
+from cli_helpers import hypa_run
 from conftest import ROOT
 from data_helpers import make_data_dir
 
@@ -28,15 +29,18 @@ FAST = ["model=physical", "identification.enabled=false",  # epochs: what these 
 
 def hypa(command: str, *args: str, cwd: Path = ROOT, limit_bytes: int | None = None,
          **env: str) -> subprocess.CompletedProcess:
+    """``command`` (``hypa train``) in this process (``hypa_run``); with ``limit_bytes``, a process of its own."""
     environment = {k: v for k, v in os.environ.items() if k not in ("HYDRA_FULL_ERROR", "HYPA_FULL_ERROR")}
     environment.update(env)
+    if limit_bytes is None:
+        return hypa_run([*command.split()[1:], *args], cwd=cwd, env=environment)
 
     def limit() -> None:  # a full disk, as the process sees it: writes past the size fail (EFBIG)
         resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
 
     return subprocess.run([sys.executable, "-m", *command.split(), *args],
                           cwd=cwd, env=environment, capture_output=True,
-                          text=True, timeout=300, preexec_fn=limit if limit_bytes else None, check=False)
+                          text=True, timeout=300, preexec_fn=limit, check=False)
 
 
 def one_line_error(result: subprocess.CompletedProcess, command: str, *parts: str) -> str:
