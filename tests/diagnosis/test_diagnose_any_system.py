@@ -11,13 +11,12 @@ nominal hold is ZOH (with FOH the half-sample difference comes out, correctly, a
 import json
 import os
 import shlex
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import yaml
 
+from cli_helpers import hypa_run
 from conftest import ROOT
 from data_helpers import make_dc_motor_data
 
@@ -28,9 +27,8 @@ EXAMPLE = ROOT / "examples" / "user_system"
 def diagnosed(tmp_path_factory) -> Path:
     data, out = tmp_path_factory.mktemp("dc_motor_data"), tmp_path_factory.mktemp("dc_motor_diagnosis")
     env = make_dc_motor_data(data, 20)
-    command = [sys.executable, "-m", "hypa", "diagnose", "--config-dir", str(EXAMPLE / "conf"), "dataset=dc_motor",
-               "model=dc_motor", f"data.dir={data}", "physics.hold=zoh", f"hydra.run.dir={out}"]
-    result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, env=env, check=False)
+    result = hypa_run(["diagnose", "--config-dir", str(EXAMPLE / "conf"), "dataset=dc_motor", "model=dc_motor",
+                       f"data.dir={data}", "physics.hold=zoh", f"hydra.run.dir={out}"], env=env)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "named causes: parameter_mismatch" in result.stdout, result.stdout[-2000:]
     return out
@@ -60,7 +58,6 @@ def test_the_extended_model_is_a_hypa_model_that_trains(diagnosed: Path, tmp_pat
     assert f"--config-dir {EXAMPLE / 'conf'}" in command  # the user's dataset YAML is found again
     args = [*shlex.split(command)[1:], "trainer.max_epochs=1",
             "trainer.enable_progress_bar=false", f"hydra.run.dir={tmp_path}"]
-    result = subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=600, env=env,
-                            check=False)
+    result = hypa_run(args[2:], env=env)  # args: -m hypa train ...
     assert result.returncode == 0, result.stderr[-3000:]
     assert "best val/loss" in result.stdout

@@ -2,8 +2,6 @@
 
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +9,8 @@ import pytest
 
 from hypa.conf import CONF
 
-from conftest import ROOT, SHORT_OVERRIDES
+from cli_helpers import hypa_run
+from conftest import SHORT_OVERRIDES
 from test_train import run_train
 
 TINY = ["trainer.max_epochs=1", "trainer.limit_train_batches=3", "trainer.limit_val_batches=2",
@@ -65,9 +64,8 @@ def test_free_run_of_physical_model_equals_the_physics_recursion(trained, hypa_c
 def test_evaluate_cli_writes_metrics_figures_and_report(trained, hypa_cache, tmp_path) -> None:
     folder = trained["v1"]
     env = {**os.environ, "HYPA_CACHE_DIR": str(hypa_cache)}
-    result = subprocess.run([sys.executable, "-m", "hypa", "evaluate", f"run={folder}", f"out={tmp_path / 'ev'}",
-                             f"hydra.run.dir={tmp_path / 'hydra'}"], cwd=ROOT, env=env, capture_output=True,
-                            text=True, timeout=300, check=False)
+    result = hypa_run(["evaluate", f"run={folder}", f"out={tmp_path / 'ev'}", f"hydra.run.dir={tmp_path / 'hydra'}"],
+                      env=env)
     assert result.returncode == 0, result.stderr[-3000:]
     metrics = json.loads((tmp_path / "ev" / "metrics.json").read_text())
     val = metrics["splits"]["val"]
@@ -83,9 +81,7 @@ def test_evaluate_cli_writes_metrics_figures_and_report(trained, hypa_cache, tmp
 
 
 def test_evaluate_cli_explains_a_wrong_path(tmp_path) -> None:
-    result = subprocess.run([sys.executable, "-m", "hypa", "evaluate", f"run={tmp_path / 'nope'}",
-                             f"hydra.run.dir={tmp_path / 'hydra'}"],
-                            cwd=ROOT, capture_output=True, text=True, timeout=120, check=False)
+    result = hypa_run(["evaluate", f"run={tmp_path / 'nope'}", f"hydra.run.dir={tmp_path / 'hydra'}"])
     assert result.returncode != 0 and "does not exist" in result.stderr
 
 

@@ -2,8 +2,6 @@
 
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +11,7 @@ import torch
 from hypa.ann.base import SequenceBlock
 from hypa.conf import CONF
 
-from conftest import ROOT
+from cli_helpers import hypa_run
 from test_train import run_train
 
 pytest.importorskip("onnxruntime")
@@ -75,8 +73,7 @@ def _replay(folder: Path) -> np.ndarray:
 def test_physical_model_exported_by_the_command_line(physical, hypa_cache, tmp_path) -> None:
     env = {**os.environ, "HYPA_CACHE_DIR": str(hypa_cache)}
     out = tmp_path / "export"
-    result = subprocess.run([sys.executable, "-m", "hypa", "export", f"run={physical}", f"hydra.run.dir={out}"],
-                            cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)
+    result = hypa_run(["export", f"run={physical}", f"hydra.run.dir={out}"], env=env)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "per ONNX step" in result.stdout and f"export: {out}" in result.stdout
     description = json.loads((out / "export.json").read_text())
@@ -288,9 +285,7 @@ def test_refusals_are_one_line(hypa_cache, tmp_path) -> None:
     with pytest.raises(ExportError, match="format=mat is not one of onnx, fmu, statespace, all"):
         formats_to_build("mat")
     env = {**os.environ, "HYPA_CACHE_DIR": str(hypa_cache)}
-    result = subprocess.run([sys.executable, "-m", "hypa", "export", "run=nowhere", "format=mat",
-                             f"hydra.run.dir={tmp_path}"], cwd=ROOT, env=env, capture_output=True, text=True,
-                            timeout=120, check=False)
+    result = hypa_run(["export", "run=nowhere", "format=mat", f"hydra.run.dir={tmp_path}"], env=env)
     assert result.returncode == 1 and "Traceback" not in result.stderr
     assert "is not one of" in result.stderr.strip().splitlines()[-1]
 

@@ -15,7 +15,7 @@ from omegaconf import OmegaConf
 import hypa.commands  # noqa: F401  (registers the schemas conf/train.yaml extends)
 from hypa.conf import CONF
 
-from conftest import ROOT
+from cli_helpers import hypa_run
 from data_helpers import DC_MOTOR_HYBRID, USER_EXAMPLE, make_dc_motor_data
 
 TRUE = {"torque_constant": 0.065, "friction": 3e-5, "load_torque": 0.004}  # examples/user_system/make_data.py
@@ -256,10 +256,9 @@ def test_hypa_train_identifies_a_physics_only_model(data: Path, tmp_path: Path) 
     and identification.md the report, and hypa evaluate scores it."""
     env = make_dc_motor_data(tmp_path / "unused", 1)
     run = tmp_path / "run"
-    command = [sys.executable, "-m", "hypa", "train", "--config-dir", str(USER_EXAMPLE / "conf"), "dataset=dc_motor",
-               "model=dc_motor", f"data.dir={data}", "identification.enabled=true", "trainer.enable_progress_bar=false",
-               f"hydra.run.dir={run}"]
-    result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, env=env, check=False)
+    result = hypa_run(["train", "--config-dir", str(USER_EXAMPLE / "conf"), "dataset=dc_motor", "model=dc_motor",
+                       f"data.dir={data}", "identification.enabled=true", "trainer.enable_progress_bar=false",
+                       f"hydra.run.dir={run}"], env=env)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "identified 3 parameter(s)" in result.stdout and "after identification" in result.stdout
     record = json.loads((run / "run.json").read_text())
@@ -275,10 +274,8 @@ def test_hypa_train_identifies_a_physics_only_model(data: Path, tmp_path: Path) 
     assert {"physics/torque_constant", "val/loss"} <= set(board.Tags()["scalars"])
     assert "identification/text_summary" in board.Tags()["tensors"]
     assert board.Scalars("physics/torque_constant")[0].value == pytest.approx(0.065, rel=0.02)
-    evaluated = subprocess.run([sys.executable, "-m", "hypa", "evaluate", f"run={run}", f"out={tmp_path / 'eval'}",
-                                "trust=[dc_motor]",
-                                "tensorboard=false", f"hydra.run.dir={tmp_path / 'hydra'}"],
-                               cwd=ROOT, capture_output=True, text=True, timeout=300, env=env, check=False)
+    evaluated = hypa_run(["evaluate", f"run={run}", f"out={tmp_path / 'eval'}", "trust=[dc_motor]",
+                          "tensorboard=false", f"hydra.run.dir={tmp_path / 'hydra'}"], env=env)
     assert evaluated.returncode == 0, evaluated.stderr[-3000:]
     metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())
     assert metrics["splits"]["val"]["free_run"]["all"]["speed"]["r2"] > 0.999
@@ -292,11 +289,11 @@ def train_hybrid(data: Path, tmp_path: Path, *overrides: str) -> tuple[subproces
     (tmp_path / "conf" / "model").mkdir(parents=True)
     (tmp_path / "conf" / "model" / "dc_motor_hybrid.yaml").write_text(DC_MOTOR_HYBRID)
     run = tmp_path / "run"
-    command = [sys.executable, "-m", "hypa", "train", "--config-dir", str(USER_EXAMPLE / "conf"), "dataset=dc_motor",
-               f"hydra.searchpath=[file://{tmp_path / 'conf'}]", "model=dc_motor_hybrid", "ann=lstm",
-               "ann.hidden_size=4", f"data.dir={data}", "trainer.enable_progress_bar=false", "figures.enabled=false",
-               "optimizer.physics_lr=1e-9", *overrides, f"hydra.run.dir={run}"]
-    result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, env=env, check=False)
+    result = hypa_run(["train", "--config-dir", str(USER_EXAMPLE / "conf"), "dataset=dc_motor",
+                       f"hydra.searchpath=[file://{tmp_path / 'conf'}]", "model=dc_motor_hybrid", "ann=lstm",
+                       "ann.hidden_size=4", f"data.dir={data}", "trainer.enable_progress_bar=false",
+                       "figures.enabled=false", "optimizer.physics_lr=1e-9", *overrides, f"hydra.run.dir={run}"],
+                      env=env)
     assert result.returncode == 0, result.stderr[-3000:]
     sys.path.insert(0, str(USER_EXAMPLE))  # the system class, for loading its checkpoints here
     return result, run, json.loads((run / "run.json").read_text())

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +15,7 @@ import pytest
 import yaml
 from scipy import signal
 
-from conftest import ROOT
+from cli_helpers import hypa_run
 from data_helpers import user_dataset
 
 FS = 1000.0  # [Hz]
@@ -71,11 +70,9 @@ def user(tmp_path_factory) -> Path:
 
 
 def _train(user: Path, data: str, run: Path, *extra: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "hypa", "train", "--config-dir", str(user / "conf"), "dataset=resonance",
-         "model=resonance", f"data.dir={user / data}", "trainer.enable_progress_bar=false",
-         "figures.enabled=false", *extra, f"hydra.run.dir={run}"],
-        cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
+    return hypa_run(["train", "--config-dir", str(user / "conf"), "dataset=resonance", "model=resonance",
+                     f"data.dir={user / data}", "trainer.enable_progress_bar=false", "figures.enabled=false", *extra,
+                     f"hydra.run.dir={run}"])
 
 
 @pytest.mark.parametrize("truth", ["foh", "zoh"])
@@ -91,8 +88,7 @@ def test_the_data_choose_the_hold_they_were_made_with(user: Path, tmp_path: Path
     assert record["identification"]["error"]["final"] == pytest.approx(choice["output_error"][truth])
     config = yaml.safe_load((tmp_path / "config.yaml").read_text())
     assert config["physics"]["hold"] == truth and config["model"]["hold"] is None  # what later commands rebuild
-    evaluated = subprocess.run([sys.executable, "-m", "hypa", "evaluate", f"run={tmp_path}", "tensorboard=false"],
-                               cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
+    evaluated = hypa_run(["evaluate", f"run={tmp_path}", "tensorboard=false"])
     assert evaluated.returncode == 0, evaluated.stderr[-3000:]
     metrics = json.loads((tmp_path / "evaluation" / "metrics.json").read_text())
     assert "position" in json.dumps(metrics)

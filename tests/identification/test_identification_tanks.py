@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from conftest import ROOT
+from cli_helpers import hypa_run
 from data_helpers import run_user_benchmark, user_dataset, user_project
 
 TS = 4.0  # [s]
@@ -145,15 +145,11 @@ def test_the_diagnosis_of_the_nonlinear_tanks_fits_at_the_benchmarks_size(user: 
     records are cut into 4 blocks of 9 decay times, so each fold fits on two of them: the mismatch
     is named and nothing is left unexplained."""
     import os
-    import subprocess
-    import sys
 
     run = tmp_path / "diagnosis"
-    result = subprocess.run(
-        [sys.executable, "-m", "hypa", "diagnose", "--config-dir", str(user / "conf"), "dataset=tanks", "model=tanks",
-         f"data.dir={user / 'data'}", "plot=false", f"hydra.run.dir={run}"],
-        cwd=ROOT, capture_output=True, text=True, timeout=300,
-        env={**os.environ, "PYTHONPATH": str(user)}, check=False)
+    result = hypa_run(["diagnose", "--config-dir", str(user / "conf"), "dataset=tanks", "model=tanks",
+                       f"data.dir={user / 'data'}", "plot=false", f"hydra.run.dir={run}"],
+                      env={**os.environ, "PYTHONPATH": str(user)})
     assert result.returncode == 0, result.stderr[-3000:]
     diagnosis = json.loads((run / "diagnosis.json").read_text())
     scales = diagnosis["data"]["scales"]

@@ -8,9 +8,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -21,6 +18,8 @@ from hypa.core.metadata import sha256
 from hypa.data.from_config import data_dir_from_config
 from hypa.paper.testbench import TestbenchConfig, ensure_dataset, load_description
 from hypa.paper.testbench import dataset as dataset_module
+
+from cli_helpers import hypa_run
 
 RECORDS = ("train_1", "train_2", "val")
 TINY = [*(f"testbench.records.{name}.stochastic_duration_s=5" for name in RECORDS),
@@ -52,10 +51,7 @@ def _contents(folder: Path) -> dict[str, bytes]:
 
 def _run_cli(tmp_path: Path) -> str:
     """``hypa testbench <TINY>`` as a user types it; its output (log included)."""
-    result = subprocess.run(
-        [sys.executable, "-m", "hypa", "testbench", *TINY, f"hydra.run.dir={tmp_path / 'run'}"],
-        cwd=tmp_path, env=os.environ.copy(), capture_output=True, text=True, timeout=300, check=False,
-    )
+    result = hypa_run(["testbench", *TINY, f"hydra.run.dir={tmp_path / 'run'}"], cwd=tmp_path)
     output = result.stdout + result.stderr
     assert result.returncode == 0, output
     return output

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import ROOT
+from cli_helpers import hypa_run
 from data_helpers import user_dataset, user_project
 
 OCV = (3.1, 0.9, 0.12, 7.0, 0.15)  # OCV(s) = a + b s + c tanh(k (s - s0)) [V]
@@ -287,10 +287,8 @@ def _write_cell_project(folder: Path, seed: int, offset: float = 0.0, records: t
 
 
 def _run(args: list[str], user: Path, timeout: int = 600) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", *args[0].split(), "--config-dir", str(user / "conf"), "dataset=cell",
-                           f"data.dir={user / 'data'}", *args[1:]], cwd=ROOT, capture_output=True, text=True,
-                          timeout=timeout,
-                          env={**os.environ, "PYTHONPATH": str(user)}, check=False)
+    return hypa_run([*args[0].split()[1:], "--config-dir", str(user / "conf"), "dataset=cell",
+                     f"data.dir={user / 'data'}", *args[1:]], env={**os.environ, "PYTHONPATH": str(user)})
 
 
 @pytest.mark.slow
@@ -312,10 +310,9 @@ def test_train_identifies_capacity_and_resistance_written_in_ah_and_mohm(tmp_pat
         sys.modules.pop("cellmodel", None)
     assert fitted["capacity"] / 3600 == pytest.approx(TRUE["capacity_ah"], rel=0.01)
     assert fitted["r0"] == pytest.approx(TRUE["r0"], rel=0.02)
-    evaluated = subprocess.run([sys.executable, "-m", "hypa", "evaluate", f"run={run}", f"out={tmp_path / 'eval'}",
-                                "trust=[cellmodel]", "tensorboard=false", f"hydra.run.dir={tmp_path / 'hydra'}"],
-                               cwd=ROOT, capture_output=True, text=True, timeout=300,
-                               env={**os.environ, "PYTHONPATH": str(user)}, check=False)
+    evaluated = hypa_run(["evaluate", f"run={run}", f"out={tmp_path / 'eval'}", "trust=[cellmodel]",
+                          "tensorboard=false", f"hydra.run.dir={tmp_path / 'hydra'}"],
+                         env={**os.environ, "PYTHONPATH": str(user)})
     assert evaluated.returncode == 0, evaluated.stderr[-3000:]
     metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())
     assert metrics["splits"]["val"]["free_run"]["all"]["voltage"]["r2"] > 0.99
@@ -370,10 +367,8 @@ def test_a_free_run_at_zero_volts_is_flagged_in_one_line(tmp_path: Path) -> None
     trained = _run(["hypa train", "model=ocv_leak", "trainer.max_epochs=1",
                     f"hydra.run.dir={tmp_path / 'run'}"], user)
     assert trained.returncode == 0, trained.stderr[-3000:]
-    evaluated = subprocess.run([sys.executable, "-m", "hypa", "evaluate",
-                                f"run={tmp_path / 'run'}", "tensorboard=false",
-                                "trust=[cellmodel:OcvLeak]"], cwd=ROOT, capture_output=True, text=True, timeout=600,
-                               env={**os.environ, "PYTHONPATH": str(user)}, check=False)
+    evaluated = hypa_run(["evaluate", f"run={tmp_path / 'run'}", "tensorboard=false", "trust=[cellmodel:OcvLeak]"],
+                         env={**os.environ, "PYTHONPATH": str(user)})
     assert evaluated.returncode == 0, evaluated.stderr[-3000:]
     flags = [line for line in evaluated.stdout.splitlines() if line.startswith("warning: the free run of 'voltage'")]
     assert len(flags) == 1 and flags[0].endswith("or an output offset"), evaluated.stdout[-2000:]

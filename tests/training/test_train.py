@@ -1,7 +1,6 @@
 """Training through the real configuration: every model x ann, loggers, stages, resume."""
 
 import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -14,7 +13,8 @@ from omegaconf import open_dict
 from hypa.commands.train import train
 from hypa.conf import CONF
 
-from conftest import ROOT, SHORT_OVERRIDES
+from cli_helpers import hypa_run
+from conftest import SHORT_OVERRIDES
 
 TINY = ["trainer.max_epochs=1", "trainer.limit_train_batches=2", "trainer.limit_val_batches=2",
         "trainer.enable_progress_bar=false", "figures.enabled=false", "data.batch_size=8",
@@ -53,7 +53,7 @@ def test_cli_run_with_loggers_early_stopping_and_checkpoint(tmp_path: Path, hypa
     cmd = [sys.executable, "-m", "hypa", "train", "model=v1", "ann=lstm", f"hydra.run.dir={tmp_path}",
            "trainer.max_epochs=3", "trainer.limit_train_batches=3", "trainer.limit_val_batches=2",
            "early_stopping.patience=1", "ann.hidden_size=8", *SHORT_OVERRIDES]
-    result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600, check=False)
+    result = hypa_run(cmd[3:], env=env)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "best val/loss" in result.stdout and "tensorboard --logdir" in result.stdout
     events = list((tmp_path / "tensorboard").glob("events.out.tfevents.*"))
@@ -134,8 +134,7 @@ def test_same_seed_repeats_the_run(tmp_path: Path, hypa_cache: Path) -> None:
 
 
 def test_misspelled_model_lists_what_exists(tmp_path: Path) -> None:
-    result = subprocess.run([sys.executable, "-m", "hypa", "train", "model=v4", f"hydra.run.dir={tmp_path}"],
-                            cwd=ROOT, capture_output=True, text=True, timeout=120, check=False)
+    result = hypa_run(["train", "model=v4", f"hydra.run.dir={tmp_path}"])
     assert result.returncode != 0
     assert "v4" in result.stderr and all(name in result.stderr for name in ("v1", "v2", "v3", "physical", "blackbox"))
 
