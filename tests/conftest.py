@@ -8,6 +8,10 @@ layer's folder (``pythonpath`` in pyproject.toml): ``from data_helpers import ..
 reusing another's system (``from test_identification_tanks import SYSTEM``) work from any folder, in
 any order, and in a file run alone.
 
+A test that composes a command's configuration itself does it as the command does, the schemas and
+resolvers registered first: :func:`compose_config` (nothing registers them on import, so a test file
+passes alone too).
+
 Tests marked ``shared_data`` read the real data sets in ../shared/data (beside the repository, see
 ``SHARED_DATA``). Without them such a test fails with one line saying where they belong; set
 ``HYPA_SKIP_SHARED_DATA=1`` to skip those tests instead (a machine that has no copy of the data).
@@ -15,7 +19,9 @@ Tests marked ``shared_data`` read the real data sets in ../shared/data (beside t
 
 import os
 import signal
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -30,6 +36,21 @@ SHORT_RECORDS = {
 # The same records as Hydra overrides, for tests that run the command line.
 SHORT_OVERRIDES = [f"testbench.records.{name}.{key}={value}" for name, record in SHORT_RECORDS.items()
                    for key, value in record.items() if key != "maneuvers"]
+
+
+def compose_config(config_name: str | None, overrides: Sequence[str] = (), config_dir: Path | None = None,
+                   **kwargs: Any) -> Any:
+    """``hydra.compose`` of ``config_name`` over ``config_dir`` (the package's ``conf/`` by default) as a
+    command composes it: after :func:`hypa.commands.config.register_configs` (the schemas and resolvers).
+    ``kwargs``: further arguments of ``compose`` (``return_hydra_config=True``)."""
+    from hydra import compose, initialize_config_dir
+
+    from hypa.commands.config import register_configs
+    from hypa.conf import CONF
+
+    register_configs()
+    with initialize_config_dir(config_dir=str(config_dir or CONF), version_base="1.3"):
+        return compose(config_name=config_name, overrides=list(overrides), **kwargs)
 
 
 @pytest.fixture(scope="session")

@@ -17,12 +17,10 @@ module here with one shape, ``main(argv) -> exit status``, and also runs alone a
 | ``hypa testbench`` | :mod:`hypa.commands.testbench` | the paper's simulated test-bench data |
 | ``hypa timing`` | :mod:`hypa.commands.timing` | how fast the physics and the diagnosis are |
 
-:mod:`hypa.commands.config` holds each command's configuration as a typed tree (Hydra structured
-configs, registered when this package is imported); :mod:`hypa.commands.entry` turns configuration
+Importing this package, or a command's module, registers nothing: :mod:`hypa.commands.config`
+holds each command's configuration as a typed tree (Hydra structured configs) and
+:func:`~hypa.commands.config.register_configs` stores them, with the configurations' resolvers,
+before a command composes (each command's ``main`` calls it; code that composes a configuration
+itself, ``hydra.compose`` in a test, calls it first). :mod:`hypa.commands.entry` turns configuration
 nodes into the library's objects; nothing below the commands imports this package.
 """
-
-from hypa.commands.config import register_configs as _register_configs
-
-# Before any command composes its configuration: conf/<command>.yaml extends /hypa/<command>_schema.
-_register_configs()

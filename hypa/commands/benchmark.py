@@ -46,10 +46,10 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-from hypa.commands.config import BenchmarkConfig, typed
+from hypa.commands.config import BenchmarkConfig, hydra_command, typed
 from hypa.commands.launch import hypa_argv, run_hypa
 from hypa.commands.output_folder import holding_output
-from hypa.core.errors import INTERRUPTED, UserError, hydra_command, is_user_error, one_line
+from hypa.core.errors import INTERRUPTED, UserError, is_user_error, one_line
 from hypa.reporting import markdown as md
 
 if TYPE_CHECKING:

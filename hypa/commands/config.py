@@ -13,23 +13,30 @@ The nodes another schema owns are typed by it: ``data`` (:class:`hypa.data.schem
 open (``Any``): ``ann`` (each network's own arguments, checked by building it), ``vehicle`` (empty
 for a system without one), ``testbench`` (:class:`hypa.paper.testbench.config.TestbenchConfig`
 checks it when the data are built), and the ``_target_`` nodes ``early_stopping``, ``logger``,
-``callbacks`` (any argument of their class). :func:`register_configs` stores the schemas in Hydra's
-ConfigStore; importing :mod:`hypa.commands` calls it.
+``callbacks`` (any argument of their class).
+
+:func:`register_configs` stores the schemas in Hydra's ConfigStore and registers the resolvers the
+configurations use (``${run_name:...}``, ``${channels:...}``); it must run before Hydra composes a
+command's configuration, and importing a module does not run it: each command's ``main`` calls it
+(:func:`hydra_command`), and so does any other code that composes (``hydra.compose``, a test).
 """
 
 from __future__ import annotations
 
 import copy
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from omegaconf import MISSING, DictConfig, OmegaConf, open_dict
 
 from hypa.core.errors import UserError, checked, settings
+from hypa.core.errors import hydra_command as _hydra_command
 from hypa.data.schema import DataConfig
 from hypa.models.schema import ModelConfig
-from hypa.models.spec import HOLDS
+from hypa.physics.discretization import HOLDS
 from hypa.training.baseline import NETWORK_LR, PHYSICS_LR
 
 if TYPE_CHECKING:
@@ -365,17 +372,56 @@ SCHEMAS: dict[str, type] = {
 }
 
 
+def run_name(model: str, ann: str, blocks: Any, model_file: str | None = None) -> str:
+    """``${run_name:...}``: the folder name of a training run, the model and its network where it has
+    one (``model_file``: the model that file holds; its own checks come when the run reads it)."""
+    if model_file:
+        from hypa.core.trust import read_yaml
+
+        try:
+            read = read_yaml(Path(model_file).expanduser())
+            model, blocks = str(read.get("name", Path(model_file).stem)), read.get("blocks")
+        except Exception:  # noqa: BLE001 -- a folder name only: the run reads the file and names what is wrong
+            model, blocks = Path(str(model_file)).stem, None
+    has_ann = any(hasattr(b, "get") and b.get("kind") == "ann" for b in (blocks or {}).values())  # dict or DictConfig
+    name = f"{model}-{ann}" if has_ann else model
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in name)[:100] or "model"
+
+
+def channels(*roles: str, _root_: DictConfig) -> list[str]:
+    """``${channels:input,scheduling}``: the data set's channels with these roles, in declared order
+    (so one model YAML, e.g. ``blackbox``, serves every data set)."""
+    return [name for name, c in _root_.data.channels.items() if c.role in roles]
+
+
+RESOLVERS: dict[str, Callable[..., Any]] = {"run_name": run_name, "channels": channels}
+
+
 def register_configs() -> None:
-    """Store the schemas in Hydra's ConfigStore: ``/hypa/<command>_schema`` (package ``_global_``,
-    the root of ``conf/<command>.yaml``) and ``/hypa/data_schema`` (the datasets' ``data`` node)."""
+    """What Hydra needs before it composes a command's configuration: the schemas in its ConfigStore,
+    ``/hypa/<command>_schema`` (package ``_global_``, the root of ``conf/<command>.yaml``) and
+    ``/hypa/data_schema`` (the datasets' ``data`` node), and the resolvers :data:`RESOLVERS`.
+    Idempotent, and cheap once done: the schemas are stored again only where one is missing."""
     from hydra.core.config_store import ConfigStore
 
+    from hypa.data.schema import SCHEMA_NAME as DATA_SCHEMA
     from hypa.data.schema import register_configs as register_data_schema
 
-    register_data_schema()
     store = ConfigStore.instance()
-    for command, schema in SCHEMAS.items():
-        store.store(group=SCHEMA_GROUP, name=f"{command}_schema", node=schema, package="_global_")
+    stored = store.repo.get(SCHEMA_GROUP, {})
+    if not all(f"{name}.yaml" in stored for name in (DATA_SCHEMA, *(f"{command}_schema" for command in SCHEMAS))):
+        register_data_schema()
+        for command, schema in SCHEMAS.items():
+            store.store(group=SCHEMA_GROUP, name=f"{command}_schema", node=schema, package="_global_")
+    for name, resolver in RESOLVERS.items():
+        OmegaConf.register_new_resolver(name, resolver, replace=True)
+
+
+def hydra_command(command: str, config_name: str) -> Callable[[Callable[[Any], Any]], Callable[..., int]]:
+    """``@hydra_command("hypa train", "train")`` on a command's job: :func:`hypa.core.errors.hydra_command`
+    with :func:`register_configs` before Hydra composes (a launcher's workers get what it registered with
+    Hydra's state)."""
+    return _hydra_command(command, config_name, before=register_configs)
 
 
 def typed(cfg: DictConfig, schema: type[C]) -> C:

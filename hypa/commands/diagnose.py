@@ -23,9 +23,9 @@ from pathlib import Path
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
+from hypa.commands.config import hydra_command
 from hypa.commands.fleet import record_failures
 from hypa.commands.output_folder import holding_output
-from hypa.core.errors import hydra_command
 
 
 @hydra_command("hypa diagnose", "diagnose")

@@ -18,9 +18,8 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from hypa.commands.config import EvaluateConfig, typed
+from hypa.commands.config import EvaluateConfig, hydra_command, typed
 from hypa.commands.output_folder import claim_output, holding_output
-from hypa.core.errors import hydra_command
 from hypa.evaluation.api import Evaluation, evaluate_run, run_datamodule
 from hypa.evaluation.runs import load_run
 

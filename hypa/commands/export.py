@@ -21,9 +21,8 @@ from pathlib import Path
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-from hypa.commands.config import ExportConfig, typed
+from hypa.commands.config import ExportConfig, hydra_command, typed
 from hypa.commands.output_folder import holding_output
-from hypa.core.errors import hydra_command
 
 
 @hydra_command("hypa export", "export")

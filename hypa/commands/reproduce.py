@@ -21,11 +21,11 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from hypa.commands.config import ReproduceConfig, typed
+from hypa.commands.config import ReproduceConfig, hydra_command, typed
 from hypa.commands.evaluate import Evaluation, evaluate_run
 from hypa.commands.launch import run_hypa
 from hypa.conf import CONF
-from hypa.core.errors import UserError, hydra_command
+from hypa.core.errors import UserError
 from hypa.core.metrics import mean_std
 from hypa.evaluation.figures import bode, rear_steer
 from hypa.evaluation.runs import load_run

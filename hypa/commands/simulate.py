@@ -22,8 +22,8 @@ import numpy as np
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from hypa.commands.config import SimulateConfig, typed
-from hypa.core.errors import hydra_command, settings
+from hypa.commands.config import SimulateConfig, hydra_command, typed
+from hypa.core.errors import settings
 
 
 @hydra_command("hypa simulate", "simulate")

@@ -18,8 +18,8 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 from scipy.signal import welch
 
-from hypa.commands.config import TestbenchCommandConfig, typed
-from hypa.core.errors import UserError, hydra_command, settings
+from hypa.commands.config import TestbenchCommandConfig, hydra_command, typed
+from hypa.core.errors import UserError, settings
 from hypa.paper.testbench.config import TestbenchConfig
 from hypa.paper.testbench.dataset import ensure_dataset, generate_dataset, load_description
 from hypa.paper.testbench.plots import plot_axle_characteristics, plot_record, plot_spectrum

@@ -31,40 +31,14 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from hypa.commands.config import TrainConfig, typed
-from hypa.core.errors import UserError, hydra_command, settings
+from hypa.commands.config import TrainConfig, hydra_command, typed
+from hypa.core.errors import UserError, settings
 
 if TYPE_CHECKING:
     from hypa.data import HypaDataModule
     from hypa.models import ModelSpec
 
 log = logging.getLogger(__name__)
-
-
-def run_name(model: str, ann: str, blocks: Any, model_file: str | None = None) -> str:
-    """Folder name of a run: the model, and its network where it has one (``model_file``: the model
-    that file holds; its own checks come when the run reads it)."""
-    if model_file:
-        from hypa.core.trust import read_yaml
-
-        try:
-            read = read_yaml(Path(model_file).expanduser())
-            model, blocks = str(read.get("name", Path(model_file).stem)), read.get("blocks")
-        except Exception:  # noqa: BLE001 -- a folder name only: the run reads the file and names what is wrong
-            model, blocks = Path(str(model_file)).stem, None
-    has_ann = any(hasattr(b, "get") and b.get("kind") == "ann" for b in (blocks or {}).values())  # dict or DictConfig
-    name = f"{model}-{ann}" if has_ann else model
-    return "".join(c if c.isalnum() or c in "-_" else "_" for c in name)[:100] or "model"
-
-
-def channels(*roles: str, _root_: DictConfig) -> list[str]:
-    """``${channels:input,scheduling}``: the data set's channels with these roles, in declared order
-    (so one model YAML, e.g. ``blackbox``, serves every data set)."""
-    return [name for name, c in _root_.data.channels.items() if c.role in roles]
-
-
-OmegaConf.register_new_resolver("run_name", run_name, replace=True)
-OmegaConf.register_new_resolver("channels", channels, replace=True)
 
 
 @dataclass

@@ -215,8 +215,8 @@ def _hint(error: BaseException) -> str:
 
 
 
-def hydra_command(command: str, config_name: str,
-                  config_path: str | Path = CONF) -> Callable[[Callable[[Any], Any]], Callable[..., int]]:
+def hydra_command(command: str, config_name: str, config_path: str | Path = CONF,
+                  before: Callable[[], None] | None = None) -> Callable[[Callable[[Any], Any]], Callable[..., int]]:
     """``@hydra_command("hypa train", "train")`` on a command's job ``main(cfg)``: the command's
     ``main(argv=None) -> 0`` (the shape of every command, :mod:`hypa.commands.cli`), which composes
     ``config_name`` with the overrides ``argv`` (``sys.argv[1:]`` when None) through ``@hydra.main``
@@ -224,7 +224,9 @@ def hydra_command(command: str, config_name: str,
     them) and around it (Hydra's own work: composing the configuration, creating and writing the run
     folder). ``main.job(cfg)`` runs the job on a configuration already composed (its return value:
     what a sweeper minimises). ``config_path``: the package's ``conf/`` (absolute, so a command runs
-    the same whether it is imported or run as ``python -m``)."""
+    the same whether it is imported or run as ``python -m``). ``before``: what Hydra needs before it
+    composes (the commands' schemas and resolvers, :func:`hypa.commands.config.register_configs`),
+    run by ``main`` first (a launcher's worker, joblib's or submitit's, gets both with Hydra's state)."""
     import hydra
 
     def decorate(job: Callable[[Any], Any]) -> Callable[..., int]:
@@ -235,6 +237,8 @@ def hydra_command(command: str, config_name: str,
         def main(argv: Sequence[str] | None = None) -> int:
             if argv is not None:
                 sys.argv = [sys.argv[0], *argv]
+            if before is not None:
+                before()
             composed()
             return 0
 

@@ -1,8 +1,28 @@
-"""Compositions of physics and ANN blocks wired by named signals (``model`` config group)."""
+"""Compositions of physics and ANN blocks wired by named signals (``model`` config group).
 
-from hypa.models.composed import ComposedModel
-from hypa.models.rollout import Prediction, free_run, free_run_metrics, model_inputs
-from hypa.models.spec import BlockSpec, ModelSpec, ModelSpecError, StageSpec, parse_model_spec, spec_config
+Names are imported lazily (PEP 562), so a model's spec and its schema (:mod:`hypa.models.spec`,
+:mod:`hypa.models.schema`) are read without importing torch.
+"""
 
-__all__ = ["BlockSpec", "ComposedModel", "ModelSpec", "ModelSpecError", "Prediction", "StageSpec", "free_run",
-           "free_run_metrics", "model_inputs", "parse_model_spec", "spec_config"]
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_EXPORTS = {"ComposedModel": "composed", "Prediction": "rollout", "free_run": "rollout", "free_run_metrics": "rollout",
+            "model_inputs": "rollout", "BlockSpec": "spec", "ModelSpec": "spec", "ModelSpecError": "spec",
+            "StageSpec": "spec", "parse_model_spec": "spec", "spec_config": "spec"}
+
+__all__ = sorted(_EXPORTS)  # noqa: PLE0605 -- a list of the lazy exports' names
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'hypa.models' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"hypa.models.{_EXPORTS[name]}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})

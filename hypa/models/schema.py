@@ -2,77 +2,62 @@
 
 The commands' configurations type their ``model`` node as :class:`ModelConfig`, so Hydra rejects a
 misspelt key of a model YAML (a user's own from ``--config-dir`` too) or of an override
-(``model.blocks.x.inptus=...``) while composing, naming the key. :func:`hypa.models.spec.parse_model_spec`
-checks a plain mapping (a checkpoint's stored model, a YAML read in Python) against the same
-dataclasses: they are the one definition of a model's and a block's keys. The values stay open
-(``Any``): a signal list may be one name or an interpolation (``${channels:input}``), and
+(``model.blocks.x.inptus=...``) while composing, naming the key. The classes are made from the
+fields of :class:`~hypa.models.spec.ModelSpec`, :class:`~hypa.models.spec.BlockSpec` and
+:class:`~hypa.models.spec.StageSpec` (which say what each key means), the one definition of the
+keys, which :func:`~hypa.models.spec.parse_model_spec` checks a plain mapping against too (a
+checkpoint's stored model, a YAML read in Python). The values stay open (``Any``): a signal list
+may be one name or an interpolation (``${channels:input}``), and
 :func:`~hypa.models.spec.parse_model_spec` checks them with messages that name the block.
 
-This module imports only dataclasses and OmegaConf.
+This module imports only dataclasses, OmegaConf and :mod:`hypa.models.spec` (no torch).
 """
 
 from __future__ import annotations
 
+import typing
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import MISSING as NO_DEFAULT
+from dataclasses import Field, field, fields, make_dataclass
 from typing import Any
 
 from omegaconf import MISSING
 
+from hypa.models.spec import BlockSpec, ModelSpec, StageSpec, keys, unknown_keys
 
-@dataclass
-class BlockConfig:
-    """One block (see :class:`hypa.models.spec.BlockSpec` for what each key means)."""
-
-    kind: str = MISSING  # physics | ann | delay | saturation
-    inputs: Any = None  # signal names read
-    outputs: Any = None  # signal names written
-    system: str | None = None  # physics: a built-in system or package.module:Class
-    trainable: Any = None  # parameter names learned from data
-    residual_of: Any = None  # ann: signals the output is added to
-    scale_as: Any = None  # signals whose scale the outputs share
-    initial_state: Any = None  # measured outputs, steady, estimate or encoder
-    parameters: Any = None  # name -> value [the parameter's unit], or with a unit: 2.5 Ah, {value: 2.5, unit: Ah}
-    scheduling: Any = None  # physics: parameter -> scheduling channel
-    observe: Any = None  # physics: block output -> measured output
-    table: Any = None  # physics scheduled by one signal: its matrices off a verified table where no gradient needs them
-    curved: Any = None  # physics: state -> power (2, 3, root), couplings from the state bent (hypa.physics.curved)
-    limited: Any = None  # physics: state -> upper | lower, the state held at a limit (hypa.physics.limited)
-    depends: Any = None  # physics: parameter -> {by, kind}, varying with a direction or a state
-    modes: Any = None  # physics: inputs each driving a first-order mode added into the outputs (hypa.physics.modes)
-    driven: Any = None  # physics: signals read after its inputs, entering every state derivative
+__all__ = ["BlockConfig", "ModelConfig", "StageConfig", "config_schema", "keys", "plain_model", "unknown_keys"]
 
 
-@dataclass
-class StageConfig:
-    """One stage of a staged training: blocks trained, blocks bypassed."""
+def config_schema(spec: type, class_name: str, doc: str, /, **typed: tuple[Any, Any]) -> type:
+    """The Hydra schema (a dataclass named ``class_name``) of the config node of the dataclass ``spec``: its
+    keys (:func:`~hypa.models.spec.keys`) in order, each ``Any`` with the default ``None``, but a
+    string the spec requires ``MISSING`` (Hydra asks for it) and an optional string ``str | None``.
+    ``typed``: key -> (type, default or ``dataclasses.field``), where the schema says more."""
+    hints = typing.get_type_hints(spec)
 
-    name: str = MISSING
-    train: Any = None
-    bypass: Any = None
+    def entry(f: Field) -> tuple[str, Any, Field]:
+        if f.name in typed:
+            kind, default = typed[f.name]
+        elif hints[f.name] is str and f.default is NO_DEFAULT:
+            kind, default = str, MISSING
+        elif hints[f.name] == str | None:
+            kind, default = str | None, None
+        else:
+            kind, default = Any, None
+        return f.name, kind, default if isinstance(default, Field) else field(default=default)
 
-
-@dataclass
-class ModelConfig:
-    """The ``model`` node (see :class:`hypa.models.spec.ModelSpec`)."""
-
-    name: str = "model"
-    blocks: dict[str, BlockConfig] = field(default_factory=dict)
-    outputs: Any = None
-    stages: list[StageConfig] = field(default_factory=list)
-    hold: str | None = None  # zoh | foh | cubic, overriding physics.hold of the run
-    parameters: Any = None  # shared physical parameters (as a block's), overriding the vehicle config
-    sensor_offsets: Any = None  # measured - true [SI]
-
-
-def keys(schema: type) -> tuple[str, ...]:
-    """The keys a node of ``schema`` may have, in declared order."""
-    return tuple(f.name for f in fields(schema))
+    schema = make_dataclass(class_name, [entry(f) for f in fields(spec) if f.name in keys(spec)])
+    schema.__module__, schema.__doc__ = __name__, doc  # pickled and documented as this module's
+    return schema
 
 
-def unknown_keys(node: Mapping[str, Any], schema: type) -> list[str]:
-    """The keys of ``node`` that ``schema`` does not have, sorted."""
-    return sorted(set(map(str, node)) - set(keys(schema)))
+BlockConfig = config_schema(BlockSpec, "BlockConfig", "One block, ``blocks.<name>`` (see :class:`~hypa.models.spec."
+                            "BlockSpec` for what each key means).")
+StageConfig = config_schema(StageSpec, "StageConfig", "One stage of a staged training: blocks trained, blocks "
+                            "bypassed (:class:`~hypa.models.spec.StageSpec`).")
+ModelConfig = config_schema(ModelSpec, "ModelConfig", "The ``model`` node (see :class:`~hypa.models.spec.ModelSpec`).",
+                            name=(str, "model"), blocks=(dict[str, BlockConfig], field(default_factory=dict)),
+                            stages=(list[StageConfig], field(default_factory=list)))
 
 
 def plain_model(node: Mapping[str, Any]) -> dict[str, Any]:

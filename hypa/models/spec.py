@@ -4,24 +4,27 @@ A composition is a list of blocks; each reads named signals and writes named sig
 measured inputs and scheduling signals are signals from the start; the model's ``outputs``
 are compared with the measured outputs. V1, V2, V3, the physical baseline and the
 pure networks are YAML files in ``conf/model/``, not Python classes.
+
+The dataclasses here are the one definition of a model's, a block's and a stage's keys: Hydra's
+schema of the ``model`` node (:mod:`hypa.models.schema`) is made from their fields,
+:func:`parse_model_spec` checks a plain mapping against them and :func:`spec_config` writes them.
+Importing this module imports neither torch nor the physics (only checking or building a model does).
 """
 
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Collection, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, is_dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from hypa.core.errors import UserError
+from hypa.core.errors import DataError, UserError
 from hypa.core.trust import check_name
-from hypa.core.units import GivenQuantity, given_value
-from hypa.data.errors import DataError
-from hypa.models.schema import BlockConfig, ModelConfig, StageConfig, keys, unknown_keys
-from hypa.physics.discretization import HOLDS
-from hypa.physics.statespace import LTIModel
-from hypa.physics.systems import PHYSICS_SYSTEMS, build_system, is_import_path
+
+if TYPE_CHECKING:
+    from hypa.physics.statespace import LTIModel
 
 BLOCK_KINDS = ("physics", "ann", "delay", "saturation")
 # elements: blocks that map each input to one output through one own parameter (not a state space)
@@ -32,8 +35,24 @@ ENCODER = "encoder"  # the least-squares estimate corrected by a network over th
 DIAGNOSED = "diagnosed_"  # the prefix of the blocks and signals a diagnosis adds to a model (hypa.diagnosis)
 
 
+# The metadata of a field that is no key inside its node: the node's own key in its parent (a block's
+# name, ``blocks: {<name>: {kind: ..., ...}}``).
+NODE_KEY = "node_key"
+
+
 class ModelSpecError(UserError):
     """A model configuration that cannot be built; the message lists what exists."""
+
+
+def keys(schema: type) -> tuple[str, ...]:
+    """The keys a config node of the dataclass ``schema`` may have, in declared order: its fields but
+    the node's own key (a block's ``name``)."""
+    return tuple(f.name for f in fields(schema) if not f.metadata.get(NODE_KEY))
+
+
+def unknown_keys(node: Mapping[str, Any], schema: type) -> list[str]:
+    """The keys of ``node`` that ``schema`` does not have, sorted."""
+    return sorted(set(map(str, node)) - set(keys(schema)))
 
 
 @dataclass(frozen=True)
@@ -104,7 +123,7 @@ class BlockSpec:
         ``hypa diagnose``'s ``unread_channel`` for a measured channel the model did not read).
     """
 
-    name: str
+    name: str = field(metadata={NODE_KEY: True})  # the block's key in the model's blocks
     kind: str
     inputs: tuple[str, ...]
     outputs: tuple[str, ...]
@@ -126,6 +145,8 @@ class BlockSpec:
     def system_model(self) -> LTIModel:
         """A physics block's system as built for it: ``system`` with its ``curved`` and ``limited``
         states, its ``depends`` parameters, its ``modes`` and its ``driven`` inputs."""
+        from hypa.physics.systems import build_system
+
         return build_system(self.system or "", self.name, self.curved, self.limited, self.depends, self.driven,
                             self.modes)
 
@@ -205,6 +226,8 @@ def _values(value: Any, where: str, units: bool = False) -> dict[str, float]:
     """A mapping name -> finite number (SI); with ``units`` also a number with a unit (``2.5 Ah``,
     ``{value: 2.5, unit: Ah}``): a :class:`~hypa.core.units.GivenQuantity`, converted to the unit its
     parameter declares when the model is built."""
+    from hypa.core.units import given_value
+
     if value is None:
         return {}
     if not isinstance(value, Mapping):
@@ -226,9 +249,20 @@ def _values(value: Any, where: str, units: bool = False) -> dict[str, float]:
     return out
 
 
-def _written(value: float) -> float | str:
-    """A parameter value as a model YAML holds it: a number, or a number with its unit as given."""
-    return str(value) if isinstance(value, GivenQuantity) else float(value)
+def _written(value: Any) -> Any:
+    """A spec's value as a model YAML holds it: a spec its node, a mapping a dict, a tuple a list, a
+    number given with its unit as given (``2.5 Ah``), another real number a float (a numpy one too)."""
+    from hypa.core.units import GivenQuantity
+
+    if is_dataclass(value):
+        return _node(value)
+    if isinstance(value, Mapping):
+        return {str(k): _written(v) for k, v in value.items()}
+    if isinstance(value, tuple | list):
+        return [_written(v) for v in value]
+    if isinstance(value, GivenQuantity):
+        return str(value)
+    return float(value) if isinstance(value, numbers.Real) and not isinstance(value, numbers.Integral) else value
 
 
 def _signal_map(value: Any, where: str) -> dict[str, str]:
@@ -284,10 +318,13 @@ def _dependences(value: Any, where: str) -> dict[str, dict[str, str]]:
 
 def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
     """Parse and check the ``model`` config (a plain mapping) into a :class:`ModelSpec`."""
+    from hypa.physics.discretization import HOLDS
+    from hypa.physics.systems import PHYSICS_SYSTEMS, is_import_path
+
     name = _signals(str(config.get("name", "model")), "the model's name")[0]
-    unknown = unknown_keys(config, ModelConfig)  # the keys: hypa.models.schema, also Hydra's schema of `model`
+    unknown = unknown_keys(config, ModelSpec)  # the keys Hydra's schema of `model` has too (hypa.models.schema)
     if unknown:
-        raise ModelSpecError(f"model {name!r}: unknown keys {unknown}; known: {', '.join(keys(ModelConfig))}")
+        raise ModelSpecError(f"model {name!r}: unknown keys {unknown}; known: {', '.join(keys(ModelSpec))}")
     hold = config.get("hold")
     if hold is not None and hold not in HOLDS:
         raise ModelSpecError(f"model {name!r}: hold must be one of {HOLDS} or null, got {hold!r}")
@@ -298,11 +335,11 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
     for block_name, b in blocks_cfg.items():
         _signals(str(block_name), "a block's name")
         if not isinstance(b, Mapping):
-            raise ModelSpecError(f"block {block_name!r} must map keys ({', '.join(keys(BlockConfig))}) to values, "
+            raise ModelSpecError(f"block {block_name!r} must map keys ({', '.join(keys(BlockSpec))}) to values, "
                                  f"got {b!r}")
-        unknown = unknown_keys(b, BlockConfig)
+        unknown = unknown_keys(b, BlockSpec)
         if unknown:
-            raise ModelSpecError(f"block {block_name!r}: unknown keys {unknown}; known: {', '.join(keys(BlockConfig))}")
+            raise ModelSpecError(f"block {block_name!r}: unknown keys {unknown}; known: {', '.join(keys(BlockSpec))}")
         kind = b.get("kind")
         if kind not in BLOCK_KINDS:
             raise ModelSpecError(f"block {block_name!r}: kind must be one of {BLOCK_KINDS}, got {kind!r}")
@@ -348,8 +385,8 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
             raise ModelSpecError(f"block {block_name!r}: a {kind} block writes one output per input")
     stages = []
     for s in config.get("stages") or []:
-        if not isinstance(s, Mapping) or unknown_keys(s, StageConfig) or "name" not in s:
-            raise ModelSpecError(f"model {name!r}: a stage has the keys {', '.join(keys(StageConfig))} (name "
+        if not isinstance(s, Mapping) or unknown_keys(s, StageSpec) or "name" not in s:
+            raise ModelSpecError(f"model {name!r}: a stage has the keys {', '.join(keys(StageSpec))} (name "
                                  f"required), got {s!r}")
         stages.append(StageSpec(name=str(s["name"]), train=_names(s.get("train"), "stage.train"),
                                 bypass=_names(s.get("bypass"), "stage.bypass")))
@@ -372,6 +409,7 @@ def model_imports(config: Mapping[str, Any], ann_name: str | None = None) -> dic
     network): what -> import path. They are code: a model read from a file (a checkpoint's, a
     written ``diagnosed.yaml``) imports them only when the user trusts them (:mod:`hypa.core.trust`)."""
     from hypa.ann import ANN_BLOCKS
+    from hypa.physics.systems import is_import_path
 
     found = {}
     for name, block in (config.get("blocks") or {}).items():
@@ -398,7 +436,7 @@ def read_model_file(path: Path, trust: Collection[str] = ()) -> dict[str, Any]:
 
     config = read_yaml(path, "model file")
     if not isinstance(config, Mapping):
-        raise ModelSpecError(f"{path}: a model file maps model keys ({', '.join(keys(ModelConfig))}) to values")
+        raise ModelSpecError(f"{path}: a model file maps model keys ({', '.join(keys(ModelSpec))}) to values")
     if has_interpolation(config):
         raise ModelSpecError(f"{path}: holds an interpolation (${{...}}); a model file is read as data, with "
                              "values only")
@@ -411,28 +449,21 @@ def read_model_file(path: Path, trust: Collection[str] = ()) -> dict[str, Any]:
 
 
 def spec_config(spec: ModelSpec, name: str | None = None) -> dict[str, Any]:
-    """A :class:`ModelSpec` as the mapping of a ``conf/model/*.yaml`` file (only keys that are set)."""
-    blocks = {}
-    for b in spec.blocks:
-        entry: dict[str, Any] = {"kind": b.kind, "inputs": list(b.inputs), "outputs": list(b.outputs)}
-        for key in ("system", "trainable", "residual_of", "scale_as", "initial_state", "parameters", "scheduling",
-                    "observe", "curved", "limited", "depends", "modes", "driven"):
-            value = getattr(b, key)
-            if value:
-                entry[key] = {k: dict(v) if isinstance(v, Mapping) else v for k, v in value.items()} \
-                    if isinstance(value, Mapping) else (
-                    list(value) if isinstance(value, tuple) else value)
-        if b.parameters:  # a value given with its unit is written as given (2.5 Ah)
-            entry["parameters"] = {k: _written(v) for k, v in b.parameters.items()}
-        if b.table:
-            entry["table"] = True
-        blocks[b.name] = entry
-    out: dict[str, Any] = {"name": name or spec.name, "blocks": blocks, "outputs": list(spec.outputs)}
-    if spec.hold:
-        out["hold"] = spec.hold
-    if spec.parameters:
-        out["parameters"] = {k: _written(v) for k, v in spec.parameters.items()}
-    if spec.sensor_offsets:
-        out["sensor_offsets"] = {k: float(v) for k, v in spec.sensor_offsets.items()}
-    out["stages"] = [{"name": s.name, "train": list(s.train), "bypass": list(s.bypass)} for s in spec.stages]
-    return out
+    """A :class:`ModelSpec` as the mapping of a ``conf/model/*.yaml`` file: the keys that are set (and
+    always a model's name, blocks, outputs and stages, a block's kind, inputs and outputs, a stage's
+    keys), a parameter given with its unit as given (``2.5 Ah``)."""
+    return {**_node(spec), "name": name or spec.name, "blocks": {b.name: _node(b) for b in spec.blocks}}
+
+
+# The keys of a node written even where empty.
+_ALWAYS: dict[type, tuple[str, ...]] = {
+    ModelSpec: ("name", "blocks", "outputs", "stages"),
+    BlockSpec: ("kind", "inputs", "outputs"),
+    StageSpec: ("name", "train", "bypass"),
+}
+
+
+def _node(spec: Any) -> dict[str, Any]:
+    """A spec as its config node: the keys that are set, and those always written."""
+    return {key: _written(getattr(spec, key)) for key in keys(type(spec))
+            if key in _ALWAYS[type(spec)] or getattr(spec, key)}

@@ -40,6 +40,46 @@ def test_every_command_module_has_the_one_shape() -> None:
         assert 'if __name__ == "__main__":\n    sys.exit(main())' in Path(module.__file__).read_text(), command.module
 
 
+def test_importing_the_commands_registers_nothing() -> None:
+    """The schemas and resolvers are registered by a command, not by an import (hypa.commands.config); the
+    list of commands (hypa --help) imports neither torch nor the configurations."""
+    code = ("import sys\nimport hypa.commands.cli\nassert 'torch' not in sys.modules, 'torch imported'\n"
+            "assert 'hypa.commands.config' not in sys.modules, 'the configurations imported'\n"
+            "import hypa.commands.train, hypa.commands.config\n"
+            "from hydra.core.config_store import ConfigStore\nfrom omegaconf import OmegaConf\n"
+            "assert 'hypa' not in ConfigStore.instance().repo, 'schemas stored on import'\n"
+            "assert not OmegaConf.has_resolver('run_name') and not OmegaConf.has_resolver('channels')\n"
+            "hypa.commands.config.register_configs()\nhypa.commands.config.register_configs()  # idempotent\n"
+            "assert 'train_schema.yaml' in ConfigStore.instance().repo['hypa'] and OmegaConf.has_resolver('channels')")
+    result = python("-c", code)
+    assert result.returncode == 0, result.stderr[-3000:]
+
+
+def test_every_hydra_command_registers_before_it_composes(capsys, monkeypatch) -> None:
+    """With nothing registered, each Hydra command's main composes its configuration (``--cfg job``)."""
+    import importlib
+
+    from hydra.core.config_store import ConfigStore
+    from omegaconf import OmegaConf
+
+    from hypa.commands.config import RESOLVERS, register_configs
+
+    monkeypatch.setattr(sys, "argv", list(sys.argv))  # each main sets sys.argv to its overrides
+    try:
+        for name, command in COMMANDS.items():
+            module = importlib.import_module(f"hypa.commands.{command.module}")
+            if not hasattr(module.main, "job"):  # fleet, timing: options, no Hydra configuration
+                continue
+            ConfigStore.instance().repo.pop("hypa", None)
+            for resolver in RESOLVERS:
+                OmegaConf.clear_resolver(resolver)
+            assert module.main(["--cfg", "job", *(["run=x"] if name in ("evaluate", "export", "explain") else [])]) == 0
+            assert capsys.readouterr().out.strip(), name
+            assert "train_schema.yaml" in ConfigStore.instance().repo["hypa"] and OmegaConf.has_resolver("run_name")
+    finally:
+        register_configs()
+
+
 def test_python_m_hypa_runs_a_command_and_its_part() -> None:
     bad = python("-m", "hypa", "timing", "physic")
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "physics, diagnosis" in bad.stderr

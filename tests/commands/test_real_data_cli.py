@@ -9,9 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from hypa.conf import CONF
-
-from conftest import ROOT, SHARED_DATA
+from conftest import ROOT, SHARED_DATA, compose_config
 
 pytestmark = pytest.mark.shared_data
 TINY = ["trainer.max_epochs=1", "trainer.limit_train_batches=2", "trainer.limit_val_batches=2",
@@ -70,16 +68,13 @@ def test_silverbox_state_estimated_from_the_past_starts_the_nominal_physics_righ
     at most over the first 10 samples) and free-runs the test set at the linear model's published
     level (measured 7.4 mV; published 6.96 mV); a wrong state estimate would show as a start-up
     transient of the size of the output (0.1 V)."""
-    from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    import hypa.commands  # noqa: F401  (registers the schemas conf/train.yaml extends; alone, nothing else has)
     from hypa.data import datamodule_from_config
     from hypa.models import ComposedModel
     from hypa.models.rollout import free_run
 
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="train", overrides=["dataset=silverbox", "model=silverbox_physical"])
+    cfg = compose_config("train", ["dataset=silverbox", "model=silverbox_physical"])
     dm = datamodule_from_config(cfg.data, SHARED_DATA / "silverbox")
     dm.setup()
     model = ComposedModel.from_data(dm, OmegaConf.to_container(cfg.model, resolve=True), horizon=100).double()

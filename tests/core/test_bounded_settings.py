@@ -23,9 +23,7 @@ from pathlib import Path
 
 import pytest
 
-from hypa.conf import CONF
-
-from conftest import ROOT, SHORT_OVERRIDES
+from conftest import ROOT, SHORT_OVERRIDES, compose_config
 from data_helpers import make_data_dir
 
 
@@ -130,16 +128,13 @@ def test_a_received_run_config_asking_for_huge_records_is_refused_before_its_dat
     """A run folder's config.yaml (read as hypa evaluate reads it) whose test-bench records ask for 1e7 s:
     building its data (what evaluation does when the run's data folder is not there) is refused in one
     line, without allocating and without a folder in the cache."""
-    from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    import hypa.commands  # noqa: F401  (registers the schemas conf/train.yaml extends, as every command does)
     from hypa.core.errors import UserError
     from hypa.data.from_config import data_dir_from_config
     from hypa.evaluation.runs import run_config
 
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="train", overrides=SHORT_OVERRIDES)
+    cfg = compose_config("train", SHORT_OVERRIDES)
     cfg.testbench.records.val.stochastic_duration_s = 1.0e7  # as someone edited the file they sent
     run = tmp_path / "run"
     run.mkdir()

@@ -153,7 +153,9 @@ def test_two_default_folders_made_in_one_second_differ(name: str) -> None:
     from hydra import compose, initialize_config_dir
     from hydra.core.hydra_config import HydraConfig
 
-    import hypa.commands.train  # noqa: F401 (its resolvers name the training run's folder)
+    from hypa.commands.config import register_configs
+
+    register_configs()  # the schemas, and the resolvers that name the training run's folder
 
     def folders() -> list[str]:
         names = []

@@ -16,10 +16,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from hypa.conf import CONF
-
 from cli_helpers import hypa_run
-from conftest import ROOT
+from conftest import ROOT, compose_config
 from data_helpers import make_data_dir
 
 FAST = ["model=physical", "identification.enabled=false",  # epochs: what these cases are about
@@ -226,7 +224,6 @@ def test_an_interrupted_checkpoint_write_keeps_the_previous_file(tmp_path: Path,
 
 def test_a_diverging_loss_stops_the_run_naming_the_epoch(data: Path, tmp_path: Path, monkeypatch) -> None:
     """Epoch 0 trains normally, the loss turns NaN in epoch 1: one line naming it, epoch 0 stays the best."""
-    from hydra import compose, initialize_config_dir
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import open_dict
 
@@ -241,9 +238,7 @@ def test_a_diverging_loss_stops_the_run_naming_the_epoch(data: Path, tmp_path: P
         return loss * float("nan") if self.current_epoch == 1 else loss
 
     monkeypatch.setattr(HybridModule, "training_step", diverging)
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="train", overrides=[*FAST, f"data.dir={data}", "trainer.max_epochs=4"],
-                      return_hydra_config=True)
+    cfg = compose_config("train", [*FAST, f"data.dir={data}", "trainer.max_epochs=4"], return_hydra_config=True)
     with open_dict(cfg):
         cfg.hydra.runtime.output_dir = str(tmp_path)
         cfg.hydra.job.num = 0
@@ -267,15 +262,13 @@ def test_a_diverging_loss_stops_the_run_naming_the_epoch(data: Path, tmp_path: P
 def test_bad_training_values_stop_before_training(override: str, message: str, data: Path, tmp_path: Path) -> None:
     """Refused before the run folder is claimed or any data read (in-process: the command's one line for a
     UserError is shown once, below, and in tests/core/test_cli_errors.py)."""
-    from hydra import compose, initialize_config_dir
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import open_dict
 
     from hypa.commands.train import train
     from hypa.core.errors import UserError
 
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="train", overrides=[*FAST, f"data.dir={data}", override], return_hydra_config=True)
+    cfg = compose_config("train", [*FAST, f"data.dir={data}", override], return_hydra_config=True)
     with open_dict(cfg):
         cfg.hydra.runtime.output_dir = str(tmp_path / "run")
         cfg.hydra.job.num = 0

@@ -7,25 +7,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
-import hypa.commands  # noqa: F401  (registers the schemas, as every command does)
 from hypa.conf import CONF
 from hypa.data import DataError, HypaDataModule, datamodule_from_config, decimate
 from hypa.data.from_config import data_dir_from_config, validated
 from hypa.paper.testbench.sensors import TESTBENCH_CHANNELS
 
-from conftest import ROOT
+from conftest import ROOT, compose_config
 from data_helpers import synthetic_channels, write_table
 
 DATASETS = ("testbench", "files", "silverbox", "emps", "racecar")
 
 
 def _compose(*overrides: str, config: str = "train"):
-    with initialize_config_dir(str(CONF), version_base="1.3"):
-        return compose(config, overrides=list(overrides))
+    return compose_config(config, overrides)
 
 
 @pytest.mark.parametrize("name", DATASETS)
@@ -187,8 +184,7 @@ def test_the_docs_example_dataset_loads(tmp_path):
             "t": np.arange(n) * 1.0, "voltage": rng.normal(size=n), "gain": np.full(n, 3.0),
             "pos_mm": np.cumsum(rng.normal(size=n)), "v(km/h)": 40 + 10 * np.sin(np.arange(n) / 50),
             "T": np.full(n, 20.0), "ref": rng.normal(size=n)})
-    with initialize_config_dir(str(conf), version_base="1.3"):
-        cfg = compose("train", overrides=["dataset=my_rig"])
+    cfg = compose_config("train", ["dataset=my_rig"], config_dir=conf)
     dm = datamodule_from_config(cfg.data, data_dir_from_config(cfg))
     dm.setup()
     assert (dm.input_names, dm.output_names, dm.scheduling_names) == (("force",), ("position",), ("speed",))

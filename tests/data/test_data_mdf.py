@@ -19,12 +19,11 @@ import pytest
 
 asammdf = pytest.importorskip("asammdf")
 
-from hypa.conf import CONF  # noqa: E402 -- after the importorskip
 from hypa.data import ChannelSpec, DataError, decimate, find_split_files, load_record  # noqa: E402 -- after the importorskip
 from hypa.data.decimation import lowpass  # noqa: E402 -- after the importorskip
 from hypa.data.mdf import read_signals  # noqa: E402 -- after the importorskip
 
-from conftest import ROOT  # noqa: E402 -- after the importorskip
+from conftest import ROOT, compose_config  # noqa: E402 -- after the importorskip
 
 DEG = math.pi / 180.0
 
@@ -272,16 +271,12 @@ FILES_OVERRIDES = ["dataset=files", "+data.channels.steering_wheel_angle.column=
 def test_dataset_files_reads_an_mdf_folder_in_si_at_the_model_rate(tmp_path: Path) -> None:
     """``conf/dataset/files.yaml`` as it is (units declared in rad, files at 1024 Hz, model at
     32 Hz) on MDF files in deg and °/s at 200 and 100 Hz: read in SI, resampled, decimated."""
-    from hydra import compose, initialize_config_dir
-
-    import hypa.commands  # noqa: F401  (registers the schemas conf/train.yaml extends)
     from hypa.data import datamodule_from_config
 
     folder = _vehicle_folder(tmp_path / "mdf")
     assert {s: [p.name for p in f] for s, f in find_split_files(folder).items()} == {
         "train": ["train.mf4"], "val": ["val.mf4"]}
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="train", overrides=[*FILES_OVERRIDES, f"data.dir={folder}"])
+    cfg = compose_config("train", [*FILES_OVERRIDES, f"data.dir={folder}"])
     dm = datamodule_from_config(cfg.data, folder)
     dm.setup()
     record = dm.records("val")[0]

@@ -8,14 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
 
-import hypa  # noqa: F401  (registers the schema, as every entry point does)
-from hypa.conf import CONF
 from hypa.data import HypaDataModule, datamodule_from_config, read_columns
 from hypa.data.from_config import data_dir_from_config
 
-from conftest import ROOT, SHARED_DATA
+from conftest import ROOT, SHARED_DATA, compose_config
 
 pytestmark = pytest.mark.shared_data
 
@@ -23,8 +20,7 @@ pytestmark = pytest.mark.shared_data
 def _load(name: str, monkeypatch, *overrides: str) -> HypaDataModule:
     monkeypatch.chdir(ROOT)  # the YAMLs name ../shared/data relative to where hypa runs
     monkeypatch.delenv("HYPA_DATA", raising=False)
-    with initialize_config_dir(str(CONF), version_base="1.3"):
-        cfg = compose("train", overrides=[f"dataset={name}", *overrides])
+    cfg = compose_config("train", [f"dataset={name}", *overrides])
     dm = datamodule_from_config(cfg.data, data_dir_from_config(cfg))
     dm.setup()
     return dm

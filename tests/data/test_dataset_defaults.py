@@ -4,10 +4,8 @@ vehicle test bench's nominal model); model=M still chooses any other."""
 
 
 import pytest
-from hydra import compose, initialize_config_dir
 
-import hypa  # noqa: F401  (registers the data schema the data sets build on)
-from hypa.conf import CONF
+from conftest import compose_config
 
 
 @pytest.mark.parametrize("command, overrides, model", [
@@ -23,6 +21,5 @@ from hypa.conf import CONF
     ("simulate", ["dataset=silverbox"], "silverbox_physical"),
 ])
 def test_a_data_set_brings_its_default_model(command: str, overrides: list[str], model: str) -> None:
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name=command, overrides=overrides)
+    cfg = compose_config(command, overrides)
     assert cfg.model.name == model

@@ -7,10 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hypa.conf import CONF
-
 from cli_helpers import hypa_run
-from conftest import SHORT_OVERRIDES
+from conftest import SHORT_OVERRIDES, compose_config
 from test_train import run_train
 
 TINY = ["trainer.max_epochs=1", "trainer.limit_train_batches=3", "trainer.limit_val_batches=2",
@@ -33,11 +31,9 @@ def trained(tmp_path_factory, hypa_cache) -> dict[str, Path]:
 
 
 def _write_config(folder: Path, overrides: list[str]) -> None:
-    from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="train", overrides=[*SHORT_OVERRIDES, *overrides])
+    cfg = compose_config("train", [*SHORT_OVERRIDES, *overrides])
     OmegaConf.save(cfg, folder / ".hydra" / "config.yaml")
 
 

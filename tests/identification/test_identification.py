@@ -9,13 +9,10 @@ import sys
 from pathlib import Path
 
 import pytest
-from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-import hypa.commands  # noqa: F401  (registers the schemas conf/train.yaml extends)
-from hypa.conf import CONF
-
 from cli_helpers import hypa_run
+from conftest import compose_config
 from data_helpers import DC_MOTOR_HYBRID, USER_EXAMPLE, make_dc_motor_data
 
 TRUE = {"torque_constant": 0.065, "friction": 3e-5, "load_torque": 0.004}  # examples/user_system/make_data.py
@@ -45,9 +42,8 @@ def model_and_data(data: Path, trainable: list[str], parameters: dict[str, float
     from hypa.training import HybridModule
 
     sys.path.insert(0, str(USER_EXAMPLE))
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="train", overrides=[f"hydra.searchpath=[file://{USER_EXAMPLE / 'conf'}]",
-                                                      "dataset=dc_motor", "model=dc_motor", f"data.dir={data}"])
+    cfg = compose_config("train", [f"hydra.searchpath=[file://{USER_EXAMPLE / 'conf'}]", "dataset=dc_motor",
+                                   "model=dc_motor", f"data.dir={data}"])
     dm = datamodule_from_config(cfg.data, data)
     dm.setup()
     config = OmegaConf.to_container(cfg.model, resolve=True)
@@ -351,7 +347,6 @@ def test_bad_identification_settings_are_refused(override: str, message: str) ->
     # a value of the wrong type fails while Hydra composes (hypa.commands.config), a value out of its range
     # when the command reads its typed configuration: the same one line either way
     with pytest.raises((UserError, ConfigCompositionException)) as error:
-        with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-            cfg = compose(config_name="train", overrides=["identification.enabled=true", override])
+        cfg = compose_config("train", ["identification.enabled=true", override])
         typed(cfg, TrainConfig).identification.settings()
     assert message in one_line(error.value)

@@ -16,7 +16,7 @@ from hypa.paper.table1 import (
     ranks,
 )
 
-from conftest import ROOT
+from conftest import ROOT, compose_config
 
 # free-run R² per row that passes every check: the hybrids between physical and LSTM, V1 < V3 < V2
 PASSING = {"physical": 0.960, "LSTM": 0.998, "Transformer": 0.997, "S4": 0.995, "Mamba": 0.996,
@@ -139,8 +139,6 @@ def test_only_some_rows_run() -> None:
 def test_a_new_reproduction_moves_the_earlier_runs_aside(tmp_path, monkeypatch) -> None:
     """One run, one folder: training anew into <out>/runs would be refused by the earlier runs there."""
 
-    from hydra import compose, initialize_config_dir
-
     from hypa.commands import reproduce
 
     earlier = tmp_path / "results" / "runs" / "0_physical-seed0"
@@ -153,9 +151,7 @@ def test_a_new_reproduction_moves_the_earlier_runs_aside(tmp_path, monkeypatch) 
         raise RuntimeError("no training in this test")
 
     monkeypatch.setattr(reproduce, "train_rows", train_rows)
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="reproduce",
-                      overrides=[f"out={tmp_path / 'results'}", "rows=[physical]", "seeds=[0]"])
+    cfg = compose_config("reproduce", [f"out={tmp_path / 'results'}", "rows=[physical]", "seeds=[0]"])
     with pytest.raises(RuntimeError, match="no training"):
         reproduce.main.job(cfg)
     assert seen["free"] and seen["sweep"] == tmp_path / "results" / "runs"

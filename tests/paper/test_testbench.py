@@ -15,8 +15,6 @@ import pytest
 from omegaconf.errors import ConfigKeyError
 from scipy.signal import lsim, welch
 
-import hypa.commands  # noqa: F401  (registers the schemas conf/testbench.yaml extends: this file alone passes too)
-from hypa.conf import CONF
 from hypa.paper.testbench import (
     TestbenchConfig,
     ensure_dataset,
@@ -36,6 +34,8 @@ from hypa.paper.testbench.truth import (
     static_axle_loads,
 )
 from hypa.vehicle import VehicleParameters
+
+from conftest import compose_config
 
 FS = 1024.0
 
@@ -93,10 +93,7 @@ def short_dataset(tmp_path_factory) -> tuple[TestbenchConfig, Path]:
 
 
 def test_yaml_mirrors_the_dataclass_defaults():
-    from hydra import compose, initialize_config_dir
-
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="testbench")
+    cfg = compose_config("testbench")
     assert TestbenchConfig.from_dict(cfg.testbench) == TestbenchConfig()
     assert cfg.out is None
     assert TestbenchConfig().vehicle == VehicleParameters()
@@ -406,9 +403,6 @@ def test_simulate_record_accepts_a_record_config():
 
 def test_a_record_removed_on_the_command_line_is_not_generated() -> None:
     """``~testbench.records.train_2`` drops the record (the schema's defaults must not bring it back)."""
-    from hydra import compose, initialize_config_dir
-
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="testbench", overrides=["~testbench.records.train_2"])
+    cfg = compose_config("testbench", ["~testbench.records.train_2"])
     assert sorted(TestbenchConfig.from_hydra(cfg.testbench).records) == ["train_1", "val"]
     assert sorted(TestbenchConfig.from_dict(cfg.testbench).records) == ["train_1", "train_2", "val"]  # a partial update

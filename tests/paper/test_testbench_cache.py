@@ -11,15 +11,14 @@ import logging
 from pathlib import Path
 
 import pytest
-from hydra import compose, initialize_config_dir
 
-from hypa.conf import CONF
 from hypa.core.metadata import sha256
 from hypa.data.from_config import data_dir_from_config
 from hypa.paper.testbench import TestbenchConfig, ensure_dataset, load_description
 from hypa.paper.testbench import dataset as dataset_module
 
 from cli_helpers import hypa_run
+from conftest import compose_config
 
 RECORDS = ("train_1", "train_2", "val")
 TINY = [*(f"testbench.records.{name}.stochastic_duration_s=5" for name in RECORDS),
@@ -28,8 +27,7 @@ LOGGER = "hypa.paper.testbench.dataset"
 
 
 def _compose(config: str, *overrides: str):
-    with initialize_config_dir(str(CONF), version_base="1.3"):
-        return compose(config, overrides=[*TINY, *overrides])
+    return compose_config(config, [*TINY, *overrides])
 
 
 @pytest.fixture(scope="module")

@@ -9,12 +9,9 @@ import math
 from pathlib import Path
 
 import pytest
-from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-import hypa.commands.train  # noqa: F401  (registers the ${channels:...} resolver the models use)
 from hypa.ann import build_ann
-from hypa.conf import CONF
 from hypa.data import datamodule_from_config
 from hypa.training.baseline import (
     FIXED_DEFAULTS,
@@ -25,6 +22,7 @@ from hypa.training.baseline import (
     training_defaults,
 )
 
+from conftest import compose_config
 from data_helpers import make_data_dir
 
 LR = 5e-4
@@ -68,8 +66,7 @@ def data(tmp_path_factory) -> Path:
 
 
 def defaults(data: Path, *overrides: str, lr: float = LR) -> tuple[dict, float, int, int, object]:
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="train", overrides=["dataset=files", f"data.dir={data}", *overrides])
+    cfg = compose_config("train", ["dataset=files", f"data.dir={data}", *overrides])
     dm = datamodule_from_config(cfg.data, data)
     dm.setup()
     ann = OmegaConf.to_container(cfg.ann, resolve=True)

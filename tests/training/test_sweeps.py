@@ -11,16 +11,14 @@ from pathlib import Path
 
 import pytest
 import yaml
-from hydra import compose, initialize_config_dir
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import ChoiceSweep, IntervalSweep
 from omegaconf import OmegaConf
 
-import hypa.commands.train  # registers the data schema and the resolvers the configs use
+import hypa.commands.train
 from hypa.ann import ann_hyperparameters
-from hypa.conf import CONF
 
-from conftest import ROOT, SHORT_OVERRIDES
+from conftest import ROOT, SHORT_OVERRIDES, compose_config
 
 ANNS = ("lstm", "transformer", "s4", "mamba")
 TINY = ["trainer.max_epochs=1", "trainer.limit_train_batches=2", "trainer.limit_val_batches=2",
@@ -34,8 +32,7 @@ def hypa_train(*args: str, cwd: Path, cache: Path) -> subprocess.CompletedProces
 
 
 def compose_train(*overrides: str):
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return compose(config_name="train", overrides=list(overrides), return_hydra_config=True)
+    return compose_config("train", overrides, return_hydra_config=True)
 
 
 def search_space(ann: str) -> dict:

@@ -6,15 +6,13 @@ from pathlib import Path
 
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import open_dict
 
 from hypa.commands.train import train
-from hypa.conf import CONF
 
 from cli_helpers import hypa_run
-from conftest import SHORT_OVERRIDES
+from conftest import SHORT_OVERRIDES, compose_config
 
 TINY = ["trainer.max_epochs=1", "trainer.limit_train_batches=2", "trainer.limit_val_batches=2",
         "trainer.enable_progress_bar=false", "figures.enabled=false", "data.batch_size=8",
@@ -26,8 +24,7 @@ TINY_ANN = {"lstm": ["ann.hidden_size=8"], "s4": ["ann.d_model=8", "ann.d_state=
 
 def run_train(tmp_path: Path, overrides: list[str]) -> dict:
     """Compose the real config like the command line does, and train in-process."""
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name="train", overrides=[*SHORT_OVERRIDES, *overrides], return_hydra_config=True)
+    cfg = compose_config("train", [*SHORT_OVERRIDES, *overrides], return_hydra_config=True)
     with open_dict(cfg):
         cfg.hydra.runtime.output_dir = str(tmp_path)
         cfg.hydra.job.num = 0

@@ -13,16 +13,14 @@ from pathlib import Path
 
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-import hypa.commands  # noqa: F401  (registers the schemas conf/train.yaml extends)
 from hypa.conf import CONF
 from hypa.physics import LTIBlock, PhysicalParameters
 from hypa.physics.scheduled import batch_decisions
 from hypa.vehicle import SideSlipAtSensor
 
-from conftest import ROOT
+from conftest import ROOT, compose_config
 
 
 def test_the_lever_arm_moves_the_side_slip_by_x_yaw_rate_over_v() -> None:
@@ -63,8 +61,7 @@ def test_stiffnesses_and_lever_arm_are_recovered_from_30_percent_off(monkeypatch
 
     monkeypatch.chdir(ROOT)
     monkeypatch.delenv("HYPA_DATA", raising=False)
-    with initialize_config_dir(str(CONF), version_base="1.3"):
-        cfg = compose("train", overrides=["dataset=racecar", "model=racecar_physical"])
+    cfg = compose_config("train", ["dataset=racecar", "model=racecar_physical"])
     dm = datamodule_from_config(cfg.data, data_dir_from_config(cfg))
     dm.setup()
     config = OmegaConf.to_container(cfg.model, resolve=True)

@@ -90,11 +90,13 @@ def run_dataset(name: str) -> dict[str, Any]:
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
+    from hypa.commands.config import register_configs
     from hypa.commands.entry import datamodule, vehicle_from_config
     from hypa.diagnosis.problem import Problem, nominal_hold
     from hypa.diagnosis.search import name_causes
     from hypa.models.spec import parse_model_spec
 
+    register_configs()  # the schemas and resolvers conf/diagnose.yaml composes with
     with initialize_config_dir(config_dir=str(NOMINAL.parents[1]), version_base=None):
         cfg = compose("diagnose", overrides=[f"dataset={name}"])
     if not Path(str(cfg.data.dir)).is_dir():
