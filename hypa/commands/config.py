@@ -37,7 +37,7 @@ from hypa.core.errors import hydra_command as _hydra_command
 from hypa.data.schema import DataConfig
 from hypa.models.schema import ModelConfig
 from hypa.physics.discretization import HOLDS
-from hypa.training.baseline import NETWORK_LR, PHYSICS_LR
+from hypa.training.baseline import BUDGETS, NETWORK_LR, PHYSICS_LR
 
 if TYPE_CHECKING:
     from hypa.identification import IdentificationSettings
@@ -170,6 +170,7 @@ class TrainConfig:
     testbench: Any = None
     data: DataConfig = field(default_factory=DataConfig)
     seed: int = 0
+    budget: str = "short"  # the networks' epoch budget and patience where null: short | full (hypa.training.baseline)
     table1_row: str | None = None
     torch_threads: int = 1
     ckpt_path: str | None = None
@@ -187,6 +188,7 @@ class TrainConfig:
     def __post_init__(self) -> None:
         self.trust = trust_list("trust", self.trust)
         checked("torch_threads", self.torch_threads, int, minimum=1)
+        checked("budget", self.budget, str, choices=tuple(BUDGETS))
         self.patience: int | None = checked("early_stopping.patience", self.early_stopping.get("patience"), int,
                                             optional=True, minimum=0)  # None: see network_defaults
         self.min_delta: float = checked("early_stopping.min_delta", self.early_stopping.get("min_delta", 0.0),

@@ -142,7 +142,12 @@ def prepare(request: Request, cfg: DictConfig, folder: Any) -> Prepared:
     dm = data.dm
     ann, weight_decay, epochs, patience = network_defaults(
         request.spec, request.ann_name, request.ann, dm, config.optimizer.lr, config.optimizer.weight_decay,
-        config.trainer.max_epochs, config.patience, config.trainer.limit_train_batches)
+        config.trainer.max_epochs, config.patience, config.trainer.limit_train_batches, config.budget)
+    if config.trainer.max_epochs is None and any(b.kind == "ann" for b in request.spec.blocks) and request.zero:
+        other = "full" if config.budget == "short" else "short"
+        print(f"networks: at most {epochs} epoch(s){' per stage' if len(request.spec.stages) > 1 else ''}, "
+              f"patience {patience} (budget={config.budget}; budget={other} for "
+              f"{'the longer' if other == 'full' else 'the shorter'} one, or set trainer.max_epochs)", flush=True)
     recorded = {**data.recorded(),  # a chosen data.past, the auxiliary channels the model reads as inputs
                 "optimizer.weight_decay": weight_decay, "trainer.max_epochs": epochs,
                 "early_stopping.patience": patience, **{f"ann.{k}": v for k, v in ann.items()}}
@@ -344,8 +349,11 @@ def train_here(arguments: Sequence[str], out: Path, what: str = "training",
 
     from hydra import compose
 
+    from hypa.commands.config import register_configs
     from hypa.commands.entry import user_config_dirs
     from hypa.core.errors import one_line, user_error_types
+
+    register_configs()  # the caller's command registered them already; cheap when so
 
     overrides, dirs, rest = [], [], list(arguments)
     while rest:

@@ -1,7 +1,8 @@
 """The end-to-end network's defaults follow from its training data (hypa.training.baseline): an LSTM
-with about as many weights as training values, weight decay 1 / training values, an epoch budget of 5 / lr optimizer
-steps and a patience of 2 / lr steps; a value set explicitly is kept; a model with physics keeps the
-paper's settings, with no fewer epochs and no shorter patience than the same optimizer steps."""
+with about as many weights as training values, weight decay 1 / training values, an epoch budget of U / lr optimizer
+steps and a patience of 0.4 U / lr steps (U: 1 for budget=short, the default, 5 for budget=full); a value set
+explicitly is kept; with the full budget a model with physics keeps the paper's settings, with no fewer epochs and
+no shorter patience than the same optimizer steps."""
 
 from __future__ import annotations
 
@@ -58,6 +59,15 @@ def test_training_defaults_count_optimizer_steps_not_epochs() -> None:
     assert training_defaults(values=100, batches=1, lr=1.0).max_epochs == 5  # at least one epoch, patience 1
     with pytest.raises(ValueError):
         training_defaults(values=100, batches=0, lr=LR)
+    with pytest.raises(ValueError, match="budget"):
+        training_defaults(values=100, batches=1, lr=LR, budget="long")
+
+
+def test_the_short_budget_is_a_fifth_of_the_full_one_in_optimizer_steps() -> None:
+    full = training_defaults(values=20_000, batches=118, lr=LR, budget="full")  # the test bench's 118 batches
+    short = training_defaults(values=20_000, batches=118, lr=LR, budget="short")
+    assert (full.max_epochs, full.patience) == (85, 34) and (short.max_epochs, short.patience) == (17, 7)
+    assert training_defaults(values=20_000, batches=118, lr=LR) == full  # the library's default: the full one
 
 
 @pytest.fixture(scope="module")
@@ -73,19 +83,22 @@ def defaults(data: Path, *overrides: str, lr: float = LR) -> tuple[dict, float, 
     name = ann.pop("name")
     return (*network_defaults(OmegaConf.to_container(cfg.model, resolve=True), name, ann, dm, lr,
                               cfg.optimizer.weight_decay, cfg.trainer.max_epochs, cfg.early_stopping.patience,
-                              cfg.trainer.limit_train_batches), dm)
+                              cfg.trainer.limit_train_batches, cfg.budget), dm)
 
 
 def test_an_end_to_end_lstm_takes_its_defaults_from_the_training_data(data: Path) -> None:
-    ann, weight_decay, epochs, patience, dm = defaults(data, "model=blackbox", "ann=lstm")
+    ann, weight_decay, epochs, patience, dm = defaults(data, "model=blackbox", "ann=lstm", "budget=full")
     values = sum(len(r) for r in dm.records("train")) * len(dm.output_names)  # 2 records x 384 samples x 2
     batches = math.ceil(len(dm.dataset("train")) / dm.batch_size)
     assert ann["hidden_size"] == lstm_width(values, 1 + 2, 2, 64) == 16  # steering angle + 2 outputs it starts from
     assert weight_decay == pytest.approx(1 / values)
     assert (epochs, patience) == (math.ceil(5 / (LR * batches)), math.ceil(2 / (LR * batches)))
     # limit_train_batches shortens an epoch, so the budget takes more of them
-    _, _, limited, _, _ = defaults(data, "model=blackbox", "trainer.limit_train_batches=2")
+    _, _, limited, _, _ = defaults(data, "model=blackbox", "trainer.limit_train_batches=2", "budget=full")
     assert limited == math.ceil(5 / (LR * 2))
+    # the short budget (hypa train's default): a fifth of the steps
+    assert defaults(data, "model=blackbox", "ann=lstm")[2:4] == (math.ceil(1 / (LR * batches)),
+                                                                math.ceil(0.4 / (LR * batches)))
 
 
 def test_a_value_set_explicitly_is_kept(data: Path) -> None:
@@ -97,7 +110,7 @@ def test_a_value_set_explicitly_is_kept(data: Path) -> None:
 
 def test_a_model_with_physics_keeps_the_papers_settings_but_not_fewer_optimizer_steps(data: Path) -> None:
     # where 50 epochs hold 5 / lr optimizer steps (here a large lr), the paper's settings
-    ann, weight_decay, epochs, patience, dm = defaults(data, "model=v1", "ann=lstm", lr=1.0)
+    ann, weight_decay, epochs, patience, dm = defaults(data, "model=v1", "ann=lstm", "budget=full", lr=1.0)
     assert ann["hidden_size"] == 64
     assert (weight_decay, epochs, patience) == tuple(FIXED_DEFAULTS[k] for k in ("weight_decay", "max_epochs",
                                                                                   "patience"))
@@ -105,9 +118,14 @@ def test_a_model_with_physics_keeps_the_papers_settings_but_not_fewer_optimizer_
     # not its width or weight decay
     batches = math.ceil(len(dm.dataset("train")) / dm.batch_size)
     assert batches < 5 / (LR * FIXED_DEFAULTS["max_epochs"])  # the case: 50 epochs are too few steps
-    ann, weight_decay, epochs, patience, _ = defaults(data, "model=v1", "ann=lstm")
+    ann, weight_decay, epochs, patience, _ = defaults(data, "model=v1", "ann=lstm", "budget=full")
     assert (ann["hidden_size"], weight_decay) == (64, 0.0)
     assert (epochs, patience) == (math.ceil(5 / (LR * batches)), math.ceil(2 / (LR * batches)))
+    # the short budget: its own steps alone, without the paper's 50 epochs, still no weight decay
+    ann, weight_decay, epochs, patience, _ = defaults(data, "model=v1", "ann=lstm", lr=1.0)
+    assert (ann["hidden_size"], weight_decay, epochs, patience) == (64, 0.0, 1, 1)
+    _, _, epochs, patience, _ = defaults(data, "model=v1", "ann=lstm")
+    assert (epochs, patience) == (math.ceil(1 / (LR * batches)), math.ceil(0.4 / (LR * batches)))
     # a value set is kept, and a model without networks has nothing to derive
     assert defaults(data, "model=v1", "trainer.max_epochs=7", "early_stopping.patience=2")[2:4] == (7, 2)
     assert defaults(data, "model=physical")[1:4] == tuple(FIXED_DEFAULTS[k] for k in ("weight_decay", "max_epochs",
