@@ -50,7 +50,7 @@ from hypa.commands.config import BenchmarkConfig, hydra_command, typed
 from hypa.commands.launch import hypa_argv, run_hypa
 from hypa.commands.output_folder import holding_output
 from hypa.core.errors import INTERRUPTED, UserError, is_user_error, one_line
-from hypa.reporting import markdown as md
+from hypa.reporting.numbers import elapsed
 
 if TYPE_CHECKING:
     from hypa.evaluation.runs import TrainedRun
@@ -173,7 +173,7 @@ def main(cfg: DictConfig) -> None:
         else:
             seconds = float(run.info.get("training_time_s", float("nan")))
             rows.add(label, seed, scores, seconds, kept=run.checkpoint.name == START_CHECKPOINT, caps=caps)
-            print(f"[{i}/{len(jobs)}] {label}: trained in {md.elapsed(seconds)}"
+            print(f"[{i}/{len(jobs)}] {label}: trained in {elapsed(seconds)}"
                   + (f"; stopped at a cap: {'; '.join(caps)}" if caps else ""), flush=True)
         rows.write()
     table, data_file = rows.write()

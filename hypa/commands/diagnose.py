@@ -47,7 +47,7 @@ def main(cfg: DictConfig) -> None:
     from hypa.diagnosis.problem import Problem, nominal_hold
     from hypa.models.schema import plain_model
     from hypa.models.spec import parse_model_spec
-    from hypa.reporting.markdown import change_text
+    from hypa.reporting.numbers import change_text
 
     config = typed(cfg, DiagnoseConfig)  # every value checked (hypa.commands.config)
     if config.model is None:

@@ -34,7 +34,7 @@ from hypa.core.trust import read_bounded, read_yaml
 from hypa.core.units import readable
 from hypa.diagnosis.result import Diagnosis, FindingRow
 from hypa.reporting import markdown as md
-from hypa.reporting.numbers import plain
+from hypa.reporting.numbers import change_text, plain
 
 DIAGNOSIS_FILE = "diagnosis.json"
 ERROR_FILE = "error.json"
@@ -288,8 +288,8 @@ def collect(sweep_dir: Path) -> Fleet:
 
 
 def percent(change: float | None) -> str:
-    """A log's MSE change (:func:`hypa.reporting.markdown.change_text`), empty where it has none."""
-    return "" if change is None else md.change_text(change)
+    """A log's MSE change (:func:`hypa.reporting.numbers.change_text`), empty where it has none."""
+    return "" if change is None else change_text(change)
 
 
 def _spread_row(key: str, spread: Spread) -> list[str | int]:

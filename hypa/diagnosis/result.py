@@ -24,6 +24,7 @@ from hypa.diagnosis.generic import GenericFit
 from hypa.diagnosis.scales import Scales, duration
 from hypa.diagnosis.structure import OutputStructure
 from hypa.reporting import markdown as md
+from hypa.reporting.numbers import change_text, share_text
 
 WRITTEN = {"diagnosed": "the named causes at their fitted values, the uncertain ones trainable",
            "diagnosed_hybrid": "the same with a correction network on the outputs",
@@ -323,8 +324,8 @@ class Diagnosis:
         output variance, and ``change``, extended against nominal."""
         error = self.error
         shares = {"nominal": error.nominal, "extended": error.extended, "trained": error.trained}
-        out = {m: md.share_text(v) for m, v in shares.items() if v is not None}
-        out["change"] = md.change_text(error.change)
+        out = {m: share_text(v) for m, v in shares.items() if v is not None}
+        out["change"] = change_text(error.change)
         return out
 
     def markdown(self, units: Mapping[str, tuple[str, float]] | None = None, min_gain: float = MIN_GAIN) -> str:
@@ -482,7 +483,7 @@ def _markdown(d: Diagnosis, units: Mapping[str, tuple[str, float]], min_gain: fl
     figures = d.headline()
 
     def per_output(model: str) -> str:
-        return ", ".join(f"{o} {md.share_text(1 - d.metrics[model][o].r2)}" for o in outputs)
+        return ", ".join(f"{o} {share_text(1 - d.metrics[model][o].r2)}" for o in outputs)
 
     lines.append(f"- nominal model: **{figures['nominal']}** ({per_output('nominal')})")
     lines.append(f"- with the named causes: **{figures['extended']}** ({per_output('extended')})")
@@ -555,7 +556,7 @@ def _markdown(d: Diagnosis, units: Mapping[str, tuple[str, float]], min_gain: fl
     trained = d.extended.trained
     if trained:
         lines += ["", (f"The trained extension is `{trained.model}` trained by hypa train (run `{trained.run}`): "
-                  f"validation error {md.change_text(trained.change)} against the nominal model.")]
+                  f"validation error {change_text(trained.change)} against the nominal model.")]
         if trained.explained:
             lines += ["", ("What its networks learned (hypa.explain; fitted on the training records, R² on the "
                       f"validation records; report `{trained.explained[0].report}`):"), ""]
@@ -602,5 +603,5 @@ def _markdown(d: Diagnosis, units: Mapping[str, tuple[str, float]], min_gain: fl
 
 def _lower(gain: float | None) -> str:
     """A row's ``gain`` (how much lower its error is than before it, a share) as the change of that
-    error (:func:`hypa.reporting.markdown.change_text`: ``-80 %``; a diverged fit's ``did not converge``)."""
-    return md.change_text(None if gain is None else -gain)
+    error (:func:`hypa.reporting.numbers.change_text`: ``-80 %``; a diverged fit's ``did not converge``)."""
+    return change_text(None if gain is None else -gain)

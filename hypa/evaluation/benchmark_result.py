@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from hypa.reporting import markdown as md
+from hypa.reporting.numbers import elapsed, percent_change
 
 
 @dataclass(frozen=True)
@@ -141,7 +142,7 @@ class Benchmark:
             figures = published.get(test_set, {}).get(output, {})
             cells += [f"{figures[k]:g} {unit}" if k in figures else "–" for k in shown]
             rows.append(cells)
-        rows.append(["training time", "", *[md.elapsed(self.training_time_s.get(m))
+        rows.append(["training time", "", *[elapsed(self.training_time_s.get(m))
                                             + (" (capped)" if self.capped.get(m) else "") for m in models],
                      *[""] * len(models), *[""] * len(shown)])
         lines = [f"### {self.dataset}: free-run test error", "", *md.table(head, rows)]
@@ -179,7 +180,7 @@ class Benchmark:
             parts = []
             for (test_set, output), (rms, base) in pairs.items():
                 unit, factor = self.units.get(output, ("", 1.0))
-                change = md.percent_change(base, rms)
+                change = percent_change(base, rms)
                 parts.append(f"{test_set} {output} {base * factor:.3g} → {rms * factor:.3g} {unit} ({change})"
                              + (" **worse**" if rms > base else ""))
             lines.append(f"{model} against {self.extends[model]}, the identified physics it extends: "

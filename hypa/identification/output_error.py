@@ -46,7 +46,7 @@ from hypa.identification.shooting import CONTINUITY, Refused, Shooting
 from hypa.identification.stretches import Stretches
 from hypa.models import ComposedModel
 from hypa.physics.parameters import BOUNDED, LOG, ParameterSpec
-from hypa.reporting import markdown as md
+from hypa.reporting.numbers import elapsed
 
 log = logging.getLogger(__name__)
 
@@ -316,10 +316,10 @@ def remaining(cap: int, seconds: float, settings: IdentificationSettings) -> str
     runs for the residual and the Jacobian): at most ``cap`` model runs, each at most one such step.
     Said, never acted on: only ``max_seconds`` stops on the clock."""
     worst = cap * seconds
-    line = (f"at most {cap} model runs (identification.max_evaluations), about {md.elapsed(worst)} at this pace "
-            f"({md.elapsed(seconds)} per iteration)")
+    line = (f"at most {cap} model runs (identification.max_evaluations), about {elapsed(worst)} at this pace "
+            f"({elapsed(seconds)} per iteration)")
     if settings.max_seconds is not None and settings.max_seconds < worst:
-        line += f"; identification.max_seconds stops it after {md.elapsed(settings.max_seconds)}"
+        line += f"; identification.max_seconds stops it after {elapsed(settings.max_seconds)}"
     return line
 
 

@@ -6,8 +6,7 @@ the relative change of an error, and the reports' JSON without a non-finite numb
 
 gives the header row, the alignment row and one row per entry. A cell is written with ``str``;
 a ``|`` inside a cell is escaped (``\\|``) unless it already is, so a cell never splits a row.
-Numbers are written by :mod:`hypa.reporting.numbers` (``md.change_text`` and the others are
-its functions, imported here for the reports that write both).
+Numbers are written by :mod:`hypa.reporting.numbers`.
 """
 
 from __future__ import annotations
@@ -17,9 +16,22 @@ import re
 from collections.abc import Iterable, Sequence
 from typing import Any
 
-from hypa.reporting.numbers import DIVERGED, change_text, elapsed, percent_change, share_text
+__all__ = ["cell", "json_ready", "row", "table"]
 
-__all__ = ["DIVERGED", "cell", "change_text", "elapsed", "json_ready", "percent_change", "row", "share_text", "table"]
+_MOVED = ("DIVERGED", "change_text", "elapsed", "percent_change", "share_text")  # to hypa.reporting.numbers
+
+
+def __getattr__(name: str) -> Any:
+    """The number formats this module re-exported until 2026-11-28: still found, with a deprecation warning."""
+    if name not in _MOVED:
+        raise AttributeError(f"module 'hypa.reporting.markdown' has no attribute {name!r}")
+    import warnings
+
+    from hypa.reporting import numbers
+
+    warnings.warn(f"hypa.reporting.markdown.{name} is deprecated and goes in the next release: use "
+                  f"hypa.reporting.numbers.{name}", DeprecationWarning, stacklevel=2)
+    return getattr(numbers, name)
 
 _ALIGN = {"l": "---", "r": "---:", "c": ":---:"}
 _PIPE = re.compile(r"(?<!\\)\|")

@@ -1,4 +1,4 @@
-"""hypa.reporting.markdown.change_text: one rule for the relative change of an error in every report, and a fit
+"""hypa.reporting.numbers.change_text: one rule for the relative change of an error in every report, and a fit
 that diverged reads "did not converge", never "-8.5e19 %"; the reports' JSON holds null, not NaN."""
 
 import json
@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from hypa.reporting.markdown import DIVERGED, change_text, json_ready, percent_change, share_text
+from hypa.reporting.markdown import json_ready
+from hypa.reporting.numbers import DIVERGED, change_text, percent_change, share_text
 
 
 @pytest.mark.parametrize("change, text", [
@@ -50,3 +51,14 @@ def test_json_ready_writes_null_for_what_is_not_finite() -> None:
     assert ready == {"a": [1.0, None, [None, None]], "b": {"c": None, "d": 0.5}, "e": "text", "f": True, "g": None,
                      "h": 3}
     json.dumps(ready, allow_nan=False)  # valid JSON: no NaN or Infinity
+
+
+def test_the_formats_markdown_re_exported_are_found_with_a_deprecation_warning() -> None:
+    import pytest
+
+    from hypa.reporting import markdown, numbers
+
+    with pytest.warns(DeprecationWarning, match="hypa.reporting.numbers.change_text"):
+        assert markdown.change_text is numbers.change_text
+    with pytest.raises(AttributeError):
+        markdown.no_such_format  # noqa: B018

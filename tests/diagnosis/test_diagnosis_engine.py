@@ -303,7 +303,7 @@ def test_fits_on_worker_processes_give_the_results_of_one_process(tmp_path: Path
 
 
 def test_a_change_near_all_or_nothing_keeps_a_decimal() -> None:
-    from hypa.reporting.markdown import change_text as format_change
+    from hypa.reporting.numbers import change_text as format_change
 
     assert [format_change(x) for x in (-0.996, -0.93, -0.004, 0.25)] == ["-99.6 %", "-93 %", "-0.4 %", "+25 %"]
 
