@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
-from omegaconf import MISSING, DictConfig, OmegaConf, open_dict
+from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf, open_dict
 
 from hypa.core.errors import UserError, checked, settings
 from hypa.core.errors import hydra_command as _hydra_command
@@ -390,10 +390,12 @@ def run_name(model: str, ann: str, blocks: Any, model_file: str | None = None) -
     return "".join(c if c.isalnum() or c in "-_" else "_" for c in name)[:100] or "model"
 
 
-def channels(*roles: str, _root_: DictConfig) -> list[str]:
+def channels(*roles: str, _root_: DictConfig) -> ListConfig:
     """``${channels:input,scheduling}``: the data set's channels with these roles, in declared order
-    (so one model YAML, e.g. ``blackbox``, serves every data set)."""
-    return [name for name, c in _root_.data.channels.items() if c.role in roles]
+    (so one model YAML, e.g. ``blackbox``, serves every data set). A ``ListConfig``, not a list: where
+    the configuration is resolved in place (``hypa train --cfg job --resolve``) OmegaConf puts a
+    container into the model's open (``Any``) node, but refuses a plain list there."""
+    return ListConfig([name for name, c in _root_.data.channels.items() if c.role in roles])
 
 
 RESOLVERS: dict[str, Callable[..., Any]] = {"run_name": run_name, "channels": channels}
