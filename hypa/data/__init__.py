@@ -9,8 +9,8 @@ One module per step: :mod:`expressions` and :mod:`channels` (what a channel is; 
 them together and gives a model its :mod:`signature`); :mod:`schema` and :mod:`from_config` meet
 the configuration.
 
-Names are imported lazily (PEP 562), so ``import hypa`` can register the config schema without
-importing Lightning.
+Names are imported lazily (PEP 562), so the data schema (:mod:`hypa.data.schema`, which
+:func:`hypa.commands.config.register_configs` stores) is read without importing Lightning.
 """
 
 from __future__ import annotations
