@@ -4,12 +4,12 @@ trains a few batches on each, and ``hypa benchmark`` writes its table and JSON."
 import json
 import re
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-from conftest import ROOT, SHARED_DATA, compose_config
+from cli_helpers import hypa_run
+from conftest import SHARED_DATA, compose_config
 
 pytestmark = pytest.mark.shared_data
 TINY = ["trainer.max_epochs=1", "trainer.limit_train_batches=2", "trainer.limit_val_batches=2",
@@ -21,8 +21,7 @@ CASES = [pytest.param(d, m, marks=pytest.mark.slow) if (d, m) == ("emps", "emps_
 
 
 def hypa(module: str, *args: str, timeout: int = 600) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", *module.split(), *args], cwd=ROOT, capture_output=True, text=True,
-                          timeout=timeout, check=False)
+    return hypa_run([*module.split()[1:], *args])
 
 
 @pytest.mark.parametrize("dataset, model", CASES)

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import pytest
 
+from cli_helpers import hypa_run
 from conftest import ROOT, SHORT_OVERRIDES, compose_config
 from data_helpers import make_data_dir
 
@@ -30,9 +31,7 @@ from data_helpers import make_data_dir
 def hypa(command: str, *args: str, cache: Path, timeout: float = 120) -> subprocess.CompletedProcess:
     environment = {k: v for k, v in os.environ.items() if k not in ("HYDRA_FULL_ERROR", "HYPA_FULL_ERROR")}
     environment.update(HYPA_CACHE_DIR=str(cache), OMP_NUM_THREADS="1")
-    return subprocess.run([sys.executable, "-m", *command.split(), *args],
-                          cwd=ROOT, env=environment, capture_output=True,
-                          text=True, timeout=timeout, check=False)
+    return hypa_run([*command.split()[1:], *args], env=environment)
 
 
 def assert_one_line(result: subprocess.CompletedProcess, command: str, *parts: str) -> str:

@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import torch
 
-from conftest import ROOT
+from cli_helpers import hypa_run
 from data_helpers import make_data_dir
 
 HYDRA_HINT = "Set the environment variable HYDRA_FULL_ERROR=1 for a complete stack trace."
@@ -84,8 +83,7 @@ def hypa(command: str, overrides: list[str], places: dict[str, Path], tmp_path: 
     args = [o.format(**places) for o in overrides]
     environment = {k: v for k, v in os.environ.items() if k not in ("HYDRA_FULL_ERROR", "HYPA_FULL_ERROR")}
     environment.update(HYPA_CACHE_DIR=str(tmp_path / "cache"), **env)
-    return subprocess.run([sys.executable, "-m", *command.split(), *args, f"hydra.run.dir={tmp_path / 'run'}"],
-                          cwd=ROOT, env=environment, capture_output=True, text=True, timeout=300, check=False)
+    return hypa_run([*command.split()[1:], *args, f"hydra.run.dir={tmp_path / 'run'}"], env=environment)
 
 
 @pytest.mark.parametrize("command, overrides, message", [pytest.param(*case[1:], id=case[0]) for case in CASES])
@@ -108,12 +106,6 @@ def test_hydra_full_error_keeps_the_traceback(places: dict[str, Path], tmp_path:
 
 def test_a_data_folder_without_dataset_files_is_not_silently_ignored(tmp_path) -> None:
     """``data.dir=PATH`` alone would have trained on the test bench: one line says what to add."""
-    import subprocess
-    import sys
-
-    result = subprocess.run([sys.executable, "-m", "hypa", "train",
-                             f"data.dir={tmp_path}", f"hydra.run.dir={tmp_path}"],
-                            cwd=ROOT, capture_output=True, text=True, timeout=120,
-                            check=False)
+    result = hypa_run(["train", f"data.dir={tmp_path}", f"hydra.run.dir={tmp_path}"])
     assert result.returncode == 1
     assert "add dataset=files" in result.stderr.strip().splitlines()[-1] and "Traceback" not in result.stderr
