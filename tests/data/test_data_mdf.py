@@ -23,7 +23,8 @@ from hypa.data import ChannelSpec, DataError, decimate, find_split_files, load_r
 from hypa.data.decimation import lowpass  # noqa: E402 -- after the importorskip
 from hypa.data.mdf import read_signals  # noqa: E402 -- after the importorskip
 
-from conftest import ROOT, compose_config  # noqa: E402 -- after the importorskip
+from cli_helpers import hypa_run  # noqa: E402 -- after the importorskip
+from conftest import compose_config  # noqa: E402 -- after the importorskip
 
 DEG = math.pi / 180.0
 
@@ -291,12 +292,9 @@ def test_dataset_files_reads_an_mdf_folder_in_si_at_the_model_rate(tmp_path: Pat
 
 
 def _train(folder: Path, run: Path, *overrides: str) -> subprocess.CompletedProcess:
-    command = [sys.executable, "-m", "hypa", "train", *FILES_OVERRIDES, f"data.dir={folder}",
-               "model=blackbox", "ann=lstm", "ann.hidden_size=8", "trainer.max_epochs=1",
-               "trainer.enable_progress_bar=false", "figures.enabled=false", *overrides,
-               f"hydra.run.dir={run}"]
-    return subprocess.run(command, check=False, cwd=ROOT, capture_output=True, text=True,
-                          timeout=300)
+    return hypa_run(["train", *FILES_OVERRIDES, f"data.dir={folder}", "model=blackbox", "ann=lstm",
+                     "ann.hidden_size=8", "trainer.max_epochs=1", "trainer.enable_progress_bar=false",
+                     "figures.enabled=false", *overrides, f"hydra.run.dir={run}"])
 
 
 def test_train_on_an_mdf_folder_through_the_command_line(tmp_path: Path) -> None:

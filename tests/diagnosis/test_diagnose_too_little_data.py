@@ -20,7 +20,6 @@ import json
 import os
 import re
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -29,7 +28,7 @@ from hypa.paper.testbench import TestbenchConfig
 from hypa.paper.testbench.config import RecordConfig
 from hypa.paper.testbench.dataset import generate_dataset
 
-from conftest import ROOT
+from cli_helpers import hypa_run
 
 EFFECTS_OFF = {"tires": {"enabled": False}, "relaxation": {"enabled": False},
                "load_transfer": {"enabled": False}, "rear_steering": {"enabled": False}}
@@ -52,9 +51,8 @@ def folders(tmp_path_factory) -> dict[str, Path]:
 
 def diagnose(folder: Path, run: Path, *overrides: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "HYPA_CACHE_DIR": str(run.parent / "cache")}
-    return subprocess.run([sys.executable, "-m", "hypa", "diagnose", f"hydra.run.dir={run}", "dataset=files",
-                           f"data.dir={folder}", *SHORT, *overrides],
-                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)
+    return hypa_run(["diagnose", f"hydra.run.dir={run}", "dataset=files", f"data.dir={folder}", *SHORT, *overrides],
+                    env=env)
 
 
 def test_records_too_short_for_any_fit_are_refused_in_one_line(folders, tmp_path: Path) -> None:

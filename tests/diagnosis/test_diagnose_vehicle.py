@@ -24,6 +24,7 @@ import yaml
 from hypa.physics import LTIBlock, PhysicalParameters
 from hypa.vehicle import SingleTrack, SingleTrackRelaxation
 
+from cli_helpers import hypa_run
 from conftest import ROOT
 
 SHORT = [f"testbench.records.{name}.stochastic_duration_s={d}" for name, d in
@@ -35,9 +36,8 @@ LINEAR = ["testbench.tires.enabled=false", "testbench.relaxation.enabled=false",
 
 def diagnose(tmp_path: Path, *overrides: str) -> dict:
     env = {**os.environ, "HYPA_CACHE_DIR": str(tmp_path / "cache")}
-    result = subprocess.run([sys.executable, "-m", "hypa", "diagnose", "model=vehicle_nominal", "plot=false",
-                             f"hydra.run.dir={tmp_path / 'run'}", *SHORT, *overrides],
-                            cwd=ROOT, env=env, capture_output=True, text=True, timeout=600, check=False)
+    result = hypa_run(["diagnose", "model=vehicle_nominal", "plot=false", f"hydra.run.dir={tmp_path / 'run'}", *SHORT,
+                       *overrides], env=env)
     assert result.returncode == 0, result.stderr[-3000:]
     return json.loads((tmp_path / "run" / "diagnosis.json").read_text())
 
@@ -104,8 +104,7 @@ def test_tire_relaxation_is_named_and_no_dead_time_stands_in(tmp_path: Path) -> 
     arguments = [*shlex.split(command)[4:], f"hydra.run.dir={tmp_path / 'trained'}", "trainer.max_epochs=1",
                  "trainer.limit_train_batches=2", "trainer.limit_val_batches=2", "trainer.enable_progress_bar=false",
                  "figures.enabled=false"]
-    trained = subprocess.run([sys.executable, "-m", "hypa", "train", *arguments], cwd=ROOT, env=env,
-                             capture_output=True, text=True, timeout=600, check=False)
+    trained = hypa_run(["train", *arguments], env=env)
     assert trained.returncode == 0, trained.stderr[-3000:]
 
 

@@ -15,7 +15,6 @@ import json
 import os
 import shlex
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +25,8 @@ from hypa.core.errors import UserError
 from hypa.explain.api import compare, select_blocks
 from hypa.models.spec import parse_model_spec
 
-from conftest import ROOT, SHORT_OVERRIDES
+from cli_helpers import hypa_run
+from conftest import SHORT_OVERRIDES
 
 TINY = ["trainer.max_epochs=1", "trainer.limit_train_batches=2", "trainer.limit_val_batches=2",
         "trainer.enable_progress_bar=false", "figures.enabled=false", "data.batch_size=8", "ann.hidden_size=8"]
@@ -36,8 +36,7 @@ RUNGS = ["gain", "lag", "lag and delay", "second order", "odd nonlinearity"]
 
 def command(module: str, *overrides: str, cache: Path, timeout: int = 300) -> subprocess.CompletedProcess:
     env = {**os.environ, "HYPA_CACHE_DIR": str(cache)}
-    return subprocess.run([sys.executable, "-m", *module.split(), *overrides], cwd=ROOT, env=env, capture_output=True,
-                          text=True, timeout=timeout, check=False)
+    return hypa_run([*module.split()[1:], *overrides], env=env)
 
 
 def train(folder: Path, cache: Path, *overrides: str) -> Path:

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from cli_helpers import hypa_run
 from conftest import ROOT
 from data_helpers import make_dc_motor_data
 
@@ -53,11 +54,9 @@ def _train(tmp_path: Path, *overrides: str) -> subprocess.CompletedProcess:
     (conf / "ann").mkdir(exist_ok=True)
     (conf / "ann" / "tiny_gru.yaml").write_text("# @package ann\nname: tiny_gru\n_target_: mynets.TinyGRU\nwidth: 4\n")
     env = {**env, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(EXAMPLE), env.get("PYTHONPATH", "")])}
-    command = [sys.executable, "-m", "hypa", "train", "--config-dir", str(conf), "dataset=dc_motor",
-               "model=blackbox", f"data.dir={data}", "trainer.max_epochs=1", "trainer.limit_train_batches=3",
-               "trainer.enable_progress_bar=false", "figures.enabled=false", f"hydra.run.dir={tmp_path / 'run'}",
-               *overrides]
-    return subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, env=env, check=False)
+    return hypa_run(["train", "--config-dir", str(conf), "dataset=dc_motor", "model=blackbox", f"data.dir={data}",
+                     "trainer.max_epochs=1", "trainer.limit_train_batches=3", "trainer.enable_progress_bar=false",
+                     "figures.enabled=false", f"hydra.run.dir={tmp_path / 'run'}", *overrides], env=env)
 
 
 def test_a_users_network_and_callback_plug_in_by_target(tmp_path):

@@ -20,6 +20,7 @@ from hypa.physics import LTIBlock, PhysicalParameters
 from hypa.physics.scheduled import batch_decisions
 from hypa.vehicle import SideSlipAtSensor
 
+from cli_helpers import hypa_run
 from conftest import ROOT, compose_config
 
 
@@ -164,8 +165,6 @@ def test_the_diagnosis_names_a_side_slip_sensor_off_the_centre_of_gravity(tmp_pa
     with its length."""
     import json
     import random
-    import subprocess
-    import sys
 
     rng = random.Random(seed)
     sensor_x = rng.choice([-1, 1]) * rng.uniform(0.3, 1.0)
@@ -176,10 +175,8 @@ def test_the_diagnosis_names_a_side_slip_sensor_off_the_centre_of_gravity(tmp_pa
     (conf / "dataset" / "car.yaml").write_text(DATASET)
     (conf / "model" / "car_nominal.yaml").write_text(NOMINAL)
     _car_log(data / "car.csv", sensor_x, seed)
-    result = subprocess.run([sys.executable, "-m", "hypa", "diagnose", "--config-dir", str(conf), "dataset=car",
-                             "model=car_nominal", f"data.dir={data}", "plot=false", "diagnosis.max_causes=1",
-                             f"hydra.run.dir={tmp_path / 'run'}"],
-                            cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
+    result = hypa_run(["diagnose", "--config-dir", str(conf), "dataset=car", "model=car_nominal", f"data.dir={data}",
+                       "plot=false", "diagnosis.max_causes=1", f"hydra.run.dir={tmp_path / 'run'}"])
     assert result.returncode == 0, result.stderr[-3000:]
     diagnosis = json.loads((tmp_path / "run" / "diagnosis.json").read_text())
     first = diagnosis["named"][0]
