@@ -13,8 +13,6 @@ from __future__ import annotations
 import copy
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -28,7 +26,7 @@ from hypa.data import HypaDataModule
 from hypa.data.from_config import datamodule_from_config
 from hypa.models.spec import parse_model_spec
 
-from conftest import ROOT
+from cli_helpers import hypa_run
 from data_helpers import importable, user_dataset, user_project
 from test_data_with_past import assert_same_data
 from test_diagnose_time_scales import _files
@@ -131,8 +129,7 @@ def test_train_records_the_chosen_past_and_the_read_channel_and_evaluate_builds_
     env = {**os.environ, "PYTHONPATH": str(user)}
 
     def run(*args: str) -> str:
-        result = subprocess.run([sys.executable, "-m", "hypa", *args], cwd=ROOT, env=env, capture_output=True,
-                                text=True, timeout=600, check=False)
+        result = hypa_run(args, env=env)
         assert result.returncode == 0, result.stderr[-3000:]
         return result.stdout
 
