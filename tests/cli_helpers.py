@@ -32,7 +32,7 @@ other multi-process training, Hydra sweeps through a launcher (``-m``), the spel
 hypa.train`` and ``python -m hypa``'s own dispatch and the console script ``hypa``, what happens at
 import time or depends on the environment the interpreter starts with, a process with limits of its
 own (``preexec_fn``: a full disk), a new session or a terminal, and tests/docs and the notebooks. Each
-command keeps at least one test through a real process (tests/commands/test_cli.py names them).
+command keeps at least one test through a real process (tests/commands/test_hypa_run.py says where).
 """
 
 from __future__ import annotations
