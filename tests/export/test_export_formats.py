@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from test_export import ROOT, TINY, _train, physical  # noqa: F401 -- physical: the module's fixture
+from conftest import ROOT
+from test_export import TINY, _train, physical  # noqa: F401 -- physical: the module's fixture
 
 pytest.importorskip("onnxruntime")
 control = pytest.importorskip("control")
