@@ -255,7 +255,8 @@ def fit(request: Request, prepared: Prepared, cfg: DictConfig, folder: Any, logg
         return {"best_val_loss": math.nan}
     checkpoint = RecordedCheckpoint(folder)
     trainer = lightning_trainer(request, prepared, stages, cfg, logger, checkpoint)
-    log.info("model %s:\n%s", request.model_config["name"], module.model)
+    log.info("model %s", module.model.extra_repr())  # its wiring in one line; every module with its values:
+    log.debug("model %s:\n%s", request.model_config["name"], module.model)
     if how == "model":
         result = fit_by_identification(trainer, module, dm, folder, request.identification, logger,
                                        prepared.identified)
