@@ -309,7 +309,7 @@ def test_a_resumed_checkpoint_makes_the_rotation_remove_nothing_outside_its_fold
     record["best_checkpoint"]["sha256"] = sha256(checkpoint)
     (folder / "run.json").write_text(json.dumps(record))
     result = hypa("hypa train", *[o for o in FAST if not o.startswith("trainer.max_epochs")], "trainer.max_epochs=4",
-                  f"data.dir={data}", f"ckpt_path='{checkpoint}'")
+                  f"data.dir={data}", f"ckpt_path='{checkpoint}'", f"hydra.run.dir={tmp_path / 'hydra'}")
     assert result.returncode == 0, result.stderr[-3000:]
     assert all(v.read_text() == "keep me" for v in victims)
 

@@ -88,7 +88,8 @@ def test_the_data_choose_the_hold_they_were_made_with(user: Path, tmp_path: Path
     assert record["identification"]["error"]["final"] == pytest.approx(choice["output_error"][truth])
     config = yaml.safe_load((tmp_path / "config.yaml").read_text())
     assert config["physics"]["hold"] == truth and config["model"]["hold"] is None  # what later commands rebuild
-    evaluated = hypa_run(["evaluate", f"run={tmp_path}", "tensorboard=false"])
+    evaluated = hypa_run(["evaluate", f"run={tmp_path}", "tensorboard=false",
+                          f"hydra.run.dir={tmp_path.parent / (tmp_path.name + '-evaluate')}"])  # not the checkout's
     assert evaluated.returncode == 0, evaluated.stderr[-3000:]
     metrics = json.loads((tmp_path / "evaluation" / "metrics.json").read_text())
     assert "position" in json.dumps(metrics)

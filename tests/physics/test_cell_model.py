@@ -367,7 +367,8 @@ def test_a_free_run_at_zero_volts_is_flagged_in_one_line(tmp_path: Path) -> None
     trained = _run(["hypa train", "model=ocv_leak", "trainer.max_epochs=1",
                     f"hydra.run.dir={tmp_path / 'run'}"], user)
     assert trained.returncode == 0, trained.stderr[-3000:]
-    evaluated = hypa_run(["evaluate", f"run={tmp_path / 'run'}", "tensorboard=false", "trust=[cellmodel:OcvLeak]"],
+    evaluated = hypa_run(["evaluate", f"run={tmp_path / 'run'}", f"hydra.run.dir={tmp_path / 'hydra'}",
+                          "tensorboard=false", "trust=[cellmodel:OcvLeak]"],
                          env={**os.environ, "PYTHONPATH": str(user)})
     assert evaluated.returncode == 0, evaluated.stderr[-3000:]
     flags = [line for line in evaluated.stdout.splitlines() if line.startswith("warning: the free run of 'voltage'")]
