@@ -266,7 +266,8 @@ def _round_line(number: int, findings: Sequence[Finding], seconds: float, left: 
     (a round after a nonlinear cause simulates every candidate step by step: it can take longer)."""
     fitted = sum(1 for f in findings if f.error is None)
     return (f"round {number}: {len(findings)} candidates ({fitted} fitted to convergence, {len(findings) - fitted} "
-            f"not), {duration(seconds)}" + (f"; at most {left - 1} more rounds" if left > 1 else ""))
+            f"not), {duration(seconds)}"
+            + (f"; at most {left - 1} more round{'s' if left > 2 else ''}" if left > 1 else ""))
 
 
 def _identify(nominal: ModelSpec, candidates: Callable[[ModelSpec], list[Candidate]], folds: Sequence[Problem],
