@@ -15,8 +15,7 @@ Names are imported lazily (PEP 562), so the data schema (:mod:`hypa.data.schema`
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from hypa.core.lazy import lazy_exports
 
 _EXPORTS: dict[str, str] = {
     "ChannelSpec": "channels",
@@ -54,14 +53,4 @@ _EXPORTS: dict[str, str] = {
 __all__ = sorted(_EXPORTS)  # noqa: PLE0605 -- a list of the lazy exports' names
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _EXPORTS:
-        raise AttributeError(f"module 'hypa.data' has no attribute {name!r}")
-    module = _EXPORTS[name] if "." in _EXPORTS[name] else f"hypa.data.{_EXPORTS[name]}"
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_EXPORTS})
+__getattr__, __dir__ = lazy_exports(__name__, globals(), _EXPORTS)

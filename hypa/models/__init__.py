@@ -6,8 +6,7 @@ Names are imported lazily (PEP 562), so a model's spec and its schema (:mod:`hyp
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from hypa.core.lazy import lazy_exports
 
 _EXPORTS = {"ComposedModel": "composed", "Prediction": "rollout", "free_run": "rollout", "free_run_metrics": "rollout",
             "model_inputs": "rollout", "BlockSpec": "spec", "ModelSpec": "spec", "ModelSpecError": "spec",
@@ -16,13 +15,4 @@ _EXPORTS = {"ComposedModel": "composed", "Prediction": "rollout", "free_run": "r
 __all__ = sorted(_EXPORTS)  # noqa: PLE0605 -- a list of the lazy exports' names
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _EXPORTS:
-        raise AttributeError(f"module 'hypa.models' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"hypa.models.{_EXPORTS[name]}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_EXPORTS})
+__getattr__, __dir__ = lazy_exports(__name__, globals(), _EXPORTS)

@@ -6,21 +6,11 @@ Names are imported lazily (PEP 562), so the defaults are read without importing 
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from hypa.core.lazy import lazy_exports
 
 _EXPORTS = {"HybridModule": "module", "StagedTraining": "staging", "ValidationFigures": "figures"}
 
 __all__ = sorted(_EXPORTS)  # noqa: PLE0605 -- a list of the lazy exports' names
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _EXPORTS:
-        raise AttributeError(f"module 'hypa.training' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f"hypa.training.{_EXPORTS[name]}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_EXPORTS})
+__getattr__, __dir__ = lazy_exports(__name__, globals(), _EXPORTS)
