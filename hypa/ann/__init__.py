@@ -1,7 +1,7 @@
 """ANN blocks behind one causal sequence contract: ``(B, L, d_in) -> (B, L, d_out)`` plus a state.
 
-A network is named by its config name (``lstm``, ``transformer``, ``s4``, ``mamba``) or by the
-import path of a :class:`SequenceBlock` subclass in any importable module (``mypkg.nets.MyBlock``
+A network is named by its config name (``lstm``, ``gru``, ``transformer``, ``s4``, ``mamba``) or by
+the import path of a :class:`SequenceBlock` subclass in any importable module (``mypkg.nets.MyBlock``
 or ``mypkg.nets:MyBlock``): a user's own network plugs in the way a user's own system does.
 ``conf/ann/*.yaml`` are Hydra ``_target_`` configs; ``build_ann(name, d_in, d_out, **hparams)``
 builds a block by calling its class with its hyperparameters, the explicit keyword arguments of
@@ -18,6 +18,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from hypa.ann.base import SequenceBlock
+from hypa.ann.gru import GRUBlock
 from hypa.ann.lstm import LSTMBlock
 from hypa.ann.mamba import MambaBlock
 from hypa.ann.mamba_scan import selective_scan
@@ -26,6 +27,7 @@ from hypa.ann.transformer import TransformerBlock
 
 ANN_BLOCKS: dict[str, type[SequenceBlock]] = {
     "lstm": LSTMBlock,
+    "gru": GRUBlock,
     "transformer": TransformerBlock,
     "s4": S4Block,
     "mamba": MambaBlock,
@@ -118,6 +120,7 @@ def check_hyperparameters(name: str, hparams: Mapping[str, Any]) -> None:
 
 __all__ = [
     "ANN_BLOCKS",
+    "GRUBlock",
     "LSTMBlock",
     "MambaBlock",
     "S4Block",

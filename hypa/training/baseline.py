@@ -5,8 +5,8 @@ epoch budget and patience are not constants (which suit one data set and starve 
 from the training data and the optimizer. ``hypa train`` fills in each one the configuration leaves
 ``null`` (a value given is kept):
 
-- width (``ann=lstm``): the width whose weights equal the training values (samples x outputs), about
-  as many unknowns as data, rounded to the nearest power of two and at most the LSTM's default width.
+- width (``ann=lstm``, ``ann=gru``): the width whose weights equal the training values (samples x outputs),
+  about as many unknowns as data, rounded to the nearest power of two and at most the network's default width.
 - weight decay: ``1 / V`` for ``V`` training values: a unit Gaussian prior on the weights, worth one
   training value (the loss is the mean squared error over the values, in the normalized scale).
 - epoch budget: ``U / lr`` optimizer steps, in epochs of ``B`` batches: ``ceil(U / (lr B))``. NAdam
@@ -36,7 +36,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from hypa.ann import ann_hyperparameters
+from hypa.ann import GRUBlock, LSTMBlock, ann_hyperparameters, network_class
 from hypa.models import ModelSpec, parse_model_spec
 
 # NAdam's learning rates, the defaults of every way to train (hypa train's optimizer.lr and
@@ -49,6 +49,10 @@ PHYSICS_LR = 1e-2
 BUDGETS = {"short": 1.0, "full": 5.0}
 PATIENCE_SHARE = 0.4  # the patience, a share of the budget (2 / lr steps of the full 5)
 
+# the recurrent networks whose width an end-to-end model derives from its data: their gates (weight
+# blocks of h rows per layer), in torch's layout (nn.LSTM: i, f, g, o; nn.GRU: r, z, n)
+RECURRENT_GATES: dict[type, int] = {LSTMBlock: 4, GRUBlock: 3}
+
 
 @dataclass(frozen=True)
 class TrainingDefaults:
@@ -59,29 +63,30 @@ class TrainingDefaults:
     patience: int
 
 
-def lstm_weights(hidden_size: int, d_in: int, d_out: int, num_layers: int = 1) -> int:
-    """Weights of ``hypa.ann.LSTMBlock`` (``d_in`` its LSTM's inputs): ``4 h (d_in + h + 2)`` in the
-    first layer (two bias vectors), ``4 h (2 h + 2)`` in each further one, ``d_out (h + 1)`` in the head."""
-    h = hidden_size
-    return 4 * h * (d_in + h + 2) + (num_layers - 1) * 4 * h * (2 * h + 2) + d_out * (h + 1)
+def lstm_weights(hidden_size: int, d_in: int, d_out: int, num_layers: int = 1, gates: int = 4) -> int:
+    """Weights of ``hypa.ann.LSTMBlock`` (``gates=4``) or ``hypa.ann.GRUBlock`` (``gates=3``), ``d_in`` its
+    recurrent network's inputs: ``G h (d_in + h + 2)`` in the first layer (two bias vectors), ``G h (2 h + 2)``
+    in each further one, ``d_out (h + 1)`` in the head."""
+    h, g = hidden_size, gates
+    return g * h * (d_in + h + 2) + (num_layers - 1) * g * h * (2 * h + 2) + d_out * (h + 1)
 
 
-def matching_width(values: int, d_in: int, d_out: int, num_layers: int = 1) -> float:
+def matching_width(values: int, d_in: int, d_out: int, num_layers: int = 1, gates: int = 4) -> float:
     """The (real) width ``h`` whose :func:`lstm_weights` equal ``values``: the positive root of
-    ``a h^2 + b h + d_out = values``, ``a = 4 + 8 (L - 1)``, ``b = 4 (d_in + 2) + d_out + 8 (L - 1)``."""
-    a = 4 + 8 * (num_layers - 1)
-    b = 4 * (d_in + 2) + d_out + 8 * (num_layers - 1)
+    ``a h^2 + b h + d_out = values``, ``a = G + 2 G (L - 1)``, ``b = G (d_in + 2) + d_out + 2 G (L - 1)``."""
+    a = gates + 2 * gates * (num_layers - 1)
+    b = gates * (d_in + 2) + d_out + 2 * gates * (num_layers - 1)
     c = d_out - values
     return (-b + math.sqrt(b * b - 4 * a * c)) / (2 * a)
 
 
-def lstm_width(values: int, d_in: int, d_out: int, widest: int, num_layers: int = 1) -> int:
+def lstm_width(values: int, d_in: int, d_out: int, widest: int, num_layers: int = 1, gates: int = 4) -> int:
     """The power of two nearest (on a log scale) the :func:`matching_width` for ``values`` training
     values (samples x outputs), at most ``widest``; 1 where the values do not pay for one unit."""
-    if min(values, d_in, d_out, widest, num_layers) < 1:
-        raise ValueError(f"values, d_in, d_out, widest and num_layers must be >= 1, "
-                         f"got {values}, {d_in}, {d_out}, {widest}, {num_layers}")
-    matching = matching_width(values, d_in, d_out, num_layers)
+    if min(values, d_in, d_out, widest, num_layers, gates) < 1:
+        raise ValueError(f"values, d_in, d_out, widest, num_layers and gates must be >= 1, "
+                         f"got {values}, {d_in}, {d_out}, {widest}, {num_layers}, {gates}")
+    matching = matching_width(values, d_in, d_out, num_layers, gates)
     if matching <= 1:
         return 1
     width = 2 ** round(math.log2(matching))
@@ -114,7 +119,7 @@ def network_defaults(model: ModelSpec | dict[str, Any], ann_name: str, ann: dict
     """The network settings, weight decay, epoch budget and patience, each ``None`` (null) one filled in.
 
     An end-to-end network (every block of the model a network: ``model=blackbox``) takes what
-    :func:`training_defaults` derives from its training data (an LSTM's width too). The networks of a
+    :func:`training_defaults` derives from its training data (an LSTM's or a GRU's width too). The networks of a
     model with physics (a hybrid's correction) take no weight decay and the network's own defaults; with
     the ``full`` budget the paper's :data:`FIXED_DEFAULTS` (50 epochs, patience 5), but never fewer epochs
     or a shorter patience than the same ``5 / lr`` and ``2 / lr`` optimizer steps (on a short record 50
@@ -133,10 +138,11 @@ def network_defaults(model: ModelSpec | dict[str, Any], ann_name: str, ann: dict
         derived = training_defaults(values, batches, lr, budget)
         if len(networks) == len(blocks):
             fixed = derived.__dict__
-            if ann_name == "lstm" and ann.get("hidden_size") is None:
+            gates = RECURRENT_GATES.get(network_class(ann_name))
+            if gates is not None and ann.get("hidden_size") is None:
                 layers, projected = ann.get("num_layers") or accepted["num_layers"], ann.get("input_proj")
                 ann["hidden_size"] = min(lstm_width(values, projected or len(b.inputs) + len(b.initial_state),
-                                                    len(b.outputs), accepted["hidden_size"], layers)
+                                                    len(b.outputs), accepted["hidden_size"], layers, gates)
                                          for b in blocks)
         elif budget == "full":
             fixed = {**FIXED_DEFAULTS, "max_epochs": max(FIXED_DEFAULTS["max_epochs"], derived.max_epochs),

@@ -1,10 +1,12 @@
 """ANN blocks: the sequence contract (shapes, causality, chunking with state, zero init,
-gradients), the registry and its configs, the math of the S4D and selective-scan cores, and a
-small learning check per block."""
+gradients), the registry and its configs, the math of the GRU, S4D and selective-scan cores, a
+small learning check per block, and the GRU through the command line (train, export)."""
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import pytest
 import torch
@@ -13,6 +15,7 @@ from omegaconf import OmegaConf
 
 from hypa.ann import (
     ANN_BLOCKS,
+    GRUBlock,
     S4DKernel,
     SequenceBlock,
     ann_hyperparameters,
@@ -23,10 +26,14 @@ from hypa.ann import (
 from hypa.ann.s4 import causal_convolution
 from hypa.conf import CONF
 
+from cli_helpers import hypa_run
+from conftest import SHORT_OVERRIDES
+
 NAMES = sorted(ANN_BLOCKS)
 # Every block with its defaults, plus non-default settings that take other code paths.
 VARIANTS = [pytest.param(name, {}, id=name) for name in NAMES] + [
     pytest.param("lstm", {"input_proj": 8, "num_layers": 2}, id="lstm-proj-2layers"),
+    pytest.param("gru", {"input_proj": 8, "num_layers": 2}, id="gru-proj-2layers"),
     pytest.param("transformer", {"context": 7, "n_heads": 3, "d_model": 12}, id="transformer-7"),
     pytest.param("s4", {"init": "inv", "n_layers": 1}, id="s4-inv"),
     pytest.param("mamba", {"d_conv": 1, "expand": 2, "dt_rank": 3}, id="mamba-noconv-x2"),
@@ -304,10 +311,97 @@ def test_mamba_long_free_run_depends_only_on_the_recent_past(a_log: float, dt_bi
         build_ann("mamba", 1, 1, max_decay=-1.0)
 
 
+# -- the GRU -------------------------------------------------------------------------------------
+def _gru_reference(block: GRUBlock, x: torch.Tensor, h0: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The equations of GRUBlock's docstring, step by step: r, z, n = the reset, update and new gates,
+    n = tanh(W_n x + b_in + r ⊙ (U_n h + b_hn)), h' = (1 - z) ⊙ n + z ⊙ h, y = W_y h' + b_y."""
+    inputs, last = block.proj(x), []
+    for layer in range(block.num_layers):
+        w_ih, w_hh = getattr(block.gru, f"weight_ih_l{layer}"), getattr(block.gru, f"weight_hh_l{layer}")
+        b_ih, b_hh = getattr(block.gru, f"bias_ih_l{layer}"), getattr(block.gru, f"bias_hh_l{layer}")
+        h, hs = h0[layer], []
+        for k in range(x.shape[1]):
+            wx_r, wx_z, wx_n = (inputs[:, k] @ w_ih.T + b_ih).chunk(3, dim=-1)
+            uh_r, uh_z, uh_n = (h @ w_hh.T + b_hh).chunk(3, dim=-1)
+            r, z = torch.sigmoid(wx_r + uh_r), torch.sigmoid(wx_z + uh_z)
+            n = torch.tanh(wx_n + r * uh_n)
+            h = (1 - z) * n + z * h
+            hs.append(h)
+        inputs = torch.stack(hs, dim=1)
+        last.append(h)
+    return block.head(inputs), torch.stack(last)
+
+
+@pytest.mark.parametrize("hparams", [{"hidden_size": 5}, {"hidden_size": 4, "num_layers": 2, "input_proj": 3}])
+def test_gru_follows_its_equations_with_a_plain_tensor_state(hparams: dict) -> None:
+    block = make("gru", d_in=2, d_out=3, dtype=torch.float64, **hparams)
+    x = random_input(2, 9, 2, torch.float64)
+    h0 = 0.5 * torch.randn(block.num_layers, 2, block.hidden_size, dtype=torch.float64)
+    with torch.no_grad():
+        y, h = block(x, h0)
+        y_ref, h_ref = _gru_reference(block, x, h0)
+    torch.testing.assert_close(y, y_ref, rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(h, h_ref, rtol=1e-12, atol=1e-12)
+    assert isinstance(h, torch.Tensor) and h.shape == (block.num_layers, 2, block.hidden_size)
+    default = block.default_state(2, None, torch.float64)
+    assert torch.equal(default, torch.zeros_like(h)) and default.dtype == torch.float64
+
+
+def test_gru_one_sample_steps_continue_a_state_exactly() -> None:
+    """A record run one sample at a time (as an exported step runs it) from the state after a first
+    chunk equals the whole run; and a state carries the past: from zeros the same steps differ."""
+    block = make("gru", d_in=3, d_out=2, hidden_size=6, num_layers=2)
+    with torch.no_grad():
+        block.head.weight.mul_(10.0)  # outputs that show the state
+        x = random_input(1, 60, 3)
+        whole, h_end = block(x)
+        _, state = block(x[:, :20])
+        steps = []
+        for k in range(20, 60):
+            y, state = block(x[:, k:k + 1], state)
+            steps.append(y)
+        fresh, _ = block(x[:, 20:])
+    torch.testing.assert_close(torch.cat(steps, dim=1), whole[:, 20:], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(state, h_end, rtol=1e-5, atol=1e-6)
+    assert (fresh[:, :3] - whole[:, 20:23]).abs().max() > 1e-3
+
+
+@pytest.mark.parametrize("hparams, message", [({"hidden_size": 0}, "hidden_size and num_layers must be >= 1"),
+                                              ({"num_layers": 0}, "hidden_size and num_layers must be >= 1"),
+                                              ({"dropout": 1.0}, r"dropout must be in \[0, 1\)"),
+                                              ({"dropout": -0.1}, r"dropout must be in \[0, 1\)"),
+                                              ({"input_proj": 0}, "input_proj must be None or >= 1")])
+def test_gru_rejects_bad_arguments_in_one_line(hparams: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message) as error:
+        build_ann("gru", 2, 1, **hparams)
+    assert "\n" not in str(error.value)
+    with pytest.raises(ValueError, match="d_out must be a positive integer"):
+        build_ann("gru", 2, 0)
+
+
+def test_gru_trains_and_exports_exactly_through_the_command_line(tmp_path: Path, hypa_cache: Path) -> None:
+    """hypa train model=v2 ann=gru (both networks GRUs), then hypa export: its check, the one-step model
+    (each GRU's forward on one-sample chunks) against hypa's free run, passes; the state holds one h per GRU."""
+    run, out = tmp_path / "run", tmp_path / "export"
+    trained = hypa_run(["train", "model=v2", "ann=gru", "ann.hidden_size=8", "trainer.max_epochs=1",
+                        "trainer.limit_train_batches=2", "trainer.limit_val_batches=2",
+                        "trainer.enable_progress_bar=false", "figures.enabled=false", "data.batch_size=8",
+                        "identification.max_seconds=5", *SHORT_OVERRIDES, f"hydra.run.dir={run}"])
+    assert trained.returncode == 0, trained.stderr[-3000:]
+    ckpt = torch.load(run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
+    assert ckpt["hyper_parameters"]["ann_name"] == "gru"
+    assert ckpt["state_dict"]["model.blocks.correction.gru.weight_hh_l0"].shape == (3 * 8, 8)
+    exported = hypa_run(["export", f"run={run}", "format=onnx", f"hydra.run.dir={out}"])
+    assert exported.returncode == 0, exported.stderr[-3000:]
+    description = json.loads((out / "export.json").read_text())
+    assert description["check"]["passed"]
+    assert description["onnx"]["inputs"]["state"] == [2 + 2 * 8]  # the single track's 2 states, two GRUs' h
+
+
 # -- registry and configs --------------------------------------------------------------------
 def test_build_ann_rejects_unknown_names_and_hyperparameters() -> None:
-    with pytest.raises(ValueError, match=r"unknown ANN block 'gru'.*lstm.*mamba.*s4.*transformer"):
-        build_ann("gru", 1, 1)
+    with pytest.raises(ValueError, match=r"unknown ANN block 'rnn'.*gru.*lstm.*mamba.*s4.*transformer"):
+        build_ann("rnn", 1, 1)
     with pytest.raises(TypeError, match=r"hidden_sise.*accepted: hidden_size"):
         build_ann("lstm", 1, 1, hidden_sise=32)
     with pytest.raises(ValueError, match="divisible"):

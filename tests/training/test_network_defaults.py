@@ -29,10 +29,14 @@ from data_helpers import make_data_dir
 LR = 5e-4
 
 
+@pytest.mark.parametrize("name, gates", [("lstm", 4), ("gru", 3)])
 @pytest.mark.parametrize("h, d_in, d_out, layers", [(8, 2, 1, 1), (32, 4, 2, 1), (16, 3, 2, 2)])
-def test_lstm_weights_count_the_blocks_parameters(h: int, d_in: int, d_out: int, layers: int) -> None:
-    block = build_ann("lstm", d_in, d_out, hidden_size=h, num_layers=layers)
-    assert lstm_weights(h, d_in, d_out, layers) == sum(p.numel() for p in block.parameters())
+def test_lstm_weights_count_the_blocks_parameters(name: str, gates: int, h: int, d_in: int, d_out: int,
+                                                  layers: int) -> None:
+    block = build_ann(name, d_in, d_out, hidden_size=h, num_layers=layers)
+    assert lstm_weights(h, d_in, d_out, layers, gates) == sum(p.numel() for p in block.parameters())
+    assert lstm_weights(matching_width(5_000, d_in, d_out, layers, gates), d_in, d_out, layers,
+                        gates) == pytest.approx(5_000)
 
 
 def test_lstm_width_grows_with_the_data_up_to_the_widest() -> None:
@@ -91,6 +95,7 @@ def test_an_end_to_end_lstm_takes_its_defaults_from_the_training_data(data: Path
     values = sum(len(r) for r in dm.records("train")) * len(dm.output_names)  # 2 records x 384 samples x 2
     batches = math.ceil(len(dm.dataset("train")) / dm.batch_size)
     assert ann["hidden_size"] == lstm_width(values, 1 + 2, 2, 64) == 16  # steering angle + 2 outputs it starts from
+    assert defaults(data, "model=blackbox", "ann=gru")[0]["hidden_size"] == lstm_width(values, 1 + 2, 2, 64, gates=3)
     assert weight_decay == pytest.approx(1 / values)
     assert (epochs, patience) == (math.ceil(5 / (LR * batches)), math.ceil(2 / (LR * batches)))
     # limit_train_batches shortens an epoch, so the budget takes more of them

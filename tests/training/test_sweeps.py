@@ -20,7 +20,7 @@ from hypa.ann import ann_hyperparameters
 
 from conftest import ROOT, SHORT_OVERRIDES, compose_config
 
-ANNS = ("lstm", "transformer", "s4", "mamba")
+ANNS = ("lstm", "gru", "transformer", "s4", "mamba")
 TINY = ["trainer.max_epochs=1", "trainer.limit_train_batches=2", "trainer.limit_val_batches=2",
         "trainer.enable_progress_bar=false", "figures.enabled=false", "data.batch_size=8", *SHORT_OVERRIDES]
 
@@ -45,7 +45,7 @@ def search_space(ann: str) -> dict:
 @pytest.mark.parametrize("ann", ANNS)
 def test_optuna_width_follows_the_ann(ann: str) -> None:
     space = search_space(ann)
-    width = "ann.hidden_size" if ann == "lstm" else "ann.d_model"
+    width = "ann.hidden_size" if ann in ("lstm", "gru") else "ann.d_model"
     assert set(space) == {width, "optimizer.lr", "optimizer.physics_lr", "data.stride"}
     cfg = compose_train(f"ann={ann}")
     for key, sweep in space.items():  # every swept key exists, its default inside the space
