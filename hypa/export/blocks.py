@@ -65,19 +65,19 @@ class StateSlot:
     unit: str = ""
 
 
-def _constant(module: nn.Module, name: str, value: Tensor) -> None:
-    module.register_buffer(name, value.detach().to(torch.float32).clone(), persistent=False)
+def _constant(module: nn.Module, name: str, value: Tensor, dtype: torch.dtype = torch.float32) -> None:
+    module.register_buffer(name, value.detach().to(dtype).clone(), persistent=False)
 
 
 class PhysicsStep(nn.Module):
     """A physics block with states, one sample: x̂_{k+1} = Â x̂_k + Σ_t B̂_t û_{k+t} + Ĥ, ŷ_k = Ĉ x̂_k + D̂ û_k + Ĝ.
 
     A scheduled block's matrices come from ρ every step (``LTIBlock.sample_matrices`` with
-    ``squarings``); a constant block's are its own, taken once in float32 (the dtype of
+    ``squarings``); a constant block's are its own, taken once in ``dtype`` (float32: the dtype of
     hypa's free run). The state slice is SI (``state_mean``, ``state_std`` fold the scaling).
     """
 
-    def __init__(self, name: str, block: LTIBlock, squarings: int = 0) -> None:
+    def __init__(self, name: str, block: LTIBlock, squarings: int = 0, dtype: torch.dtype = torch.float32) -> None:
         super().__init__()
         model = block.model
         self.block, self.name, self.squarings = block, name, squarings
@@ -86,13 +86,13 @@ class PhysicsStep(nn.Module):
         self.same, self.feedthrough = model.outputs_are_states, block.feedthrough
         self.curved = model.has_nonlinear_output  # y = C x + D u + h(x, u): h by the block's own torch code
         for key in ("state_mean", "state_std", "input_mean", "input_std"):
-            _constant(self, key, getattr(block, key))
+            _constant(self, key, getattr(block, key), dtype)
         if not block.scheduled:
             with torch.no_grad():
-                norm = block.normalized(torch.float32)
+                norm = block.normalized(dtype)
             for key in ("a", "h", "c", "d", "g"):
-                _constant(self, key, getattr(norm, key))
-            _constant(self, "b_taps", torch.stack(norm.b_taps))
+                _constant(self, key, getattr(norm, key), dtype)
+            _constant(self, "b_taps", torch.stack(norm.b_taps), dtype)
 
     @property
     def size(self) -> int:
@@ -143,7 +143,7 @@ class NonlinearStep(nn.Module):
 
     lagged = True
 
-    def __init__(self, name: str, block: LTIBlock) -> None:
+    def __init__(self, name: str, block: LTIBlock, dtype: torch.dtype = torch.float32) -> None:
         super().__init__()
         if block.scheduled:
             raise ExportError(f"block {name!r}: a nonlinear system cannot be scheduled")
@@ -152,17 +152,17 @@ class NonlinearStep(nn.Module):
         self.same, self.feedthrough = block.model.outputs_are_states, block.feedthrough
         self.curved = block.model.has_nonlinear_output
         with torch.no_grad():
-            lure = block.lure_parts(torch.float32)
-            norm = block.normalized(torch.float32)
+            lure = block.lure_parts(dtype)
+            norm = block.normalized(dtype)
         detach = lambda t: t.detach().clone() if isinstance(t, Tensor) else t  # noqa: E731
         self.lure = lure._replace(phi_t=detach(lure.phi_t), taps=tuple(detach(t) for t in lure.taps),
                                   drift=detach(lure.drift), now_t=detach(lure.now_t), next_t=detach(lure.next_t),
                                   held_t=detach(lure.held_t),
                                   prepared={k: detach(v) for k, v in lure.prepared.items()})
         for key in ("c", "d", "g"):
-            _constant(self, key, getattr(norm, key))
+            _constant(self, key, getattr(norm, key), dtype)
         for key in ("state_mean", "state_std", "input_mean", "input_std"):
-            _constant(self, key, getattr(block, key))
+            _constant(self, key, getattr(block, key), dtype)
 
     @property
     def size(self) -> int:
@@ -193,14 +193,14 @@ class GainStep(nn.Module):
 
     size = 0
 
-    def __init__(self, name: str, block: LTIBlock) -> None:
+    def __init__(self, name: str, block: LTIBlock, dtype: torch.dtype = torch.float32) -> None:
         super().__init__()
         self.block, self.name = block, name
         if not block.scheduled:
             with torch.no_grad():
-                norm = block.normalized(torch.float32)
-            _constant(self, "d", norm.d)
-            _constant(self, "g", norm.g)
+                norm = block.normalized(dtype)
+            _constant(self, "d", norm.d, dtype)
+            _constant(self, "g", norm.g, dtype)
 
     def forward(self, u: Tensor, rho: Tensor | None, state: Tensor) -> tuple[Tensor, Tensor]:
         if rho is None:
@@ -218,13 +218,13 @@ class DelayStep(nn.Module):
     The state holds u_{k-1}, ..., u_{k-whole-1} [SI], newest first, per channel.
     """
 
-    def __init__(self, name: str, block: DeadTime, scales: list[Scale]) -> None:
+    def __init__(self, name: str, block: DeadTime, scales: list[Scale], dtype: torch.dtype = torch.float32) -> None:
         super().__init__()
         samples = float(block.delay_s().detach()) / block.dt
         self.name, self.whole, self.frac = name, int(math.floor(samples)), samples - math.floor(samples)
         self.m = len(scales)
-        _constant(self, "mean", torch.tensor([s[0] for s in scales]))
-        _constant(self, "std", torch.tensor([s[1] for s in scales]))
+        _constant(self, "mean", torch.tensor([s[0] for s in scales], dtype=torch.float64), dtype)
+        _constant(self, "std", torch.tensor([s[1] for s in scales], dtype=torch.float64), dtype)
 
     @property
     def size(self) -> int:

@@ -29,9 +29,9 @@ OPSET = 17
 
 def export_onnx(step: ModelStep, path: Path, reference: Reference) -> Path:
     """Write ``step`` as ONNX: inputs ``state`` (r,), ``u`` (m + q,), outputs ``next_state`` (r,),
-    ``y`` (p,), float32."""
-    state = torch.as_tensor(reference.initial_state, dtype=torch.float32)
-    u = torch.as_tensor(reference.u[reference.first], dtype=torch.float32)
+    ``y`` (p,), in the step's dtype (float32; float64 for the C step)."""
+    state = torch.as_tensor(reference.initial_state, dtype=step.dtype)
+    u = torch.as_tensor(reference.u[reference.first], dtype=step.dtype)
     errors = []
     for dynamo in (False, True):
         logging.disable(logging.WARNING)  # the dynamo exporter's notes on operators of packages not installed

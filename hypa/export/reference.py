@@ -46,14 +46,14 @@ class Reference:
 
 def reference_run(step: ModelStep, dm: HypaDataModule, record: Record) -> Reference:
     """hypa's free run of ``record`` (``rollout.free_run``), timed, and the step's state where it takes over."""
-    model = step.model
-    free_run(model, dm, record)  # the first run builds and caches the physics' matrices: time the next ones
+    model, dtype = step.model, step.dtype
+    free_run(model, dm, record, dtype=dtype)  # the first run builds and caches the physics' matrices: time the rest
     seconds = []
     for _ in range(3):
         started = time.perf_counter()
-        prediction = free_run(model, dm, record)
+        prediction = free_run(model, dm, record, dtype=dtype)
         seconds.append(time.perf_counter() - started)
-    u, y_past, s = model_inputs(dm, record)
+    u, y_past, s = model_inputs(dm, record, dtype=dtype)
     initial = step.initial_state(u, y_past, s).double().numpy()
     names = (*model.input_names, *model.scheduling_names)
     inputs = np.stack([record[n] for n in names], -1) if names else np.zeros((len(record.time), 0))

@@ -57,12 +57,12 @@ class ModelStep(nn.Module):
     """
 
     def __init__(self, model: ComposedModel, units: Mapping[str, str] | None = None,
-                 squarings: Mapping[str, int] | None = None) -> None:
+                 squarings: Mapping[str, int] | None = None, dtype: torch.dtype = torch.float32) -> None:
         super().__init__()
         why = hold_refusal(model)
         if why:
             raise ExportError(why)
-        self.model, units, squarings = model, dict(units or {}), dict(squarings or {})
+        self.model, units, squarings, self.dtype = model, dict(units or {}), dict(squarings or {}), dtype
         self.input_names, self.scheduling_names = model.input_names, model.scheduling_names
         self.output_names = tuple(model.spec.outputs)
         self.forms = nn.ModuleDict()
@@ -70,32 +70,32 @@ class ModelStep(nn.Module):
         for b in model.order:
             block = model.blocks[b.name]
             if b.kind == "ann":
-                template = block.default_state(1, None, torch.float32)
+                template = block.default_state(1, None, dtype)
                 form = NetworkStep(b.name, block, template)
                 self.slots += [StateSlot(b.name, f"state[{i}]", "network") for i in range(form.size)]
             elif b.kind == "delay":
-                form = DelayStep(b.name, block, [model.scales[n] for n in b.inputs])
+                form = DelayStep(b.name, block, [model.scales[n] for n in b.inputs], dtype)
                 self.slots += form.slots(b.inputs, units)
             elif b.kind == "saturation":
                 form = SaturationStep(b.name, block)
             elif not block.model.n_states:
-                form = GainStep(b.name, block)
+                form = GainStep(b.name, block, dtype)
             else:
-                form = NonlinearStep(b.name, block) if block.model.is_nonlinear else \
-                    PhysicsStep(b.name, block, squarings.get(b.name, 0))
+                form = NonlinearStep(b.name, block, dtype) if block.model.is_nonlinear else \
+                    PhysicsStep(b.name, block, squarings.get(b.name, 0), dtype)
                 start = model.starts[b.name]
                 unit_of = {**dict(zip(block.model.input_names, (units.get(n, "") for n in b.inputs))),
                            **{s: units.get(m, "") for s, m in zip(block.model.state_names, start.measured)}}
                 self.slots += form.slots(unit_of, block.model.input_names, tuple(b.scheduling.values()))
             self.forms[b.name] = form
         self.sizes = {name: form.size for name, form in self.forms.items()}
-        scale = lambda names, i: torch.tensor([model.scales[n][i] for n in names], dtype=torch.float32)  # noqa: E731
+        scale = lambda names, i: torch.tensor([model.scales[n][i] for n in names], dtype=dtype)  # noqa: E731
         for key, names in (("input", self.input_names), ("scheduling", self.scheduling_names),
                            ("output", self.output_names)):
             self.register_buffer(f"{key}_mean", scale(names, 0), persistent=False)
             self.register_buffer(f"{key}_std", scale(names, 1), persistent=False)
-        self.register_buffer("input_offset", model.input_offset.float(), persistent=False)
-        self.register_buffer("output_offset", model.output_offset.float(), persistent=False)
+        self.register_buffer("input_offset", model.input_offset.to(dtype), persistent=False)
+        self.register_buffer("output_offset", model.output_offset.to(dtype), persistent=False)
 
     @property
     def state_size(self) -> int:
@@ -153,7 +153,7 @@ class ModelStep(nn.Module):
                     known = chunk.new_zeros(*chunk.shape[:2], len(index))
                     known[:, : past + 1] = y_past[:, : chunk.shape[1], index].to(chunk.dtype)
                     chunk = torch.cat([chunk, known], -1)
-                state = block(chunk)[1] if chunk.shape[1] else block.default_state(1, None, torch.float32)
+                state = block(chunk)[1] if chunk.shape[1] else block.default_state(1, None, self.dtype)
                 parts.append(form.initial(state))
             elif isinstance(form, DelayStep):
                 parts.append(form.buffer(values, start, first))
@@ -176,9 +176,9 @@ class ModelStep(nn.Module):
         if sample < at:
             raise ExportError(f"block {b.name!r} starts at sample {at}: its first-order hold has no state before "
                               f"the first exported sample {first}")
-        x = xs[:, sample - at] * block.state_std.float() + block.state_mean.float()
+        x = xs[:, sample - at] * block.state_std.to(self.dtype) + block.state_mean.to(self.dtype)
         if not form.lagged:
             return x
-        u = values[:, sample - start] * block.input_std.float() + block.input_mean.float()
+        u = values[:, sample - start] * block.input_std.to(self.dtype) + block.input_mean.to(self.dtype)
         rho = [s[:, sample, self.scheduling_names.index(n)][:, None] for n in b.scheduling.values()]
         return torch.cat([x, u, *rho], -1)

@@ -49,23 +49,26 @@ class Prediction:
         return out
 
 
-def model_inputs(dm: HypaDataModule, record: Record, stretch: slice = slice(None)) -> tuple[torch.Tensor, ...]:
+def model_inputs(dm: HypaDataModule, record: Record, stretch: slice = slice(None),
+                 dtype: torch.dtype = torch.float32) -> tuple[torch.Tensor, ...]:
     """(u, y_past, s) of one record for the model, batch of one: normalized inputs, normalized
     measured outputs up to the window start (the first ``past`` + 1 samples), SI scheduling."""
     arrays = {k: a[stretch] for k, a in dm.signature.arrays(record).items()}
     arrays["y"] = arrays["y"][: dm.past + 1]
-    return tuple(torch.as_tensor(arrays[k], dtype=torch.float32)[None] for k in "uys")
+    return tuple(torch.as_tensor(arrays[k], dtype=dtype)[None] for k in "uys")
 
 
 @torch.no_grad()
-def free_run(model: ComposedModel, dm: HypaDataModule, record: Record, stretch: slice = slice(None)) -> Prediction:
+def free_run(model: ComposedModel, dm: HypaDataModule, record: Record, stretch: slice = slice(None),
+             dtype: torch.dtype = torch.float32) -> Prediction:
     """Simulate a record (or a stretch of it) from its start, never seeing a measured output after it.
 
     The first ``dm.past`` + 1 samples start the model (the measured state, or the estimate of
-    an unmeasured one from the past); every later sample is predicted.
+    an unmeasured one from the past); every later sample is predicted. ``dtype``: of the inputs
+    (a model in float64 runs in float64 with float64 inputs).
     """
     device = next(model.buffers(), torch.zeros(0)).device
-    u, y_past, s = (t.to(device) for t in model_inputs(dm, record, stretch))
+    u, y_past, s = (t.to(device) for t in model_inputs(dm, record, stretch, dtype))
     first = dm.past + 1
     signals = model.signals(u, y_past, s)
     pred = model.outputs(signals, dm.past)[0].cpu()

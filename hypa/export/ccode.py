@@ -1,0 +1,735 @@
+"""The exported step (``model.onnx``) as C99 that needs nothing but libm: ``c_step``.
+
+The step's ONNX graph has static shapes (a batch of one, a fixed state), so it compiles into
+straight-line C: every tensor of the graph becomes an array of scalars, each a literal (a value
+known when exporting), an input element (``state[i]``, ``u[i]``) or a C variable. What moves data
+(Slice, Gather, Concat, Reshape, Transpose, ...) costs nothing at run time: it rearranges the
+scalars while compiling. What depends only on constants (shapes, the normalization, a constant
+block's matrices) is evaluated while compiling, in float64. What remains is arithmetic on the
+inputs: one ``const double`` per element of an elementwise operation, one sum per element of a
+small product with the zeros of its constant factor left out, and plain loops over static weight
+arrays for the products with large constant matrices and for the recurrent cells (ONNX's LSTM
+and GRU). Arithmetic is float64 throughout, the weights the exported float32 values.
+
+An operation without a C form here is refused in one line naming it and the block whose node
+it is (``ExportError``); the ONNX and pythonfmu FMU remain for such a model.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hypa.export.blocks import ExportError
+
+LOOP_SIZE = 256  # a product with a constant matrix of more entries runs as a loop over a static array
+INPUTS = ("state", "u")  # the step's arguments: the graph's inputs, by name
+OUTPUTS = ("next_state", "y")
+
+_ATOM = re.compile(r"^([A-Za-z_]\w*)(\[\d+\])?$")
+
+
+@dataclass(frozen=True)
+class CStep:
+    """C99 source of ``static void hypa_step(const double *state, const double *u, double *next_state,
+    double *y)`` with ``HYPA_STATE_SIZE``, ``HYPA_INPUT_SIZE``, ``HYPA_OUTPUT_SIZE``; ``next_state``
+    must not alias ``state``. ``statements``: assignments and loops in the step's body."""
+
+    source: str
+    state_size: int
+    input_size: int
+    output_size: int
+    statements: int
+
+
+@dataclass
+class _Statement:
+    text: str
+    defines: tuple[str, ...]
+    uses: frozenset[str]
+
+
+@dataclass
+class _Emitter:
+    """The step's body under construction: statements, static arrays and fresh names."""
+
+    statements: list[_Statement] = field(default_factory=list)
+    statics: dict[str, str] = field(default_factory=dict)  # name -> its definition
+    known: dict[str, str] = field(default_factory=dict)  # expression -> the variable that holds it
+    count: int = 0
+
+    def name(self, prefix: str = "t") -> str:
+        self.count += 1
+        return f"{prefix}{self.count}"
+
+    def add(self, text: str, defines: Iterable[str], uses: Iterable[str]) -> None:
+        self.statements.append(_Statement(text, tuple(defines), frozenset(uses)))
+
+    def scalar(self, expression: str, operands: Iterable[object]) -> str:
+        """A variable holding ``expression`` of ``operands`` (atoms or literals): a new one, or the one that
+        already holds the same expression (every variable is assigned once, so equal text is equal value)."""
+        if expression not in self.known:
+            self.known[expression] = name = self.name()
+            self.add(f"const double {name} = {expression};", [name], _uses(operands))
+        return self.known[expression]
+
+    def static(self, values: np.ndarray, prefix: str = "w") -> str:
+        """A static const array of ``values`` (flattened, row-major)."""
+        name = self.name(prefix)
+        flat = np.asarray(values, dtype=float).reshape(-1)
+        rows = ",\n    ".join(", ".join(_literal(v) for v in flat[i : i + 6]) for i in range(0, len(flat), 6))
+        self.statics[name] = f"static const double {name}[{max(len(flat), 1)}] = {{\n    {rows or '0.0'}\n}};"
+        return name
+
+    def array(self, values: np.ndarray) -> str:
+        """The name of an array holding ``values`` (object or numeric) in row-major order: an existing
+        one where the values are exactly its elements in order, else a new local one."""
+        flat = list(np.asarray(values, dtype=object).reshape(-1))
+        if flat and all(isinstance(v, str) for v in flat):
+            match = _ATOM.match(flat[0])
+            base = match.group(1) if match else None
+            if base and all(v == f"{base}[{i}]" for i, v in enumerate(flat)):
+                return base
+        name = self.name("v")
+        items = ", ".join(v if isinstance(v, str) else _literal(v) for v in flat) or "0.0"
+        self.add(f"double {name}[{max(len(flat), 1)}] = {{{items}}};", [name], _uses(flat))
+        return name
+
+
+def _literal(value: object) -> str:
+    v = float(value)
+    if math.isnan(v):
+        return "NAN"
+    if math.isinf(v):
+        return "INFINITY" if v > 0 else "(-INFINITY)"
+    text = repr(v)
+    return f"({text})" if v < 0 else text
+
+
+def _uses(operands: Iterable[object]) -> set[str]:
+    names = set()
+    for value in operands:
+        if isinstance(value, str):
+            match = _ATOM.match(value)
+            if match and match.group(1) not in INPUTS and match.group(1) not in OUTPUTS:
+                names.add(match.group(1))
+    return names
+
+
+def _constant(value: np.ndarray) -> bool:
+    return value.dtype != object
+
+
+def _symbolic(value: np.ndarray) -> np.ndarray:
+    """``value`` as an object array whose constants are floats."""
+    if _constant(value):
+        return np.asarray(value, dtype=float).astype(object)
+    return value
+
+
+def _settle(value: np.ndarray) -> np.ndarray:
+    """An object array without a symbol back to a float one (it became a constant)."""
+    if _constant(value) or any(isinstance(v, str) for v in value.reshape(-1)):
+        return value
+    return np.array(value.tolist(), dtype=float).reshape(value.shape)
+
+
+def _operand(value: object) -> str:
+    return value if isinstance(value, str) else _literal(value)
+
+
+# Elementwise operations: numpy for constants, C for symbols. Unary ones: C format of one operand.
+_UNARY: dict[str, tuple[Callable, str]] = {
+    "Neg": (np.negative, "-{}"), "Abs": (np.abs, "fabs({})"), "Exp": (np.exp, "exp({})"),
+    "Log": (np.log, "log({})"), "Sqrt": (np.sqrt, "sqrt({})"), "Tanh": (np.tanh, "tanh({})"),
+    "Sin": (np.sin, "sin({})"), "Cos": (np.cos, "cos({})"), "Floor": (np.floor, "floor({})"),
+    "Ceil": (np.ceil, "ceil({})"), "Reciprocal": (np.reciprocal, "1.0 / {}"),
+    "Sigmoid": (lambda x: 1.0 / (1.0 + np.exp(-x)), "1.0 / (1.0 + exp(-{}))"),
+    "Relu": (lambda x: np.maximum(x, 0), "({0} > 0.0 ? {0} : 0.0)"),
+    "Sign": (np.sign, "(double)(({0} > 0.0) - ({0} < 0.0))"),
+    "Softplus": (lambda x: np.logaddexp(0.0, x), "({0} > 20.0 ? {0} : log1p(exp({0})))"),
+    "Erf": (np.vectorize(math.erf, otypes=[float]), "erf({})"),
+    "Not": (np.logical_not, "(double)({} == 0.0)"),
+    "IsNaN": (np.isnan, "(double)isnan({})"),
+    "Round": (np.round, "nearbyint({})"),  # ties to even, as ONNX (the default rounding mode)
+}
+_BINARY: dict[str, tuple[Callable, str]] = {
+    "Add": (np.add, "{} + {}"), "Sub": (np.subtract, "{} - {}"), "Mul": (np.multiply, "{} * {}"),
+    "Div": (np.divide, "{} / {}"), "Pow": (np.power, "pow({}, {})"),
+    "Max": (np.maximum, "fmax({}, {})"), "Min": (np.minimum, "fmin({}, {})"),
+    "Less": (np.less, "(double)({} < {})"), "Greater": (np.greater, "(double)({} > {})"),
+    "LessOrEqual": (np.less_equal, "(double)({} <= {})"), "GreaterOrEqual": (np.greater_equal, "(double)({} >= {})"),
+    "Equal": (np.equal, "(double)({} == {})"),
+    "And": (np.logical_and, "(double)({} != 0.0 && {} != 0.0)"),
+    "Or": (np.logical_or, "(double)({} != 0.0 || {} != 0.0)"),
+}
+
+
+def _simplified(op: str, a: object, b: object) -> object | None:
+    """The result of ``a op b`` without a new variable, where one operand makes it trivial, or None."""
+    if op == "Add":
+        return b if a == 0.0 and not isinstance(a, str) else a if b == 0.0 and not isinstance(b, str) else None
+    if op == "Sub" and not isinstance(b, str) and b == 0.0:
+        return a
+    if op == "Mul":
+        for x, other in ((a, b), (b, a)):
+            if not isinstance(x, str) and x == 1.0:
+                return other
+            if not isinstance(x, str) and x == 0.0:
+                return 0.0
+    if op in ("Div", "Pow") and not isinstance(b, str) and b == 1.0:
+        return a
+    return None
+
+
+class _Graph:
+    """Compiles one ONNX graph into an ``_Emitter``'s statements."""
+
+    def __init__(self, model, blocks: Mapping[str, str]) -> None:
+        from onnx import numpy_helper
+
+        self.model, self.blocks, self.out = model, dict(blocks), _Emitter()
+        self.values: dict[str, np.ndarray] = {"": np.zeros(0)}
+        for tensor in model.graph.initializer:
+            self.values[tensor.name] = _numeric(numpy_helper.to_array(tensor))
+        for graph_input in model.graph.input:
+            if graph_input.name in self.values:
+                continue
+            dims = [d.dim_value for d in graph_input.type.tensor_type.shape.dim]
+            if graph_input.name not in INPUTS or len(dims) != 1 or dims[0] < 0:
+                raise ExportError(f"the ONNX step has an input {graph_input.name!r} of shape {dims}; "
+                                  f"the C step takes {' and '.join(INPUTS)}, each a vector of fixed size")
+            self.values[graph_input.name] = np.array([f"{graph_input.name}[{i}]" for i in range(dims[0])],
+                                                     dtype=object)
+
+    def node_block(self, node) -> str:
+        """Where a node comes from: ``block 'name' (kind)`` or ``the step``."""
+        parts = [p for p in node.name.split("/") if p]
+        if len(parts) > 1 and parts[0] in self.blocks:
+            return f"block {parts[0]!r} ({self.blocks[parts[0]]})"
+        return "the step"
+
+    def run(self) -> None:
+        from onnx import helper
+
+        for node in self.model.graph.node:
+            attributes = {a.name: helper.get_attribute_value(a) for a in node.attribute}
+            inputs = [self.values[name] for name in node.input]
+            handler = _OPERATIONS.get(node.op_type)
+            if handler is None or node.domain not in ("", "ai.onnx"):
+                raise ExportError(f"{self.node_block(node)} uses the ONNX operation {node.op_type}, which has no C "
+                                  "form in hypa: export it with format=fmu (the ONNX step in a pythonfmu FMU)")
+            try:
+                outputs = handler(self, inputs, attributes, len(node.output))
+            except ExportError:
+                raise
+            except Exception as error:  # noqa: BLE001 -- a form the compiler does not cover, said in one line
+                raise ExportError(f"{self.node_block(node)}: its ONNX {node.op_type} ({node.name}) has no C form "
+                                  f"in hypa ({type(error).__name__}: {error}); export it with format=fmu") from None
+            for name, value in zip(node.output, outputs):
+                self.values[name] = value if _constant(value) else _settle(value)
+
+
+def _numeric(array: np.ndarray) -> np.ndarray:
+    """An initializer or constant: floats as float64, integers and booleans as they are."""
+    return array.astype(np.float64) if np.issubdtype(array.dtype, np.floating) else np.asarray(array)
+
+
+def _ints(value: np.ndarray) -> list[int]:
+    if not _constant(value):
+        raise ExportError("a shape, an axis or an index that depends on the inputs")
+    return [int(v) for v in np.asarray(value).reshape(-1)]
+
+
+def _elementwise(graph: _Graph, op: str, arrays: list[np.ndarray]) -> np.ndarray:
+    """``op`` over broadcast ``arrays``: numpy where all are constant, else one variable per element."""
+    if op in _UNARY:
+        (x,) = arrays
+        function, form = _UNARY[op]
+        if _constant(x):
+            return np.asarray(function(x))
+        out = np.empty(x.shape, dtype=object)
+        for index, v in np.ndenumerate(x):
+            out[index] = float(function(np.float64(v))) if not isinstance(v, str) else \
+                graph.out.scalar(form.format(v), [v])
+        return out
+    function, form = _BINARY[op]
+    a, b = arrays
+    if _constant(a) and _constant(b):
+        if op == "Div" and np.issubdtype(a.dtype, np.integer) and np.issubdtype(b.dtype, np.integer):
+            return np.trunc(a / b).astype(a.dtype)
+        return np.asarray(function(a, b))
+    a, b = np.broadcast_arrays(_symbolic(a), _symbolic(b))
+    out = np.empty(a.shape, dtype=object)
+    for index in np.ndindex(a.shape):
+        x, y = a[index], b[index]
+        if not isinstance(x, str) and not isinstance(y, str):
+            out[index] = float(function(np.float64(x), np.float64(y)))
+            continue
+        simple = _simplified(op, x, y)
+        out[index] = simple if simple is not None else graph.out.scalar(form.format(_operand(x), _operand(y)), [x, y])
+    return out
+
+
+def _variadic(op: str) -> Callable:
+    def handler(graph, inputs, attributes, outputs):
+        result = inputs[0]
+        for other in inputs[1:]:
+            result = _elementwise(graph, op, [result, other])
+        return [result]
+    return handler
+
+
+def _unary(op: str) -> Callable:
+    return lambda graph, inputs, attributes, outputs: [_elementwise(graph, op, inputs[:1])]
+
+
+def _sum(graph: _Graph, terms: list[tuple[object, object]]) -> object:
+    """Σ a b over ``terms`` (atoms or floats): constant products folded, zeros left out."""
+    constant, parts, operands = 0.0, [], []
+    for a, b in terms:
+        if not isinstance(a, str) and not isinstance(b, str):
+            constant += float(a) * float(b)
+        elif not isinstance(a, str) or not isinstance(b, str):
+            factor, symbol = (a, b) if not isinstance(a, str) else (b, a)
+            if factor == 0.0:
+                continue
+            parts.append(symbol if factor == 1.0 else f"{_literal(factor)} * {symbol}")
+            operands.append(symbol)
+        else:
+            parts.append(f"{a} * {b}")
+            operands += [a, b]
+    if not parts:
+        return constant
+    if constant:
+        parts.append(_literal(constant))
+    if len(parts) == 1 and _ATOM.match(parts[0]):
+        return parts[0]
+    return graph.out.scalar(" + ".join(parts), operands)
+
+
+def _product(graph: _Graph, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a (n, k) @ b (k, m), either or both symbolic."""
+    if _constant(b) and b.size > LOOP_SIZE:
+        return np.stack([_looped(graph, row, b) for row in a])
+    if _constant(a) and a.size > LOOP_SIZE:
+        return np.stack([_looped(graph, column, a.T) for column in b.T]).T
+    a, b = _symbolic(a), _symbolic(b)
+    out = np.empty((a.shape[0], b.shape[1]), dtype=object)
+    for i in range(a.shape[0]):
+        for j in range(b.shape[1]):
+            out[i, j] = _sum(graph, list(zip(a[i], b[:, j])))
+    return out
+
+
+def _looped(graph: _Graph, vector: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """vector (k,) @ matrix (k, m) with the constant matrix as a static array and a loop."""
+    k, m = matrix.shape
+    weights = graph.out.static(matrix.T)  # row i: the weights of output i
+    x = graph.out.array(vector)
+    name = graph.out.name("v")
+    lines = [f"double {name}[{m}];",
+             f"for (int i = 0; i < {m}; i++) {{",
+             "    double a = 0.0;",
+             f"    for (int j = 0; j < {k}; j++) a += {weights}[i * {k} + j] * {x}[j];",
+             f"    {name}[i] = a;",
+             "}"]
+    graph.out.add("\n    ".join(lines), [name], [x, weights])
+    return np.array([f"{name}[{i}]" for i in range(m)], dtype=object)
+
+
+def _matmul(graph: _Graph, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """numpy's matmul (batch broadcasting, 1-D promotion) on constant or symbolic operands."""
+    if _constant(a) and _constant(b):
+        return np.matmul(a, b)
+    squeeze_a, squeeze_b = a.ndim == 1, b.ndim == 1
+    a = a[None] if squeeze_a else a
+    b = b[:, None] if squeeze_b else b
+    batch = np.broadcast_shapes(a.shape[:-2], b.shape[:-2])
+    a = np.broadcast_to(a, (*batch, *a.shape[-2:]))
+    b = np.broadcast_to(b, (*batch, *b.shape[-2:]))
+    out = np.empty((*batch, a.shape[-2], b.shape[-1]), dtype=object)
+    for index in np.ndindex(*batch):
+        out[index] = _product(graph, a[index], b[index])
+    if squeeze_a:
+        out = out[..., 0, :]
+    if squeeze_b:
+        out = out[..., 0]
+    return out
+
+
+def _gemm(graph, inputs, attributes, outputs):
+    a, b = inputs[0], inputs[1]
+    a = a.T if attributes.get("transA", 0) else a
+    b = b.T if attributes.get("transB", 0) else b
+    alpha, beta = float(attributes.get("alpha", 1.0)), float(attributes.get("beta", 1.0))
+    if alpha != 1.0:
+        a, b = (a * alpha, b) if _constant(a) else (a, b * alpha) if _constant(b) else \
+            (_elementwise(graph, "Mul", [a, np.array(alpha)]), b)
+    y = _matmul(graph, a, b)
+    if len(inputs) > 2 and inputs[2].size:
+        c = inputs[2] * beta if _constant(inputs[2]) else _elementwise(graph, "Mul", [inputs[2], np.array(beta)])
+        y = _elementwise(graph, "Add", [y, c])
+    return [y]
+
+
+def _slice(graph, inputs, attributes, outputs):
+    data, starts, ends = inputs[0], _ints(inputs[1]), _ints(inputs[2])
+    axes = _ints(inputs[3]) if len(inputs) > 3 and inputs[3].size else list(range(len(starts)))
+    steps = _ints(inputs[4]) if len(inputs) > 4 and inputs[4].size else [1] * len(starts)
+    index = [slice(None)] * data.ndim
+    for start, end, axis, step in zip(starts, ends, axes, steps):
+        index[axis] = slice(start, end, step)
+    return [data[tuple(index)]]
+
+
+def _reshape(graph, inputs, attributes, outputs):
+    data, shape = inputs[0], _ints(inputs[1])
+    if not attributes.get("allowzero", 0):
+        shape = [data.shape[i] if s == 0 else s for i, s in enumerate(shape)]
+    return [data.reshape(shape)]
+
+
+def _axes(inputs: list[np.ndarray], attributes: dict, position: int = 1) -> list[int] | None:
+    if "axes" in attributes:
+        return list(attributes["axes"])
+    if len(inputs) > position and inputs[position].size:
+        return _ints(inputs[position])
+    return None
+
+
+def _squeeze(graph, inputs, attributes, outputs):
+    axes = _axes(inputs, attributes)
+    data = inputs[0]
+    return [np.squeeze(data, axis=tuple(axes)) if axes is not None else np.squeeze(data)]
+
+
+def _unsqueeze(graph, inputs, attributes, outputs):
+    return [np.expand_dims(inputs[0], tuple(_axes(inputs, attributes)))]
+
+
+def _split(graph, inputs, attributes, outputs):
+    data, axis = inputs[0], attributes.get("axis", 0)
+    sizes = list(attributes["split"]) if "split" in attributes else \
+        _ints(inputs[1]) if len(inputs) > 1 and inputs[1].size else None
+    if sizes is None:
+        length = data.shape[axis]
+        each = -(-length // outputs)
+        sizes = [min(each, length - i * each) for i in range(outputs)]
+    return np.split(data, np.cumsum(sizes)[:-1], axis=axis)
+
+
+def _gather(graph, inputs, attributes, outputs):
+    data, indices = inputs[0], np.asarray(_ints(inputs[1])).reshape(inputs[1].shape)
+    return [np.take(data, indices, axis=attributes.get("axis", 0))]
+
+
+def _where(graph, inputs, attributes, outputs):
+    condition, x, y = inputs
+    if _constant(condition):
+        return [np.where(condition.astype(bool), _symbolic(x), _symbolic(y)) if not (_constant(x) and _constant(y))
+                else np.where(condition.astype(bool), x, y)]
+    c, x, y = np.broadcast_arrays(condition, _symbolic(x), _symbolic(y))
+    out = np.empty(c.shape, dtype=object)
+    for index in np.ndindex(c.shape):
+        out[index] = x[index] if not isinstance(c[index], str) and c[index] else \
+            y[index] if not isinstance(c[index], str) else \
+            graph.out.scalar(f"({c[index]} != 0.0 ? {_operand(x[index])} : {_operand(y[index])})",
+                             [c[index], x[index], y[index]])
+    return [out]
+
+
+def _cast(graph, inputs, attributes, outputs):
+    from onnx import helper
+
+    (x,), dtype = inputs, np.dtype(helper.tensor_dtype_to_np_dtype(attributes["to"]))
+    if _constant(x):
+        return [_numeric(x.astype(dtype))]
+    if np.issubdtype(dtype, np.floating):
+        return [x]
+    form = "(double)({} != 0.0)" if dtype == np.bool_ else "trunc({})"
+    out = np.empty(x.shape, dtype=object)
+    for index, v in np.ndenumerate(x):
+        out[index] = graph.out.scalar(form.format(v), [v]) if isinstance(v, str) else float(dtype.type(v))
+    return [out]
+
+
+def _reduce(op: str) -> Callable:
+    def handler(graph, inputs, attributes, outputs):
+        data, axes = inputs[0], _axes(inputs, attributes)
+        if axes is None and attributes.get("noop_with_empty_axes", 0):
+            return [data]
+        axes = tuple(a % data.ndim for a in (axes if axes is not None else range(data.ndim)))
+        keep = bool(attributes.get("keepdims", 1))
+        if _constant(data):
+            reduce = {"ReduceSum": np.sum, "ReduceMean": np.mean, "ReduceMax": np.max, "ReduceMin": np.min,
+                      "ReduceProd": np.prod}[op]
+            return [np.asarray(reduce(data, axis=axes, keepdims=keep))]
+        rest = [a for a in range(data.ndim) if a not in axes]
+        moved = np.transpose(data, [*rest, *axes])
+        rows = moved.reshape(-1, int(np.prod([data.shape[a] for a in axes], dtype=int)))
+        shape = [1 if a in axes else data.shape[a] for a in range(data.ndim)] if keep else \
+            [data.shape[a] for a in rest]
+        return [np.array([_reduced(graph, op, list(row)) for row in rows], dtype=object).reshape(shape)]
+    return handler
+
+
+def _reduced(graph: _Graph, op: str, values: list[object]) -> object:
+    if op in ("ReduceSum", "ReduceMean"):
+        total = _sum(graph, [(v, 1.0) for v in values])
+        return total if op == "ReduceSum" else _elementwise(graph, "Div", [np.array([total], dtype=object),
+                                                                           np.array(float(len(values)))])[0]
+    binary = {"ReduceMax": "Max", "ReduceMin": "Min", "ReduceProd": "Mul"}[op]
+    result = values[0]
+    for v in values[1:]:
+        result = _elementwise(graph, binary, [np.array([result], dtype=object), np.array([v], dtype=object)])[0]
+    return result
+
+
+def _clip(graph, inputs, attributes, outputs):
+    x = inputs[0]
+    low = inputs[1] if len(inputs) > 1 and inputs[1].size else np.array(attributes.get("min", -np.inf))
+    high = inputs[2] if len(inputs) > 2 and inputs[2].size else np.array(attributes.get("max", np.inf))
+    return [_elementwise(graph, "Min", [_elementwise(graph, "Max", [x, low]), high])]
+
+
+def _constant_node(graph, inputs, attributes, outputs):
+    from onnx import numpy_helper
+
+    if "value" in attributes:
+        return [_numeric(numpy_helper.to_array(attributes["value"]))]
+    for key in ("value_float", "value_floats", "value_int", "value_ints"):
+        if key in attributes:
+            return [_numeric(np.asarray(attributes[key]))]
+    raise ExportError(f"a Constant with {sorted(attributes)}")
+
+
+def _constant_of_shape(graph, inputs, attributes, outputs):
+    from onnx import numpy_helper
+
+    value = numpy_helper.to_array(attributes["value"]) if "value" in attributes else np.zeros(1)
+    return [_numeric(np.full(_ints(inputs[0]), value.reshape(-1)[0], dtype=value.dtype))]
+
+
+def _eye_like(graph, inputs, attributes, outputs):
+    rows, columns = inputs[0].shape
+    return [np.eye(rows, columns, k=attributes.get("k", 0))]
+
+
+def _shape(graph, inputs, attributes, outputs):
+    shape = np.array(inputs[0].shape, dtype=np.int64)
+    return [shape[attributes.get("start", 0) : attributes.get("end", len(shape))]]
+
+
+def _expand(graph, inputs, attributes, outputs):
+    data = inputs[0]
+    return [np.array(np.broadcast_to(data, np.broadcast_shapes(data.shape, tuple(_ints(inputs[1])))))]
+
+
+def _tile(graph, inputs, attributes, outputs):
+    return [np.tile(inputs[0], _ints(inputs[1]))]
+
+
+def _range(graph, inputs, attributes, outputs):
+    start, limit, delta = (np.asarray(v).reshape(()) for v in inputs)
+    if not all(_constant(v) for v in inputs):
+        raise ExportError("a Range over the inputs")
+    return [np.arange(start, limit, delta)]
+
+
+def _flatten(graph, inputs, attributes, outputs):
+    data, axis = inputs[0], attributes.get("axis", 1) % max(inputs[0].ndim, 1)
+    return [data.reshape(int(np.prod(data.shape[:axis], dtype=int)), -1)]
+
+
+def _recurrent(kind: str) -> Callable:
+    """ONNX's LSTM (gates i, o, f, c) or GRU (z, r, h) over a sequence, forward, as loops over static weights."""
+    gates = {"LSTM": 4, "GRU": 3}[kind]
+
+    def handler(graph, inputs, attributes, outputs):
+        hidden = int(attributes["hidden_size"])
+        if attributes.get("direction", b"forward") not in (b"forward", "forward"):
+            raise ExportError(f"a {attributes['direction']} {kind}")
+        if attributes.get("layout", 0) or "clip" in attributes or attributes.get("input_forget", 0) or \
+                ("activations" in attributes and kind == "LSTM" and
+                 [a.decode() if isinstance(a, bytes) else a for a in attributes["activations"]]
+                 != ["Sigmoid", "Tanh", "Tanh"]):
+            raise ExportError(f"an {kind} with attributes {sorted(attributes)} beyond hidden_size")
+        x, w, r = inputs[0], inputs[1], inputs[2]
+        if not (_constant(w) and _constant(r)) or (len(inputs) > 3 and inputs[3].size and not _constant(inputs[3])):
+            raise ExportError(f"an {kind} whose weights depend on the inputs")
+        if len(inputs) > 4 and inputs[4].size:
+            raise ExportError(f"an {kind} with sequence lengths")
+        steps, batch, width = x.shape
+        if batch != 1:
+            raise ExportError(f"an {kind} over a batch of {batch}")
+        bias = inputs[3].reshape(2, gates * hidden) if len(inputs) > 3 and inputs[3].size else \
+            np.zeros((2, gates * hidden))
+        zero = np.zeros(hidden)
+        h0 = inputs[5].reshape(-1) if len(inputs) > 5 and inputs[5].size else zero
+        out, name = graph.out, graph.out.name(kind.lower())
+        names = {key: f"{name}_{key}" for key in ("h", "c", "y")}
+        arrays = [out.array(x.reshape(-1)), out.static(w[0], "w"), out.static(r[0], "w")]
+        h_array = out.array(h0)
+        declarations = [f"double {names['h']}[{hidden}];", f"double {names['y']}[{max(steps * hidden, 1)}];"]
+        initial = [f"for (int i = 0; i < {hidden}; i++) {names['h']}[i] = {h_array}[i];"]
+        uses = {*arrays, h_array}
+        if kind == "LSTM":
+            c0 = inputs[6].reshape(-1) if len(inputs) > 6 and inputs[6].size else zero
+            c_array = out.array(c0)
+            declarations.append(f"double {names['c']}[{hidden}];")
+            initial.append(f"for (int i = 0; i < {hidden}; i++) {names['c']}[i] = {c_array}[i];")
+            uses.add(c_array)
+            bias_name = out.static(bias.sum(0), "w")
+            body = _lstm_body(names, arrays, bias_name, hidden, width)
+        else:
+            bias_name = out.static(bias, "w")
+            body = _gru_body(names, arrays, bias_name, hidden, width, int(attributes.get("linear_before_reset", 0)))
+        uses.add(bias_name)
+        text = "\n    ".join([*declarations, *initial, f"for (int t = 0; t < {steps}; t++) {{", *body, "}"])
+        out.add(text, [names["h"], names["y"], *([names["c"]] if kind == "LSTM" else [])], uses)
+        y = np.array([f"{names['y']}[{i}]" for i in range(steps * hidden)], dtype=object).reshape(steps, 1, 1, hidden)
+        last = np.array([f"{names['h']}[{i}]" for i in range(hidden)], dtype=object).reshape(1, 1, hidden)
+        results = [y, last]
+        if kind == "LSTM":
+            results.append(np.array([f"{names['c']}[{i}]" for i in range(hidden)], dtype=object).reshape(1, 1, hidden))
+        return results[:outputs]
+    return handler
+
+
+def _gate_sums(x: str, w: str, r: str, bias: str, h: str, rows: int, hidden: int, width: int) -> list[str]:
+    """g[i] = bias[i] + W[i] x_t + R[i] h for i < rows (the lines of a loop body)."""
+    return [f"    double g[{rows}];",
+            f"    for (int i = 0; i < {rows}; i++) {{",
+            f"        double a = {bias}[i];",
+            f"        for (int j = 0; j < {width}; j++) a += {w}[i * {width} + j] * {x}[t * {width} + j];",
+            f"        for (int j = 0; j < {hidden}; j++) a += {r}[i * {hidden} + j] * {h}[j];",
+            "        g[i] = a;",
+            "    }"]
+
+
+def _lstm_body(names: dict[str, str], arrays: list[str], bias: str, hidden: int, width: int) -> list[str]:
+    x, w, r = arrays
+    h, c, y = names["h"], names["c"], names["y"]
+    return [*_gate_sums(x, w, r, bias, h, 4 * hidden, hidden, width),
+            f"    for (int i = 0; i < {hidden}; i++) {{",
+            "        const double in = 1.0 / (1.0 + exp(-g[i]));",
+            f"        const double out = 1.0 / (1.0 + exp(-g[{hidden} + i]));",
+            f"        const double forget = 1.0 / (1.0 + exp(-g[{2 * hidden} + i]));",
+            f"        const double cell = tanh(g[{3 * hidden} + i]);",
+            f"        {c}[i] = forget * {c}[i] + in * cell;",
+            f"        {h}[i] = out * tanh({c}[i]);",
+            f"        {y}[t * {hidden} + i] = {h}[i];",
+            "    }"]
+
+
+def _gru_body(names: dict[str, str], arrays: list[str], bias: str, hidden: int, width: int,
+              linear_before_reset: int) -> list[str]:
+    """h' = (1 - z) n + z h, n = tanh(W_h x + b_Wh + r (R_h h + b_Rh)) (linear before reset), or
+    tanh(W_h x + b_Wh + R_h (r h) + b_Rh)."""
+    x, w, r = arrays
+    h, y, rows = names["h"], names["y"], 3 * hidden
+    lines = [f"    double gx[{rows}], gh[{rows}], reset[{hidden}];",
+             f"    for (int i = 0; i < {rows}; i++) {{",
+             f"        double a = {bias}[i], b = {bias}[{rows} + i];",
+             f"        for (int j = 0; j < {width}; j++) a += {w}[i * {width} + j] * {x}[t * {width} + j];",
+             f"        if (i < {2 * hidden} || {linear_before_reset})",
+             f"            for (int j = 0; j < {hidden}; j++) b += {r}[i * {hidden} + j] * {h}[j];",
+             "        gx[i] = a;",
+             "        gh[i] = b;",
+             "    }",
+             f"    for (int i = 0; i < {hidden}; i++)",
+             f"        reset[i] = 1.0 / (1.0 + exp(-(gx[{hidden} + i] + gh[{hidden} + i])));"]
+    if not linear_before_reset:
+        lines += [f"    for (int i = {2 * hidden}; i < {rows}; i++) {{",
+                  f"        for (int j = 0; j < {hidden}; j++) gh[i] += {r}[i * {hidden} + j] * reset[j] * {h}[j];",
+                  "    }"]
+    candidate = f"gx[{2 * hidden} + i] + reset[i] * gh[{2 * hidden} + i]" if linear_before_reset else \
+        f"gx[{2 * hidden} + i] + gh[{2 * hidden} + i]"
+    return [*lines,
+            f"    double next[{hidden}];",
+            f"    for (int i = 0; i < {hidden}; i++) {{",
+            "        const double update = 1.0 / (1.0 + exp(-(gx[i] + gh[i])));",
+            f"        next[i] = (1.0 - update) * tanh({candidate}) + update * {h}[i];",
+            "    }",
+            f"    for (int i = 0; i < {hidden}; i++) {{ {h}[i] = next[i]; {y}[t * {hidden} + i] = next[i]; }}"]
+
+
+_OPERATIONS: dict[str, Callable] = {
+    **{op: _unary(op) for op in _UNARY},
+    **{op: _variadic(op) for op in _BINARY},
+    "Identity": lambda g, i, a, o: [i[0]],
+    "Dropout": lambda g, i, a, o: [i[0], np.ones(i[0].shape, dtype=bool)][:o],
+    "Constant": _constant_node, "ConstantOfShape": _constant_of_shape, "EyeLike": _eye_like, "Shape": _shape,
+    "Size": lambda g, i, a, o: [np.array(i[0].size, dtype=np.int64)],
+    "Reshape": _reshape, "Squeeze": _squeeze, "Unsqueeze": _unsqueeze, "Flatten": _flatten,
+    "Transpose": lambda g, i, a, o: [np.transpose(i[0], a.get("perm"))],
+    "Concat": lambda g, i, a, o: [np.concatenate([_symbolic(v) for v in i] if any(not _constant(v) for v in i)
+                                                 else i, axis=a["axis"])],
+    "Slice": _slice, "Gather": _gather, "Split": _split, "Expand": _expand, "Tile": _tile, "Range": _range,
+    "Where": _where, "Cast": _cast, "Clip": _clip,
+    "MatMul": lambda g, i, a, o: [_matmul(g, i[0], i[1])], "Gemm": _gemm,
+    **{op: _reduce(op) for op in ("ReduceSum", "ReduceMean", "ReduceMax", "ReduceMin", "ReduceProd")},
+    "LSTM": _recurrent("LSTM"), "GRU": _recurrent("GRU"),
+}
+
+
+def c_step(onnx_path: Path, blocks: Mapping[str, str] | None = None) -> CStep:
+    """Compile the ONNX step at ``onnx_path`` (inputs ``state``, ``u``; outputs ``next_state``, ``y``)
+    into C (``CStep``). ``blocks``: a label for each block name (e.g. ``'LSTMBlock network'``), for
+    the one-line refusal of an operation without a C form."""
+    import onnx
+
+    model = onnx.load(str(onnx_path))
+    graph = _Graph(model, blocks or {})
+    graph.run()
+    results = {}
+    for graph_output in model.graph.output:
+        if graph_output.name not in OUTPUTS:
+            raise ExportError(f"the ONNX step has an output {graph_output.name!r}; the C step writes "
+                              f"{' and '.join(OUTPUTS)}")
+        results[graph_output.name] = np.asarray(graph.values[graph_output.name]).reshape(-1)
+    sizes = {name: len(results.get(name, ())) for name in OUTPUTS}
+    inputs = {name: len(graph.values[name]) if name in graph.values else 0 for name in INPUTS}
+    writes = [f"{name}[{i}] = {_operand(v)};" for name in OUTPUTS for i, v in enumerate(results.get(name, ()))]
+    body = _live(graph.out, results)
+    used = set().union(*(s.uses for s in body)) if body else set()
+    used |= _uses(v for r in results.values() for v in r)
+    statics = [text for name, text in graph.out.statics.items() if name in used]
+    source = "\n".join([
+        "/* hypa's exported step in C99 (hypa.export.ccode): float64, libm only. */",
+        "#include <math.h>",
+        "",
+        f"#define HYPA_STATE_SIZE {inputs['state']}",
+        f"#define HYPA_INPUT_SIZE {inputs['u']}",
+        f"#define HYPA_OUTPUT_SIZE {sizes['y']}",
+        "",
+        *statics,
+        "",
+        "/* y[k] and state[k+1] from state[k] and u[k], all SI; next_state must not alias state. */",
+        "static void hypa_step(const double *state, const double *u, double *next_state, double *y)",
+        "{",
+        "    (void)state; (void)u; (void)next_state; (void)y;",
+        *(f"    {s.text}" for s in body),
+        *(f"    {w}" for w in writes),
+        "}",
+        ""])
+    if sizes["next_state"] != inputs["state"]:
+        raise ExportError(f"the ONNX step takes {inputs['state']} states and returns {sizes['next_state']}")
+    return CStep(source, inputs["state"], inputs["u"], sizes["y"], len(body))
+
+
+def _live(out: _Emitter, results: Mapping[str, np.ndarray]) -> list[_Statement]:
+    """The statements the outputs need, in order (what only fed shapes or unused outputs is dropped)."""
+    live = _uses(v for r in results.values() for v in r)
+    kept = []
+    for statement in reversed(out.statements):
+        if live.intersection(statement.defines):
+            kept.append(statement)
+            live |= statement.uses
+    return kept[::-1]
