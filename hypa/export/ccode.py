@@ -232,6 +232,8 @@ class _Graph:
                 raise ExportError(f"{self.node_block(node)}: its ONNX {node.op_type} ({node.name}) has no C form "
                                   f"in hypa ({type(error).__name__}: {error}); export it with format=fmu") from None
             for name, value in zip(node.output, outputs):
+                value = value if isinstance(value, np.ndarray) else \
+                    np.array(value, dtype=object if isinstance(value, str) else None)  # an element taken alone
                 self.values[name] = value if _constant(value) else _settle(value)
 
 
@@ -429,6 +431,30 @@ def _gather(graph, inputs, attributes, outputs):
     return [np.take(data, indices, axis=attributes.get("axis", 0))]
 
 
+def _scatter(nd: bool) -> Callable:
+    return lambda graph, inputs, attributes, outputs: _scattered(inputs, attributes, nd)
+
+
+def _scattered(inputs: list[np.ndarray], attributes: dict, nd: bool) -> list[np.ndarray]:
+    """ScatterElements (along ``axis``) or ScatterND ((..., k) indices): constant indices, no reduction."""
+    data, updates = inputs[0], inputs[2]
+    if attributes.get("reduction", b"none") not in (b"none", "none"):
+        raise ExportError(f"a scatter with reduction {attributes['reduction']}")
+    indices = np.asarray(_ints(inputs[1]), dtype=int).reshape(inputs[1].shape)
+    out = _symbolic(data).copy() if not (_constant(data) and _constant(updates)) else data.copy()
+    updates = _symbolic(updates) if out.dtype == object else updates
+    if not nd:
+        axis = attributes.get("axis", 0) % data.ndim
+        for index in np.ndindex(indices.shape):
+            target = list(index)
+            target[axis] = indices[index] % data.shape[axis]
+            out[tuple(target)] = updates[index]
+    else:
+        for index in np.ndindex(indices.shape[:-1]):
+            out[tuple(indices[index])] = updates[index]
+    return [out]
+
+
 def _where(graph, inputs, attributes, outputs):
     condition, x, y = inputs
     if _constant(condition):
@@ -545,6 +571,46 @@ def _range(graph, inputs, attributes, outputs):
 def _flatten(graph, inputs, attributes, outputs):
     data, axis = inputs[0], attributes.get("axis", 1) % max(inputs[0].ndim, 1)
     return [data.reshape(int(np.prod(data.shape[:axis], dtype=int)), -1)]
+
+
+def _rows(data: np.ndarray, axis: int) -> np.ndarray:
+    """``data`` as rows over the axes from ``axis`` on: (rest, n)."""
+    axis %= data.ndim
+    return data.reshape(int(np.prod(data.shape[:axis], dtype=int)), -1)
+
+
+def _softmax(graph, inputs, attributes, outputs):
+    """exp(x - max x) / Σ exp(x - max x) along ``axis`` (opset 13: that one axis)."""
+    data, axis = inputs[0], attributes.get("axis", -1) % inputs[0].ndim
+    moved = np.moveaxis(data, axis, -1)
+    rows = []
+    for row in _rows(moved, -1):
+        row = row[None]
+        most = np.array([_reduced(graph, "ReduceMax", list(row[0]))], dtype=object)
+        shifted = _elementwise(graph, "Sub", [row, most])
+        e = _elementwise(graph, "Exp", [shifted])
+        total = np.array([_reduced(graph, "ReduceSum", list(e[0]))], dtype=object)
+        rows.append(_elementwise(graph, "Div", [e, total])[0])
+    return [np.moveaxis(np.array(rows, dtype=object).reshape(moved.shape), -1, axis)]
+
+
+def _layer_norm(graph, inputs, attributes, outputs):
+    """(x - mean) / sqrt(var + ε) · scale + bias over the axes from ``axis`` on."""
+    data, scale = inputs[0], inputs[1].reshape(-1)
+    bias = inputs[2].reshape(-1) if len(inputs) > 2 and inputs[2].size else np.zeros(1)
+    epsilon = np.array(float(attributes.get("epsilon", 1e-5)))
+    rows = []
+    for row in _rows(data, attributes.get("axis", -1)):
+        mean = np.array([_reduced(graph, "ReduceMean", list(row))], dtype=object)
+        centred = _elementwise(graph, "Sub", [row, mean])
+        variance = _reduced(graph, "ReduceMean", list(_elementwise(graph, "Mul", [centred, centred])))
+        spread = _elementwise(graph, "Sqrt", [_elementwise(graph, "Add", [np.array([variance], dtype=object),
+                                                                          epsilon])])
+        normalized = _elementwise(graph, "Div", [centred, spread])
+        rows.append(_elementwise(graph, "Add", [_elementwise(graph, "Mul", [normalized, scale]), bias]))
+    if outputs > 1:
+        raise ExportError("a LayerNormalization whose mean or inverse deviation is used")
+    return [np.array(rows, dtype=object).reshape(data.shape)]
 
 
 def _recurrent(kind: str) -> Callable:
@@ -675,7 +741,8 @@ _OPERATIONS: dict[str, Callable] = {
     "Where": _where, "Cast": _cast, "Clip": _clip,
     "MatMul": lambda g, i, a, o: [_matmul(g, i[0], i[1])], "Gemm": _gemm,
     **{op: _reduce(op) for op in ("ReduceSum", "ReduceMean", "ReduceMax", "ReduceMin", "ReduceProd")},
-    "LSTM": _recurrent("LSTM"), "GRU": _recurrent("GRU"),
+    "LSTM": _recurrent("LSTM"), "GRU": _recurrent("GRU"), "Softmax": _softmax, "LayerNormalization": _layer_norm,
+    "ScatterElements": _scatter(False), "ScatterND": _scatter(True),
 }
 
 

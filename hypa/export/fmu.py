@@ -19,7 +19,6 @@ binaries, linux64 and win64, load the Python the tool runs or finds). Variables:
 from __future__ import annotations
 
 import json
-import re
 import shutil
 import tempfile
 import time
@@ -30,6 +29,7 @@ from xml.etree import ElementTree
 import numpy as np
 
 from hypa.export.blocks import ExportError, StateSlot
+from hypa.export.native import c_identifier
 from hypa.export.reference import Reference
 
 SLAVE = '''"""hypa's exported step as an FMI 2.0 co-simulation slave (pythonfmu): model.onnx, run by onnxruntime."""
@@ -117,9 +117,6 @@ class {name}(Fmi2Slave):
 '''
 
 
-def identifier(name: str) -> str:
-    """An FMU model identifier (a C and Python identifier) from a model's name."""
-    return "hypa_" + re.sub(r"\W", "_", name)
 
 
 def build_fmu(onnx: Path, path: Path, description: dict, reference: Reference, slots: list[StateSlot],
@@ -129,7 +126,7 @@ def build_fmu(onnx: Path, path: Path, description: dict, reference: Reference, s
         from pythonfmu import FmuBuilder
     except ImportError as error:
         raise ExportError(f"format=fmu needs pythonfmu: pip install -e '.[export]' ({error})") from None
-    name = identifier(description["model"])
+    name = c_identifier(description["model"])
     signals = lambda key: [(s["name"], s["unit"]) for s in description[key]]  # noqa: E731
     spec = {"description": f"hypa model {description['model']}: one step of {description['dt']:g} s (model.onnx)",
             "dt": description["dt"], "start_time": float(reference.time[reference.first]),

@@ -96,6 +96,7 @@ class Check:
     onnx_seconds_per_step: float  # the engine's (``engine``), one step
     hypa_seconds_per_sample: float
     engine: str = "ONNX"
+    against: str = "hypa"  # the free run it is checked against: "hypa", or "hypa float64" for the C step
 
     @property
     def passed(self) -> bool:
@@ -103,16 +104,16 @@ class Check:
 
     def summary(self) -> str:
         worst = ", ".join(f"{n} {c.relative:.2g}" for n, c in self.outputs.items())
-        return (f"max |{self.engine} - hypa| / σ over {self.samples} steps: {worst} (tolerance {self.tolerance:g}); "
-                f"{self.onnx_seconds_per_step * 1e6:.1f} µs per {self.engine} step, "
-                f"{self.hypa_seconds_per_sample * 1e6:.1f} µs per sample of hypa's free run")
+        return (f"max |{self.engine} - {self.against}| / σ over {self.samples} steps: {worst} (tolerance "
+                f"{self.tolerance:g}); {self.onnx_seconds_per_step * 1e6:.1f} µs per {self.engine} step, "
+                f"{self.hypa_seconds_per_sample * 1e6:.1f} µs per sample of {self.against}'s free run")
 
     def as_dict(self) -> dict:
         return {"passed": self.passed, "tolerance": self.tolerance, "samples": self.samples,
                 "outputs": {n: {"max_error": c.max_error, "std": c.std, "relative": c.relative}
                             for n, c in self.outputs.items()},
                 f"{self.engine.split()[0].lower()}_seconds_per_step": self.onnx_seconds_per_step,
-                "hypa_free_run_seconds_per_sample": self.hypa_seconds_per_sample}
+                "hypa_free_run_seconds_per_sample": self.hypa_seconds_per_sample, "against": self.against}
 
 
 def check_onnx(path: Path, reference: Reference, tolerance: float = 1e-5,
@@ -124,12 +125,15 @@ def check_onnx(path: Path, reference: Reference, tolerance: float = 1e-5,
     return compare(y, reference, tolerance, seconds)
 
 
-def compare(y: np.ndarray, reference: Reference, tolerance: float, seconds: float, engine: str = "ONNX") -> Check:
-    """The check of outputs y (S, p) [SI] from sample ``first`` on, run by ``engine`` at ``seconds`` per step."""
+def compare(y: np.ndarray, reference: Reference, tolerance: float, seconds: float, engine: str = "ONNX",
+            against: str = "hypa") -> Check:
+    """The check of outputs y (S, p) [SI] from sample ``first`` on, run by ``engine`` at ``seconds`` per step,
+    against ``reference`` (hypa's free run, named ``against``)."""
     first = reference.first
     expected = reference.outputs[first:]
     errors = np.abs(y - expected)
     errors = np.where(np.isfinite(errors), errors, np.inf)
     outputs = {n: OutputCheck(float(errors[:, i].max()) if len(errors) else 0.0, float(reference.output_std[i]))
                for i, n in enumerate(reference.output_names)}
-    return Check(outputs, tolerance, len(y), seconds, reference.free_run_seconds / len(reference.time), engine)
+    return Check(outputs, tolerance, len(y), seconds, reference.free_run_seconds / len(reference.time), engine,
+                 against)

@@ -380,8 +380,9 @@ def test_gru_rejects_bad_arguments_in_one_line(hparams: dict, message: str) -> N
 
 
 def test_gru_trains_and_exports_exactly_through_the_command_line(tmp_path: Path, hypa_cache: Path) -> None:
-    """hypa train model=v2 ann=gru (both networks GRUs), then hypa export: its check, the one-step model
-    (each GRU's forward on one-sample chunks) against hypa's free run, passes; the state holds one h per GRU."""
+    """hypa train model=v2 ann=gru (both networks GRUs), then hypa export format=c: its checks, the one-step model
+    (each GRU's forward on one-sample chunks) and its C form (ONNX's GRU cell in loops) against hypa's free run,
+    pass; the state holds one h per GRU."""
     run, out = tmp_path / "run", tmp_path / "export"
     trained = hypa_run(["train", "model=v2", "ann=gru", "ann.hidden_size=8", "trainer.max_epochs=1",
                         "trainer.limit_train_batches=2", "trainer.limit_val_batches=2",
@@ -391,10 +392,10 @@ def test_gru_trains_and_exports_exactly_through_the_command_line(tmp_path: Path,
     ckpt = torch.load(run / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
     assert ckpt["hyper_parameters"]["ann_name"] == "gru"
     assert ckpt["state_dict"]["model.blocks.correction.gru.weight_hh_l0"].shape == (3 * 8, 8)
-    exported = hypa_run(["export", f"run={run}", "format=onnx", f"hydra.run.dir={out}"])
+    exported = hypa_run(["export", f"run={run}", "format=c", f"hydra.run.dir={out}"])  # the ONNX step and the C one
     assert exported.returncode == 0, exported.stderr[-3000:]
     description = json.loads((out / "export.json").read_text())
-    assert description["check"]["passed"]
+    assert description["check"]["passed"] and description["checks"]["c"]["passed"]
     assert description["onnx"]["inputs"]["state"] == [2 + 2 * 8]  # the single track's 2 states, two GRUs' h
 
 

@@ -226,8 +226,27 @@ def test_recurrent_cells(tmp_path, kind: str, before_reset: int) -> None:
     assert "static const double" in source
 
 
+def test_attention_and_normalization(tmp_path) -> None:
+    """Softmax, LayerNormalization (a Transformer's, S4's), ScatterElements and ScatterND with constant indices
+    (Mamba's state update through torch's dynamo exporter)."""
+    scale, bias = RNG.normal(size=4), RNG.normal(size=4)
+    nodes = [_constant("shape", [2, 4]), _constant("flat", [-1]), _constant("where", [[1, 0, 3, 2]]),
+             _constant("cells", [[0, 1], [1, 3]]),
+             helper.make_node("Reshape", ["state", "shape"], ["x"]),
+             helper.make_node("Softmax", ["x"], ["soft"], axis=0),
+             helper.make_node("LayerNormalization", ["soft", "scale", "bias"], ["normal"], axis=-1, epsilon=1e-3),
+             helper.make_node("Slice", ["x", "zero", "one", "zero"], ["first"]), _constant("zero", [0]),
+             _constant("one", [1]),
+             helper.make_node("ScatterElements", ["normal", "where", "first"], ["scattered"], axis=1),
+             helper.make_node("ScatterND", ["scattered", "cells", "u"], ["put"]),
+             helper.make_node("Reshape", ["put", "flat"], ["next_state"]),
+             helper.make_node("Softmax", ["u"], ["y"])]
+    nodes.sort(key=lambda n: n.op_type != "Constant")
+    _compare(tmp_path, _model(nodes, 8, 2, 2, [("scale", scale), ("bias", bias)]))
+
+
 def test_an_operation_without_a_c_form_is_refused_naming_the_block(tmp_path) -> None:
-    nodes = [helper.make_node("Softmax", ["state"], ["next_state"], name="/attention/layers/Softmax"),
+    nodes = [helper.make_node("Einsum", ["state"], ["next_state"], name="/attention/layers/Einsum", equation="i->i"),
              helper.make_node("Identity", ["u"], ["y"], name="/Identity")]
     path = tmp_path / "step.onnx"
     onnx.save(_model(nodes, 3, 1, 1), str(path))
@@ -235,7 +254,7 @@ def test_an_operation_without_a_c_form_is_refused_naming_the_block(tmp_path) -> 
         c_step(path, {"attention": "TransformerBlock network"})
     message = str(caught.value)
     assert "\n" not in message
-    assert "block 'attention' (TransformerBlock network) uses the ONNX operation Softmax" in message
+    assert "block 'attention' (TransformerBlock network) uses the ONNX operation Einsum" in message
     assert "format=fmu" in message
 
 

@@ -201,8 +201,9 @@ def test_scheduled_race_car_with_dead_time(tmp_path_factory, hypa_cache, tmp_pat
     """Velocity-scheduled single track after a steering dead time; nominal physics (a run without identification)."""
     folder = _train(tmp_path_factory, "racecar", ["dataset=racecar", "model=racecar_physical", *TINY,
                                                   "identification.enabled=false"])
-    export = _export(folder, tmp_path)
+    export = _export(folder, tmp_path, format="c")
     description = _check_files(export)
+    assert export.checks["c"].passed  # the scheduled exponential with its squarings, in C
     assert [s["role"] for s in description["inputs"]] == ["input", "scheduling"]
     assert {s["kind"] for s in description["state"]} == {"delay", "physics"}
     assert description["scheduled_squarings"]["single_track"]["squarings"] >= 1
@@ -211,11 +212,15 @@ def test_scheduled_race_car_with_dead_time(tmp_path_factory, hypa_cache, tmp_pat
 @pytest.mark.shared_data("emps")
 def test_nonlinear_coulomb_friction(tmp_path_factory, hypa_cache, tmp_path) -> None:
     """The EMPS axis with Coulomb friction (a Lur'e feedback): Heun's step needs the next input, so the state
-    carries the previous sample."""
+    carries the previous sample. In C (float64) against hypa's float64 free run; hypa's float32 run differs
+    from both by its own rounding, integrated by the axis."""
     folder = _train(tmp_path_factory, "emps", ["dataset=emps", "model=emps_physical", *TINY,
                                                "identification.enabled=false"])
-    description = _check_files(_export(folder, tmp_path))
+    export = _export(folder, tmp_path, format="c")
+    description = _check_files(export)
     assert [s["kind"] for s in description["state"]] == ["physics", "physics", "held_input"]
+    assert export.checks["c"].passed and export.checks["c"].outputs["position"].relative < 1e-9
+    assert 0 < description["c"]["float32_free_run"]["position"] < 1e-3
 
 
 def test_tampered_model_or_wrong_state_is_caught(physical, hypa_cache, tmp_path) -> None:
@@ -281,8 +286,8 @@ def test_refusals_are_one_line(hypa_cache, tmp_path) -> None:
     with pytest.raises(ExportError, match=r"rear_steering.*not a structure of real tensors") as error:
         ModelStep(build("test_export.ComplexStateBlock", {}))
     assert "\n" not in str(error.value)
-    assert formats_to_build("all") == ("onnx", "fmu", "statespace")
-    with pytest.raises(ExportError, match="format=mat is not one of onnx, fmu, statespace, all"):
+    assert formats_to_build("all") == ("onnx", "fmu", "c", "statespace")
+    with pytest.raises(ExportError, match="format=mat is not one of onnx, fmu, c, statespace, all"):
         formats_to_build("mat")
     env = {**os.environ, "HYPA_CACHE_DIR": str(hypa_cache)}
     result = hypa_run(["export", "run=nowhere", "format=mat", f"hydra.run.dir={tmp_path}"], env=env)

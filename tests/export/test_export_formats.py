@@ -2,14 +2,19 @@
 
 import json
 import os
+import shutil
 import subprocess
 import sys
+import zipfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
+from hypa.ann.base import SequenceBlock
+
+from cli_helpers import hypa_run
 from conftest import ROOT
 from test_export import TINY, _train, physical  # noqa: F401 -- physical: the module's fixture
 
@@ -41,11 +46,11 @@ def _export(folder: Path, out: Path, heads: tuple[str, ...] = (), **kwargs):
     return export_run(run, run_datamodule(run), out, **kwargs), run.module.model
 
 
-def _reference(folder: Path) -> tuple[dict, np.ndarray, np.ndarray, np.ndarray]:
+def _reference(folder: Path, table: str = "reference.csv") -> tuple[dict, np.ndarray, np.ndarray, np.ndarray]:
     """export.json, and from the first exported sample on: the inputs (S, m + q), hypa's outputs (S, p)
-    and their σ (p,)."""
+    (``table``: reference.csv, float32, or reference_float64.csv) and their σ (p,)."""
     description = json.loads((folder / "export.json").read_text())
-    table = np.genfromtxt(folder / "reference.csv", delimiter=",", names=True)
+    table = np.genfromtxt(folder / table, delimiter=",", names=True)
     first = description["reference"]["first_sample"]
     u = np.stack([table[s["name"]] for s in description["inputs"]], -1)[first:]
     y = np.stack([table[s["name"]] for s in description["outputs"]], -1)[first:]
@@ -177,13 +182,105 @@ def test_every_format_of_a_hybrid_run(v2, tmp_path) -> None:
     """format=all of V2 (LSTM networks): ONNX and the FMU, the state space skipped with its reason; the FMU's
     step (a network's feedthrough) checked by hypa's own loop and by fmpy's."""
     export, _ = _export(v2, tmp_path, heads=("rear_steering", "correction"), format="all")
-    assert set(export.checks) == {"onnx", "fmu"} and all(c.passed for c in export.checks.values())
+    assert set(export.checks) == {"onnx", "fmu", "c"} and all(c.passed for c in export.checks.values())
     assert "network" in export.skipped["statespace"] and "statespace.mat" not in export.files
     description, u, y, std = _reference(export.folder)
     assert description["skipped"] == export.skipped and "model.fmu" in description["files"]
     assert description["checks"]["fmu"]["passed"]
     errors = _check_fmu(export.files["model.fmu"], description, u, y, std, feedthrough=True)
     assert (errors <= 1e-5).all() and (errors > 0).all()
+    native = {**description, "initial_state": description["c"]["initial_state"]}  # the float64 step's
+    description, u, y, std = _reference(export.folder, "reference_float64.csv")
+    assert (_check_fmu(export.files["native.fmu"], native, u, y, std, feedthrough=True) <= 1e-9).all()
+    assert description["c"]["model_exchange"]["passed"]
+
+
+def _library_needs(library: Path) -> set[str]:
+    """The shared libraries ``library`` loads (ldd), by name without version."""
+    lines = subprocess.run(["ldd", str(library)], capture_output=True, text=True, check=True).stdout.splitlines()
+    return {line.split()[0].split(".so")[0].split("/")[-1] for line in lines if line.strip()}
+
+
+@pytest.mark.skipif(shutil.which("cc") is None or shutil.which("ldd") is None, reason="no C compiler or ldd")
+def test_native_fmu_of_a_physical_run_from_the_command_line(physical, hypa_cache, tmp_path) -> None:  # noqa: F811
+    """hypa export format=c: native.fmu, a source-code FMU (co-simulation and model exchange) with nothing but
+    C inside, validated by fmpy, stepped by fmpy (our own loop) to hypa's float64 free run and within the
+    tolerance of its float32 one (reference.csv); its sources compile again with the warnings as errors."""
+    env = {**os.environ, "HYPA_CACHE_DIR": str(hypa_cache)}
+    out = tmp_path / "export"
+    result = hypa_run(["export", f"run={physical}", "format=c", f"hydra.run.dir={out}"], env=env)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "per C FMU (fmpy) step" in result.stdout and "C step (float64" in result.stdout
+    path = out / "native.fmu"
+    assert fmpy.validation.validate_fmu(str(path)) == []
+    model = fmpy.read_model_description(str(path))
+    assert model.coSimulation.modelIdentifier == model.modelExchange.modelIdentifier == "hypa_physical"
+    with zipfile.ZipFile(path) as archive:
+        names = set(archive.namelist())
+        archive.extractall(tmp_path / "unzipped")
+    assert {"sources/step.c", "sources/fmu.c", "sources/fmi2Functions.h", "documentation/build.txt",
+            "binaries/linux64/hypa_physical.so"} <= names
+    assert not [n for n in names if n.endswith((".py", ".onnx"))]  # no Python, no ONNX inside
+    assert _library_needs(tmp_path / "unzipped" / "binaries" / "linux64" / "hypa_physical.so") <= {
+        "linux-vdso", "libc", "libm", "ld-linux-x86-64"}
+    sources = tmp_path / "unzipped" / "sources"
+    compiled = subprocess.run(["cc", "-std=c99", "-Wall", "-Werror", "-O2", "-c", "fmu.c", "-o", str(tmp_path / "a.o")],
+                              cwd=sources, capture_output=True, text=True, check=False)
+    assert compiled.returncode == 0, compiled.stderr
+    description, u, y, std = _reference(out, "reference_float64.csv")
+    native = {**description, "initial_state": description["c"]["initial_state"]}
+    assert (_check_fmu(path, native, u, y, std, feedthrough=True) <= 1e-9).all()
+    _, _, y32, _ = _reference(out)
+    assert (_check_fmu(path, native, u, y32, std, feedthrough=True) <= 1e-5).all()
+    figures = description["c"]
+    assert figures["bare_seconds_per_step"] > 0 and figures["model_exchange"]["passed"]
+    assert description["checks"]["c"]["against"] == "hypa float64"
+
+
+def test_an_operation_without_a_c_form_is_refused_naming_the_network(tmp_path) -> None:
+    """A network of one's own whose ONNX has no C form: format=c refuses in one line naming the block and the
+    operation; the ONNX and pythonfmu FMU remain for it."""
+    import warnings
+
+    from omegaconf import OmegaConf
+
+    from hypa.conf import CONF
+    from hypa.export import ExportError, ModelStep
+    from hypa.export.api import block_labels
+    from hypa.export.ccode import c_step
+    from hypa.models.composed import ComposedModel
+    from hypa.models.spec import parse_model_spec
+
+    spec = parse_model_spec(OmegaConf.to_container(OmegaConf.load(CONF / "model" / "v1.yaml")))
+    scale = dict.fromkeys(("steering_wheel_angle", "yaw_rate", "side_slip"), (0.0, 1.0))
+    model = ComposedModel(spec, None, ["steering_wheel_angle"], ["yaw_rate", "side_slip"], scale, scale, 0.01,
+                          horizon=10, ann_name="test_export_formats.CumulativeBlock", ann_hparams={})
+    step = ModelStep(model.to(torch.float32)).eval()
+    path = tmp_path / "step.onnx"
+    with warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(step, (torch.zeros(step.state_size), torch.zeros(1)), str(path), dynamo=False,
+                          input_names=["state", "u"], output_names=["next_state", "y"], opset_version=17)
+    with pytest.raises(ExportError) as error:
+        c_step(path, block_labels(model))
+    message = str(error.value)
+    assert "\n" not in message and "format=fmu" in message
+    assert "block 'rear_steering' (CumulativeBlock network) uses the ONNX operation CumSum" in message
+
+
+class CumulativeBlock(SequenceBlock):
+    """A network of one's own whose step runs a cumulative sum (ONNX CumSum, which has no C form in hypa)."""
+
+    def __init__(self, d_in: int, d_out: int, *, zero_init: bool = False) -> None:
+        super().__init__(d_in, d_out, zero_init=zero_init)
+        self.head = self._make_head(d_in)
+
+    def forward(self, x, state=None):
+        state = self.default_state(x.shape[0], x.device, x.dtype) if state is None else state
+        return self.head(torch.cumsum(x, -1)), state
+
+    def default_state(self, batch, device, dtype):
+        return torch.zeros(batch, 1, dtype=dtype, device=device)
 
 
 @pytest.mark.slow
