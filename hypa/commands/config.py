@@ -271,7 +271,7 @@ class ExportConfig:
     """``conf/export.yaml``: ``hypa export``."""
 
     run: str = MISSING  # a hypa train run folder or one of its checkpoints
-    format: str = "onnx"  # onnx | fmu | c (native C FMU) | statespace (physics-only models) | all (every format allowed)
+    format: str = "onnx"  # onnx | fmu | c (native C FMU) | statespace (physics-only) | all (every format allowed)
     record: int = 0  # the validation record of reference.csv and the check
     tolerance: float = 1e-5  # of each output's standard deviation
     trust: list[str] = field(default_factory=list)  # import paths the run's model may name (hypa.core.trust)

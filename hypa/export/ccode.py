@@ -79,11 +79,16 @@ class _Emitter:
         return self.known[expression]
 
     def static(self, values: np.ndarray, prefix: str = "w") -> str:
-        """A static const array of ``values`` (flattened, row-major)."""
+        """A static const array of ``values`` (flattened, row-major): float where every value is a float32 one
+        (the weights of a model trained in float32: exact, half the memory a step streams), else double; the
+        arithmetic is double either way."""
         name = self.name(prefix)
         flat = np.asarray(values, dtype=float).reshape(-1)
-        rows = ",\n    ".join(", ".join(_literal(v) for v in flat[i : i + 6]) for i in range(0, len(flat), 6))
-        self.statics[name] = f"static const double {name}[{max(len(flat), 1)}] = {{\n    {rows or '0.0'}\n}};"
+        single = bool(np.isfinite(flat).all() and (flat.astype(np.float32).astype(float) == flat).all())
+        literal = (lambda v: np.format_float_scientific(np.float32(v), unique=True) + "f") if single else _literal
+        rows = ",\n    ".join(", ".join(literal(v) for v in flat[i : i + 6]) for i in range(0, len(flat), 6))
+        self.statics[name] = (f"static const {'float' if single else 'double'} {name}[{max(len(flat), 1)}] = "
+                              f"{{\n    {rows or '0.0'}\n}};")
         return name
 
     def array(self, values: np.ndarray) -> str:
@@ -332,17 +337,24 @@ def _product(graph: _Graph, a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _looped(graph: _Graph, vector: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     """vector (k,) @ matrix (k, m) with the constant matrix as a static array and a loop."""
     k, m = matrix.shape
-    weights = graph.out.static(matrix.T)  # row i: the weights of output i
+    weights = graph.out.static(matrix)  # row j: what input j adds to each output
     x = graph.out.array(vector)
     name = graph.out.name("v")
-    lines = [f"double {name}[{m}];",
-             f"for (int i = 0; i < {m}; i++) {{",
-             "    double a = 0.0;",
-             f"    for (int j = 0; j < {k}; j++) a += {weights}[i * {k} + j] * {x}[j];",
-             f"    {name}[i] = a;",
-             "}"]
+    lines = [f"double {name}[{m}];", f"for (int i = 0; i < {m}; i++) {name}[i] = 0.0;",
+             *_accumulate(name, weights, f"{x}[j]", k, m, m)]
     graph.out.add("\n    ".join(lines), [name], [x, weights])
     return np.array([f"{name}[{i}]" for i in range(m)], dtype=object)
+
+
+def _accumulate(target: str, weights: str, source: str, columns: int, rows: int, stride: int,
+                first: int = 0) -> list[str]:
+    """target[i] += Σ_j weights[j][i] · source(j) for first <= i < rows, j < columns (weights row-major with
+    ``stride`` entries a row): the inner loop runs over independent outputs, which the compiler vectorizes
+    without reordering any sum."""
+    return [f"for (int j = 0; j < {columns}; j++) {{",
+            f"    const double s = {source};",
+            f"    for (int i = {first}; i < {rows}; i++) {target}[i] += {weights}[j * {stride} + i] * s;",
+            "}"]
 
 
 def _matmul(graph: _Graph, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -640,7 +652,7 @@ def _recurrent(kind: str) -> Callable:
         h0 = inputs[5].reshape(-1) if len(inputs) > 5 and inputs[5].size else zero
         out, name = graph.out, graph.out.name(kind.lower())
         names = {key: f"{name}_{key}" for key in ("h", "c", "y")}
-        arrays = [out.array(x.reshape(-1)), out.static(w[0], "w"), out.static(r[0], "w")]
+        arrays = [out.array(x.reshape(-1)), out.static(w[0].T, "w"), out.static(r[0].T, "w")]  # (in, gates·H)
         h_array = out.array(h0)
         declarations = [f"double {names['h']}[{hidden}];", f"double {names['y']}[{max(steps * hidden, 1)}];"]
         initial = [f"for (int i = 0; i < {hidden}; i++) {names['h']}[i] = {h_array}[i];"]
@@ -669,14 +681,11 @@ def _recurrent(kind: str) -> Callable:
 
 
 def _gate_sums(x: str, w: str, r: str, bias: str, h: str, rows: int, hidden: int, width: int) -> list[str]:
-    """g[i] = bias[i] + W[i] x_t + R[i] h for i < rows (the lines of a loop body)."""
+    """g[i] = bias[i] + W[i] x_t + R[i] h for i < rows (loop-body lines; W, R stored transposed)."""
     return [f"    double g[{rows}];",
-            f"    for (int i = 0; i < {rows}; i++) {{",
-            f"        double a = {bias}[i];",
-            f"        for (int j = 0; j < {width}; j++) a += {w}[i * {width} + j] * {x}[t * {width} + j];",
-            f"        for (int j = 0; j < {hidden}; j++) a += {r}[i * {hidden} + j] * {h}[j];",
-            "        g[i] = a;",
-            "    }"]
+            f"    for (int i = 0; i < {rows}; i++) g[i] = {bias}[i];",
+            *(f"    {line}" for line in _accumulate("g", w, f"{x}[t * {width} + j]", width, rows, rows)),
+            *(f"    {line}" for line in _accumulate("g", r, f"{h}[j]", hidden, rows, rows))]
 
 
 def _lstm_body(names: dict[str, str], arrays: list[str], bias: str, hidden: int, width: int) -> list[str]:
@@ -701,20 +710,15 @@ def _gru_body(names: dict[str, str], arrays: list[str], bias: str, hidden: int, 
     x, w, r = arrays
     h, y, rows = names["h"], names["y"], 3 * hidden
     lines = [f"    double gx[{rows}], gh[{rows}], reset[{hidden}];",
-             f"    for (int i = 0; i < {rows}; i++) {{",
-             f"        double a = {bias}[i], b = {bias}[{rows} + i];",
-             f"        for (int j = 0; j < {width}; j++) a += {w}[i * {width} + j] * {x}[t * {width} + j];",
-             f"        if (i < {2 * hidden} || {linear_before_reset})",
-             f"            for (int j = 0; j < {hidden}; j++) b += {r}[i * {hidden} + j] * {h}[j];",
-             "        gx[i] = a;",
-             "        gh[i] = b;",
-             "    }",
+             f"    for (int i = 0; i < {rows}; i++) {{ gx[i] = {bias}[i]; gh[i] = {bias}[{rows} + i]; }}",
+             *(f"    {line}" for line in _accumulate("gx", w, f"{x}[t * {width} + j]", width, rows, rows)),
+             *(f"    {line}" for line in _accumulate("gh", r, f"{h}[j]", hidden,
+                                                     rows if linear_before_reset else 2 * hidden, rows)),
              f"    for (int i = 0; i < {hidden}; i++)",
              f"        reset[i] = 1.0 / (1.0 + exp(-(gx[{hidden} + i] + gh[{hidden} + i])));"]
     if not linear_before_reset:
-        lines += [f"    for (int i = {2 * hidden}; i < {rows}; i++) {{",
-                  f"        for (int j = 0; j < {hidden}; j++) gh[i] += {r}[i * {hidden} + j] * reset[j] * {h}[j];",
-                  "    }"]
+        lines += [f"    {line}" for line in _accumulate("gh", r, f"reset[j] * {h}[j]", hidden, rows, rows,
+                                                         2 * hidden)]
     candidate = f"gx[{2 * hidden} + i] + reset[i] * gh[{2 * hidden} + i]" if linear_before_reset else \
         f"gx[{2 * hidden} + i] + gh[{2 * hidden} + i]"
     return [*lines,

@@ -2,8 +2,10 @@
 
 The FMU's slave is Python: it runs ``model.onnx`` (in the FMU's resources) with onnxruntime,
 one call per sample of ``dt``, so the importing tool needs a Python 3 with numpy and onnxruntime
-(``requirements.txt`` in the resources; pythonfmu's own Python part travels in the FMU, its
-binaries, linux64 and win64, load the Python the tool runs or finds). Variables:
+(``requirements.txt`` in the resources, beside ``spec.json``: names, units, start values, which each
+instance reads from its own resources, so that two such FMUs of one model name load into one process;
+pythonfmu's own Python part travels in the FMU, its binaries, linux64 and win64, load the Python the
+tool runs or finds). Variables:
 
 * inputs: the model's inputs and scheduling signals, SI, with their units;
 * outputs: its outputs, SI, with their units, y(t) = the step's output from the state at t and
@@ -41,15 +43,15 @@ import numpy as np
 import onnxruntime
 from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
 
-SPEC = json.loads(r"""{spec}""")
-
-
 class {name}(Fmi2Slave):
     author = "hypa"
-    description = SPEC["description"]
+    description = {description!r}
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
+        # this instance's spec.json, read from its own resources: a tool that loads two such FMUs of the same
+        # model name into one process imports this module once, for both
+        self.spec = SPEC = json.loads((Path(self.resources) / "spec.json").read_text())
         self.default_experiment = DefaultExperiment(start_time=SPEC["start_time"], step_size=SPEC["dt"])
         self.u = np.array(SPEC["u_start"], dtype=np.float32)
         self.x0 = np.array(SPEC["initial_state"], dtype=np.float32)
@@ -106,9 +108,9 @@ class {name}(Fmi2Slave):
         self.state, self._revision = self.x0.copy(), self._revision + 1
 
     def do_step(self, current_time, step_size):
-        samples = step_size / SPEC["dt"]
+        samples = step_size / self.spec["dt"]
         if abs(samples - round(samples)) > 1e-6 or round(samples) < 1:
-            self.log(f"step size {{step_size}} s is not a whole multiple of dt = {{SPEC['dt']}} s")
+            self.log(f"step size {{step_size}} s is not a whole multiple of dt = {{self.spec['dt']}} s")
             return False
         for _ in range(round(samples)):
             self.state = self._run()[0]
@@ -137,11 +139,13 @@ def build_fmu(onnx: Path, path: Path, description: dict, reference: Reference, s
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         script = folder / f"{name}.py"
-        script.write_text(SLAVE.format(spec=json.dumps(spec), name=name))
+        script.write_text(SLAVE.format(description=spec["description"], name=name))
+        (folder / "spec.json").write_text(json.dumps(spec))
         shutil.copy(onnx, folder / "model.onnx")
         (folder / "requirements.txt").write_text("numpy\nonnxruntime\n")  # for ``pythonfmu deploy -f model.fmu``
         built = FmuBuilder.build_FMU(script, dest=folder / "out",
-                                     project_files=[folder / "model.onnx", folder / "requirements.txt"])
+                                     project_files=[folder / "model.onnx", folder / "spec.json",
+                                                    folder / "requirements.txt"])
         units = dict((*spec["inputs"], *spec["outputs"]))
         units.update({f"initial_state[{i + 1}]": u for i, (_, u) in enumerate(spec["state"])})
         units.update({f"parameter.{k}": u for k, (_, u) in parameters.items()})

@@ -40,7 +40,7 @@ def export_onnx(step: ModelStep, path: Path, reference: Reference) -> Path:
                 warnings.simplefilter("ignore")  # the exporters' deprecation notices, tracer warnings, progress
                 torch.onnx.export(step.eval(), (state, u), str(path), input_names=["state", "u"],
                                   output_names=["next_state", "y"], opset_version=OPSET if not dynamo else None,
-                                  dynamo=dynamo)
+                                  dynamo=dynamo, **({"external_data": False} if dynamo else {}))  # one file
             return path
         except ExportError:
             raise

@@ -137,7 +137,8 @@ def test_network_steps_chain_to_the_networks_forward(name: str, hparams: dict) -
                                                            "ann.dim_feedforward=16", "ann.context=21"])])
 def test_v1_with_every_other_network_is_exact(ann: str, hparams: list[str], tmp_path_factory, hypa_cache,
                                               tmp_path) -> None:
-    """S4 (its real step), Mamba (through the dynamo exporter), the Transformer (its context as state)."""
+    """S4 (its real step), Mamba (through the dynamo exporter, its weights inside model.onnx), the Transformer
+    (its context as state): every format, the pythonfmu FMU and the C one among them."""
     from hypa.evaluation.api import run_datamodule
     from hypa.evaluation.runs import load_run
     from hypa.export import export_run
@@ -148,8 +149,11 @@ def test_v1_with_every_other_network_is_exact(ann: str, hparams: list[str], tmp_
     with torch.no_grad():  # a head far from its zero start, so the network's state shows in the outputs
         head = run.module.model.blocks["rear_steering"].head
         head.weight.copy_(0.3 * torch.randn(head.weight.shape, generator=torch.Generator().manual_seed(0)))
-    description = _check_files(export_run(run, run_datamodule(run), tmp_path))
+    export = export_run(run, run_datamodule(run), tmp_path, format="all")
+    description = _check_files(export)
     assert "network" in {s["kind"] for s in description["state"]}
+    assert {"fmu", "c"} <= set(export.checks) and all(c.passed for c in export.checks.values())
+    assert not list(tmp_path.glob("*.data"))  # one file: the FMU carries model.onnx alone
 
 
 CHAIN = """# @package model
