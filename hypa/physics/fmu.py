@@ -1,0 +1,385 @@
+"""A user's own simulator as physics: an FMI 2.0 FMU, model exchange or co-simulation, run with fmpy.
+
+``read_fmu`` reads what an FMU declares (its Real inputs, outputs, parameters with their units and
+bounds, its continuous states and what it offers), bounding the sizes before anything is read or
+extracted. ``FMUSimulator`` runs it on a data grid t_k = t_0 + k dt:
+
+* **model exchange**: hypa integrates the FMU's derivatives from sample to sample with the classic
+  Runge-Kutta method (order 4), its inputs held as the block's hold says (zero order: u_k over
+  [t_k, t_k+1); first order: the line from u_k to u_k+1). The substep comes from the model: the
+  spectral radius ρ of the state Jacobian at the start (the FMU's directional derivatives where it
+  provides them, else forward differences of its derivatives) and the local error (ρ h)^5 / 120
+  of the method held below ``LOCAL_ERROR``. The start state is set (``fmi2SetContinuousStates``);
+* **co-simulation**: the FMU steps itself, ``fmi2DoStep(t_k, dt)`` with the inputs of sample k
+  (a first-order hold by ``fmi2SetRealInputDerivatives`` where the FMU can interpolate inputs).
+  A start state is set before its initialization where the FMU lets it (the state variables it
+  declares, initial exact or approx), else the FMU's own initialization stands, said in one line.
+
+The outputs of sample k are read after its inputs are set, from the state at t_k (direct
+feedthrough, as FMI means it). What this does not handle is refused in one line: state events
+(event indicators), time events, FMI 1.0 and 3.0.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import logging
+import math
+import shutil
+import tempfile
+import weakref
+import zipfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hypa.core.errors import UserError
+from hypa.physics.parameters import ParameterSpec
+
+log = logging.getLogger(__name__)
+
+MAX_DESCRIPTION_BYTES = 64 * 2**20  # modelDescription.xml
+MAX_FMU_BYTES = 2 * 2**30  # everything in the FMU, uncompressed
+LOCAL_ERROR = 1e-9  # RK4's local error (ρ h)^5 / 120 per substep, relative to the state
+INTERFACES = ("auto", "model_exchange", "co_simulation")
+
+
+class FMUError(UserError):
+    """An FMU that cannot be read or run as a physics block (said in one line)."""
+
+
+@dataclass(frozen=True)
+class FMUVariable:
+    """One Real variable of an FMU: its name, value reference, causality, unit ('' where none), start
+    value (None where none) and bounds."""
+
+    name: str
+    reference: int
+    causality: str
+    variability: str
+    unit: str = ""
+    start: float | None = None
+    minimum: float | None = None
+    maximum: float | None = None
+    initial: str | None = None
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class FMUDescription:
+    """What an FMU declares: ``exchange`` / ``cosimulation`` (the model identifiers, None where the FMU
+    lacks the interface), its Real ``inputs``, ``outputs``, ``parameters`` (causality parameter,
+    variability fixed or tunable), continuous ``states`` with their ``derivatives`` (same order)."""
+
+    path: Path
+    name: str
+    guid: str
+    exchange: str | None
+    cosimulation: str | None
+    inputs: tuple[FMUVariable, ...]
+    outputs: tuple[FMUVariable, ...]
+    parameters: tuple[FMUVariable, ...]
+    states: tuple[FMUVariable, ...]
+    derivatives: tuple[FMUVariable, ...]
+    event_indicators: int
+    directional: dict[str, bool]  # interface -> provides directional derivatives
+    interpolates_inputs: bool  # co-simulation: canInterpolateInputs
+    step: float | None  # DefaultExperiment stepSize
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        return tuple(v.name for v in self.inputs)
+
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        return tuple(v.name for v in self.outputs)
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        return tuple(v.name for v in self.states)
+
+    def parameter_specs(self, given: Mapping[str, float] | None = None) -> list[ParameterSpec]:
+        """Its parameters as hypa's ``ParameterSpec`` (value: ``given``, else the FMU's start; bounds: its
+        min and max)."""
+        given = dict(given or {})
+        unknown = sorted(set(given) - {p.name for p in self.parameters})
+        if unknown:
+            raise FMUError(f"FMU {self.path.name}: {unknown} are not its Real parameters; it has "
+                           f"{', '.join(p.name for p in self.parameters) or 'none'}")
+        specs = []
+        for p in self.parameters:
+            value = given.get(p.name, p.start)
+            if value is None or not math.isfinite(float(value)):
+                raise FMUError(f"FMU {self.path.name}: parameter {p.name!r} has no finite start value; give it in "
+                               "the block's parameters")
+            bounds = (p.minimum, p.maximum) if p.minimum is not None and p.maximum is not None else None
+            specs.append(ParameterSpec(p.name, float(value), p.unit, bounds=bounds))
+        return specs
+
+    def interface(self, wanted: str = "auto") -> str:
+        """``model_exchange`` or ``co_simulation``: the one asked for, else model exchange where the FMU has
+        it, continuous states to integrate and no state events, else co-simulation (a discrete-time FMU,
+        hypa's own ``native.fmu`` among them, steps itself)."""
+        if wanted not in INTERFACES:
+            raise FMUError(f"interface={wanted} is not one of {', '.join(INTERFACES)}")
+        have = {"model_exchange": self.exchange is not None, "co_simulation": self.cosimulation is not None}
+        if wanted != "auto":
+            if not have[wanted]:
+                raise FMUError(f"FMU {self.path.name} has no {wanted.replace('_', ' ')} interface")
+            if wanted == "model_exchange" and self.event_indicators:
+                raise FMUError(f"FMU {self.path.name} has {self.event_indicators} event indicators: hypa integrates "
+                               "model exchange without state events; use its co-simulation interface")
+            return wanted
+        if have["model_exchange"] and not ((self.event_indicators or not self.states) and have["co_simulation"]):
+            return self.interface("model_exchange")
+        return self.interface("co_simulation")
+
+
+def _real(variable) -> FMUVariable:
+    number = lambda v: None if v in (None, "") else float(v)  # noqa: E731
+    return FMUVariable(variable.name, int(variable.valueReference), str(variable.causality),
+                       str(variable.variability), variable.unit or "", number(variable.start),
+                       number(variable.min), number(variable.max), variable.initial, variable.description or "")
+
+
+def read_fmu(path: Path | str) -> FMUDescription:
+    """What the FMU at ``path`` declares; ``FMUError`` in one line for what hypa cannot run."""
+    from fmpy import read_model_description
+
+    path = Path(path)
+    if not path.is_file():
+        raise FMUError(f"FMU {path}: no such file")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            entries = archive.infolist()
+    except (zipfile.BadZipFile, OSError) as error:
+        raise FMUError(f"FMU {path}: not a zip archive ({error})") from None
+    sizes = {e.filename: e.file_size for e in entries}
+    if "modelDescription.xml" not in sizes:
+        raise FMUError(f"FMU {path}: no modelDescription.xml")
+    if sizes["modelDescription.xml"] > MAX_DESCRIPTION_BYTES or sum(sizes.values()) > MAX_FMU_BYTES:
+        raise FMUError(f"FMU {path}: {sum(sizes.values()) / 2**20:.0f} MiB uncompressed, its model description "
+                       f"{sizes['modelDescription.xml'] / 2**20:.1f} MiB: more than hypa reads "
+                       f"({MAX_FMU_BYTES / 2**30:.0f} GiB, {MAX_DESCRIPTION_BYTES / 2**20:.0f} MiB)")
+    try:
+        model = read_model_description(str(path), validate=True)
+    except Exception as error:  # noqa: BLE001 -- fmpy's own parse and validation errors, in one line
+        raise FMUError(f"FMU {path}: its model description cannot be read ({str(error).splitlines()[0][:200]})") \
+            from None
+    if not str(model.fmiVersion).startswith("2."):
+        raise FMUError(f"FMU {path} is FMI {model.fmiVersion}; hypa runs FMI 2.0 FMUs")
+    reals = [v for v in model.modelVariables if v.type == "Real"]
+    pick = lambda causality: tuple(_real(v) for v in reals if v.causality == causality)  # noqa: E731
+    parameters = tuple(_real(v) for v in reals if v.causality == "parameter" and v.variability in ("fixed", "tunable"))
+    derivatives = [u.variable for u in model.derivatives]
+    exchange, cosim = model.modelExchange, model.coSimulation
+    return FMUDescription(
+        path=path.resolve(), name=model.modelName, guid=model.guid,
+        exchange=exchange.modelIdentifier if exchange else None, cosimulation=cosim.modelIdentifier if cosim else None,
+        inputs=pick("input"), outputs=pick("output"), parameters=parameters,
+        states=tuple(_real(d.derivative) for d in derivatives), derivatives=tuple(_real(d) for d in derivatives),
+        event_indicators=int(model.numberOfEventIndicators or 0),
+        directional={"model_exchange": bool(exchange and exchange.providesDirectionalDerivative),
+                     "co_simulation": bool(cosim and cosim.providesDirectionalDerivative)},
+        interpolates_inputs=bool(cosim and cosim.canInterpolateInputs),
+        step=float(model.defaultExperiment.stepSize) if model.defaultExperiment and
+        model.defaultExperiment.stepSize else None)
+
+
+@dataclass(frozen=True)
+class FMURun:
+    """A run of an FMU over a grid: outputs y (T, p) [SI], states x (T, n) where the interface shows them
+    (model exchange), and whether it started from the given state or its own initialization."""
+
+    y: np.ndarray
+    x: np.ndarray | None
+    started_from_data: bool
+    substeps: int = 1
+
+
+def _extracted(path: Path) -> Path:
+    """The FMU unzipped into a private temporary folder (0700; the caller removes it)."""
+    from fmpy import extract
+
+    folder = Path(tempfile.mkdtemp(prefix="hypa-fmu-"))
+    extract(str(path), str(folder))
+    return folder
+
+
+class FMUSimulator:
+    """One instance of an FMU for repeated runs (``run``), on one interface; ``close()`` frees it."""
+
+    def __init__(self, description: FMUDescription, interface: str = "auto", instance: str = "hypa") -> None:
+        from fmpy.fmi2 import FMU2Model, FMU2Slave
+
+        self.description, self.interface = description, description.interface(interface)
+        identifier = description.exchange if self.interface == "model_exchange" else description.cosimulation
+        kind = FMU2Model if self.interface == "model_exchange" else FMU2Slave
+        self.folder = _extracted(description.path)
+        self._cleanup = weakref.finalize(self, shutil.rmtree, self.folder, True)
+        try:
+            self.fmu = kind(guid=description.guid, unzipDirectory=str(self.folder), modelIdentifier=identifier,
+                            instanceName=instance)
+            self.fmu.instantiate()
+        except Exception as error:  # noqa: BLE001 -- a missing binary for this platform, a failing instantiate
+            raise FMUError(f"FMU {description.path.name} cannot be instantiated for {self.interface.replace('_', ' ')}"
+                           f" here: {str(error).splitlines()[0][:200]}") from None
+        self.n = len(description.states)
+        self._x = (ctypes.c_double * max(self.n, 1))()
+        self._dx = (ctypes.c_double * max(self.n, 1))()
+        self._fresh = True
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):  # terminating an instance that failed: nothing more to do
+            self.fmu.terminate()
+        self.fmu.freeInstance()
+        self._cleanup()
+
+    def run(self, parameters: Mapping[str, float], fed: Sequence[str], u: np.ndarray, t0: float, dt: float,
+            x0: np.ndarray | None = None, hold: str = "zoh") -> FMURun:
+        """The FMU over u (T, len(fed)) [SI] on t_k = t0 + k dt from x0 (its states, SI; None: its own
+        initialization), ``parameters`` by name [SI]; the inputs not in ``fed`` keep their start values."""
+        d = self.description
+        refs = {v.name: v.reference for v in (*d.inputs, *d.parameters)}
+        self._start(parameters, refs, t0)
+        started = self._initialize(x0)
+        u = np.asarray(u, dtype=float)
+        inputs = [refs[n] for n in fed]
+        outputs = [v.reference for v in d.outputs]
+        if self.interface == "model_exchange":
+            return self._exchange(inputs, outputs, u, t0, dt, hold, started)
+        return self._cosimulate(inputs, outputs, u, t0, dt, hold, started)
+
+    def _start(self, parameters: Mapping[str, float], refs: Mapping[str, int], t0: float) -> None:
+        if not self._fresh:
+            self.fmu.reset()
+        self._fresh = False
+        names = [n for n in parameters if n in refs]
+        if len(names) != len(parameters):
+            raise FMUError(f"FMU {self.description.path.name}: {sorted(set(parameters) - set(names))} are not its "
+                           "parameters or inputs")
+        if names:
+            self.fmu.setReal([refs[n] for n in names], [float(parameters[n]) for n in names])
+        self.fmu.setupExperiment(startTime=t0)
+        self.fmu.enterInitializationMode()
+
+    def _initialize(self, x0: np.ndarray | None) -> bool:
+        """Leave the initialization; True where the state x0 was set."""
+        d, started = self.description, False
+        if x0 is not None and self.interface == "co_simulation":
+            try:
+                self.fmu.setReal([s.reference for s in d.states], [float(v) for v in x0])
+                started = True
+            except Exception:  # noqa: BLE001 -- the FMU refuses to set its states: its own initialization
+                started = False
+        self.fmu.exitInitializationMode()
+        if self.interface == "model_exchange":
+            self._events()
+            self.fmu.enterContinuousTimeMode()
+            if x0 is not None:
+                self._x[: self.n] = [float(v) for v in x0]
+                self.fmu.setContinuousStates(self._x, self.n)
+                started = True
+        return started
+
+    def _events(self) -> None:
+        """The event iteration after the initialization (the FMU is in event mode): refused where the FMU
+        schedules time events."""
+        while True:
+            needed, terminate, _, _, timed, at = self.fmu.newDiscreteStates()
+            if terminate:
+                raise FMUError(f"FMU {self.description.path.name} asked to terminate at its initialization")
+            if timed:
+                raise FMUError(f"FMU {self.description.path.name} schedules a time event at {at:g} s: hypa integrates "
+                               "model exchange without events; use its co-simulation interface")
+            if not needed:
+                return
+
+    def _derivatives(self, t: float, x: np.ndarray, refs: list[int], u: np.ndarray) -> np.ndarray:
+        self.fmu.setTime(t)
+        self._x[: self.n] = x.tolist()
+        self.fmu.setContinuousStates(self._x, self.n)
+        if refs:
+            self.fmu.setReal(refs, u.tolist())
+        self.fmu.getDerivatives(self._dx, self.n)
+        return np.frombuffer(self._dx, dtype=float, count=self.n).copy()
+
+    def jacobian(self, t: float, x: np.ndarray, refs: list[int], u: np.ndarray) -> np.ndarray:
+        """∂ẋ/∂x (n, n) at (t, x, u): the FMU's directional derivatives where it provides them, else forward
+        differences of its derivatives."""
+        d = self.description
+        if d.directional[self.interface]:
+            self._derivatives(t, x, refs, u)
+            unknowns = [v.reference for v in d.derivatives]
+            columns = [self.fmu.getDirectionalDerivative(unknowns, [s.reference], [1.0]) for s in d.states]
+            return np.array(columns, dtype=float).T
+        base = self._derivatives(t, x, refs, u)
+        columns = []
+        for j in range(self.n):
+            step = math.sqrt(np.finfo(float).eps) * max(abs(x[j]), 1.0)
+            moved = x.copy()
+            moved[j] += step
+            columns.append((self._derivatives(t, moved, refs, u) - base) / step)
+        return np.array(columns, dtype=float).T if columns else np.zeros((0, 0))
+
+    def substeps(self, t: float, x: np.ndarray, refs: list[int], u: np.ndarray, dt: float) -> int:
+        """RK4 substeps per sample: (ρ h)^5 / 120 <= LOCAL_ERROR with ρ the state Jacobian's spectral radius."""
+        if not self.n:
+            return 1
+        radius = float(np.abs(np.linalg.eigvals(self.jacobian(t, x, refs, u))).max())
+        if not math.isfinite(radius):
+            raise FMUError(f"FMU {self.description.path.name}: its state Jacobian is not finite at t = {t:g} s")
+        longest = (120.0 * LOCAL_ERROR) ** 0.2 / radius if radius > 0 else math.inf
+        return max(1, math.ceil(dt / longest)) if math.isfinite(longest) else 1
+
+    def _exchange(self, inputs, outputs, u, t0, dt, hold, started) -> FMURun:
+        n, steps = self.n, len(u)
+        self.fmu.getContinuousStates(self._x, n)
+        x = np.frombuffer(self._x, dtype=float, count=n).copy()
+        held = lambda k, s: u[k] if hold == "zoh" or k + 1 >= steps else u[k] + s * (u[k + 1] - u[k])  # noqa: E731
+        count = self.substeps(t0, x, inputs, u[0] if steps else np.zeros(0), dt)
+        h = dt / count
+        ys, xs = np.empty((steps, len(outputs))), np.empty((steps, n))
+        for k in range(steps):
+            t = t0 + k * dt
+            self.fmu.setTime(t)
+            self._x[:n] = x.tolist()
+            if n:
+                self.fmu.setContinuousStates(self._x, n)
+            if inputs:
+                self.fmu.setReal(inputs, u[k].tolist())
+            ys[k], xs[k] = self.fmu.getReal(outputs), x
+            if k + 1 == steps:
+                break
+            for i in range(count):
+                a, s = t + i * h, i / count
+                k1 = self._derivatives(a, x, inputs, held(k, s))
+                k2 = self._derivatives(a + h / 2, x + h / 2 * k1, inputs, held(k, s + 0.5 / count))
+                k3 = self._derivatives(a + h / 2, x + h / 2 * k2, inputs, held(k, s + 0.5 / count))
+                k4 = self._derivatives(a + h, x + h * k3, inputs, held(k, s + 1.0 / count))
+                x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        if not np.isfinite(ys).all():
+            raise FMUError(f"FMU {self.description.path.name}: its outputs are not finite by t = "
+                           f"{t0 + dt * int(np.argmax(~np.isfinite(ys).all(1))):g} s")
+        return FMURun(ys, xs, started, count)
+
+    def _cosimulate(self, inputs, outputs, u, t0, dt, hold, started) -> FMURun:
+        d = self.description
+        if hold == "foh" and not d.interpolates_inputs:
+            raise FMUError(f"FMU {d.path.name}: its co-simulation cannot interpolate inputs (canInterpolateInputs "
+                           "is false), which a first-order hold needs: use physics.hold=zoh")
+        steps = len(u)
+        ys = np.empty((steps, len(outputs)))
+        for k in range(steps):
+            if inputs:
+                self.fmu.setReal(inputs, u[k].tolist())
+                if hold == "foh" and k + 1 < steps:
+                    slope = (u[k + 1] - u[k]) / dt
+                    self.fmu.setRealInputDerivatives(inputs, [1] * len(inputs), slope.tolist())
+            ys[k] = self.fmu.getReal(outputs)
+            if k + 1 < steps:
+                self.fmu.doStep(currentCommunicationPoint=t0 + k * dt, communicationStepSize=dt)
+        return FMURun(ys, None, started)
