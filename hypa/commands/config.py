@@ -428,6 +428,33 @@ def hydra_command(command: str, config_name: str) -> Callable[[Callable[[Any], A
     return _hydra_command(command, config_name, before=register_configs)
 
 
+def model_node(cfg: DictConfig) -> dict[str, Any]:
+    """The composed ``model`` node as a plain model mapping (``plain_model``), its FMU blocks' relative
+    paths resolved against the config directories Hydra read (their ``model/`` folder first: where the
+    model YAML is), else against the working directory."""
+    from hypa.models.schema import plain_model
+
+    node = plain_model(OmegaConf.to_container(cfg.model, resolve=True))
+    for block in (node.get("blocks") or {}).values():
+        if isinstance(block, dict) and isinstance(block.get("fmu"), str) and not Path(block["fmu"]).is_absolute():
+            block["fmu"] = str(_config_file(block["fmu"]))
+    return node
+
+
+def _config_file(relative: str) -> Path:
+    """``relative`` in the first file-based config directory of this Hydra run that holds it (or its
+    ``model/`` folder), else in the working directory."""
+    from hydra.core.hydra_config import HydraConfig
+
+    sources = HydraConfig.get().runtime.config_sources if HydraConfig.initialized() else []
+    folders = [Path(source.path) for source in sources if source.schema == "file" and source.path]
+    for folder in folders:
+        for candidate in (folder / "model" / relative, folder / relative):
+            if candidate.is_file():
+                return candidate.resolve()
+    return Path(relative).resolve()
+
+
 def typed(cfg: DictConfig, schema: type[C]) -> C:
     """A command's composed configuration as its typed object (``OmegaConf.to_object``): every value
     checked (the schemas' ``__post_init__``) before the command reads any data. A ``hydra`` node

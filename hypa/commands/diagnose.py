@@ -21,9 +21,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
-from hypa.commands.config import hydra_command
+from hypa.commands.config import hydra_command, model_node
 from hypa.commands.fleet import record_failures
 from hypa.commands.output_folder import holding_output
 
@@ -45,7 +45,6 @@ def main(cfg: DictConfig) -> None:
     from hypa.diagnosis.api import diagnose_system
     from hypa.diagnosis.catalogue import load_catalogue
     from hypa.diagnosis.problem import Problem, nominal_hold
-    from hypa.models.schema import plain_model
     from hypa.models.spec import parse_model_spec
     from hypa.reporting.numbers import change_text
 
@@ -53,7 +52,7 @@ def main(cfg: DictConfig) -> None:
     if config.model is None:
         raise UserError("no nominal model: give one with model=M (a conf/model/M.yaml, e.g. model=vehicle_nominal)")
     out = Path(HydraConfig.get().runtime.output_dir)
-    spec = parse_model_spec(plain_model(OmegaConf.to_container(cfg.model, resolve=True)))
+    spec = parse_model_spec(model_node(cfg))
     hold = nominal_hold(spec, config.physics.hold)  # one that contradicts the model's own: refused before the data
     catalogue = load_catalogue([from_cwd(p) for p in config.diagnosis.catalogue])
     values = vehicle_from_config(cfg.vehicle).as_dict() if cfg.get("vehicle") else {}

@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
-from hypa.commands.config import SimulateConfig, hydra_command, typed
+from hypa.commands.config import SimulateConfig, hydra_command, model_node, typed
 from hypa.core.errors import settings
 
 
@@ -32,12 +32,11 @@ def main(cfg: DictConfig) -> float:
     from hypa.evaluation.nominal import nominal_module, report, simulate_nominal
     from hypa.models.building import model_hold
     from hypa.models.rollout import free_run, free_run_levels
-    from hypa.models.schema import plain_model
     from hypa.models.spec import parse_model_spec
 
     config = typed(cfg, SimulateConfig)  # every value checked (hypa.commands.config)
     hold = config.physics.hold
-    model_config = plain_model(OmegaConf.to_container(cfg.model, resolve=True))
+    model_config = model_node(cfg)
     spec = parse_model_spec(model_config)  # the model, parsed once
     model_hold(spec, hold, "physics.hold")  # against the model's own: refused before the data
     with settings("vehicle"):

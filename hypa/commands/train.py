@@ -31,7 +31,7 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from hypa.commands.config import TrainConfig, hydra_command, typed
+from hypa.commands.config import TrainConfig, hydra_command, model_node, typed
 from hypa.core.errors import UserError, settings
 
 if TYPE_CHECKING:
@@ -86,16 +86,14 @@ def resolve(cfg: DictConfig, out: Path | None = None) -> Request:
     from hypa.commands.entry import from_cwd, network_settings, user_callbacks, vehicle_from_config
     from hypa.models import parse_model_spec
     from hypa.models.building import model_hold
-    from hypa.models.schema import plain_model
     from hypa.models.spec import model_imports, read_model_file
     from hypa.training.checkpoints import load_module
     from hypa.training.distributed import launched_as_rank_zero, lightning_strategy
 
     config = typed(cfg, TrainConfig)
-    if config.model_file:  # a model file is data: read through the model schema, it replaces model=
-        model_config = read_model_file(from_cwd(config.model_file), config.trust)
-    else:
-        model_config = plain_model(OmegaConf.to_container(cfg.model, resolve=True))
+    # a model file is data: read through the model schema, it replaces model=
+    model_config = read_model_file(from_cwd(config.model_file), config.trust) if config.model_file else \
+        model_node(cfg)
     spec = parse_model_spec(model_config)
     model_hold(spec, config.physics.hold, "physics.hold")  # against the model's own: refused before the data
     ann_name, ann = network_settings(cfg.ann)

@@ -179,9 +179,21 @@ def _names(path: str) -> Iterable[str]:
         yield f"{module}.{attribute}"
 
 
+def is_file_path(path: str) -> bool:
+    """Whether ``path`` names a file (an FMU: ``car.fmu``, ``sims/car.fmu``) rather than an import path."""
+    return path.endswith(".fmu") or "/" in path or "\\" in path
+
+
 def trusted(path: str, trust: Collection[str]) -> bool:
-    """Whether the import path ``path`` is trusted by ``trust`` (import paths or their packages)."""
-    return "*" in trust or any(name in trust for name in _names(path))
+    """Whether ``path`` is trusted by ``trust``: an import path by itself or its packages, a file (an FMU)
+    by itself or a folder above it (compared resolved)."""
+    if "*" in trust:
+        return True
+    if is_file_path(path):
+        target = Path(path).resolve()
+        return any(is_file_path(t) or Path(t).is_dir() for t in trust) and \
+            any(target == Path(t).resolve() or Path(t).resolve() in target.parents for t in trust)
+    return any(name in trust for name in _names(path))
 
 
 def check_imports(found: dict[str, str], trust: Collection[str], source: Path | str) -> None:
@@ -194,10 +206,23 @@ def check_imports(found: dict[str, str], trust: Collection[str], source: Path | 
     more = f" (and {len(untrusted) - 1} more)" if len(untrusted) > 1 else ""
     all_paths = ",".join(dict.fromkeys(untrusted.values()))
     raise UserError(f"{source}: its {what} is {path}{more}, code that is not built into hypa; a file is data, so "
-                    f"hypa imports nothing it names: if you trust that code, give trust=[{all_paths}] "
-                    "(or its package)")
+                    f"hypa imports or runs nothing it names: if you trust that code, give trust=[{all_paths}] "
+                    "(or its package or folder)")
 
 
-__all__ = ["MAX_NAME", "MAX_NODES", "MAX_TEXT_BYTES", "MAX_YAML_ALIASES", "check_imports", "check_links",
-           "check_name", "count_nodes", "has_interpolation",
-           "inside", "read_bounded", "read_yaml", "trusted"]
+__all__ = [
+    "MAX_NAME",
+    "MAX_NODES",
+    "MAX_TEXT_BYTES",
+    "MAX_YAML_ALIASES",
+    "check_imports",
+    "check_links",
+    "check_name",
+    "count_nodes",
+    "has_interpolation",
+    "inside",
+    "is_file_path",
+    "read_bounded",
+    "read_yaml",
+    "trusted",
+]

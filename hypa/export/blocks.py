@@ -48,6 +48,9 @@ def hold_refusal(model) -> str | None:
     holds x_{k-1} and u_{k-1} for the latter), a cubic hold reads one sample after that."""
     for b in model.order:
         block = model.blocks[b.name]
+        if b.kind == "fmu":
+            return (f"block {b.name!r} is an FMU ({block.description.path.name}), another simulator: hypa exports "
+                    "no step around it (export the networks' runs or the FMU itself)")
         if b.kind == "physics" and block.model.n_states and block.form.lead > 1:
             return (f"block {b.name!r} holds its inputs by a {block.hold} hold, which reads the input a sample "
                     "ahead of its output: no causal step (train it with physics.hold=foh to export it)")

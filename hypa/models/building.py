@@ -22,6 +22,8 @@ from hypa.ann import build_ann
 from hypa.models.spec import ELEMENT_PARAMETER, BlockSpec, ModelSpec, ModelSpecError
 from hypa.physics import HOLDS, LTIBlock, LTIModel, ParameterSpec, PhysicalParameters, Scaling, default_state_std
 from hypa.physics.elements import DeadTime, Saturation, local_name
+from hypa.physics.fmu import FMUDescription, read_fmu
+from hypa.physics.fmu_block import FMUBlock, fmu_signals
 from hypa.physics.operating_point import Scale, output_level_state_scales, settled_state_scales
 
 MEASURED, STEADY, ESTIMATE = "measured", "steady", "estimate"
@@ -74,6 +76,15 @@ def collect_parameters(spec: ModelSpec, values: Mapping[str, float]
             continue
         local = {local_name(b.name, k): v for k, v in b.parameters.items()}
         own = ELEMENT_PARAMETER.get(b.kind)  # an element's one parameter, else a system's
+        if b.kind == "fmu":  # the FMU's Real parameters, named as a system's; its own values unless the model's
+            fmu = read_fmu(b.fmu or "")  # parameters or the block's set them (never the vehicle group's)
+            systems[b.name] = fmu
+            given = {**{p.name: spec.parameters[p.name] for p in fmu.parameters if p.name in spec.parameters},
+                     **{k.split("/", 1)[-1]: v for k, v in local.items()}}
+            for s in fmu.parameter_specs(given):
+                specs[s.name] = s
+            trainable_of[b.name] = _fmu_trainable(b, fmu)
+            continue
         system = None if own else b.system_model()
         if system is not None:
             systems[b.name] = system
@@ -113,6 +124,15 @@ def collect_parameters(spec: ModelSpec, values: Mapping[str, float]
     params = PhysicalParameters(specs.values())
     params.set_trainable({t for ts in trainable_of.values() for t in ts}, True)
     return params, trainable_of, systems
+
+
+def _fmu_trainable(b: BlockSpec, fmu: FMUDescription) -> tuple[str, ...]:
+    names = {p.name for p in fmu.parameters}
+    unknown = [t.split("/", 1)[-1] for t in b.trainable if t.split("/", 1)[-1] not in names]
+    if unknown:
+        raise ModelSpecError(f"block {b.name!r}: {sorted(unknown)} are not parameters of its FMU; it has "
+                             f"{', '.join(sorted(names))}")
+    return tuple(t.split("/", 1)[-1] for t in b.trainable)
 
 
 def _rows_read_nonlinearly(system: LTIModel, nominal: Mapping[str, torch.Tensor]) -> frozenset[int]:
@@ -157,6 +177,8 @@ class BlockBuilder:
     def build(self, b: BlockSpec) -> nn.Module:
         if b.kind == "ann":
             return self._ann(b)
+        if b.kind == "fmu":
+            return self._fmu(b)
         if b.kind in ELEMENT_PARAMETER:  # a shift or a limit: outputs keep their inputs' scale
             scales = self.scale_of(b.inputs, f"block {b.name!r} inputs")
             self.scales.update(zip(b.outputs, scales))
@@ -185,6 +207,26 @@ class BlockBuilder:
         zero_init = bool(b.residual_of or b.scale_as)  # start as pure physics / no rear steering
         return build_ann(self.ann, len(b.inputs) + len(b.initial_state), len(b.outputs), zero_init=zero_init,
                          **self.ann_hparams)
+
+    def _fmu(self, b: BlockSpec) -> FMUBlock:
+        """An FMU block: its outputs scaled as the measured outputs they are (else (0, 1): SI), started from
+        the data where its states are measured outputs."""
+        fmu = self.systems[b.name]
+        where = f"block {b.name!r} ({fmu.path.name})"
+        if self.hold not in ("zoh", "foh"):
+            raise ModelSpecError(f"{where}: an FMU's inputs are held by a zero- or first-order hold, not "
+                                 f"{self.hold} (physics.hold=zoh or foh)")
+        fmu_in, fmu_out = fmu_signals(fmu, b.rename, b.inputs, b.outputs, where)
+        signal_of = {state: b.rename.get(state, state) for state in fmu.state_names}
+        measured = tuple(signal_of[s] for s in fmu.state_names)
+        measured = measured if measured and all(m in self.measured for m in measured) else ()
+        outputs = [self.measured.get(o, (0.0, 1.0)) for o in b.outputs]
+        self.scales.update(zip(b.outputs, outputs))
+        block = FMUBlock(b.name, fmu, self.params, [p.name for p in fmu.parameters], fmu_in, fmu_out,
+                         self.scale_of(b.inputs, f"{where} inputs"), outputs, self.dt, self.hold,
+                         b.interface or "auto", measured)
+        block.measured_columns = self._columns(measured) if measured else ()
+        return block
 
     def _physics(self, b: BlockSpec) -> LTIBlock:
         system = self.systems[b.name]

@@ -258,6 +258,8 @@ class ComposedModel(nn.Module):
                 y, out_start = self._ann(b, aligned, y_past, start), start
             elif b.kind in ELEMENT_PARAMETER:
                 y, out_start = self.blocks[b.name](aligned(b.inputs)), start
+            elif b.kind == "fmu":
+                y, out_start = self._fmu(b, aligned(b.inputs), y_past, start)
             else:
                 rho = torch.stack([physical[s][:, start:end] for s in b.scheduling.values()], -1) \
                     if b.scheduling else None  # (B, T, q) SI
@@ -322,6 +324,20 @@ class ComposedModel(nn.Module):
         y, x = block.run(x0, u_k, scheduling=rho_k, before=before)
         states[b.name] = torch.cat([x0[:, None], x], 1)
         return y, past + 1
+
+    def _fmu(self, b: BlockSpec, u: Tensor, y_past: Tensor, start: int) -> tuple[Tensor, int]:
+        """Outputs of an FMU block from the sample after the window start on, the FMU run from the window
+        start: from the measured values of its states there, else from its own initialization."""
+        block, past = self.blocks[b.name], y_past.shape[1] - 1
+        if start > past:
+            raise ModelSpecError(f"block {b.name!r} starts at sample {start}, after the window start {past}")
+        x0 = None
+        if block.measured_states:
+            scale = torch.tensor([self.measured_scale[n] for n in block.measured_states], dtype=torch.float64,
+                                 device=u.device)
+            x0 = y_past[:, past, list(block.measured_columns)].double() * scale[:, 1] + scale[:, 0]
+        y, _ = block(u[:, past - start :], x0)
+        return y[:, 1:], past + 1
 
     def to_physical(self, name: str, values: Tensor) -> Tensor:
         """A signal in SI units from its normalized values."""

@@ -26,7 +26,8 @@ from hypa.core.trust import check_name
 if TYPE_CHECKING:
     from hypa.physics.statespace import LTIModel
 
-BLOCK_KINDS = ("physics", "ann", "delay", "saturation")
+BLOCK_KINDS = ("physics", "ann", "delay", "saturation", "fmu")
+FMU_INTERFACES = ("auto", "model_exchange", "co_simulation")
 # elements: blocks that map each input to one output through one own parameter (not a state space)
 ELEMENT_PARAMETER = {"delay": "delay_s", "saturation": "limit"}
 STEADY = "steady"  # initial_state of a block that starts in equilibrium with its first input
@@ -121,6 +122,15 @@ class BlockSpec:
         derivative through the block's own weights ``drive_<signal>_on_<state>`` times the fixed
         ``drive_<signal>_scale_on_<state>`` (``hypa.physics.dependent.Driven``; named by
         ``hypa diagnose``'s ``unread_channel`` for a measured channel the model did not read).
+    fmu: an FMI 2.0 FMU (a path) instead of ``system``: the user's own simulator as the physics
+        (``hypa.physics.fmu_block``); ``kind: physics`` with ``fmu:`` is ``kind: fmu``. Its parameters
+        are the FMU's Real parameters (``parameters:`` sets them, ``trainable:`` names them); inputs
+        and outputs are FMU variables by name, or by ``rename``. A relative path is the config
+        directory's (resolved when the model is built from a Hydra config), else the working
+        directory's. A model read from a file runs an FMU it names only where the user trusts it.
+    interface: an FMU block's ``auto`` (model exchange where it has continuous states, else
+        co-simulation), ``model_exchange`` (hypa integrates it) or ``co_simulation`` (it steps itself).
+    rename: an FMU block's variables -> the signals they are, where the names differ.
     """
 
     name: str = field(metadata={NODE_KEY: True})  # the block's key in the model's blocks
@@ -141,6 +151,9 @@ class BlockSpec:
     depends: Mapping[str, Mapping[str, str]] = field(default_factory=dict)
     modes: tuple[str, ...] = ()
     driven: tuple[str, ...] = ()
+    fmu: str | None = None
+    interface: str | None = None  # None: auto
+    rename: Mapping[str, str] = field(default_factory=dict)
 
     def system_model(self) -> LTIModel:
         """A physics block's system as built for it: ``system`` with its ``curved`` and ``limited``
@@ -340,12 +353,13 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
         unknown = unknown_keys(b, BlockSpec)
         if unknown:
             raise ModelSpecError(f"block {block_name!r}: unknown keys {unknown}; known: {', '.join(keys(BlockSpec))}")
-        kind = b.get("kind")
+        kind = "fmu" if b.get("kind") == "physics" and b.get("fmu") is not None else b.get("kind")
         if kind not in BLOCK_KINDS:
             raise ModelSpecError(f"block {block_name!r}: kind must be one of {BLOCK_KINDS}, got {kind!r}")
         system = b.get("system")
         # an import path (package.module:Class) is resolved and checked when the model is built
         known = isinstance(system, str) and (system in PHYSICS_SYSTEMS or is_import_path(system))
+        _check_fmu(str(block_name), kind, b)
         if kind == "physics" and not known:
             raise ModelSpecError(
                 f"block {block_name!r}: unknown physics system {system!r}; known: {', '.join(PHYSICS_SYSTEMS)}, "
@@ -367,6 +381,9 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
             depends=_dependences(b.get("depends"), f"{block_name}.depends"),
             driven=_signals(b.get("driven"), f"{block_name}.driven"),
             modes=_names(b.get("modes"), f"{block_name}.modes"),
+            fmu=None if b.get("fmu") is None else str(b["fmu"]),
+            interface=None if b.get("interface") is None else str(b["interface"]),
+            rename=_signal_map(b.get("rename"), f"{block_name}.rename"),
         ))
         if kind != "physics" and (blocks[-1].scheduling or blocks[-1].observe or blocks[-1].curved
                                   or blocks[-1].limited or blocks[-1].depends or blocks[-1].driven
@@ -376,6 +393,8 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
         if blocks[-1].table and len(blocks[-1].scheduling) != 1:
             raise ModelSpecError(f"block {block_name!r}: table: true needs a physics block scheduled by one signal, "
                                  f"got scheduling {dict(blocks[-1].scheduling) or 'none'}")
+        if kind != "fmu" and (blocks[-1].rename or blocks[-1].interface is not None):
+            raise ModelSpecError(f"block {block_name!r}: only FMU blocks take rename or interface")
         if kind == "ann" and (blocks[-1].parameters or blocks[-1].trainable):
             raise ModelSpecError(f"block {block_name!r}: an ann block has no physical parameters or trainable")
         own = ELEMENT_PARAMETER.get(kind)
@@ -416,9 +435,28 @@ def model_imports(config: Mapping[str, Any], ann_name: str | None = None) -> dic
         system = block.get("system") if isinstance(block, Mapping) else None
         if isinstance(system, str) and is_import_path(system):
             found[f"block {name!r} system"] = system
+        fmu = block.get("fmu") if isinstance(block, Mapping) else None
+        if isinstance(fmu, str):  # a simulator's binary: code, as a system's import path
+            found[f"block {name!r} FMU"] = fmu
     if ann_name is not None and ann_name not in ANN_BLOCKS and builds_networks(config):
         found["network"] = ann_name
     return found
+
+
+def _check_fmu(name: str, kind: str, block: Mapping[str, Any]) -> None:
+    """An FMU block names its FMU and no system; another names no FMU."""
+    fmu = block.get("fmu")
+    if kind != "fmu":
+        if fmu is not None:
+            raise ModelSpecError(f"block {name!r}: fmu: is for physics blocks (kind: physics or fmu), not {kind}")
+        return
+    if not isinstance(fmu, str) or not fmu.strip():
+        raise ModelSpecError(f"block {name!r}: an FMU block needs fmu: <path to an .fmu file>, got {fmu!r}")
+    if block.get("system") is not None:
+        raise ModelSpecError(f"block {name!r}: give fmu: or system:, not both")
+    if (block.get("interface") or "auto") not in FMU_INTERFACES:
+        raise ModelSpecError(f"block {name!r}: interface must be one of {', '.join(FMU_INTERFACES)}, "
+                             f"got {block.get('interface')!r}")
 
 
 def builds_networks(config: Mapping[str, Any]) -> bool:
@@ -444,8 +482,14 @@ def read_model_file(path: Path, trust: Collection[str] = ()) -> dict[str, Any]:
         parse_model_spec(config)
     except ModelSpecError as error:
         raise ModelSpecError(f"{path}: {error}") from None
+    config = dict(config)
+    blocks = {name: dict(b) if isinstance(b, Mapping) else b for name, b in (config.get("blocks") or {}).items()}
+    for block in blocks.values():  # an FMU named relative to the file: its folder's
+        if isinstance(block, dict) and isinstance(block.get("fmu"), str) and not Path(block["fmu"]).is_absolute():
+            block["fmu"] = str((Path(path).parent / block["fmu"]).resolve())
+    config["blocks"] = blocks
     check_imports(model_imports(config), trust, path)
-    return dict(config)
+    return config
 
 
 def spec_config(spec: ModelSpec, name: str | None = None) -> dict[str, Any]:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import dataclasses
 import logging
 import math
 import shutil
@@ -111,12 +112,20 @@ class FMUDescription:
                            f"{', '.join(p.name for p in self.parameters) or 'none'}")
         specs = []
         for p in self.parameters:
-            value = given.get(p.name, p.start)
-            if value is None or not math.isfinite(float(value)):
-                raise FMUError(f"FMU {self.path.name}: parameter {p.name!r} has no finite start value; give it in "
-                               "the block's parameters")
+            if p.start is None and p.name not in given:
+                raise FMUError(f"FMU {self.path.name}: parameter {p.name!r} has no start value; give it in the "
+                               "block's parameters")
             bounds = (p.minimum, p.maximum) if p.minimum is not None and p.maximum is not None else None
-            specs.append(ParameterSpec(p.name, float(value), p.unit, bounds=bounds))
+            start = float(p.start if p.start is not None else given[p.name])
+            positive = bounds is None and p.minimum is not None and p.minimum >= 0 and start > 0  # as it declares
+            try:  # a value given with a unit ("2.5 Ah") converted to the FMU's, as a class's
+                spec = ParameterSpec(p.name, start, p.unit, positive=positive, bounds=bounds)
+                spec = dataclasses.replace(spec, value=given[p.name]) if p.name in given else spec
+            except (ValueError, TypeError) as error:
+                raise FMUError(f"FMU {self.path.name}: parameter {p.name!r}: {error}") from None
+            if not math.isfinite(spec.value):
+                raise FMUError(f"FMU {self.path.name}: parameter {p.name!r} is {spec.value}; give a finite value")
+            specs.append(spec)
         return specs
 
     def interface(self, wanted: str = "auto") -> str:

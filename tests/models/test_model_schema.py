@@ -53,11 +53,15 @@ def test_every_key_of_a_spec_is_written_and_read_back() -> None:
                       "table": True, "curved": {"x": 3}, "limited": {"x": "upper"},
                       "depends": {"tau_s": {"by": "x", "kind": "state"}}, "modes": ["u"], "driven": ["v"]},
             "net": {"kind": "ann", "inputs": ["x"], "outputs": ["y"], "residual_of": ["x"], "initial_state": "y"},
+            "sim": {"kind": "physics", "fmu": "car.fmu", "interface": "co_simulation", "rename": {"r": "z"},
+                    "inputs": ["u"], "outputs": ["z"], "trainable": ["k"], "parameters": {"k": 1.5}},
         },
     }
     spec = parse_model_spec(config)
     written = spec_config(spec)
-    assert set(written["blocks"]["plant"]) == set(keys(BlockSpec)) - {"residual_of"}
+    fmu_keys = {"fmu", "interface", "rename"}
+    assert set(written["blocks"]["plant"]) == set(keys(BlockSpec)) - {"residual_of"} - fmu_keys
+    assert fmu_keys <= set(written["blocks"]["sim"]) and written["blocks"]["sim"]["kind"] == "fmu"
     assert set(written) == set(keys(ModelSpec))
     assert written["blocks"]["plant"]["parameters"] == {"tau_s": "250 ms"}  # as given
     assert parse_model_spec(written) == spec

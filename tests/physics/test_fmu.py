@@ -19,9 +19,8 @@ pytestmark = pytest.mark.skipif(shutil.which("cc") is None, reason="no C compile
 def native(tmp_path_factory, hypa_cache) -> Path:
     """hypa's own native.fmu of a tiny physical run (format=c): a discrete-time FMU, co-simulation and model
     exchange, with no continuous states."""
-    from test_export import TINY, _train
-
     from cli_helpers import hypa_run
+    from test_export import TINY, _train
 
     folder = _train(tmp_path_factory, "physical", ["model=physical", *TINY, "identification.max_seconds=5"])
     out = tmp_path_factory.mktemp("export")
@@ -69,3 +68,73 @@ def test_refusals_are_one_line(tmp_path, native) -> None:
         fmu.parameter_specs({"nope": 1.0})
     with pytest.raises(FMUError, match="interface=both is not one of"):
         fmu.interface("both")
+
+
+FMU_MODEL = """# @package model
+name: fmu_car
+blocks:
+  car:
+    kind: physics
+    fmu: car.fmu          # relative: the config directory's model/ folder
+    inputs: [steering_wheel_angle]
+    outputs: [yaw_rate, side_slip]
+outputs: [yaw_rate, side_slip]
+"""
+
+
+def test_an_fmu_block_simulates_through_the_command_line(native, hypa_cache, tmp_path) -> None:
+    """hypa simulate with a model whose physics is an FMU (hypa's own native.fmu of the physical run, named
+    relative to the user's config directory): the free run over the validation data, the FMU's own start."""
+    import os
+
+    from cli_helpers import hypa_run
+
+    conf = tmp_path / "conf"
+    (conf / "model").mkdir(parents=True)
+    shutil.copy(native / "native.fmu", conf / "model" / "car.fmu")
+    (conf / "model" / "fmu_car.yaml").write_text(FMU_MODEL)
+    env = {**os.environ, "HYPA_CACHE_DIR": str(hypa_cache)}
+    result = hypa_run(["simulate", "--config-dir", str(conf), "model=fmu_car", f"hydra.run.dir={tmp_path / 'sim'}"],
+                      env=env)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "the FMU (co simulation) starts from its own initialization" in result.stdout + result.stderr
+    metrics = json.loads((tmp_path / "sim" / "simulation.json").read_text())
+    free = next(v for k, v in metrics.items() if k.startswith("free-run"))
+    assert free["yaw_rate"]["r2"] > 0.9  # the trained physical model, run as an FMU, on its own data
+
+
+def test_an_fmu_in_a_model_file_is_code_run_only_when_trusted(native, tmp_path) -> None:
+    """A model file is data: an FMU it names (a binary hypa would load) is refused unless trusted, by its path
+    or a folder above it; a relative path is the file's folder's."""
+    import yaml
+
+    from hypa.core.errors import UserError
+    from hypa.models.spec import read_model_file
+
+    folder = tmp_path / "received"
+    folder.mkdir()
+    shutil.copy(native / "native.fmu", folder / "car.fmu")
+    config = yaml.safe_load(FMU_MODEL.split("\n", 1)[1])
+    (folder / "model.yaml").write_text(yaml.safe_dump(config))
+    with pytest.raises(UserError, match=r"its block 'car' FMU is .*car\.fmu, code that is not built into hypa") as err:
+        read_model_file(folder / "model.yaml")
+    assert "\n" not in str(err.value) and "trust=[" in str(err.value)
+    read = read_model_file(folder / "model.yaml", trust=[str(folder)])  # the folder above it
+    assert read["blocks"]["car"]["fmu"] == str((folder / "car.fmu").resolve())
+    read_model_file(folder / "model.yaml", trust=[str(folder / "car.fmu")])  # the file itself
+    with pytest.raises(UserError, match="not built into hypa"):
+        read_model_file(folder / "model.yaml", trust=[str(tmp_path / "elsewhere")])
+
+
+def test_fmu_blocks_are_checked_when_parsed() -> None:
+    from hypa.models.spec import ModelSpecError, parse_model_spec
+
+    block = {"kind": "physics", "inputs": ["u"], "outputs": ["y"]}
+    spec = lambda **extra: {"name": "m", "outputs": ["y"], "blocks": {"b": {**block, **extra}}}  # noqa: E731
+    assert parse_model_spec(spec(fmu="a.fmu")).blocks[0].kind == "fmu"
+    for extra, message in (({"fmu": "a.fmu", "system": "first_order_lag"}, "give fmu: or system:, not both"),
+                           ({"fmu": "a.fmu", "interface": "both"}, "interface must be one of"),
+                           ({"fmu": ""}, "needs fmu: <path"),
+                           ({"system": "first_order_lag", "rename": {"a": "u"}}, "only FMU blocks take rename")):
+        with pytest.raises(ModelSpecError, match=message):
+            parse_model_spec(spec(**extra))

@@ -1,0 +1,144 @@
+"""An FMU as a block of a composition: normalized signals in and out, its parameters hypa's named ones.
+
+``FMUBlock`` maps the block's signals to the FMU's variables (by name, or by the block's ``rename``
+map: FMU variable -> signal), runs the FMU (``hypa.physics.fmu.FMUSimulator``) on the data's grid
+with the block's hold, and returns its outputs normalized with the block's output scale. Its
+parameters are the FMU's Real parameters held in the model's ``PhysicalParameters`` (so ``parameters:``
+sets them, ``trainable:`` names them, and the output-error identification fits them as a class's,
+by differences of free runs). The FMU starts from the data where its states are measured outputs
+(their values at the window start), else from its own initialization, said once in one line.
+
+The FMU runs outside torch: its outputs carry no gradient. A network after it (correcting its
+outputs) trains; a network feeding it, or a gradient-trained parameter of it, is refused in one line.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from hypa.physics.fmu import FMUDescription, FMUError, FMUSimulator
+from hypa.physics.parameters import PhysicalParameters
+
+log = logging.getLogger(__name__)
+
+Scale = tuple[float, float]
+
+
+class FMUBlock(nn.Module):
+    """One FMU in a composition.
+
+    Args:
+        name: the block's name (for messages).
+        description: the FMU (``read_fmu``).
+        params: the model's parameters; the FMU's are ``parameter_names`` among them.
+        inputs, outputs: the block's signals, in order; ``fmu_inputs``, ``fmu_outputs``: the FMU
+            variables they are (the block's ``rename`` applied).
+        input_scale, output_scale: (μ, σ) of each input and output signal [SI].
+        dt: the data's sample time [s]; hold: ``zoh`` or ``foh``; interface: ``auto``,
+            ``model_exchange`` or ``co_simulation``.
+        measured_states: per FMU state, the measured output that starts it (all or none).
+    """
+
+    def __init__(self, name: str, description: FMUDescription, params: PhysicalParameters,
+                 parameter_names: Sequence[str], fmu_inputs: Sequence[str], fmu_outputs: Sequence[str],
+                 input_scale: Sequence[Scale], output_scale: Sequence[Scale], dt: float, hold: str = "zoh",
+                 interface: str = "auto", measured_states: Sequence[str] = ()) -> None:
+        super().__init__()
+        self.name, self.description, self.params = name, description, params
+        self.parameter_names = tuple(parameter_names)
+        self.fmu_inputs, self.fmu_outputs = tuple(fmu_inputs), tuple(fmu_outputs)
+        self.dt, self.hold, self.measured_states = float(dt), hold, tuple(measured_states)
+        self.interface = description.interface(interface)
+        self._simulator: FMUSimulator | None = None
+        self._said_start = False
+        as_tensor = lambda pairs, i: torch.tensor([p[i] for p in pairs], dtype=torch.float64)  # noqa: E731
+        self.register_buffer("input_mean", as_tensor(input_scale, 0), persistent=False)
+        self.register_buffer("input_std", as_tensor(input_scale, 1), persistent=False)
+        self.register_buffer("output_mean", as_tensor(output_scale, 0), persistent=False)
+        self.register_buffer("output_std", as_tensor(output_scale, 1), persistent=False)
+
+    @property
+    def n_states(self) -> int:
+        return len(self.description.states)
+
+    @property
+    def simulator(self) -> FMUSimulator:
+        """The FMU's instance, created at the first run (one per block and process)."""
+        if self._simulator is None:
+            self._simulator = FMUSimulator(self.description, self.interface, instance=self.name)
+        return self._simulator
+
+    def __getstate__(self) -> dict:  # an instance of native code does not travel (pickling, a worker process)
+        state = dict(self.__dict__)
+        state["_simulator"] = None
+        return state
+
+    def close(self) -> None:
+        if self._simulator is not None:
+            self._simulator.close()
+            self._simulator = None
+
+    def parameter_values(self) -> dict[str, float]:
+        values = self.params.as_floats()
+        return {n: values[n] for n in self.parameter_names}
+
+    def forward(self, u: Tensor, x0: Tensor | None = None) -> tuple[Tensor, Tensor | None]:
+        """Outputs (B, T, p) normalized from inputs (B, T, m) normalized, from states x0 (B, n) [SI] or the
+        FMU's own initialization; and the states it ran through (B, T, n) [SI] where the interface shows them."""
+        if torch.is_grad_enabled() and (u.requires_grad or any(self.params.raw[n].requires_grad
+                                                                for n in self.parameter_names)):
+            raise FMUError(f"block {self.name!r} is an FMU, which runs outside torch: no gradient reaches its inputs "
+                           "or parameters (fit its parameters by hypa's identification, put networks after it)")
+        if x0 is None and not self._said_start:
+            states = self.description.state_names
+            why = f"its states {', '.join(states)} are not all measured" if states else "it declares no states"
+            log.info("block %r: the FMU (%s) starts from its own initialization: %s", self.name,
+                     self.interface.replace("_", " "), why)
+            self._said_start = True
+        parameters = self.parameter_values()
+        si = (u.detach().double() * self.input_std + self.input_mean).cpu().numpy()
+        ys, xs = [], []
+        for b in range(si.shape[0]):
+            start = None if x0 is None else x0[b].detach().double().cpu().numpy()
+            run = self.simulator.run(parameters, self.fmu_inputs, si[b], 0.0, self.dt, start, self.hold)
+            if x0 is not None and not run.started_from_data and not self._said_start:
+                log.info("block %r: the FMU does not let hypa set its states; it starts from its own "
+                         "initialization", self.name)
+                self._said_start = True
+            ys.append(self._outputs(run.y))
+            xs.append(run.x)
+        y = torch.as_tensor(np.stack(ys), dtype=torch.float64, device=u.device)
+        y = ((y - self.output_mean) / self.output_std).to(u.dtype)
+        states = torch.as_tensor(np.stack(xs), device=u.device) if xs and xs[0] is not None else None
+        return y, states
+
+    def _outputs(self, y: np.ndarray) -> np.ndarray:
+        names = self.description.output_names
+        return y[:, [names.index(n) for n in self.fmu_outputs]]
+
+    def extra_repr(self) -> str:
+        return (f"{self.description.path.name}, {self.interface}, {len(self.fmu_inputs)} inputs, "
+                f"{len(self.fmu_outputs)} outputs, {self.n_states} states")
+
+
+def fmu_signals(description: FMUDescription, rename: Mapping[str, str], inputs: Sequence[str],
+                outputs: Sequence[str], where: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The FMU variables the block's ``inputs`` and ``outputs`` are (``rename``: FMU variable -> signal)."""
+    unknown = sorted(set(rename) - {*description.input_names, *description.output_names, *description.state_names})
+    if unknown:
+        raise FMUError(f"{where}: rename names {unknown}, which are not the FMU's inputs, outputs or states")
+    variable = {signal: fmu for fmu, signal in rename.items()}
+    fmu_in = tuple(variable.get(s, s) for s in inputs)
+    fmu_out = tuple(variable.get(s, s) for s in outputs)
+    missing_in = [s for s, v in zip(inputs, fmu_in) if v not in description.input_names]
+    missing_out = [s for s, v in zip(outputs, fmu_out) if v not in description.output_names]
+    if missing_in or missing_out:
+        raise FMUError(f"{where}: {missing_in + missing_out} are not among the FMU's inputs "
+                       f"{list(description.input_names)} and outputs {list(description.output_names)}; "
+                       "give rename: {<FMU variable>: <signal>} where the names differ")
+    return fmu_in, fmu_out
