@@ -1,6 +1,7 @@
 """An FMU as physics (``hypa.physics.fmu``): read through its model description, run on a data grid by model
 exchange (hypa integrates) or co-simulation (it steps itself), against fmpy's own simulation and exact references."""
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -138,3 +139,111 @@ def test_fmu_blocks_are_checked_when_parsed() -> None:
                            ({"system": "first_order_lag", "rename": {"a": "u"}}, "only FMU blocks take rename")):
         with pytest.raises(ModelSpecError, match=message):
             parse_model_spec(spec(**extra))
+
+
+# -- an FMU of one's own (tests/fmus, compiled here) ------------------------------------------------------------
+TRUE = {"cf": 80000.0, "cr": 90000.0}
+
+
+def _steering(t: np.ndarray, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    f, a, phase = rng.uniform(0.1, 1.5, 6), rng.uniform(0.02, 0.08, 6), rng.uniform(0, 6.3, 6)
+    return sum(ai * np.sin(2 * np.pi * fi * t + pi) for ai, fi, pi in zip(a, f, phase))
+
+
+@pytest.fixture(scope="module")
+def single_track(tmp_path_factory) -> Path:
+    from fmu_fixtures import build_fmu
+
+    return build_fmu("single_track", tmp_path_factory.mktemp("fmu"))
+
+
+def test_model_exchange_and_co_simulation_equal_fmpy_s_own_simulation(single_track) -> None:
+    """hypa's run of the FMU (model exchange: its own RK4 with the substep from the Jacobian's spectral radius;
+    co-simulation: the FMU's doStep) from a set start state equals fmpy's CVode (relative tolerance 1e-10) of the
+    same FMU to 1e-6 of each output's σ; the Jacobian by directional derivatives equals forward differences."""
+    fmu = read_fmu(single_track)
+    assert fmu.interface() == "model_exchange" and fmu.state_names == ("yaw_rate", "side_slip")
+    assert {p.name: p.unit for p in fmu.parameters}["cf"] == "N/rad"
+    dt, t = 0.01, np.arange(2000) * 0.01
+    u = _steering(t, 3)[:, None]
+    x0 = np.array([0.05, 0.01])
+    staircase = np.zeros(2 * len(t) - 1, dtype=[("time", float), ("steering_wheel_angle", float)])
+    staircase["time"], staircase["steering_wheel_angle"] = np.repeat(t, 2)[1:], np.repeat(u[:, 0], 2)[:-1]
+    names = list(fmu.output_names)
+    result = fmpy.simulate_fmu(str(single_track), fmi_type="ModelExchange", start_time=0.0, stop_time=t[-1],
+                               output_interval=dt, input=staircase, start_values=dict(zip(fmu.state_names, x0)),
+                               relative_tolerance=1e-10, record_events=False, output=names)
+    reference = np.stack([result[n] for n in names], -1)
+    std = reference.std(0)
+    for interface in ("model_exchange", "co_simulation"):
+        simulator = FMUSimulator(fmu, interface)
+        try:
+            run = simulator.run({}, ("steering_wheel_angle",), u, 0.0, dt, x0)
+            if interface == "model_exchange":  # after a run, in continuous-time mode at its last sample
+                exact = simulator.jacobian(t[-1], x0, [], np.zeros(0))
+                fmu_fd = dataclasses.replace(fmu, directional={"model_exchange": False, "co_simulation": False})
+                differences = FMUSimulator(fmu_fd, interface)
+                again = differences.run({}, ("steering_wheel_angle",), u, 0.0, dt, x0)
+                np.testing.assert_allclose(differences.jacobian(t[-1], x0, [], np.zeros(0)), exact, rtol=1e-5)
+                differences.close()
+                assert again.substeps == run.substeps >= 1 and run.x.shape == (len(t), 2)
+                np.testing.assert_array_equal(again.y, run.y)
+        finally:
+            simulator.close()
+        assert run.started_from_data
+        rows = min(len(run.y), len(reference))
+        columns = slice(None) if interface == "model_exchange" else slice(0, 2)  # fmpy's CS reads a_y one input late
+        error = np.abs(run.y[:rows, columns] - reference[:rows, columns]).max(0) / std[columns]
+        assert (error < 1e-6).all(), (interface, error)
+
+
+def _write_data(folder: Path, seconds: dict[str, float]) -> None:
+    """Records of the linear single track at TRUE, simulated by scipy (an independent simulator), 100 Hz."""
+    import csv
+
+    from scipy.integrate import solve_ivp
+
+    p = {"m": 1500.0, "Iz": 2500.0, "lf": 1.2, "lr": 1.5, "v": 20.0, "steering_ratio": 15.0, **TRUE}
+
+    def rhs(t, x, seed):
+        r, b = x
+        front = _steering(t, seed) / p["steering_ratio"] - b - p["lf"] * r / p["v"]
+        rear = -b + p["lr"] * r / p["v"]
+        fyf, fyr = p["cf"] * front, p["cr"] * rear
+        return [(p["lf"] * fyf - p["lr"] * fyr) / p["Iz"], (fyf + fyr) / (p["m"] * p["v"]) - r]
+
+    folder.mkdir(parents=True, exist_ok=True)
+    for seed, (name, length) in enumerate(seconds.items(), 1):
+        t = np.arange(0.0, length, 0.01)
+        states = solve_ivp(rhs, (0.0, t[-1]), [0.0, 0.0], t_eval=t, args=(seed,), rtol=1e-10, atol=1e-12,
+                           max_step=0.005).y
+        with (folder / f"{name}.csv").open("w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(["time", "steering_wheel_angle", "yaw_rate", "side_slip"])
+            writer.writerows(zip(t, _steering(t, seed), states[0], states[1]))
+
+
+def test_fmu_parameters_15_percent_off_are_identified_through_the_command_line(single_track, tmp_path) -> None:
+    """hypa train with an FMU block whose cornering stiffnesses start 15 % off, on data of another simulator:
+    the output-error identification (differences of the FMU's free runs) finds them, with ±1σ."""
+    from cli_helpers import hypa_run
+
+    conf = tmp_path / "conf"
+    (conf / "model").mkdir(parents=True)
+    shutil.copy(single_track, conf / "model" / "car.fmu")
+    (conf / "model" / "fmu_car.yaml").write_text(FMU_MODEL.replace(
+        "    outputs: [yaw_rate, side_slip]\n", "    outputs: [yaw_rate, side_slip]\n"
+        "    parameters: {cf: 68000.0, cr: 76500.0}\n    trainable: [cf, cr]\n", 1))
+    _write_data(tmp_path / "data", {"train": 20.0, "val": 10.0})
+    run = tmp_path / "run"
+    result = hypa_run(["train", "--config-dir", str(conf), "model=fmu_car", "dataset=files",
+                       f"data.dir={tmp_path / 'data'}", "data.sample_rate_hz=100", "data.rate_hz=null",
+                       "~data.channels.rear_wheel_angle", "physics.hold=foh", "figures.enabled=false",
+                       f"hydra.run.dir={run}"])
+    assert result.returncode == 0, result.stderr[-3000:]
+    identified = json.loads((run / "run.json").read_text())["identification"]["parameters"]
+    for name, true in TRUE.items():
+        assert identified[name]["initial"] == pytest.approx(0.85 * true)
+        assert identified[name]["value"] == pytest.approx(true, rel=2e-3), (name, identified[name])
+        assert 0 < identified[name]["std"] < 0.01 * true
