@@ -61,6 +61,7 @@ class _Emitter:
     statements: list[_Statement] = field(default_factory=list)
     statics: dict[str, str] = field(default_factory=dict)  # name -> its definition
     known: dict[str, str] = field(default_factory=dict)  # expression -> the variable that holds it
+    shared: dict[bytes, str] = field(default_factory=dict)  # a static array's values -> its name
     count: int = 0
 
     def name(self, prefix: str = "t") -> str:
@@ -82,8 +83,11 @@ class _Emitter:
         """A static const array of ``values`` (flattened, row-major): float where every value is a float32 one
         (the weights of a model trained in float32: exact, half the memory a step streams), else double; the
         arithmetic is double either way."""
-        name = self.name(prefix)
         flat = np.asarray(values, dtype=float).reshape(-1)
+        key = flat.tobytes()  # one array for each distinct matrix (a product row by row, batched, ...)
+        if key in self.shared:
+            return self.shared[key]
+        name = self.shared[key] = self.name(prefix)
         single = bool(np.isfinite(flat).all() and (flat.astype(np.float32).astype(float) == flat).all())
         literal = (lambda v: np.format_float_scientific(np.float32(v), unique=True) + "f") if single else _literal
         rows = ",\n    ".join(", ".join(literal(v) for v in flat[i : i + 6]) for i in range(0, len(flat), 6))
@@ -199,6 +203,7 @@ class _Graph:
         from onnx import numpy_helper
 
         self.model, self.blocks, self.out = model, dict(blocks), _Emitter()
+        self.types: dict[str, int] | None = None  # element types as ONNX infers them, once asked
         self.values: dict[str, np.ndarray] = {"": np.zeros(0)}
         for tensor in model.graph.initializer:
             self.values[tensor.name] = _numeric(numpy_helper.to_array(tensor))
@@ -219,8 +224,23 @@ class _Graph:
             return f"block {parts[0]!r} ({self.blocks[parts[0]]})"
         return "the step"
 
+    def integer(self, node, inputs: list[np.ndarray]) -> bool:
+        """Whether ``node``'s output is an integer tensor (an operand an integer constant, or the type ONNX infers)."""
+        from onnx import helper, shape_inference
+
+        if any(_constant(v) for v in inputs):  # an operand of the type
+            return any(_constant(v) and np.issubdtype(v.dtype, np.integer) for v in inputs)
+        if self.types is None:
+            try:
+                typed = shape_inference.infer_shapes(self.model).graph
+                self.types = {v.name: v.type.tensor_type.elem_type for v in typed.value_info}
+            except Exception:  # noqa: BLE001 -- no inferred types: taken as floats
+                self.types = {}
+        kind = self.types.get(node.output[0], 0)
+        return bool(kind) and np.issubdtype(helper.tensor_dtype_to_np_dtype(kind), np.integer)
+
     def run(self) -> None:
-        from onnx import helper
+        from onnx import TensorProto, helper
 
         for node in self.model.graph.node:
             attributes = {a.name: helper.get_attribute_value(a) for a in node.attribute}
@@ -230,13 +250,18 @@ class _Graph:
                 raise ExportError(f"{self.node_block(node)} uses the ONNX operation {node.op_type}, which has no C "
                                   "form in hypa: export it with format=fmu (the ONNX step in a pythonfmu FMU)")
             try:
-                outputs = handler(self, inputs, attributes, len(node.output))
+                used = max((i + 1 for i, name in enumerate(node.output) if name), default=0)  # "": left out
+                outputs = handler(self, inputs, attributes, used)
+                if node.op_type == "Div" and not _constant(outputs[0]) and self.integer(node, inputs):
+                    outputs = _cast(self, outputs, {"to": TensorProto.INT64}, 1)  # ONNX's integer Div truncates
             except ExportError:
                 raise
             except Exception as error:  # noqa: BLE001 -- a form the compiler does not cover, said in one line
                 raise ExportError(f"{self.node_block(node)}: its ONNX {node.op_type} ({node.name}) has no C form "
                                   f"in hypa ({type(error).__name__}: {error}); export it with format=fmu") from None
             for name, value in zip(node.output, outputs):
+                if not name:  # an optional output left out ("" stays the optional input left out)
+                    continue
                 value = value if isinstance(value, np.ndarray) else \
                     np.array(value, dtype=object if isinstance(value, str) else None)  # an element taken alone
                 self.values[name] = value if _constant(value) else _settle(value)
@@ -488,9 +513,12 @@ def _cast(graph, inputs, attributes, outputs):
     (x,), dtype = inputs, np.dtype(helper.tensor_dtype_to_np_dtype(attributes["to"]))
     if _constant(x):
         return [_numeric(x.astype(dtype))]
-    if np.issubdtype(dtype, np.floating):
+    if dtype == np.float64:
         return [x]
-    form = "(double)({} != 0.0)" if dtype == np.bool_ else "trunc({})"
+    if dtype not in (np.float32, np.bool_) and not np.issubdtype(dtype, np.integer):
+        raise ExportError(f"a Cast to {dtype}")
+    form = "(double)(float){}" if dtype == np.float32 else "(double)({} != 0.0)" if dtype == np.bool_ else \
+        "trunc({})"
     out = np.empty(x.shape, dtype=object)
     for index, v in np.ndenumerate(x):
         out[index] = graph.out.scalar(form.format(v), [v]) if isinstance(v, str) else float(dtype.type(v))
@@ -581,7 +609,8 @@ def _range(graph, inputs, attributes, outputs):
 
 
 def _flatten(graph, inputs, attributes, outputs):
-    data, axis = inputs[0], attributes.get("axis", 1) % max(inputs[0].ndim, 1)
+    data, axis = inputs[0], attributes.get("axis", 1)
+    axis = axis + data.ndim if axis < 0 else axis  # in [-rank, rank]: axis == rank flattens to (size, 1)
     return [data.reshape(int(np.prod(data.shape[:axis], dtype=int)), -1)]
 
 
@@ -634,15 +663,17 @@ def _recurrent(kind: str) -> Callable:
         if attributes.get("direction", b"forward") not in (b"forward", "forward"):
             raise ExportError(f"a {attributes['direction']} {kind}")
         if attributes.get("layout", 0) or "clip" in attributes or attributes.get("input_forget", 0) or \
-                ("activations" in attributes and kind == "LSTM" and
+                ("activations" in attributes and
                  [a.decode() if isinstance(a, bytes) else a for a in attributes["activations"]]
-                 != ["Sigmoid", "Tanh", "Tanh"]):
+                 != ["Sigmoid", "Tanh", "Tanh"][: gates - 1]):
             raise ExportError(f"an {kind} with attributes {sorted(attributes)} beyond hidden_size")
         x, w, r = inputs[0], inputs[1], inputs[2]
         if not (_constant(w) and _constant(r)) or (len(inputs) > 3 and inputs[3].size and not _constant(inputs[3])):
             raise ExportError(f"an {kind} whose weights depend on the inputs")
         if len(inputs) > 4 and inputs[4].size:
             raise ExportError(f"an {kind} with sequence lengths")
+        if len(inputs) > 7 and inputs[7].size:
+            raise ExportError(f"an {kind} with peepholes")
         steps, batch, width = x.shape
         if batch != 1:
             raise ExportError(f"an {kind} over a batch of {batch}")
@@ -669,7 +700,8 @@ def _recurrent(kind: str) -> Callable:
             bias_name = out.static(bias, "w")
             body = _gru_body(names, arrays, bias_name, hidden, width, int(attributes.get("linear_before_reset", 0)))
         uses.add(bias_name)
-        text = "\n    ".join([*declarations, *initial, f"for (int t = 0; t < {steps}; t++) {{", *body, "}"])
+        text = "\n    ".join([*declarations, *initial, f"for (int t = 0; t < {steps}; t++) {{", *body, "}",
+                                 f"(void){names['y']};"])  # Y may be left unread (set but not used)
         out.add(text, [names["h"], names["y"], *([names["c"]] if kind == "LSTM" else [])], uses)
         y = np.array([f"{names['y']}[{i}]" for i in range(steps * hidden)], dtype=object).reshape(steps, 1, 1, hidden)
         last = np.array([f"{names['h']}[{i}]" for i in range(hidden)], dtype=object).reshape(1, 1, hidden)
