@@ -217,10 +217,12 @@ class BlockBuilder:
             raise ModelSpecError(f"{where}: an FMU's inputs are held by a zero- or first-order hold, not "
                                  f"{self.hold} (physics.hold=zoh or foh)")
         fmu_in, fmu_out = fmu_signals(fmu, b.rename, b.inputs, b.outputs, where)
-        signal_of = {state: b.rename.get(state, state) for state in fmu.state_names}
-        measured = tuple(signal_of[s] for s in fmu.state_names)
-        measured = measured if measured and all(m in self.measured for m in measured) else ()
-        outputs = [self.measured.get(o, (0.0, 1.0)) for o in b.outputs]
+        measured_as = lambda variable: next((n for n in (b.rename.get(variable, variable), variable)  # noqa: E731
+                                             if n in self.measured), None)  # its signal, else its own name
+        measured = tuple(measured_as(s) for s in fmu.state_names)
+        measured = measured if measured and None not in measured else ()
+        # an output scaled as the measured output it is (by its signal's name or its FMU variable's), else SI
+        outputs = [self.measured.get(measured_as(v) or "", (0.0, 1.0)) for v in fmu_out]
         self.scales.update(zip(b.outputs, outputs))
         block = FMUBlock(b.name, fmu, self.params, [p.name for p in fmu.parameters], fmu_in, fmu_out,
                          self.scale_of(b.inputs, f"{where} inputs"), outputs, self.dt, self.hold,

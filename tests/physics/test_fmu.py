@@ -247,3 +247,39 @@ def test_fmu_parameters_15_percent_off_are_identified_through_the_command_line(s
         assert identified[name]["initial"] == pytest.approx(0.85 * true)
         assert identified[name]["value"] == pytest.approx(true, rel=2e-3), (name, identified[name])
         assert 0 < identified[name]["std"] < 0.01 * true
+
+
+def test_a_renamed_fmu_feeds_a_correction_network_in_the_measured_scale(single_track) -> None:
+    """V2's shape around an FMU: its outputs renamed (yaw_rate -> yaw_rate_physics) keep the scale of the measured
+    outputs they are, its states start from the measured ones, and the composition's free run is the FMU's run
+    from there (the correction network starts at zero)."""
+    import torch
+
+    from hypa.models.composed import ComposedModel
+    from hypa.models.spec import parse_model_spec
+
+    spec = parse_model_spec({"name": "fmu_v2", "outputs": ["yaw_rate", "side_slip"], "blocks": {
+        "car": {"kind": "physics", "fmu": str(single_track), "inputs": ["steering_wheel_angle"],
+                "outputs": ["yaw_rate_physics", "side_slip_physics"],
+                "rename": {"yaw_rate": "yaw_rate_physics", "side_slip": "side_slip_physics"}},
+        "correction": {"kind": "ann", "inputs": ["yaw_rate_physics", "side_slip_physics"],
+                       "outputs": ["yaw_rate", "side_slip"],
+                       "residual_of": ["yaw_rate_physics", "side_slip_physics"]}}})
+    measured = {"yaw_rate": (0.01, 0.2), "side_slip": (-0.002, 0.03)}
+    model = ComposedModel(spec, None, ["steering_wheel_angle"], list(measured), {"steering_wheel_angle": (0.0, 0.5)},
+                          measured, 0.01, hold="zoh", ann_hparams={"hidden_size": 4}).double()
+    car = model.blocks["car"]
+    assert car.measured_states == ("yaw_rate", "side_slip")
+    assert car.output_mean.tolist() == [0.01, -0.002] and car.output_std.tolist() == [0.2, 0.03]
+    t = np.arange(300) * 0.01
+    u = _steering(t, 5)[:, None]
+    x0 = np.array([0.05, 0.01])
+    y_past = torch.tensor([[(x0 - [0.01, -0.002]) / [0.2, 0.03]]])  # (1, 1, 2): the window start, normalized
+    with torch.no_grad():
+        y = model(torch.tensor(u[None] / 0.5), y_past)  # normalized outputs from sample 1 on
+    simulator = FMUSimulator(read_fmu(single_track))
+    try:
+        expected = simulator.run({}, ("steering_wheel_angle",), u, 0.0, 0.01, x0).y[1:, :2]
+    finally:
+        simulator.close()
+    np.testing.assert_allclose(y[0].numpy() * [0.2, 0.03] + [0.01, -0.002], expected, rtol=1e-9, atol=1e-12)
