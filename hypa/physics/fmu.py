@@ -209,6 +209,30 @@ class FMURun:
     substeps: int = 1
 
 
+@dataclass(frozen=True)
+class Sensitivities:
+    """Per sample k: ∂y_k/∂x_k (T, p, n), ∂y_k/∂u_k (T, p, m), ∂x_k+1/∂x_k (T, n, n), ∂x_k+1/∂u_k (T, n, m),
+    ∂x_k+1/∂u_k+1 (T, n, m) (a first-order hold's; zero under a zero-order hold), all SI."""
+
+    y_x: np.ndarray
+    y_u: np.ndarray
+    x_x: np.ndarray
+    x_u: np.ndarray
+    x_u_next: np.ndarray
+
+    def input_gradient(self, y_bar: np.ndarray) -> np.ndarray:
+        """dL/du (T, m) from dL/dy (T, p) by the adjoint recursion λ_k = y_x_kᵀ ȳ_k + x_x_kᵀ λ_k+1 backwards
+        over the record (the start state given: no gradient reaches it)."""
+        steps, n = self.x_x.shape[0], self.x_x.shape[1]
+        u_bar, after = np.zeros((steps, self.y_u.shape[2])), np.zeros(n)  # λ_k+1
+        for k in range(steps - 1, -1, -1):
+            u_bar[k] += self.y_u[k].T @ y_bar[k] + self.x_u[k].T @ after
+            if k + 1 < steps:
+                u_bar[k + 1] += self.x_u_next[k].T @ after
+            after = self.y_x[k].T @ y_bar[k] + self.x_x[k].T @ after
+        return u_bar
+
+
 def _extracted(path: Path) -> Path:
     """The FMU unzipped into a private temporary folder (0700; the caller removes it)."""
     from fmpy import extract
@@ -348,32 +372,82 @@ class FMUSimulator:
         n, steps = self.n, len(u)
         self.fmu.getContinuousStates(self._x, n)
         x = np.frombuffer(self._x, dtype=float, count=n).copy()
-        held = lambda k, s: u[k] if hold == "zoh" or k + 1 >= steps else u[k] + s * (u[k + 1] - u[k])  # noqa: E731
         count = self.substeps(t0, x, inputs, u[0] if steps else np.zeros(0), dt)
-        h = dt / count
         ys, xs = np.empty((steps, len(outputs))), np.empty((steps, n))
         for k in range(steps):
-            t = t0 + k * dt
-            self.fmu.setTime(t)
-            self._x[:n] = x.tolist()
-            if n:
-                self.fmu.setContinuousStates(self._x, n)
-            if inputs:
-                self.fmu.setReal(inputs, u[k].tolist())
-            ys[k], xs[k] = self.fmu.getReal(outputs), x
-            if k + 1 == steps:
-                break
-            for i in range(count):
-                a, s = t + i * h, i / count
-                k1 = self._derivatives(a, x, inputs, held(k, s))
-                k2 = self._derivatives(a + h / 2, x + h / 2 * k1, inputs, held(k, s + 0.5 / count))
-                k3 = self._derivatives(a + h / 2, x + h / 2 * k2, inputs, held(k, s + 0.5 / count))
-                k4 = self._derivatives(a + h, x + h * k3, inputs, held(k, s + 1.0 / count))
-                x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            ys[k], xs[k] = self._outputs(t0 + k * dt, x, inputs, u[k], outputs), x
+            if k + 1 < steps:
+                x = self._step(t0 + k * dt, x, inputs, u[k], u[k + 1] if hold == "foh" else u[k], dt, count)
         if not np.isfinite(ys).all():
             raise FMUError(f"FMU {self.description.path.name}: its outputs are not finite by t = "
                            f"{t0 + dt * int(np.argmax(~np.isfinite(ys).all(1))):g} s")
         return FMURun(ys, xs, started, count)
+
+    def _outputs(self, t: float, x: np.ndarray, inputs: list[int], u: np.ndarray, outputs: list[int]) -> list:
+        """The outputs at (t, x, u) (model exchange)."""
+        self.fmu.setTime(t)
+        if self.n:
+            self._x[: self.n] = x.tolist()
+            self.fmu.setContinuousStates(self._x, self.n)
+        if inputs:
+            self.fmu.setReal(inputs, u.tolist())
+        return self.fmu.getReal(outputs)
+
+    def _step(self, t: float, x: np.ndarray, inputs: list[int], u: np.ndarray, u_next: np.ndarray, dt: float,
+              count: int) -> np.ndarray:
+        """x at t + dt from x at t by ``count`` RK4 substeps, the inputs the line from u to u_next (equal:
+        a zero-order hold)."""
+        h = dt / count
+        held = lambda s: u + s * (u_next - u)  # noqa: E731
+        for i in range(count):
+            a, s = t + i * h, i / count
+            k1 = self._derivatives(a, x, inputs, held(s))
+            k2 = self._derivatives(a + h / 2, x + h / 2 * k1, inputs, held(s + 0.5 / count))
+            k3 = self._derivatives(a + h / 2, x + h / 2 * k2, inputs, held(s + 0.5 / count))
+            k4 = self._derivatives(a + h, x + h * k3, inputs, held(s + 1.0 / count))
+            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        return x
+
+    def sensitivities(self, fed: Sequence[str], u: np.ndarray, run: FMURun, t0: float, dt: float,
+                      hold: str = "zoh") -> Sensitivities:
+        """Per sample k of ``run`` (model exchange, after it on this instance): how its outputs y_k = g(x_k, u_k)
+        and its next state x_k+1 = Φ(x_k, u_k, u_k+1) move with x_k, u_k and (first-order hold) u_k+1, by
+        central differences of the FMU's own outputs and of the RK4 step, steps √ε relative."""
+        if self.interface != "model_exchange" or run.x is None:
+            raise FMUError(f"FMU {self.description.path.name}: gradients through it need its model exchange "
+                           "interface (hypa integrates it); its co-simulation steps alone")
+        d = self.description
+        refs = {v.name: v.reference for v in d.inputs}
+        inputs, outputs = [refs[n] for n in fed], [v.reference for v in d.outputs]
+        steps, n, m = len(u), self.n, u.shape[1]
+        out = Sensitivities(np.zeros((steps, len(outputs), n)), np.zeros((steps, len(outputs), m)),
+                            np.zeros((steps, n, n)), np.zeros((steps, n, m)), np.zeros((steps, n, m)))
+        for k in range(steps):
+            t, x, now = t0 + k * dt, run.x[k], u[k]
+            later = u[k + 1] if k + 1 < steps else now
+
+            def respond(x_k, u_k, u_next, t=t, last=k + 1 == steps):
+                y = np.asarray(self._outputs(t, x_k, inputs, u_k, outputs))
+                step = np.zeros(n) if last else \
+                    self._step(t, x_k, inputs, u_k, u_next if hold == "foh" else u_k, dt, run.substeps)
+                return y, step
+
+            for i in range(n + m + (m if hold == "foh" else 0)):
+                which, column = (0, i) if i < n else (1, i - n) if i < n + m else (2, i - n - m)
+                base = (x, now, later)[which]
+                delta = math.sqrt(np.finfo(float).eps) * max(abs(base[column]), 1.0)
+                shifted = [[x, now, later], [x, now, later]]
+                for sign, values in zip((1.0, -1.0), shifted):
+                    values[which] = base + sign * delta * np.eye(len(base))[column]
+                (y_up, x_up), (y_down, x_down) = respond(*shifted[0]), respond(*shifted[1])
+                dy, dx = (y_up - y_down) / (2 * delta), (x_up - x_down) / (2 * delta)
+                if which == 0:
+                    out.y_x[k][:, column], out.x_x[k][:, column] = dy, dx
+                elif which == 1:
+                    out.y_u[k][:, column], out.x_u[k][:, column] = dy, dx
+                else:
+                    out.x_u_next[k][:, column] = dx
+        return out
 
     def _cosimulate(self, inputs, outputs, u, t0, dt, hold, started) -> FMURun:
         d = self.description

@@ -8,8 +8,11 @@ sets them, ``trainable:`` names them, and the output-error identification fits t
 by differences of free runs). The FMU starts from the data where its states are measured outputs
 (their values at the window start), else from its own initialization, said once in one line.
 
-The FMU runs outside torch: its outputs carry no gradient. A network after it (correcting its
-outputs) trains; a network feeding it, or a gradient-trained parameter of it, is refused in one line.
+The FMU runs outside torch. A network after it (correcting its outputs) trains as usual; a network
+feeding it (V1's shape) trains through it: the gradient to the FMU's inputs comes from its per-sample
+sensitivities (central differences of its outputs and of hypa's RK4 step over its model exchange)
+and the adjoint recursion over the record. A parameter of it trained by gradient is refused in one
+line: its parameters are fitted by the output-error identification.
 """
 
 from __future__ import annotations
@@ -89,11 +92,20 @@ class FMUBlock(nn.Module):
 
     def forward(self, u: Tensor, x0: Tensor | None = None) -> tuple[Tensor, Tensor | None]:
         """Outputs (B, T, p) normalized from inputs (B, T, m) normalized, from states x0 (B, n) [SI] or the
-        FMU's own initialization; and the states it ran through (B, T, n) [SI] where the interface shows them."""
-        if torch.is_grad_enabled() and (u.requires_grad or any(self.params.raw[n].requires_grad
-                                                                for n in self.parameter_names)):
-            raise FMUError(f"block {self.name!r} is an FMU, which runs outside torch: no gradient reaches its inputs "
-                           "or parameters (fit its parameters by hypa's identification, put networks after it)")
+        FMU's own initialization; and the states it ran through (B, T, n) [SI] where the interface shows them.
+        A gradient reaches the inputs (model exchange: ``FMUSimulator.sensitivities``), not the parameters."""
+        if torch.is_grad_enabled() and any(self.params.raw[n].requires_grad for n in self.parameter_names):
+            raise FMUError(f"block {self.name!r} is an FMU, which runs outside torch: no gradient reaches its "
+                           "parameters (fit them by hypa's identification, and train the networks in a stage "
+                           "without the FMU's block)")
+        if torch.is_grad_enabled() and u.requires_grad:
+            return _ThroughFMU.apply(u, x0, self), None
+        y, runs, _ = self._run(u, x0)
+        states = torch.as_tensor(np.stack([r.x for r in runs]), device=u.device) if runs[0].x is not None else None
+        return y, states
+
+    def _run(self, u: Tensor, x0: Tensor | None) -> tuple[Tensor, list, np.ndarray]:
+        """The normalized outputs, each batch element's run, and the inputs [SI] (B, T, m)."""
         if x0 is None and not self._said_start:
             states = self.description.state_names
             why = f"its states {', '.join(states)} are not all measured" if states else "it declares no states"
@@ -102,7 +114,7 @@ class FMUBlock(nn.Module):
             self._said_start = True
         parameters = self.parameter_values()
         si = (u.detach().double() * self.input_std + self.input_mean).cpu().numpy()
-        ys, xs = [], []
+        ys, runs = [], []
         for b in range(si.shape[0]):
             start = None if x0 is None else x0[b].detach().double().cpu().numpy()
             run = self.simulator.run(parameters, self.fmu_inputs, si[b], 0.0, self.dt, start, self.hold)
@@ -111,11 +123,22 @@ class FMUBlock(nn.Module):
                          "initialization", self.name)
                 self._said_start = True
             ys.append(self._outputs(run.y))
-            xs.append(run.x)
+            runs.append(run)
         y = torch.as_tensor(np.stack(ys), dtype=torch.float64, device=u.device)
-        y = ((y - self.output_mean) / self.output_std).to(u.dtype)
-        states = torch.as_tensor(np.stack(xs), device=u.device) if xs and xs[0] is not None else None
-        return y, states
+        return ((y - self.output_mean) / self.output_std).to(u.dtype), runs, si
+
+    def input_gradient(self, y_bar: Tensor, runs: list, si: np.ndarray) -> Tensor:
+        """dL/du (B, T, m) normalized from dL/dy (B, T, p) normalized, by the adjoint over each run."""
+        names = self.description.output_names
+        index = [names.index(n) for n in self.fmu_outputs]
+        scale_out = (1.0 / self.output_std).cpu().numpy()
+        grads = []
+        for b, run in enumerate(runs):
+            sensitivity = self.simulator.sensitivities(self.fmu_inputs, si[b], run, 0.0, self.dt, self.hold)
+            full = np.zeros((si.shape[1], len(names)))
+            full[:, index] = y_bar[b].detach().double().cpu().numpy() * scale_out
+            grads.append(sensitivity.input_gradient(full) * self.input_std.cpu().numpy())
+        return torch.as_tensor(np.stack(grads), dtype=y_bar.dtype, device=y_bar.device)
 
     def _outputs(self, y: np.ndarray) -> np.ndarray:
         names = self.description.output_names
@@ -124,6 +147,20 @@ class FMUBlock(nn.Module):
     def extra_repr(self) -> str:
         return (f"{self.description.path.name}, {self.interface}, {len(self.fmu_inputs)} inputs, "
                 f"{len(self.fmu_outputs)} outputs, {self.n_states} states")
+
+
+class _ThroughFMU(torch.autograd.Function):
+    """The FMU's run with the gradient to its inputs by the adjoint of its per-sample sensitivities."""
+
+    @staticmethod
+    def forward(ctx, u: Tensor, x0: Tensor | None, block: FMUBlock) -> Tensor:
+        y, runs, si = block._run(u, x0)
+        ctx.block, ctx.runs, ctx.si = block, runs, si
+        return y
+
+    @staticmethod
+    def backward(ctx, y_bar: Tensor) -> tuple[Tensor, None, None]:
+        return ctx.block.input_gradient(y_bar, ctx.runs, ctx.si).to(y_bar.dtype), None, None
 
 
 def fmu_signals(description: FMUDescription, rename: Mapping[str, str], inputs: Sequence[str],

@@ -283,3 +283,34 @@ def test_a_renamed_fmu_feeds_a_correction_network_in_the_measured_scale(single_t
     finally:
         simulator.close()
     np.testing.assert_allclose(y[0].numpy() * [0.2, 0.03] + [0.01, -0.002], expected, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("hold", ["zoh", "foh"])
+def test_the_gradient_through_an_fmu_equals_differences_of_the_loss(single_track, hold: str) -> None:
+    """A network feeding an FMU trains through it: dL/du from the FMU's per-sample sensitivities and the adjoint
+    over the record equals central differences of the whole loss (every output weighted, both holds)."""
+    import torch
+
+    from hypa.physics.fmu_block import FMUBlock
+    from hypa.physics.parameters import PhysicalParameters
+
+    fmu = read_fmu(single_track)
+    block = FMUBlock("car", fmu, PhysicalParameters(fmu.parameter_specs()), [p.name for p in fmu.parameters],
+                     ("steering_wheel_angle", "rear_wheel_angle"), fmu.output_names, [(0.0, 0.5), (0.0, 0.02)],
+                     [(0.0, 0.2), (0.0, 0.03), (0.0, 3.0)], 0.01, hold)
+    t = np.arange(150) * 0.01
+    u = torch.tensor(np.stack([_steering(t, 7) / 0.5, 0.3 * np.sin(3 * t)], -1)[None], requires_grad=True)
+    x0 = torch.tensor([[0.05, 0.01]], dtype=torch.float64)
+    weights = torch.tensor(np.random.default_rng(0).normal(size=(1, len(t), 3)))
+    loss = lambda inputs: float((weights * block(inputs, x0)[0]).sum())  # noqa: E731
+    (weights * block(u, x0)[0]).sum().backward()
+    try:
+        for k, i in ((0, 0), (40, 1), (97, 0), (148, 1), (149, 0)):
+            with torch.no_grad():
+                up, down = u.detach().clone(), u.detach().clone()
+                up[0, k, i] += 1e-5
+                down[0, k, i] -= 1e-5
+                expected = (loss(up) - loss(down)) / 2e-5
+            assert float(u.grad[0, k, i]) == pytest.approx(expected, rel=1e-5, abs=1e-8), (k, i)
+    finally:
+        block.close()
