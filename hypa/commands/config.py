@@ -48,11 +48,16 @@ C = TypeVar("C")
 
 def trust_list(key: str, value: Any) -> list[str]:
     """``trust``: the import paths (``mypkg.motors:DCMotor``, ``mypkg.nets.MyBlock``) or packages
-    (``mypkg``) whose code a run folder, checkpoint or model file may name (:mod:`hypa.core.trust`); ``*``: any."""
+    (``mypkg``) whose code a run folder, checkpoint or model file may name, and the FMU files (or folders
+    above them) it may run (:mod:`hypa.core.trust`); ``*``: any."""
+    from hypa.core.trust import is_file_path
+
     items = [value] if isinstance(value, str) else list(value or [])
     for item in items:
-        if not isinstance(item, str) or not re.fullmatch(r"\*|[A-Za-z_][\w.]*(:[A-Za-z_][\w.]*)?", item):
-            raise UserError(f"{key}={item} is not an import path (package.module:Class) or a package name")
+        if not isinstance(item, str) or not (is_file_path(item) or
+                                             re.fullmatch(r"\*|[A-Za-z_][\w.]*(:[A-Za-z_][\w.]*)?", item)):
+            raise UserError(f"{key}={item} is not an import path (package.module:Class), a package name or the "
+                            "path of an FMU or a folder")
     return [str(i) for i in items]
 
 

@@ -123,6 +123,12 @@ def test_an_fmu_in_a_model_file_is_code_run_only_when_trusted(native, tmp_path) 
     read = read_model_file(folder / "model.yaml", trust=[str(folder)])  # the folder above it
     assert read["blocks"]["car"]["fmu"] == str((folder / "car.fmu").resolve())
     read_model_file(folder / "model.yaml", trust=[str(folder / "car.fmu")])  # the file itself
+    from hypa.commands.config import trust_list
+
+    assert trust_list("trust", [str(folder), "mypkg.motors:DCMotor", "car.fmu"]) == [str(folder),
+                                                                                      "mypkg.motors:DCMotor", "car.fmu"]
+    with pytest.raises(UserError, match=r"not an import path .* or the path of an FMU or a folder"):
+        trust_list("trust", ["not a path;rm"])
     with pytest.raises(UserError, match="not built into hypa"):
         read_model_file(folder / "model.yaml", trust=[str(tmp_path / "elsewhere")])
 
