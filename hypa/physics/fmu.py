@@ -412,7 +412,8 @@ class FMUSimulator:
                       hold: str = "zoh") -> Sensitivities:
         """Per sample k of ``run`` (model exchange, after it on this instance): how its outputs y_k = g(x_k, u_k)
         and its next state x_k+1 = Φ(x_k, u_k, u_k+1) move with x_k, u_k and (first-order hold) u_k+1, by
-        central differences of the FMU's own outputs and of the RK4 step, steps √ε relative."""
+        forward differences (steps √ε relative, errors of that order) from the run's own y_k and x_k+1: one
+        output evaluation and one RK4 step per state and input."""
         if self.interface != "model_exchange" or run.x is None:
             raise FMUError(f"FMU {self.description.path.name}: gradients through it need its model exchange "
                            "interface (hypa integrates it); its co-simulation steps alone")
@@ -425,28 +426,20 @@ class FMUSimulator:
         for k in range(steps):
             t, x, now = t0 + k * dt, run.x[k], u[k]
             later = u[k + 1] if k + 1 < steps else now
-
-            def respond(x_k, u_k, u_next, t=t, last=k + 1 == steps):
-                y = np.asarray(self._outputs(t, x_k, inputs, u_k, outputs))
-                step = np.zeros(n) if last else \
-                    self._step(t, x_k, inputs, u_k, u_next if hold == "foh" else u_k, dt, run.substeps)
-                return y, step
-
-            for i in range(n + m + (m if hold == "foh" else 0)):
+            stepped = k + 1 < steps
+            for i in range(n + m + (m if hold == "foh" and stepped else 0)):
                 which, column = (0, i) if i < n else (1, i - n) if i < n + m else (2, i - n - m)
                 base = (x, now, later)[which]
                 delta = math.sqrt(np.finfo(float).eps) * max(abs(base[column]), 1.0)
-                shifted = [[x, now, later], [x, now, later]]
-                for sign, values in zip((1.0, -1.0), shifted):
-                    values[which] = base + sign * delta * np.eye(len(base))[column]
-                (y_up, x_up), (y_down, x_down) = respond(*shifted[0]), respond(*shifted[1])
-                dy, dx = (y_up - y_down) / (2 * delta), (x_up - x_down) / (2 * delta)
-                if which == 0:
-                    out.y_x[k][:, column], out.x_x[k][:, column] = dy, dx
-                elif which == 1:
-                    out.y_u[k][:, column], out.x_u[k][:, column] = dy, dx
-                else:
-                    out.x_u_next[k][:, column] = dx
+                values = [x, now, later]
+                values[which] = base + delta * np.eye(len(base))[column]
+                if which < 2:  # the outputs read x_k and u_k only
+                    dy = (np.asarray(self._outputs(t, values[0], inputs, values[1], outputs)) - run.y[k]) / delta
+                    (out.y_x if which == 0 else out.y_u)[k][:, column] = dy
+                if stepped:
+                    after = self._step(t, values[0], inputs, values[1], values[2] if hold == "foh" else values[1],
+                                       dt, run.substeps)
+                    (out.x_x, out.x_u, out.x_u_next)[which][k][:, column] = (after - run.x[k + 1]) / delta
         return out
 
     def _cosimulate(self, inputs, outputs, u, t0, dt, hold, started) -> FMURun:

@@ -10,7 +10,7 @@ by differences of free runs). The FMU starts from the data where its states are 
 
 The FMU runs outside torch. A network after it (correcting its outputs) trains as usual; a network
 feeding it (V1's shape) trains through it: the gradient to the FMU's inputs comes from its per-sample
-sensitivities (central differences of its outputs and of hypa's RK4 step over its model exchange)
+sensitivities (forward differences of its outputs and of hypa's RK4 step over its model exchange)
 and the adjoint recursion over the record. A parameter of it trained by gradient is refused in one
 line: its parameters are fitted by the output-error identification.
 """
