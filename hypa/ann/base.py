@@ -66,3 +66,19 @@ class SequenceBlock(nn.Module, ABC):
 
     def extra_repr(self) -> str:
         return f"d_in={self.d_in}, d_out={self.d_out}, zero_init={self.zero_init}"
+
+
+def recurrent_layers(rnn: type[nn.RNNBase], d_in: int, hidden_size: int, num_layers: int, dropout: float,
+                     input_proj: int | None) -> tuple[nn.Module, nn.RNNBase]:
+    """An optional input projection and a stacked ``rnn`` (``nn.LSTM``, ``nn.GRU``), batch first, after
+    checking the arguments (one-line ``ValueError``): what the LSTM and GRU blocks share."""
+    if hidden_size < 1 or num_layers < 1:
+        raise ValueError(f"hidden_size and num_layers must be >= 1, got {hidden_size}, {num_layers}")
+    if not 0.0 <= dropout < 1.0:
+        raise ValueError(f"dropout must be in [0, 1), got {dropout}")
+    if input_proj is not None and input_proj < 1:
+        raise ValueError(f"input_proj must be None or >= 1, got {input_proj}")
+    proj = nn.Linear(d_in, input_proj) if input_proj is not None else nn.Identity()
+    # torch warns about dropout with one layer, where it has no effect anyway
+    return proj, rnn(input_size=input_proj or d_in, hidden_size=hidden_size, num_layers=num_layers,
+                     dropout=dropout if num_layers > 1 else 0.0, batch_first=True)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from hypa.ann.base import SequenceBlock
+from hypa.ann.base import SequenceBlock, recurrent_layers
 
 GRUState = Tensor  # h, (num_layers, B, hidden_size)
 
@@ -44,23 +44,8 @@ class GRUBlock(SequenceBlock):
         zero_init: bool = False,
     ) -> None:
         super().__init__(d_in, d_out, zero_init=zero_init)
-        if hidden_size < 1 or num_layers < 1:
-            raise ValueError(f"hidden_size and num_layers must be >= 1, got {hidden_size}, "
-                             f"{num_layers}")
-        if not 0.0 <= dropout < 1.0:
-            raise ValueError(f"dropout must be in [0, 1), got {dropout}")
-        if input_proj is not None and input_proj < 1:
-            raise ValueError(f"input_proj must be None or >= 1, got {input_proj}")
         self.hidden_size, self.num_layers = hidden_size, num_layers
-        self.proj = nn.Linear(d_in, input_proj) if input_proj is not None else nn.Identity()
-        # nn.GRU warns about dropout with one layer, where it has no effect anyway.
-        self.gru = nn.GRU(
-            input_size=input_proj or d_in,
-            hidden_size=hidden_size,
-            num_layers=num_layers,
-            dropout=dropout if num_layers > 1 else 0.0,
-            batch_first=True,
-        )
+        self.proj, self.gru = recurrent_layers(nn.GRU, d_in, hidden_size, num_layers, dropout, input_proj)
         self.head = self._make_head(hidden_size)
 
     def forward(self, x: Tensor, state: GRUState | None = None) -> tuple[Tensor, GRUState]:
