@@ -38,6 +38,8 @@ from xml.etree import ElementTree
 
 import numpy as np
 
+from hypa.core.compiler import c_compiler as core_compiler
+from hypa.core.compiler import compile_c, first_error
 from hypa.export.blocks import ExportError
 
 if TYPE_CHECKING:
@@ -75,7 +77,7 @@ def platform_folder() -> str:
 
 def c_compiler() -> str:
     """The machine's C compiler (cc, gcc or clang from PATH); ``ExportError`` when there is none."""
-    found = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
+    found = core_compiler()
     if found is None:
         raise ExportError("format=c needs a C compiler: none of cc, gcc, clang is on PATH")
     return found
@@ -283,16 +285,9 @@ def _zip(root: Path, path: Path) -> None:
 
 def _compile(command: list[str], cwd: Path, what: str) -> None:
     """Run the compiler; ``ExportError`` with its first error line when it fails."""
-    result = subprocess.run(command, cwd=cwd, capture_output=True, text=True, timeout=600, check=False)
-    if result.returncode != 0:
-        raise ExportError(f"the C compiler ({Path(command[0]).name}) could not {what}: {_first_error(result)}")
-
-
-def _first_error(result: subprocess.CompletedProcess) -> str:
-    """The compiler's first error line (its first line when none says "error")."""
-    lines = [line.strip() for line in (result.stderr + result.stdout).splitlines() if line.strip()]
-    errors = [line for line in lines if "error" in line.lower()]
-    return (errors or lines or [f"exit status {result.returncode}"])[0]
+    error = compile_c(command, cwd)
+    if error:
+        raise ExportError(f"the C compiler ({Path(command[0]).name}) could not {what}: {error}")
 
 
 def _sources(path: Path, tmp: Path) -> Path:
@@ -316,11 +311,11 @@ def compile_check(path: Path) -> tuple[str, ...]:
         sources = _sources(Path(path), Path(tmp))
         for flags in WARNING_LEVELS:
             command = [cc, "-std=c99", "-O2", *flags, "-Werror", "-c", "-o", str(Path(tmp) / "fmu.o"), "fmu.c"]
-            result = subprocess.run(command, cwd=sources, capture_output=True, text=True, timeout=600, check=False)
-            if result.returncode == 0:
+            error = compile_c(command, sources)
+            if not error:
                 return flags
     raise ExportError(f"the FMU's C sources do not compile with -std=c99 -O2 {' '.join(WARNING_LEVELS[-1])} "
-                      f"-Werror: {_first_error(result)}")
+                      f"-Werror: {error}")
 
 
 def validate(path: Path) -> None:
@@ -407,5 +402,5 @@ def time_c_step(step_c: str, state0, u_rows) -> float:
         _compile([cc, "-O2", "-std=c99", "-o", str(program), "bench.c", "-lm"], folder, "build the step's benchmark")
         result = subprocess.run([str(program), str(data)], capture_output=True, text=True, timeout=600, check=False)
     if result.returncode != 0:
-        raise ExportError(f"the C step's benchmark failed: {_first_error(result)}")
+        raise ExportError(f"the C step's benchmark failed: {first_error(result)}")
     return float(result.stdout.split()[0]) * 1e-9

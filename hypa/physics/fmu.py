@@ -245,8 +245,13 @@ def _extracted(path: Path) -> Path:
 class FMUSimulator:
     """One instance of an FMU for repeated runs (``run``), on one interface; ``close()`` frees it."""
 
-    def __init__(self, description: FMUDescription, interface: str = "auto", instance: str = "hypa") -> None:
+    def __init__(self, description: FMUDescription, interface: str = "auto", instance: str = "hypa",
+                 native: bool | None = None) -> None:
+        """``native``: run the sample loops in C (``hypa.physics.fmu_loop``; None: where it compiles here,
+        False: the Python loops, the same arithmetic)."""
         from fmpy.fmi2 import FMU2Model, FMU2Slave
+
+        from hypa.physics import fmu_loop
 
         self.description, self.interface = description, description.interface(interface)
         identifier = description.exchange if self.interface == "model_exchange" else description.cosimulation
@@ -264,6 +269,32 @@ class FMUSimulator:
         self._x = (ctypes.c_double * max(self.n, 1))()
         self._dx = (ctypes.c_double * max(self.n, 1))()
         self._fresh = True
+        self.native = fmu_loop.available() if native is None else native
+        if self.native and not fmu_loop.available():
+            raise FMUError("native=True: the FMU block's C loop does not compile here (no cc, gcc or clang)")
+        self._loops: dict[tuple[tuple[int, ...], tuple[int, ...]], fmu_loop.FMULoop] = {}
+
+    def _loop(self, inputs: Sequence[int], outputs: Sequence[int]):
+        """The C loops for these inputs and outputs (value references), None where they do not run here."""
+        if not self.native:
+            return None
+        from hypa.physics.fmu_loop import FMULoop
+
+        key = (tuple(inputs), tuple(outputs))
+        if key not in self._loops:
+            self._loops[key] = FMULoop(self.fmu, self.n, list(inputs), list(outputs))
+        return self._loops[key]
+
+    @contextlib.contextmanager
+    def _calls(self, t0: float, dt: float):
+        """A failed call of the C loops as ``FMUError`` in one line, naming the call and the time."""
+        from hypa.physics.fmu_loop import LoopError
+
+        try:
+            yield
+        except LoopError as error:
+            raise FMUError(f"FMU {self.description.path.name}: {error.call} failed at t = "
+                           f"{t0 + error.sample * dt:g} s") from None
 
     def close(self) -> None:
         with contextlib.suppress(Exception):  # terminating an instance that failed: nothing more to do
@@ -283,8 +314,13 @@ class FMUSimulator:
         inputs = [refs[n] for n in fed]
         outputs = [v.reference for v in d.outputs]
         if self.interface == "model_exchange":
-            return self._exchange(inputs, outputs, u, t0, dt, hold, started)
-        return self._cosimulate(inputs, outputs, u, t0, dt, hold, started)
+            run = self._exchange(inputs, outputs, u, t0, dt, hold, started)
+        else:
+            run = self._cosimulate(inputs, outputs, u, t0, dt, hold, started)
+        if not np.isfinite(run.y).all():
+            raise FMUError(f"FMU {self.description.path.name}: its outputs are not finite by t = "
+                           f"{t0 + dt * int(np.argmax(~np.isfinite(run.y).all(1))):g} s")
+        return run
 
     def _start(self, parameters: Mapping[str, float], refs: Mapping[str, int], t0: float) -> None:
         if not self._fresh:
@@ -373,15 +409,22 @@ class FMUSimulator:
         self.fmu.getContinuousStates(self._x, n)
         x = np.frombuffer(self._x, dtype=float, count=n).copy()
         count = self.substeps(t0, x, inputs, u[0] if steps else np.zeros(0), dt)
-        ys, xs = np.empty((steps, len(outputs))), np.empty((steps, n))
+        loop = self._loop(inputs, outputs)
+        if loop is not None:
+            with self._calls(t0, dt):
+                ys, xs = loop.exchange(u, t0, dt, count, hold == "foh", x)
+        else:
+            ys, xs = self._exchange_in_python(inputs, outputs, u, t0, dt, hold, x, count)
+        return FMURun(ys, xs, started, count)
+
+    def _exchange_in_python(self, inputs, outputs, u, t0, dt, hold, x, count) -> tuple[np.ndarray, np.ndarray]:
+        steps = len(u)
+        ys, xs = np.empty((steps, len(outputs))), np.empty((steps, self.n))
         for k in range(steps):
             ys[k], xs[k] = self._outputs(t0 + k * dt, x, inputs, u[k], outputs), x
             if k + 1 < steps:
                 x = self._step(t0 + k * dt, x, inputs, u[k], u[k + 1] if hold == "foh" else u[k], dt, count)
-        if not np.isfinite(ys).all():
-            raise FMUError(f"FMU {self.description.path.name}: its outputs are not finite by t = "
-                           f"{t0 + dt * int(np.argmax(~np.isfinite(ys).all(1))):g} s")
-        return FMURun(ys, xs, started, count)
+        return ys, xs
 
     def _outputs(self, t: float, x: np.ndarray, inputs: list[int], u: np.ndarray, outputs: list[int]) -> list:
         """The outputs at (t, x, u) (model exchange)."""
@@ -421,6 +464,10 @@ class FMUSimulator:
         refs = {v.name: v.reference for v in d.inputs}
         inputs, outputs = [refs[n] for n in fed], [v.reference for v in d.outputs]
         steps, n, m = len(u), self.n, u.shape[1]
+        loop = self._loop(inputs, outputs)
+        if loop is not None:
+            with self._calls(t0, dt):
+                return Sensitivities(*loop.sensitivities(u, t0, dt, run.substeps, hold == "foh", run.x, run.y))
         out = Sensitivities(np.zeros((steps, len(outputs), n)), np.zeros((steps, len(outputs), m)),
                             np.zeros((steps, n, n)), np.zeros((steps, n, m)), np.zeros((steps, n, m)))
         for k in range(steps):
@@ -447,6 +494,10 @@ class FMUSimulator:
         if hold == "foh" and not d.interpolates_inputs:
             raise FMUError(f"FMU {d.path.name}: its co-simulation cannot interpolate inputs (canInterpolateInputs "
                            "is false), which a first-order hold needs: use physics.hold=zoh")
+        loop = self._loop(inputs, outputs)
+        if loop is not None:
+            with self._calls(t0, dt):
+                return FMURun(loop.cosimulate(u, t0, dt, hold == "foh"), None, started)
         steps = len(u)
         ys = np.empty((steps, len(outputs)))
         for k in range(steps):

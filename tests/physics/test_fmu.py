@@ -204,6 +204,69 @@ def test_model_exchange_and_co_simulation_equal_fmpy_s_own_simulation(single_tra
         assert (error < 1e-6).all(), (interface, error)
 
 
+def test_the_c_loop_gives_the_python_loop_s_numbers(single_track) -> None:
+    """hypa.physics.fmu_loop runs the sample loops in C with the Python loops' arithmetic: a model-exchange run
+    (zero- and first-order hold), its sensitivities and a co-simulation run equal the Python loops' bit for bit."""
+    from hypa.physics import fmu_loop
+
+    if not fmu_loop.available():
+        pytest.skip("the FMU loop does not compile here")
+    fmu = read_fmu(single_track)
+    rng = np.random.default_rng(3)
+    u = np.cumsum(rng.normal(size=(300, 2)) * 0.01, axis=0)
+    fed, x0 = ("steering_wheel_angle", "rear_wheel_angle"), np.array([0.02, -0.01])
+    cases = [("model_exchange", "zoh"), ("model_exchange", "foh"), ("co_simulation", "zoh")]
+    for interface, hold in cases:
+        runs = {}
+        for native in (False, True):
+            simulator = FMUSimulator(fmu, interface, native=native)
+            try:
+                run = simulator.run({"cf": 70000.0}, fed, u, 0.5, 0.01, x0, hold)
+                sensitivity = (simulator.sensitivities(fed, u, run, 0.5, 0.01, hold)
+                               if interface == "model_exchange" else None)
+            finally:
+                simulator.close()
+            runs[native] = run, sensitivity
+        (slow, slow_s), (fast, fast_s) = runs[False], runs[True]
+        np.testing.assert_array_equal(fast.y, slow.y)
+        assert fast.substeps == slow.substeps and np.abs(fast.y).max() > 0.0
+        if slow_s is not None:
+            np.testing.assert_array_equal(fast.x, slow.x)
+            for name in ("y_x", "y_u", "x_x", "x_u", "x_u_next"):
+                np.testing.assert_array_equal(getattr(fast_s, name), getattr(slow_s, name), err_msg=name)
+            assert (np.abs(fast_s.x_u_next).max() > 0.0) == (hold == "foh")
+
+
+def test_a_failing_call_or_a_non_finite_output_is_refused_in_one_line(single_track) -> None:
+    """A call into the FMU that fails inside the C loop is named with its time; outputs that turn NaN are
+    refused in both interfaces and both loops."""
+    from hypa.physics import fmu_loop
+
+    fmu = read_fmu(single_track)
+    u = np.zeros((50, 1))
+    u[30, 0] = np.nan
+    for interface in ("model_exchange", "co_simulation"):
+        for native in (False, True) if fmu_loop.available() else (False,):
+            simulator = FMUSimulator(fmu, interface, native=native)
+            try:
+                with pytest.raises(FMUError, match=r"outputs are not finite by t = 0\.3 s"):
+                    simulator.run({}, ("steering_wheel_angle",), u, 0.0, 0.01)
+            finally:
+                simulator.close()
+    if not fmu_loop.available():
+        return
+    simulator = FMUSimulator(fmu, "model_exchange", native=True)
+    try:
+        simulator.run({}, ("steering_wheel_angle",), np.zeros((5, 1)), 0.0, 0.01)
+        simulator.fmu.terminate()  # every call but a few is an error now
+        with pytest.raises(FMUError, match=r"single_track.fmu: fmi2SetTime failed at t = 0\.2 s"), \
+                simulator._calls(0.2, 0.01):
+            simulator._loop([fmu.inputs[0].reference], [v.reference for v in fmu.outputs]).exchange(
+                np.zeros((5, 1)), 0.2, 0.01, 1, False, np.zeros(2))
+    finally:
+        simulator.fmu.freeInstance()
+
+
 def _write_data(folder: Path, seconds: dict[str, float], rear_gain: float = 0.0) -> None:
     """Records of the linear single track at TRUE, simulated by scipy (an independent simulator), 100 Hz; with
     ``rear_gain``, an active rear steering the FMU lacks: δr' = (rear_gain δf - δr) / 0.2 s, its angle written as
