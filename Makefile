@@ -11,7 +11,7 @@ PYTEST := $(BIN)/python -m pytest -q $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST
 export NO_MKDOCS_2_WARNING := 1
 
 .DEFAULT_GOAL := help
-.PHONY: help install train evaluate reproduce simulate testbench tensorboard test test-slow test-all timing speed bench benchmark docs serve-docs lint clean
+.PHONY: help install train evaluate reproduce simulate testbench tensorboard test test-slow test-all timing timing-fmu speed bench benchmark docs serve-docs lint clean
 
 help: ## list the targets
 	@grep -E '^[a-zA-Z_-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-12s %s\n", $$1, $$2}'
@@ -62,6 +62,10 @@ test-all: $(STAMP) ## every test
 
 timing: $(STAMP) ## how fast: the physics blocks (ratios) and the time to name causes; one part: ARGS="physics --min-time 0.1"
 	$(BIN)/hypa timing $(ARGS)
+
+timing-fmu: $(STAMP) ## an FMU block's speed (C loop against Python) on the tests' single-track FMU, built here with cc
+	mkdir -p .cache && $(BIN)/python -c "import sys; sys.path.insert(0, 'tests'); from pathlib import Path; from fmu_fixtures import build_fmu; print(build_fmu('single_track', Path('$(CURDIR)/.cache/timing-fmu')))" > .cache/timing-fmu.path
+	$(BIN)/hypa timing fmu --fmu "$$(cat .cache/timing-fmu.path)" $(ARGS)
 
 speed bench: ## the former names of make timing (deprecated, go in the next release)
 	@echo "make $@ is deprecated: use make timing" >&2

@@ -20,7 +20,6 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from hypa.core.errors import UserError
 from hypa.core.metrics import correlation, errors, rms
 from hypa.diagnosis.catalogue import Entry
 from hypa.diagnosis.coverage import ChannelCoverage, coverage, short_lines
@@ -58,7 +57,11 @@ def with_correction(spec: ModelSpec, inputs: Sequence[str]) -> ModelSpec:
     for b in spec.blocks:
         outputs = tuple(renamed.get(s, s) for s in b.outputs)
         observe = {**b.observe, **{renamed[s]: s for s in b.outputs if s in renamed}} if b.kind == "physics" else {}
-        blocks.append(dataclasses.replace(b, outputs=outputs, observe=observe) if outputs != b.outputs else b)
+        variable = {signal: name for name, signal in b.rename.items()}  # an FMU's outputs keep their variables
+        rename = {**b.rename, **{variable.get(s, s): renamed[s] for s in b.outputs if s in renamed}} \
+            if b.kind == "fmu" else b.rename
+        blocks.append(dataclasses.replace(b, outputs=outputs, observe=observe, rename=rename)
+                      if outputs != b.outputs else b)
     correction = BlockSpec(name="correction", kind="ann", inputs=(*inputs, *renamed.values()),
                            outputs=tuple(spec.outputs), residual_of=tuple(renamed.values()))
     from hypa.models.spec import StageSpec
@@ -133,15 +136,16 @@ def diagnose_system(nominal: ModelSpec, problem: Problem, out: Path, train_overr
     ``train_extension(arguments)``: trains the written model with those ``hypa train`` arguments
     and returns its free runs over the validation records and what its networks learned
     (:mod:`hypa.diagnosis.trained`); its gain and those explanations join the report."""
-    fmus = [b.name for b in nominal.blocks if b.kind == "fmu"]
-    if fmus:  # before any step: the catalogue's edits are built around hypa's own physics blocks so far
-        raise UserError(f"block {fmus[0]!r} is an FMU: hypa diagnose does not search around an FMU yet; simulate "
-                        "and identify it with hypa simulate and hypa train")
     problem = problem.scaled(frozen(nominal))
     problem.require_data()  # before any step is announced: data too short are refused in one line
     out.mkdir(parents=True, exist_ok=True)
     dm, started = problem.dm, time.perf_counter()
     before, covered = _nominal_runs(nominal, problem, progress)
+    fmus = [b.name for b in nominal.blocks if b.kind == "fmu"]
+    if fmus:
+        progress(f"          {', '.join(fmus)}: an FMU; searched around it (its inputs, outputs and parameters, an "
+                 "input of it no channel feeds); causes inside it (its states' curves and limits, a missing mode, "
+                 "a parameter's dependence, a channel into its derivatives) are skipped: it hides its equations")
     crossed = len(problem.folds()) > 1
     progress("step 2/4: naming the causes (" + (
         f"each candidate fitted on every other block of all records and scored on the rest, {len(problem.folds())} "

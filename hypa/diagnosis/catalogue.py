@@ -6,7 +6,7 @@ the vehicle's, a user's own file with ``diagnosis.catalogue=[PATH]``)::
     - id: input_delay                  # the cause's id in reports and diagnosis.json
       name: dead time on a measured input
       for_each: input                  # input | output | parameter | scheduling | block | state |
-                                       # auxiliary | block_input
+                                       # auxiliary | block_input | fmu_input
       where: {system: [single_track_front]}   # block only: blocks of these systems, or a
                                        # mapping {system: its replacement, ...} read as {system}
       when: {rws_ratio: nonzero}       # only where these nominal parameters are (non)zero
@@ -45,6 +45,9 @@ diagnosis holds as an input, ``HypaDataModule(auxiliary_inputs=True)``) for each
 states: ``{channel}``, ``{block}``, ``{block_inputs}`` and ``{block_driven}`` (its inputs and driven
 signals, lists), ``{drives}`` and ``{drive_scales}`` (the names of the channel's weights in each
 state derivative, and a mapping of their fixed sizes, ``hypa.physics.dependent.Driven``).
+``for_each: fmu_input`` visits each input of an FMU block that no signal feeds, with each measured input
+channel as its source: ``{block}``, ``{fmu_input}`` (the FMU's variable; ``{fmu_input_id}`` as an
+identifier), ``{channel}``, ``{block_inputs}``.
 ``for_each: block_input`` visits each input of each physics block with states that writes a model
 output: ``{block}``, ``{mode}`` (the system's name of the input), ``{block_input}`` (its signal),
 ``{block_modes}``, ``{mode_weights}`` and ``{mode_parameters}`` (a mapping: the mode's time constant,
@@ -64,6 +67,7 @@ blocks' ``trainable``), or all.
 from __future__ import annotations
 
 import copy
+import re
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -77,7 +81,7 @@ from hypa.diagnosis.edits import AFFINE, GRADIENT, NONE, Candidate, frozen
 from hypa.models.spec import ELEMENT_PARAMETER, ModelSpec, ModelSpecError, parse_model_spec
 
 GENERIC = Path(__file__).with_name("catalogue.yaml")
-FOR_EACH = ("input", "output", "parameter", "scheduling", "block", "state", "auxiliary", "block_input")
+FOR_EACH = ("input", "output", "parameter", "scheduling", "block", "state", "auxiliary", "block_input", "fmu_input")
 FITS = {"gradient": GRADIENT, "offset": AFFINE, "none": NONE}
 _KEYS = {"id", "name", "for_each", "where", "when", "fit", "offset", "patch", "learn", "by", "scan"}
 ON = ("input", "state")  # what a for_each: parameter entry's ``by`` visits: the block's inputs, its states
@@ -231,6 +235,10 @@ def apply_patch(spec: ModelSpec, patch: Mapping[str, Any], dt: float, where: str
     config = spec_config(spec)
     rewire = patch.get("rewire") or {}
     for block in config["blocks"].values():
+        if block.get("fmu") is not None:  # an FMU's input keeps its variable, fed by the new signal
+            variable = {signal: fmu for fmu, signal in (block.get("rename") or {}).items()}
+            block["rename"] = {**(block.get("rename") or {}),
+                               **{variable.get(s, s): rewire[s] for s in block["inputs"] if s in rewire}}
         block["inputs"] = [rewire.get(s, s) for s in block["inputs"]]
     new = {}
     for name, fields in (patch.get("blocks") or {}).items():
@@ -331,6 +339,8 @@ def _contexts(entry: Entry, spec: ModelSpec, inputs: Sequence[str], outputs: Seq
                     "channel": n, "block": b.name, "block_inputs": list(b.inputs), "block_driven": list(b.driven)}
     elif entry.for_each == "block_input":
         yield from _block_inputs(spec, outputs)
+    elif entry.for_each == "fmu_input":
+        yield from _fmu_inputs(spec, inputs)
     elif entry.for_each == "input":
         consumed = {s for b in spec.blocks for s in b.inputs}
         yield from ((n, {"input": n}) for n in inputs if n in consumed)
@@ -346,6 +356,10 @@ def _contexts(entry: Entry, spec: ModelSpec, inputs: Sequence[str], outputs: Seq
     else:
         declared = any(uncertain.values())
         for b in spec.blocks:
+            if b.kind == "fmu" and entry.for_each == "parameter" and not entry.on:  # its Real parameters: refits
+                yield from ((name, {"block": b.name, "parameter": name, "qualified": name})
+                            for name in b.parameter_names
+                            if name not in scheduling and (not declared or name in uncertain.get(b.name, ())))
             if b.kind != "physics":
                 continue
             system = b.system_model()
@@ -369,6 +383,27 @@ def _contexts(entry: Entry, spec: ModelSpec, inputs: Sequence[str], outputs: Seq
                                     continue
                                 yield f"{p.name} on {on}", {**context, "on": on, "on_kind": kind,
                                                             "on_signal": b.inputs[i] if kind == "input" else ""}
+
+
+def _fmu_inputs(spec: ModelSpec, inputs: Sequence[str]) -> Iterator[tuple[str, dict[str, Any]]]:
+    """Each input of an FMU block that no signal feeds (it stays at its start value), with each measured
+    input channel (an auxiliary one among them) as the signal it may follow: ``{fmu_input}`` (the FMU's
+    variable), ``{fmu_input_id}`` (as an identifier), ``{channel}``, ``{block}``, ``{block_inputs}``; the
+    target ``<variable> from <channel>`` (``<block>/...`` where several FMU blocks have one)."""
+    from hypa.physics.fmu import read_fmu
+
+    blocks = [b for b in spec.blocks if b.kind == "fmu"]
+    for b in blocks:
+        variable = {signal: name for name, signal in b.rename.items()}
+        fed = {variable.get(s, s) for s in b.inputs}
+        for name in read_fmu(b.fmu or "").input_names:
+            if name in fed:
+                continue
+            for channel in inputs:
+                target = f"{name} from {channel}"
+                yield (target if len(blocks) == 1 else f"{b.name}/{target}"), {
+                    "block": b.name, "fmu_input": name, "fmu_input_id": re.sub(r"\W", "_", name), "channel": channel,
+                    "block_inputs": list(b.inputs)}
 
 
 def _block_inputs(spec: ModelSpec, outputs: Sequence[str]) -> Iterator[tuple[str, dict[str, Any]]]:
@@ -475,9 +510,8 @@ def _knobs(edited: ModelSpec, values: Mapping[str, float],
             unit = "s" if b.kind == "delay" else channels.get(b.inputs[0], (0.0, ""))[1]
             knobs.update({f"{b.name}/{own}": unit} if own in b.trainable else {})
             continue
-        system = b.system_model()
         try:
-            specs = {s.name: s for s in system.parameter_specs({**values, **edited.parameters})}
+            specs = {s.name: s for s in b.parameter_specs({**values, **edited.parameters})}
         except ValueError as error:  # a value out of its range (an entry's expression gave a k of 0)
             raise CatalogueError(f"{where}: {error}") from None
         for t in b.trainable:

@@ -62,8 +62,7 @@ def set_free(spec: ModelSpec, names: Sequence[str]) -> ModelSpec:
             owners = [block] if block in free else []
         else:
             local = name
-            owners = [b.name for b in spec.blocks if b.kind == "physics"
-                      and name in b.system_model().parameter_names]
+            owners = [b.name for b in spec.blocks if b.kind in ("physics", "fmu") and name in b.parameter_names]
         for owner in owners:
             if local not in free[owner]:
                 free[owner].append(local)
@@ -79,10 +78,13 @@ def applied(candidate: Candidate, values: Mapping[str, float]) -> ModelSpec:
         return dataclasses.replace(spec, sensor_offsets={**spec.sensor_offsets, candidate.target:
                                                          float(values[candidate.target])})
     shared, own = dict(spec.parameters), {}
+    fmu_owner = {name: b.name for b in spec.blocks if b.kind == "fmu" for name in b.parameter_names}
     for name, value in values.items():
         if "/" in name:
             block, local = name.split("/", 1)
             own.setdefault(block, {})[local] = float(value)
+        elif name in fmu_owner:  # an FMU's parameter: its block's own (which win over the model's)
+            own.setdefault(fmu_owner[name], {})[name] = float(value)
         else:
             shared[name] = float(value)
     blocks = tuple(dataclasses.replace(b, parameters={**b.parameters, **own[b.name]}) if b.name in own else b

@@ -22,6 +22,7 @@ LM_WINDOWS_PER_BATCH = 2  # its fixed windows: this many batches' worth (256 by 
 LM_PROBE = 1e-5  # the finite-difference step on a raw knob (a relative 1e-5 for positive parameters)
 LM_TOLERANCE = 1e-3  # converged: a step lowered the error by less than this share
 LM_DAMPING = 1e-2  # the starting damping (relative to the normal matrix's diagonal)
+LM_ROUND_OFF = 1e-8  # a Jacobian column this small beside the largest is finite differences' round-off: no step
 LM_MAX_STEP = 1.0  # the largest move of a raw knob per Levenberg-Marquardt step (a factor e for a positive one)
 SANE_DECADES = 3.0  # a positive knob more than this many decades from where its fit started has diverged
 SANE_SIGNED = 1e3  # so has a signed knob beyond this many times its nominal magnitude
@@ -178,7 +179,14 @@ class GradientFit:
         r0, jacobian = self._linearize()
         self._linearized = None  # the knobs move: the next step linearizes again
         cost = float(r0 @ r0)
+        # a knob whose column is round-off where the step starts (a lag's time constant while its gain is 0,
+        # through an FMU that reads the lag's zeros as a sum of tiny ones) does not move in this step: its
+        # noise would steer the whole step into the trust region's edge
+        norms = jacobian.norm(dim=0)
+        dead = norms <= LM_ROUND_OFF * norms.max()
+        jacobian = jacobian * (~dead).to(jacobian.dtype)
         normal, gradient = jacobian.T @ jacobian, jacobian.T @ r0
+        normal = normal + torch.diag(dead.to(normal.dtype))
         while self.damping < 1e6:
             step = torch.linalg.solve(normal + self.damping * torch.diag(torch.diagonal(normal) + 1e-12), -gradient)
             step = step * min(1.0, LM_MAX_STEP / max(float(step.abs().max()), 1e-300))  # a trust region

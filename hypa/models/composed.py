@@ -206,11 +206,12 @@ class ComposedModel(nn.Module):
     def eigenvalues(self) -> Tensor:
         """The modes [1/s] of the physics blocks at the current parameter values (complex, every
         block's eigenvalues of A together; a scheduled block's at its parameters' nominal values, a
-        nonlinear block's linearised about its operating point, :meth:`LTIBlock.linearised_a`). What
-        the model's own time scales are read from (:class:`hypa.diagnosis.scales.Scales`); empty for
-        a model without states."""
+        nonlinear block's linearised about its operating point, :meth:`LTIBlock.linearised_a`; an FMU's
+        at its own initial state, ``FMUBlock.eigenvalues``). What the model's own time scales are read
+        from (:class:`hypa.diagnosis.scales.Scales`); empty for a model without states."""
         modes = [torch.linalg.eigvals(self.blocks[b.name].linearised_a(torch.float64))
                  for b in self.order if b.kind == "physics" and self.blocks[b.name].model.n_states]
+        modes += [self.blocks[b.name].eigenvalues() for b in self.order if b.kind == "fmu"]
         return torch.cat(modes) if modes else torch.zeros(0, dtype=torch.complex128)
 
     def outputs(self, signals: Mapping[str, Signal], past: int = 0) -> Tensor:

@@ -24,6 +24,7 @@ from hypa.core.errors import DataError, UserError
 from hypa.core.trust import check_name
 
 if TYPE_CHECKING:
+    from hypa.physics.parameters import ParameterSpec
     from hypa.physics.statespace import LTIModel
 
 BLOCK_KINDS = ("physics", "ann", "delay", "saturation", "fmu")
@@ -154,6 +155,26 @@ class BlockSpec:
     fmu: str | None = None
     interface: str | None = None  # None: auto
     rename: Mapping[str, str] = field(default_factory=dict)
+
+    def parameter_specs(self, values: Mapping[str, float]) -> list[ParameterSpec]:
+        """A physics block's parameters (its system's, at ``values`` by their names), or an FMU block's Real
+        parameters (at the values among ``values`` that name them, else the FMU's own)."""
+        if self.kind == "fmu":
+            from hypa.physics.fmu import read_fmu
+
+            fmu = read_fmu(self.fmu or "")
+            names = {p.name for p in fmu.parameters}
+            return fmu.parameter_specs({k: v for k, v in values.items() if k in names})
+        return self.system_model().parameter_specs(values)
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """A physics block's system's parameter names, or an FMU block's Real parameters."""
+        if self.kind == "fmu":
+            from hypa.physics.fmu import read_fmu
+
+            return tuple(p.name for p in read_fmu(self.fmu or "").parameters)
+        return tuple(self.system_model().parameter_names)
 
     def system_model(self) -> LTIModel:
         """A physics block's system as built for it: ``system`` with its ``curved`` and ``limited``

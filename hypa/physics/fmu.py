@@ -25,6 +25,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import dataclasses
+import functools
 import logging
 import math
 import shutil
@@ -155,12 +156,19 @@ def _real(variable) -> FMUVariable:
 
 
 def read_fmu(path: Path | str) -> FMUDescription:
-    """What the FMU at ``path`` declares; ``FMUError`` in one line for what hypa cannot run."""
-    from fmpy import read_model_description
-
+    """What the FMU at ``path`` declares; ``FMUError`` in one line for what hypa cannot run. Read once per
+    process while the file stays the same (its size and modification time)."""
     path = Path(path)
     if not path.is_file():
         raise FMUError(f"FMU {path}: no such file")
+    stat = path.stat()
+    return _read_fmu(path.resolve(), stat.st_size, stat.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=64)
+def _read_fmu(path: Path, size: int, modified: int) -> FMUDescription:
+    from fmpy import read_model_description
+
     try:
         with zipfile.ZipFile(path) as archive:
             entries = archive.infolist()
@@ -393,6 +401,19 @@ class FMUSimulator:
             moved[j] += step
             columns.append((self._derivatives(t, moved, refs, u) - base) / step)
         return np.array(columns, dtype=float).T if columns else np.zeros((0, 0))
+
+    def modes(self, parameters: Mapping[str, float], t0: float = 0.0) -> np.ndarray:
+        """The eigenvalues [1/s] of the state Jacobian at the FMU's own initial state and input start values
+        (model exchange; its time scales, as a class's linear part gives them); empty without states or model
+        exchange."""
+        if self.interface != "model_exchange" or not self.n:
+            return np.zeros(0, dtype=complex)
+        d = self.description
+        self._start(parameters, {v.name: v.reference for v in (*d.inputs, *d.parameters)}, t0)
+        self._initialize(None)
+        self.fmu.getContinuousStates(self._x, self.n)
+        x = np.frombuffer(self._x, dtype=float, count=self.n).copy()
+        return np.linalg.eigvals(self.jacobian(t0, x, [], np.zeros(0)))
 
     def substeps(self, t: float, x: np.ndarray, refs: list[int], u: np.ndarray, dt: float) -> int:
         """RK4 substeps per sample: (ρ h)^5 / 120 <= LOCAL_ERROR with ρ the state Jacobian's spectral radius."""

@@ -90,6 +90,10 @@ class FMUBlock(nn.Module):
         values = self.params.as_floats()
         return {n: values[n] for n in self.parameter_names}
 
+    def eigenvalues(self) -> Tensor:
+        """The FMU's modes [1/s] at its own initial state (``FMUSimulator.modes``; empty in co-simulation)."""
+        return torch.as_tensor(self.simulator.modes(self.parameter_values()), dtype=torch.complex128)
+
     def forward(self, u: Tensor, x0: Tensor | None = None) -> tuple[Tensor, Tensor | None]:
         """Outputs (B, T, p) normalized from inputs (B, T, m) normalized, from states x0 (B, n) [SI] or the
         FMU's own initialization; and the states it ran through (B, T, n) [SI] where the interface shows them.
