@@ -1,6 +1,7 @@
 """Test FMUs compiled here from C (tests/fmus/*.c), nothing downloaded: ``build_fmu(kind, folder, **start)``.
 
-Kinds (FMI 2.0, linux64 binaries built with the machine's gcc; sources and FMI headers in ``sources/``):
+Kinds (Linux x86-64 binaries built with the machine's gcc, in ``binaries/linux64`` for FMI 2.0 and
+``binaries/x86_64-linux`` for FMI 3.0; sources and the FMI headers fmpy ships in ``sources/``):
 
 * ``single_track``: model exchange and co-simulation; the linear single-track (bicycle) vehicle model with the
   states ``yaw_rate`` [rad/s] and ``side_slip`` [rad] (each one variable, causality output, initial exact:
@@ -11,12 +12,18 @@ Kinds (FMI 2.0, linux64 binaries built with the machine's gcc; sources and FMI h
   FMU state (get/set/free, no serialization).
 * ``cosim_lag``: co-simulation only, y' = (K u - y) / tau integrated exactly over any step; the input ``u``,
   the output ``y`` (initial exact), the fixed parameters ``K`` [1] and ``tau`` [s]. Nothing optional.
+* ``single_track_fmi3``: ``single_track`` as an FMI 3.0 FMU (fmiVersion 3.0, instantiationToken = the GUID):
+  model exchange and co-simulation (no event mode in co-simulation, no scheduled execution), the same
+  variables, value references, units and start values, every one Float64 but ``n_sub`` (Int32), and the
+  independent variable ``time`` [s] (value reference 16) that FMI 3.0 requires; the same equations, RK4 per
+  ``fmi3DoStep``, directional derivatives and FMU state. Every function of fmi3Functions.h is exported (fmpy
+  binds them all); the unsupported ones log an error and return fmi3Error.
 
 ``start`` overrides the start values by variable name (parameters, inputs, states: any variable with one),
 written into both modelDescription.xml and the generated ``sources/model.h``, so an FMU built with
 ``cf=0.85 * 80000`` simulates with that value when the importer sets nothing. An FMU already in ``folder``
-built from the same C source and variables (start values included) is reused: its GUID is a hash of them;
-another one there is replaced (so a variant wants its own folder).
+built from the same C source and variables (start values included) is reused: its GUID (FMI 3.0: its
+instantiation token) is a hash of them; another one there is replaced (so a variant wants its own folder).
 Without gcc (or on a machine other than Linux x86-64) ``build_fmu`` skips the test with one line.
 """
 
@@ -40,6 +47,8 @@ import pytest
 SOURCES = Path(__file__).parent / "fmus"
 FLAGS = ("-shared", "-fPIC", "-O2", "-std=c99", "-Wall", "-Wextra", "-Werror")
 HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+HEADERS_FMI3 = ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h")
+INTEGER_TYPES = ("Integer", "Int32")  # FMI 2.0, FMI 3.0
 STEP_SIZE = 0.01  # DefaultExperiment stepSize [s]
 
 # the units: name -> base-unit exponents (FMI 2.0 BaseUnit)
@@ -94,9 +103,29 @@ VARIABLES: dict[str, list[dict]] = {
         _parameter("tau", 3, "s", 0.5, "time constant", variability="fixed", positive=True),
     ],
 }
+
+
+def _fmi3(variables: list[dict], time_vr: int) -> list[dict]:
+    """FMI 2.0 variables as FMI 3.0 ones: Real -> Float64, Integer -> Int32, ``derivative`` the state's value
+    reference (FMI 2.0: its index), "fmi2" -> "fmi3" in the descriptions; the independent ``time`` first."""
+    converted = [_var("time", time_vr, "independent", "continuous", "s", description="simulation time",
+                      type_="Float64")]
+    for v in variables:
+        v = dict(v, type={"Real": "Float64", "Integer": "Int32"}[v["type"]],
+                 description=v["description"].replace("fmi2", "fmi3"))
+        if v["derivative"] is not None:
+            v["derivative"] = variables[v["derivative"] - 1]["vr"]
+        converted.append(v)
+    return converted
+
+
+VARIABLES["single_track_fmi3"] = _fmi3(VARIABLES["single_track"], 16)
 KINDS = tuple(VARIABLES)
-INTERFACES = {"single_track": ("ModelExchange", "CoSimulation"), "cosim_lag": ("CoSimulation",)}
-OPTIONAL = {"single_track": True, "cosim_lag": False}  # directional derivatives and the FMU state
+FMI_VERSION = {"single_track": "2.0", "cosim_lag": "2.0", "single_track_fmi3": "3.0"}
+INTERFACES = {"single_track": ("ModelExchange", "CoSimulation"), "cosim_lag": ("CoSimulation",),
+              "single_track_fmi3": ("ModelExchange", "CoSimulation")}
+# directional derivatives and the FMU state
+OPTIONAL = {"single_track": True, "cosim_lag": False, "single_track_fmi3": True}
 
 
 def start_values(kind: str) -> dict[str, float]:
@@ -113,11 +142,12 @@ def build_fmu(kind: str, folder: Path, **start: float) -> Path:
     """``<folder>/<kind>.fmu`` built from tests/fmus/<kind>.c with the start values ``start`` (by variable name)
     in place of the defaults; reused where one of the same source and start values is already there."""
     variables = _with_start(kind, start)
-    binaries = _platform()
+    fmi3 = FMI_VERSION[kind] == "3.0"
+    binaries = _platform(FMI_VERSION[kind])
     cc = shutil.which("gcc")
     if cc is None:
         pytest.skip("the test FMUs are compiled from C: gcc is not on PATH")
-    fmpy = pytest.importorskip("fmpy", reason="the test FMUs take their FMI 2.0 headers from fmpy")
+    fmpy = pytest.importorskip("fmpy", reason="the test FMUs take their FMI headers from fmpy")
     source = (SOURCES / f"{kind}.c").read_text(encoding="utf-8")
     key = "\n".join([kind, source, " ".join(FLAGS), repr(variables)])
     guid = "{" + str(uuid.uuid5(uuid.NAMESPACE_URL, "hypa-test-fmu:" + hashlib.sha256(key.encode()).hexdigest()))
@@ -131,11 +161,14 @@ def build_fmu(kind: str, folder: Path, **start: float) -> Path:
         root = Path(tmp) / "fmu"
         sources = root / "sources"
         sources.mkdir(parents=True)
-        for header in HEADERS:
+        for header in HEADERS_FMI3 if fmi3 else HEADERS:
             shutil.copy(Path(fmpy.__file__).parent / "c-code" / header, sources / header)
         (sources / f"{kind}.c").write_text(source, encoding="utf-8")
         (sources / "model.h").write_text(_model_h(kind, guid, variables), encoding="utf-8")
-        (root / "modelDescription.xml").write_bytes(_model_description(kind, guid, variables))
+        describe = _model_description_fmi3 if fmi3 else _model_description
+        (root / "modelDescription.xml").write_bytes(describe(kind, guid, variables))
+        if fmi3:
+            (sources / "buildDescription.xml").write_bytes(_build_description(kind))
         library = root / "binaries" / binaries / f"{kind}.so"
         library.parent.mkdir(parents=True)
         command = [cc, *FLAGS, "-o", str(library), f"{kind}.c", "-lm"]
@@ -166,9 +199,9 @@ def _with_start(kind: str, start: dict) -> list[dict]:
         raise ValueError(f"{kind}: {unknown} have no start value to override; these do: {', '.join(by_name)}")
     for name, value in start.items():
         variable = by_name[name]
-        if variable["type"] == "Integer":
+        if variable["type"] in INTEGER_TYPES:
             if value != int(value):
-                raise ValueError(f"{kind}: {name} is an Integer, not {value!r}")
+                raise ValueError(f"{kind}: {name} is an {variable['type']}, not {value!r}")
             value = int(value)
         else:
             value = float(value)
@@ -179,17 +212,20 @@ def _with_start(kind: str, start: dict) -> list[dict]:
     return variables
 
 
-def _platform() -> str:
+def _platform(version: str = "2.0") -> str:
+    """The folder of the binaries (FMI 2.0: linux64, FMI 3.0: x86_64-linux); skips on another machine."""
     if (platform.system(), platform.machine().lower()) not in (("Linux", "x86_64"), ("Linux", "amd64")):
         pytest.skip(f"the test FMUs are built for linux64 only, not {platform.system()} {platform.machine()}")
-    return "linux64"
+    return "x86_64-linux" if version == "3.0" else "linux64"
 
 
 def _guid(path: Path) -> str | None:
-    """The GUID in an FMU's modelDescription.xml; None where there is no readable FMU."""
+    """The GUID (FMI 3.0: the instantiation token) in an FMU's modelDescription.xml; None where there is no
+    readable FMU."""
     try:
         with zipfile.ZipFile(path) as archive:
-            return ElementTree.fromstring(archive.read("modelDescription.xml")).get("guid")
+            root = ElementTree.fromstring(archive.read("modelDescription.xml"))
+            return root.get("guid") if root.get("fmiVersion") != "3.0" else root.get("instantiationToken")
     except (OSError, KeyError, zipfile.BadZipFile, ElementTree.ParseError):
         return None
 
@@ -199,7 +235,7 @@ def _macro(name: str) -> str:
 
 
 def _number(variable: dict) -> str:
-    return str(variable["start"]) if variable["type"] == "Integer" else repr(float(variable["start"]))
+    return str(variable["start"]) if variable["type"] in INTEGER_TYPES else repr(float(variable["start"]))
 
 
 def _model_h(kind: str, guid: str, variables: list[dict]) -> str:
@@ -291,3 +327,84 @@ def _model_structure(root: ElementTree.Element, variables: list[dict]) -> None:
         element = ElementTree.SubElement(structure, "InitialUnknowns")
         for v in sorted(initial, key=lambda v: index[v["name"]]):
             ElementTree.SubElement(element, "Unknown", {"index": str(index[v["name"]])})
+
+
+def _model_description_fmi3(kind: str, guid: str, variables: list[dict]) -> bytes:
+    """modelDescription.xml (FMI 3.0): the variables as <Float64>/<Int32> elements, ``derivative`` the state's
+    value reference, the model structure by value reference."""
+    optional = "true" if OPTIONAL[kind] else "false"
+    root = ElementTree.Element("fmiModelDescription", {
+        "fmiVersion": "3.0", "modelName": kind, "instantiationToken": guid,
+        "description": f"hypa test fixture {kind}", "generationTool": "tests/fmu_fixtures.py",
+        "variableNamingConvention": "structured"})
+    common = {"modelIdentifier": kind, "needsExecutionTool": "false", "canBeInstantiatedOnlyOncePerProcess": "false",
+              "canGetAndSetFMUState": optional, "canSerializeFMUState": "false",
+              "providesDirectionalDerivatives": optional, "providesAdjointDerivatives": "false",
+              "providesPerElementDependencies": "false"}
+    own = {"ModelExchange": {"needsCompletedIntegratorStep": "false", "providesEvaluateDiscreteStates": "false"},
+           "CoSimulation": {"canHandleVariableCommunicationStepSize": "true", "maxOutputDerivativeOrder": "0",
+                            "providesIntermediateUpdate": "false", "mightReturnEarlyFromDoStep": "false",
+                            "canReturnEarlyAfterIntermediateUpdate": "false", "hasEventMode": "false",
+                            "providesEvaluateDiscreteStates": "false"}}
+    for interface in INTERFACES[kind]:
+        ElementTree.SubElement(root, interface, common | own[interface])
+    definitions = ElementTree.SubElement(root, "UnitDefinitions")
+    for unit in sorted({v["unit"] for v in variables if v["unit"] is not None}):
+        ElementTree.SubElement(ElementTree.SubElement(definitions, "Unit", {"name": unit}), "BaseUnit",
+                               {k: str(e) for k, e in UNITS[unit].items()})
+    categories = ElementTree.SubElement(root, "LogCategories")
+    ElementTree.SubElement(categories, "Category", {"name": "logStatusError", "description": "errors"})
+    ElementTree.SubElement(root, "DefaultExperiment", {"startTime": "0.0", "stepSize": repr(STEP_SIZE)})
+    model_variables = ElementTree.SubElement(root, "ModelVariables")
+    for v in variables:
+        attributes = {"name": v["name"], "valueReference": str(v["vr"]), "description": v["description"],
+                      "causality": v["causality"], "variability": v["variability"]}
+        if v["initial"] and v["causality"] not in ("parameter", "input", "independent"):
+            attributes["initial"] = v["initial"]
+        if v["unit"] is not None:
+            attributes["unit"] = v["unit"]
+        if v["nominal"] is not None:
+            attributes["nominal"] = repr(v["nominal"])
+        if v["derivative"] is not None:
+            attributes["derivative"] = str(v["derivative"])
+        if v["start"] is not None:
+            attributes["start"] = _number(v)
+        ElementTree.SubElement(model_variables, v["type"], attributes)
+    _model_structure_fmi3(root, variables)
+    ElementTree.indent(root)
+    return ElementTree.tostring(root, encoding="utf-8", xml_declaration=True)
+
+
+def _model_structure_fmi3(root: ElementTree.Element, variables: list[dict]) -> None:
+    """As _model_structure, in FMI 3.0's terms (elements Output, ContinuousStateDerivative, InitialUnknown;
+    value references for indices): the outputs and the derivatives with their dependencies on the states and
+    inputs, the initial unknowns (the derivatives and the calculated outputs) without."""
+    by_vr = {v["vr"]: v for v in variables}
+    states = [by_vr[v["derivative"]] for v in variables if v["derivative"] is not None]
+    knowns = sorted([v["vr"] for v in states] + [v["vr"] for v in variables if v["causality"] == "input"])
+    structure = ElementTree.SubElement(root, "ModelStructure")
+
+    def dependencies(v: dict) -> str:
+        return str(v["vr"]) if v in states else " ".join(map(str, knowns))
+
+    for v in variables:
+        if v["causality"] == "output":
+            ElementTree.SubElement(structure, "Output", {"valueReference": str(v["vr"]),
+                                                         "dependencies": dependencies(v)})
+    for v in variables:
+        if v["derivative"] is not None:
+            ElementTree.SubElement(structure, "ContinuousStateDerivative", {"valueReference": str(v["vr"]),
+                                                                            "dependencies": dependencies(v)})
+    for v in variables:
+        if v["derivative"] is not None or (v["causality"] == "output" and v["initial"] in ("calculated", "approx")):
+            ElementTree.SubElement(structure, "InitialUnknown", {"valueReference": str(v["vr"])})
+
+
+def _build_description(kind: str) -> bytes:
+    """sources/buildDescription.xml (FMI 3.0): the one C file (C99) and its model identifier."""
+    root = ElementTree.Element("fmiBuildDescription", {"fmiVersion": "3.0"})
+    configuration = ElementTree.SubElement(root, "BuildConfiguration", {"modelIdentifier": kind})
+    files = ElementTree.SubElement(configuration, "SourceFileSet", {"language": "C99"})
+    ElementTree.SubElement(files, "SourceFile", {"name": f"{kind}.c"})
+    ElementTree.indent(root)
+    return ElementTree.tostring(root, encoding="utf-8", xml_declaration=True)

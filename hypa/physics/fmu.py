@@ -1,4 +1,4 @@
-"""A user's own simulator as physics: an FMI 2.0 FMU, model exchange or co-simulation, run with fmpy.
+"""A user's own simulator as physics: an FMI 2.0 or 3.0 FMU, model exchange or co-simulation, run with fmpy.
 
 ``read_fmu`` reads what an FMU declares (its Real inputs, outputs, parameters with their units and
 bounds, its continuous states and what it offers), bounding the sizes before anything is read or
@@ -9,15 +9,20 @@ extracted. ``FMUSimulator`` runs it on a data grid t_k = t_0 + k dt:
   [t_k, t_k+1); first order: the line from u_k to u_k+1). The substep comes from the model: the
   spectral radius ρ of the state Jacobian at the start (the FMU's directional derivatives where it
   provides them, else forward differences of its derivatives) and the local error (ρ h)^5 / 120
-  of the method held below ``LOCAL_ERROR``. The start state is set (``fmi2SetContinuousStates``);
+  of the method held below ``LOCAL_ERROR``. The start state is set (``fmi2SetContinuousStates``).
+  Each sample ends a completed integrator step (``fmi2CompletedIntegratorStep``), and the event
+  indicators are watched: a change of sign (a state event), or the FMU asking for event mode, stops
+  the run in one line with the time;
 * **co-simulation**: the FMU steps itself, ``fmi2DoStep(t_k, dt)`` with the inputs of sample k
-  (a first-order hold by ``fmi2SetRealInputDerivatives`` where the FMU can interpolate inputs).
-  A start state is set before its initialization where the FMU lets it (the state variables it
-  declares, initial exact or approx), else the FMU's own initialization stands, said in one line.
+  (a first-order hold by ``fmi2SetRealInputDerivatives`` where the FMU can interpolate inputs; FMI 3.0
+  has no input derivatives). A start state is set before its initialization where the FMU lets it (the
+  state variables it declares, initial exact or approx), else the FMU's own initialization stands, said
+  in one line.
 
-The outputs of sample k are read after its inputs are set, from the state at t_k (direct
-feedthrough, as FMI means it). What this does not handle is refused in one line: state events
-(event indicators), time events, FMI 1.0 and 3.0.
+FMI 3.0 runs the same way through ``hypa.physics.fmu_instance`` (its Float64 variables are the Real
+ones). The outputs of sample k are read after its inputs are set, from the state at t_k (direct
+feedthrough, as FMI means it). What this does not handle is refused in one line: state and time
+events in model exchange, FMI 1.0, arrays and clocks of FMI 3.0.
 """
 
 from __future__ import annotations
@@ -78,7 +83,7 @@ class FMUDescription:
 
     path: Path
     name: str
-    guid: str
+    guid: str  # FMI 3.0's instantiationToken
     exchange: str | None
     cosimulation: str | None
     inputs: tuple[FMUVariable, ...]
@@ -90,6 +95,7 @@ class FMUDescription:
     directional: dict[str, bool]  # interface -> provides directional derivatives
     interpolates_inputs: bool  # co-simulation: canInterpolateInputs
     step: float | None  # DefaultExperiment stepSize
+    version: int = 2  # the FMI version: 2 or 3
 
     @property
     def input_names(self) -> tuple[str, ...]:
@@ -131,17 +137,16 @@ class FMUDescription:
 
     def interface(self, wanted: str = "auto") -> str:
         """``model_exchange`` or ``co_simulation``: the one asked for, else model exchange where the FMU has
-        it, continuous states to integrate and no state events, else co-simulation (a discrete-time FMU,
-        hypa's own ``native.fmu`` among them, steps itself)."""
+        it, continuous states to integrate and no event indicators, else co-simulation where it has it (a
+        discrete-time FMU, hypa's own ``native.fmu`` among them, steps itself; one with state events handles
+        them itself). Model exchange with event indicators runs while none changes sign (refused where one
+        does, with the time)."""
         if wanted not in INTERFACES:
             raise FMUError(f"interface={wanted} is not one of {', '.join(INTERFACES)}")
         have = {"model_exchange": self.exchange is not None, "co_simulation": self.cosimulation is not None}
         if wanted != "auto":
             if not have[wanted]:
                 raise FMUError(f"FMU {self.path.name} has no {wanted.replace('_', ' ')} interface")
-            if wanted == "model_exchange" and self.event_indicators:
-                raise FMUError(f"FMU {self.path.name} has {self.event_indicators} event indicators: hypa integrates "
-                               "model exchange without state events; use its co-simulation interface")
             return wanted
         if have["model_exchange"] and not ((self.event_indicators or not self.states) and have["co_simulation"]):
             return self.interface("model_exchange")
@@ -186,24 +191,43 @@ def _read_fmu(path: Path, size: int, modified: int) -> FMUDescription:
     except Exception as error:  # noqa: BLE001 -- fmpy's own parse and validation errors, in one line
         raise FMUError(f"FMU {path}: its model description cannot be read ({str(error).splitlines()[0][:200]})") \
             from None
-    if not str(model.fmiVersion).startswith("2."):
-        raise FMUError(f"FMU {path} is FMI {model.fmiVersion}; hypa runs FMI 2.0 FMUs")
-    reals = [v for v in model.modelVariables if v.type == "Real"]
+    version = str(model.fmiVersion)
+    if not version.startswith(("2.", "3.")):
+        raise FMUError(f"FMU {path} is FMI {version}; hypa runs FMI 2.0 and 3.0 FMUs")
+    reals = [v for v in model.modelVariables if v.type in ("Real", "Float64") and not getattr(v, "dimensions", None)]
     pick = lambda causality: tuple(_real(v) for v in reals if v.causality == causality)  # noqa: E731
     parameters = tuple(_real(v) for v in reals if v.causality == "parameter" and v.variability in ("fixed", "tunable"))
     derivatives = [u.variable for u in model.derivatives]
     exchange, cosim = model.modelExchange, model.coSimulation
+    flag = lambda interface, name: bool(interface) and str(getattr(interface, name, False)).lower() in ("true", "1")  # noqa: E731
+    directional = {"model_exchange": flag(exchange, "providesDirectionalDerivative"),
+                   "co_simulation": flag(cosim, "providesDirectionalDerivative")}
+    if version.startswith("3."):  # fmpy does not keep FMI 3.0's providesDirectionalDerivatives: read it here
+        found = _fmi3_directional(path)
+        directional = {"model_exchange": found.get("ModelExchange", False),
+                       "co_simulation": found.get("CoSimulation", False)}
     return FMUDescription(
-        path=path.resolve(), name=model.modelName, guid=model.guid,
+        path=path.resolve(), name=model.modelName, guid=model.guid, version=int(version[0]),
         exchange=exchange.modelIdentifier if exchange else None, cosimulation=cosim.modelIdentifier if cosim else None,
         inputs=pick("input"), outputs=pick("output"), parameters=parameters,
         states=tuple(_real(d.derivative) for d in derivatives), derivatives=tuple(_real(d) for d in derivatives),
         event_indicators=int(model.numberOfEventIndicators or 0),
-        directional={"model_exchange": bool(exchange and exchange.providesDirectionalDerivative),
-                     "co_simulation": bool(cosim and cosim.providesDirectionalDerivative)},
-        interpolates_inputs=bool(cosim and cosim.canInterpolateInputs),
+        directional=directional,
+        interpolates_inputs=version.startswith("2.") and flag(cosim, "canInterpolateInputs"),  # none in FMI 3.0
         step=float(model.defaultExperiment.stepSize) if model.defaultExperiment and
         model.defaultExperiment.stepSize else None)
+
+
+def _fmi3_directional(path: Path) -> dict[str, bool]:
+    """FMI 3.0's providesDirectionalDerivatives of each interface element, from the model description (its size
+    bounded by ``read_fmu``; entities not resolved, nothing fetched)."""
+    from lxml import etree
+
+    with zipfile.ZipFile(path) as archive:
+        data = archive.read("modelDescription.xml")
+    root = etree.fromstring(data, parser=etree.XMLParser(resolve_entities=False, no_network=True, huge_tree=False))
+    return {tag: root.find(tag).get("providesDirectionalDerivatives", "false").lower() in ("true", "1")
+            for tag in ("ModelExchange", "CoSimulation") if root.find(tag) is not None}
 
 
 @dataclass(frozen=True)
@@ -257,25 +281,23 @@ class FMUSimulator:
                  native: bool | None = None) -> None:
         """``native``: run the sample loops in C (``hypa.physics.fmu_loop``; None: where it compiles here,
         False: the Python loops, the same arithmetic)."""
-        from fmpy.fmi2 import FMU2Model, FMU2Slave
-
         from hypa.physics import fmu_loop
+        from hypa.physics.fmu_instance import Instance
 
         self.description, self.interface = description, description.interface(interface)
         identifier = description.exchange if self.interface == "model_exchange" else description.cosimulation
-        kind = FMU2Model if self.interface == "model_exchange" else FMU2Slave
         self.folder = _extracted(description.path)
         self._cleanup = weakref.finalize(self, shutil.rmtree, self.folder, True)
         try:
-            self.fmu = kind(guid=description.guid, unzipDirectory=str(self.folder), modelIdentifier=identifier,
-                            instanceName=instance)
-            self.fmu.instantiate()
+            self.fmu = Instance(description.version, self.interface, description.guid, str(self.folder),
+                                identifier or "", instance)
         except Exception as error:  # noqa: BLE001 -- a missing binary for this platform, a failing instantiate
             raise FMUError(f"FMU {description.path.name} cannot be instantiated for {self.interface.replace('_', ' ')}"
                            f" here: {str(error).splitlines()[0][:200]}") from None
-        self.n = len(description.states)
+        self.n, self.events = len(description.states), description.event_indicators
         self._x = (ctypes.c_double * max(self.n, 1))()
         self._dx = (ctypes.c_double * max(self.n, 1))()
+        self._z = (ctypes.c_double * max(self.events, 1))()
         self._fresh = True
         self.native = fmu_loop.available() if native is None else native
         if self.native and not fmu_loop.available():
@@ -290,24 +312,25 @@ class FMUSimulator:
 
         key = (tuple(inputs), tuple(outputs))
         if key not in self._loops:
-            self._loops[key] = FMULoop(self.fmu, self.n, list(inputs), list(outputs))
+            self._loops[key] = FMULoop(self.fmu, self.description.version, self.n, list(inputs), list(outputs),
+                                       self.events, completed=self.interface == "model_exchange")
         return self._loops[key]
 
     @contextlib.contextmanager
     def _calls(self, t0: float, dt: float):
-        """A failed call of the C loops as ``FMUError`` in one line, naming the call and the time."""
+        """A failed call of the C loops, or an event that stopped them, as ``FMUError`` in one line with the time."""
         from hypa.physics.fmu_loop import LoopError
 
         try:
             yield
         except LoopError as error:
-            raise FMUError(f"FMU {self.description.path.name}: {error.call} failed at t = "
-                           f"{t0 + error.sample * dt:g} s") from None
+            raise self._stopped(error.what, t0 + error.sample * dt) from None
+
+    def _stopped(self, what: str, t: float) -> FMUError:
+        return FMUError(f"FMU {self.description.path.name}: at t = {t:g} s, {what}")
 
     def close(self) -> None:
-        with contextlib.suppress(Exception):  # terminating an instance that failed: nothing more to do
-            self.fmu.terminate()
-        self.fmu.freeInstance()
+        self.fmu.close()
         self._cleanup()
 
     def run(self, parameters: Mapping[str, float], fed: Sequence[str], u: np.ndarray, t0: float, dt: float,
@@ -334,31 +357,31 @@ class FMUSimulator:
         if not self._fresh:
             self.fmu.reset()
         self._fresh = False
+        self._last_z: np.ndarray | None = None  # the event indicators at the last completed step
         names = [n for n in parameters if n in refs]
         if len(names) != len(parameters):
             raise FMUError(f"FMU {self.description.path.name}: {sorted(set(parameters) - set(names))} are not its "
                            "parameters or inputs")
         if names:
-            self.fmu.setReal([refs[n] for n in names], [float(parameters[n]) for n in names])
-        self.fmu.setupExperiment(startTime=t0)
-        self.fmu.enterInitializationMode()
+            self.fmu.set_reals([refs[n] for n in names], [float(parameters[n]) for n in names])
+        self.fmu.initialize(t0)
 
     def _initialize(self, x0: np.ndarray | None) -> bool:
         """Leave the initialization; True where the state x0 was set."""
         d, started = self.description, False
         if x0 is not None and self.interface == "co_simulation":
             try:
-                self.fmu.setReal([s.reference for s in d.states], [float(v) for v in x0])
+                self.fmu.set_reals([s.reference for s in d.states], [float(v) for v in x0])
                 started = True
             except Exception:  # noqa: BLE001 -- the FMU refuses to set its states: its own initialization
                 started = False
-        self.fmu.exitInitializationMode()
+        self.fmu.exit_initialization()
         if self.interface == "model_exchange":
             self._events()
-            self.fmu.enterContinuousTimeMode()
+            self.fmu.enter_continuous_time_mode()
             if x0 is not None:
                 self._x[: self.n] = [float(v) for v in x0]
-                self.fmu.setContinuousStates(self._x, self.n)
+                self.fmu.set_states(self._x, self.n)
                 started = True
         return started
 
@@ -366,7 +389,7 @@ class FMUSimulator:
         """The event iteration after the initialization (the FMU is in event mode): refused where the FMU
         schedules time events."""
         while True:
-            needed, terminate, _, _, timed, at = self.fmu.newDiscreteStates()
+            needed, terminate, timed, at = self.fmu.discrete_states()
             if terminate:
                 raise FMUError(f"FMU {self.description.path.name} asked to terminate at its initialization")
             if timed:
@@ -376,12 +399,12 @@ class FMUSimulator:
                 return
 
     def _derivatives(self, t: float, x: np.ndarray, refs: list[int], u: np.ndarray) -> np.ndarray:
-        self.fmu.setTime(t)
+        self.fmu.set_time(t)
         self._x[: self.n] = x.tolist()
-        self.fmu.setContinuousStates(self._x, self.n)
+        self.fmu.set_states(self._x, self.n)
         if refs:
-            self.fmu.setReal(refs, u.tolist())
-        self.fmu.getDerivatives(self._dx, self.n)
+            self.fmu.set_reals(refs, u.tolist())
+        self.fmu.get_derivatives(self._dx, self.n)
         return np.frombuffer(self._dx, dtype=float, count=self.n).copy()
 
     def jacobian(self, t: float, x: np.ndarray, refs: list[int], u: np.ndarray) -> np.ndarray:
@@ -391,7 +414,7 @@ class FMUSimulator:
         if d.directional[self.interface]:
             self._derivatives(t, x, refs, u)
             unknowns = [v.reference for v in d.derivatives]
-            columns = [self.fmu.getDirectionalDerivative(unknowns, [s.reference], [1.0]) for s in d.states]
+            columns = [self.fmu.directional(unknowns, [s.reference], [1.0]) for s in d.states]
             return np.array(columns, dtype=float).T
         base = self._derivatives(t, x, refs, u)
         columns = []
@@ -411,7 +434,7 @@ class FMUSimulator:
         d = self.description
         self._start(parameters, {v.name: v.reference for v in (*d.inputs, *d.parameters)}, t0)
         self._initialize(None)
-        self.fmu.getContinuousStates(self._x, self.n)
+        self.fmu.get_states(self._x, self.n)
         x = np.frombuffer(self._x, dtype=float, count=self.n).copy()
         return np.linalg.eigvals(self.jacobian(t0, x, [], np.zeros(0)))
 
@@ -427,7 +450,7 @@ class FMUSimulator:
 
     def _exchange(self, inputs, outputs, u, t0, dt, hold, started) -> FMURun:
         n, steps = self.n, len(u)
-        self.fmu.getContinuousStates(self._x, n)
+        self.fmu.get_states(self._x, n)
         x = np.frombuffer(self._x, dtype=float, count=n).copy()
         count = self.substeps(t0, x, inputs, u[0] if steps else np.zeros(0), dt)
         loop = self._loop(inputs, outputs)
@@ -442,20 +465,40 @@ class FMUSimulator:
         steps = len(u)
         ys, xs = np.empty((steps, len(outputs))), np.empty((steps, self.n))
         for k in range(steps):
-            ys[k], xs[k] = self._outputs(t0 + k * dt, x, inputs, u[k], outputs), x
+            ys[k], xs[k] = self._outputs(t0 + k * dt, x, inputs, u[k], outputs, completed=k > 0), x
             if k + 1 < steps:
                 x = self._step(t0 + k * dt, x, inputs, u[k], u[k + 1] if hold == "foh" else u[k], dt, count)
         return ys, xs
 
-    def _outputs(self, t: float, x: np.ndarray, inputs: list[int], u: np.ndarray, outputs: list[int]) -> list:
-        """The outputs at (t, x, u) (model exchange)."""
-        self.fmu.setTime(t)
+    def _outputs(self, t: float, x: np.ndarray, inputs: list[int], u: np.ndarray, outputs: list[int],
+                 completed: bool | None = None) -> list:
+        """The outputs at (t, x, u) (model exchange). ``completed`` (a free run's sample): True where a step ends
+        here (``fmi2/3CompletedIntegratorStep``), False at the first sample; then the event indicators are read
+        and a change of sign stops the run, as does the FMU asking for event mode or to terminate."""
+        self.fmu.set_time(t)
         if self.n:
             self._x[: self.n] = x.tolist()
-            self.fmu.setContinuousStates(self._x, self.n)
+            self.fmu.set_states(self._x, self.n)
         if inputs:
-            self.fmu.setReal(inputs, u.tolist())
-        return self.fmu.getReal(outputs)
+            self.fmu.set_reals(inputs, u.tolist())
+        if completed is not None:
+            self._completed(t, completed)
+        return self.fmu.get_reals(outputs)
+
+    def _completed(self, t: float, step: bool) -> None:
+        """A free run's sample: the step completed (where ``step``), the event indicators watched."""
+        from hypa.physics.fmu_loop import EVENTS
+
+        if step:
+            event, terminate = self.fmu.completed_step()
+            if terminate or event:
+                raise self._stopped(EVENTS[12 if terminate else 11], t)
+        if self.events:
+            self.fmu.get_event_indicators(self._z, self.events)
+            now = np.frombuffer(self._z, dtype=float, count=self.events) > 0
+            if step and self._last_z is not None and (now != self._last_z).any():
+                raise self._stopped(EVENTS[10], t)
+            self._last_z = now
 
     def _step(self, t: float, x: np.ndarray, inputs: list[int], u: np.ndarray, u_next: np.ndarray, dt: float,
               count: int) -> np.ndarray:
@@ -523,11 +566,12 @@ class FMUSimulator:
         ys = np.empty((steps, len(outputs)))
         for k in range(steps):
             if inputs:
-                self.fmu.setReal(inputs, u[k].tolist())
+                self.fmu.set_reals(inputs, u[k].tolist())
                 if hold == "foh" and k + 1 < steps:
-                    slope = (u[k + 1] - u[k]) / dt
-                    self.fmu.setRealInputDerivatives(inputs, [1] * len(inputs), slope.tolist())
-            ys[k] = self.fmu.getReal(outputs)
+                    self.fmu.set_input_derivatives(inputs, ((u[k + 1] - u[k]) / dt).tolist())
+            ys[k] = self.fmu.get_reals(outputs)
             if k + 1 < steps:
-                self.fmu.doStep(currentCommunicationPoint=t0 + k * dt, communicationStepSize=dt)
+                stopped = self.fmu.do_step(t0 + k * dt, dt)
+                if stopped:
+                    raise self._stopped(stopped, t0 + k * dt)
         return FMURun(ys, None, started)

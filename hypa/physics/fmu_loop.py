@@ -2,8 +2,9 @@
 
 ``FMUSimulator`` (``hypa.physics.fmu``) runs its loops over the samples here where the machine has a C
 compiler (cc, gcc or clang): ``c/fmu_loop.c``, compiled once per process into a private temporary folder and
-loaded with ctypes, calls the FMU's own functions (``fmi2SetTime``, ``fmi2SetContinuousStates``,
-``fmi2SetReal``, ``fmi2GetDerivatives``, ``fmi2GetReal``, ``fmi2DoStep``, ``fmi2SetRealInputDerivatives``)
+loaded with ctypes, calls the FMU's own functions (FMI 2.0's ``fmi2SetTime``, ``fmi2SetContinuousStates``,
+``fmi2SetReal``, ``fmi2GetDerivatives``, ``fmi2GetReal``, ``fmi2CompletedIntegratorStep``,
+``fmi2GetEventIndicators``, ``fmi2DoStep``, ``fmi2SetRealInputDerivatives``, and FMI 3.0's own)
 with the arithmetic of the Python loops, so both give the same numbers; a Python call into an FMU through
 fmpy costs microseconds, the C call tens of nanoseconds. Without a compiler (or where it fails) the Python
 loops run, said once in one line.
@@ -29,8 +30,18 @@ log = logging.getLogger(__name__)
 
 SOURCE = Path(__file__).with_name("c") / "fmu_loop.c"
 FAILED = -1
-CALLS = {1: "fmi2SetTime", 2: "fmi2SetContinuousStates", 3: "fmi2SetReal", 4: "fmi2GetDerivatives",
-         5: "fmi2GetReal", 6: "fmi2DoStep", 7: "fmi2SetRealInputDerivatives"}
+# fmu_loop.c's FAILED_* and EVENT_*: the call (FMI 2.0, FMI 3.0) that failed, or the event that stopped the loop
+CALLS = {1: ("fmi2SetTime", "fmi3SetTime"), 2: ("fmi2SetContinuousStates", "fmi3SetContinuousStates"),
+         3: ("fmi2SetReal", "fmi3SetFloat64"), 4: ("fmi2GetDerivatives", "fmi3GetContinuousStateDerivatives"),
+         5: ("fmi2GetReal", "fmi3GetFloat64"), 6: ("fmi2DoStep", "fmi3DoStep"),
+         7: ("fmi2SetRealInputDerivatives", ""), 8: ("fmi2CompletedIntegratorStep", "fmi3CompletedIntegratorStep"),
+         9: ("fmi2GetEventIndicators", "fmi3GetEventIndicators")}
+EVENTS = {10: "an event indicator changed sign: a state event, which hypa's integration of model exchange does not "
+              "handle (use the FMU's co-simulation interface)",
+          11: "it asked for event mode after a completed step, which hypa's integration of model exchange does not "
+              "handle (use the FMU's co-simulation interface)",
+          12: "it asked to terminate the simulation",
+          13: "it returned early from a co-simulation step (an event inside it)"}
 _DOUBLES = ctypes.POINTER(ctypes.c_double)
 
 
@@ -39,8 +50,9 @@ class _Api(ctypes.Structure):
     the scratch."""
 
     _fields_ = [("component", ctypes.c_void_p), *((name, ctypes.c_void_p) for name in (
-        "set_time", "set_states", "set_real", "get_derivatives", "get_real", "do_step", "set_input_derivatives")),
-        ("n", ctypes.c_int), ("m", ctypes.c_int), ("p", ctypes.c_int),
+        "set_time", "set_states", "set_real", "get_derivatives", "get_real", "do_step", "set_input_derivatives",
+        "completed_step", "get_event_indicators")),
+        ("version", ctypes.c_int), ("n", ctypes.c_int), ("m", ctypes.c_int), ("p", ctypes.c_int), ("e", ctypes.c_int),
         ("inputs", ctypes.POINTER(ctypes.c_uint)), ("outputs", ctypes.POINTER(ctypes.c_uint)),
         ("work", _DOUBLES), ("order", ctypes.POINTER(ctypes.c_int)),
         ("failed", ctypes.c_int), ("at", ctypes.c_long)]
@@ -78,35 +90,56 @@ def _pointer(array: np.ndarray) -> Any:
     return array.ctypes.data_as(_DOUBLES)
 
 
-class FMULoop:
-    """The C loops bound to one FMU instance (an fmpy ``FMU2Model`` or ``FMU2Slave``), its ``n`` states, the
-    value references of the inputs it feeds and the outputs it reads. ``LoopError`` where a call fails."""
+# the functions the loops call, by FMI version; None: not called in that version
+FUNCTIONS = {
+    2: {"set_time": "fmi2SetTime", "set_states": "fmi2SetContinuousStates", "set_real": "fmi2SetReal",
+        "get_derivatives": "fmi2GetDerivatives", "get_real": "fmi2GetReal", "do_step": "fmi2DoStep",
+        "set_input_derivatives": "fmi2SetRealInputDerivatives", "completed_step": "fmi2CompletedIntegratorStep",
+        "get_event_indicators": "fmi2GetEventIndicators"},
+    3: {"set_time": "fmi3SetTime", "set_states": "fmi3SetContinuousStates", "set_real": "fmi3SetFloat64",
+        "get_derivatives": "fmi3GetContinuousStateDerivatives", "get_real": "fmi3GetFloat64", "do_step": "fmi3DoStep",
+        "set_input_derivatives": None, "completed_step": "fmi3CompletedIntegratorStep",
+        "get_event_indicators": "fmi3GetEventIndicators"},
+}
 
-    def __init__(self, fmu: Any, n: int, inputs: list[int], outputs: list[int]) -> None:
+
+class FMULoop:
+    """The C loops bound to one FMU instance (an fmpy ``FMU2Model``, ``FMU2Slave``, ``FMU3Model`` or
+    ``FMU3Slave`` of FMI ``version`` 2 or 3), its ``n`` states and ``events`` event indicators (model exchange:
+    a free run stops where one changes sign), the value references of the inputs it feeds and the outputs it
+    reads; ``completed``: model exchange, where each sample ends a completed integrator step. ``LoopError``
+    where a call fails or an event stops it."""
+
+    def __init__(self, fmu: Any, version: int, n: int, inputs: list[int], outputs: list[int], events: int = 0,
+                 completed: bool = False) -> None:
         library = _library()
         if library is None:
             raise RuntimeError("the FMU loop did not compile here")
-        self.library = library
+        self.library, self.version = library, version
         dll = fmu.dll
-        address = lambda name: ctypes.cast(getattr(dll, name), ctypes.c_void_p).value  # noqa: E731
-        optional = lambda name: address(name) if hasattr(dll, name) else None  # noqa: E731
+
+        def address(name: str | None) -> int | None:
+            return ctypes.cast(getattr(dll, name), ctypes.c_void_p).value if name and hasattr(dll, name) else None
+
+        functions = {key: address(name) for key, name in FUNCTIONS[version].items()}
+        if not completed:
+            functions["completed_step"] = functions["get_event_indicators"] = None
+            events = 0
         self._inputs = (ctypes.c_uint * max(len(inputs), 1))(*inputs)
         self._outputs = (ctypes.c_uint * max(len(outputs), 1))(*outputs)
         m, p = len(inputs), len(outputs)
-        self._work = np.zeros(9 * n + 4 * m + p + 1)
+        self._work = np.zeros(9 * n + 4 * m + p + 2 * events + 1)
         self._order = (ctypes.c_int * max(m, 1))()
-        self.api = _Api(component=ctypes.cast(fmu.component, ctypes.c_void_p).value,
-                        set_time=optional("fmi2SetTime"), set_states=optional("fmi2SetContinuousStates"),
-                        set_real=address("fmi2SetReal"), get_derivatives=optional("fmi2GetDerivatives"),
-                        get_real=address("fmi2GetReal"), do_step=optional("fmi2DoStep"),
-                        set_input_derivatives=optional("fmi2SetRealInputDerivatives"),
-                        n=n, m=m, p=p, inputs=self._inputs, outputs=self._outputs, work=_pointer(self._work),
-                        order=self._order)
+        self.api = _Api(component=ctypes.cast(fmu.component, ctypes.c_void_p).value, **functions, version=version,
+                        n=n, m=m, p=p, e=events, inputs=self._inputs, outputs=self._outputs,
+                        work=_pointer(self._work), order=self._order)
         self.n, self.m, self.p = n, m, p
 
     def _check(self, status: int) -> None:
         if status == FAILED:
-            raise LoopError(CALLS.get(self.api.failed, "a call"), int(self.api.at))
+            code = int(self.api.failed)
+            what = EVENTS.get(code) or f"{CALLS.get(code, ('a call', 'a call'))[self.version - 2]} failed"
+            raise LoopError(what, int(self.api.at))
 
     def exchange(self, u: np.ndarray, t0: float, dt: float, count: int, foh: bool, x: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
@@ -144,8 +177,9 @@ class FMULoop:
 
 
 class LoopError(RuntimeError):
-    """A call into the FMU that returned fmi2Discard, fmi2Error or fmi2Fatal: which, and at which sample."""
+    """A call into the FMU that returned Discard, Error or Fatal, or an event the loop does not handle: what
+    (``what``), and at which sample."""
 
-    def __init__(self, call: str, sample: int) -> None:
-        super().__init__(f"{call} failed at sample {sample}")
-        self.call, self.sample = call, sample
+    def __init__(self, what: str, sample: int) -> None:
+        super().__init__(f"{what} at sample {sample}")
+        self.what, self.sample = what, sample

@@ -1,46 +1,55 @@
-/* hypa's sample loop over an FMI 2.0 FMU (hypa/physics/fmu_loop.py compiles and loads it).
+/* hypa's sample loop over an FMI 2.0 or 3.0 FMU (hypa/physics/fmu_loop.py compiles and loads it).
 
    The loops of hypa.physics.fmu.FMUSimulator, unchanged in arithmetic, with every call into the FMU made
    from C through the FMU's own function pointers instead of one Python call each: a free run in model
    exchange (hypa's RK4 with `count` substeps per sample, the inputs held as the line from u_k to u_k+1 or
-   at u_k), its per-sample sensitivities by forward differences, and a co-simulation run (fmi2DoStep).
+   at u_k; each sample a completed integrator step, its event indicators watched), its per-sample
+   sensitivities by forward differences, and a co-simulation run (fmi2DoStep / fmi3DoStep).
 
-   A call whose status is worse than fmi2Warning stops the loop: the functions return HYPA_FAILED and
-   `failed` names the call (FAILED_*) and `at` its sample. */
+   A call whose status is worse than a warning stops the loop: the functions return HYPA_FAILED and
+   `failed` names the call (FAILED_*) and `at` its sample; so does an event the loop cannot handle (an
+   event indicator changing sign, an FMU asking for event mode or to terminate). */
 
 #include <math.h>
+#include <stdbool.h>
 #include <stddef.h>
 #include <string.h>
 
+typedef void (*fn_t)(void); /* any function: stored as this, called as its own type */
+/* FMI 2.0 (fmi2Boolean is an int) */
 typedef int (*set_time_t)(void *, double);
 typedef int (*set_states_t)(void *, const double *, size_t);
-typedef int (*set_real_t)(void *, const unsigned int *, size_t, const double *);
+typedef int (*set_real2_t)(void *, const unsigned int *, size_t, const double *);
 typedef int (*get_derivatives_t)(void *, double *, size_t);
-typedef int (*get_real_t)(void *, const unsigned int *, size_t, double *);
-typedef int (*do_step_t)(void *, double, double, int);
+typedef int (*get_real2_t)(void *, const unsigned int *, size_t, double *);
+typedef int (*do_step2_t)(void *, double, double, int);
 typedef int (*set_input_derivatives_t)(void *, const unsigned int *, size_t, const int *, const double *);
+typedef int (*completed2_t)(void *, int, int *, int *);
+typedef int (*get_event_indicators_t)(void *, double *, size_t);
+/* FMI 3.0 (fmi3Boolean is a bool; Float64 arrays carry their number of values) */
+typedef int (*set_real3_t)(void *, const unsigned int *, size_t, const double *, size_t);
+typedef int (*get_real3_t)(void *, const unsigned int *, size_t, double *, size_t);
+typedef int (*do_step3_t)(void *, double, double, bool, bool *, bool *, bool *, double *);
+typedef int (*completed3_t)(void *, bool, bool *, bool *);
 
 enum { FAILED_NONE, FAILED_SET_TIME, FAILED_SET_STATES, FAILED_SET_REAL, FAILED_GET_DERIVATIVES, FAILED_GET_REAL,
-       FAILED_DO_STEP, FAILED_SET_INPUT_DERIVATIVES };
+       FAILED_DO_STEP, FAILED_SET_INPUT_DERIVATIVES, FAILED_COMPLETED_STEP, FAILED_GET_EVENT_INDICATORS,
+       EVENT_STATE, EVENT_STEP, EVENT_TERMINATE, EVENT_CO_SIMULATION };
 #define HYPA_FAILED (-1)
-#define STATUS_WORST_ACCEPTED 1 /* fmi2OK 0, fmi2Warning 1; fmi2Discard, fmi2Error, fmi2Fatal stop */
+#define STATUS_WORST_ACCEPTED 1 /* OK 0, Warning 1; Discard, Error, Fatal stop (FMI 2.0 and 3.0 alike) */
 
 /* the scratch a loop needs: RK4's four slopes, its stage, the held inputs, the next state, the moved
    state and inputs of a difference, its outputs and its stepped state */
-#define HYPA_WORK(n, m, p) (9 * (n) + 4 * (m) + (p))
+#define HYPA_WORK(n, m, p, e) (9 * (n) + 4 * (m) + (p) + 2 * (e))
 
 typedef struct {
     void *component;
-    set_time_t set_time;
-    set_states_t set_states;
-    set_real_t set_real;
-    get_derivatives_t get_derivatives;
-    get_real_t get_real;
-    do_step_t do_step;
-    set_input_derivatives_t set_input_derivatives;
-    int n, m, p; /* states, inputs fed, outputs read */
+    fn_t set_time, set_states, set_real, get_derivatives, get_real, do_step, set_input_derivatives, completed_step,
+        get_event_indicators; /* the FMU's functions, each cast to its type (2.0 or 3.0) where called */
+    int version;    /* 2 or 3 */
+    int n, m, p, e; /* states, inputs fed, outputs read, event indicators */
     const unsigned int *inputs, *outputs;
-    double *work; /* scratch of HYPA_WORK(n, m, p) doubles */
+    double *work; /* scratch of HYPA_WORK(n, m, p, e) doubles */
     int *order;   /* scratch of m ints */
     int failed; /* FAILED_* of the call that stopped a loop */
     long at;    /* its sample */
@@ -54,20 +63,78 @@ typedef struct {
         }                                                                                                          \
     } while (0)
 
-static int derivatives(hypa_fmu *api, double t, const double *x, const double *u, double *dx) {
-    CALL(api, api->set_time(api->component, t), FAILED_SET_TIME);
-    CALL(api, api->set_states(api->component, x, (size_t)api->n), FAILED_SET_STATES);
-    if (api->m) CALL(api, api->set_real(api->component, api->inputs, (size_t)api->m, u), FAILED_SET_REAL);
-    CALL(api, api->get_derivatives(api->component, dx, (size_t)api->n), FAILED_GET_DERIVATIVES);
+#define STOP(api, code)                                                                                            \
+    do {                                                                                                           \
+        (api)->failed = (code);                                                                                    \
+        return HYPA_FAILED;                                                                                        \
+    } while (0)
+
+static int set_inputs(hypa_fmu *api, const double *u) {
+    if (!api->m) return 0;
+    if (api->version == 3)
+        CALL(api, ((set_real3_t)api->set_real)(api->component, api->inputs, (size_t)api->m, u, (size_t)api->m),
+             FAILED_SET_REAL);
+    else
+        CALL(api, ((set_real2_t)api->set_real)(api->component, api->inputs, (size_t)api->m, u), FAILED_SET_REAL);
     return 0;
 }
 
-static int outputs(hypa_fmu *api, double t, const double *x, const double *u, double *y) {
-    CALL(api, api->set_time(api->component, t), FAILED_SET_TIME);
-    if (api->n) CALL(api, api->set_states(api->component, x, (size_t)api->n), FAILED_SET_STATES);
-    if (api->m) CALL(api, api->set_real(api->component, api->inputs, (size_t)api->m, u), FAILED_SET_REAL);
-    CALL(api, api->get_real(api->component, api->outputs, (size_t)api->p, y), FAILED_GET_REAL);
+static int get_outputs(hypa_fmu *api, double *y) {
+    if (api->version == 3)
+        CALL(api, ((get_real3_t)api->get_real)(api->component, api->outputs, (size_t)api->p, y, (size_t)api->p),
+             FAILED_GET_REAL);
+    else
+        CALL(api, ((get_real2_t)api->get_real)(api->component, api->outputs, (size_t)api->p, y), FAILED_GET_REAL);
     return 0;
+}
+
+static int set_time_and_states(hypa_fmu *api, double t, const double *x) {
+    CALL(api, ((set_time_t)api->set_time)(api->component, t), FAILED_SET_TIME);
+    if (api->n) CALL(api, ((set_states_t)api->set_states)(api->component, x, (size_t)api->n), FAILED_SET_STATES);
+    return 0;
+}
+
+static int derivatives(hypa_fmu *api, double t, const double *x, const double *u, double *dx) {
+    if (set_time_and_states(api, t, x) || set_inputs(api, u)) return HYPA_FAILED;
+    CALL(api, ((get_derivatives_t)api->get_derivatives)(api->component, dx, (size_t)api->n), FAILED_GET_DERIVATIVES);
+    return 0;
+}
+
+/* The sample's step is complete (the FMU at its time, states and inputs): fmi2/3CompletedIntegratorStep, and
+   the event indicators against the last sample's (`last`, e values; `first`: none yet), stopping at an event
+   the loop does not handle. */
+static int completed(hypa_fmu *api, double *last, int first) {
+    if (api->completed_step && !first) {
+        if (api->version == 3) {
+            bool event = false, terminate = false;
+            CALL(api, ((completed3_t)api->completed_step)(api->component, true, &event, &terminate),
+                 FAILED_COMPLETED_STEP);
+            if (terminate) STOP(api, EVENT_TERMINATE);
+            if (event) STOP(api, EVENT_STEP);
+        } else {
+            int event = 0, terminate = 0;
+            CALL(api, ((completed2_t)api->completed_step)(api->component, 1, &event, &terminate),
+                 FAILED_COMPLETED_STEP);
+            if (terminate) STOP(api, EVENT_TERMINATE);
+            if (event) STOP(api, EVENT_STEP);
+        }
+    }
+    if (api->e) {
+        double *now = last + api->e;
+        CALL(api, ((get_event_indicators_t)api->get_event_indicators)(api->component, now, (size_t)api->e),
+             FAILED_GET_EVENT_INDICATORS);
+        for (int i = 0; i < api->e && !first; i++)
+            if ((last[i] > 0) != (now[i] > 0)) STOP(api, EVENT_STATE);
+        memcpy(last, now, sizeof(double) * (size_t)api->e);
+    }
+    return 0;
+}
+
+/* The outputs at (t, x, u); `watch`: the sample ends a completed step (the free run's), see completed(). */
+static int outputs(hypa_fmu *api, double t, const double *x, const double *u, double *y, double *watch, int first) {
+    if (set_time_and_states(api, t, x) || set_inputs(api, u)) return HYPA_FAILED;
+    if (watch && completed(api, watch, first)) return HYPA_FAILED;
+    return get_outputs(api, y);
 }
 
 /* x_next from x at t by `count` RK4 substeps, the inputs the line from u to u_next (equal: a zero-order
@@ -100,8 +167,13 @@ static int step(hypa_fmu *api, double t, const double *x, const double *u, const
    stepped state (n) */
 static double *after_step(const hypa_fmu *api) { return api->work + 5 * api->n + api->m; }
 
+/* the event indicators' scratch (2 e), after everything else */
+static double *indicators(const hypa_fmu *api) { return api->work + 9 * api->n + 4 * api->m + api->p; }
+
 static int fits(const hypa_fmu *api) {
-    return api->n >= 0 && api->m >= 0 && api->p >= 0 && api->work != NULL && (api->m == 0 || api->order != NULL);
+    return api->n >= 0 && api->m >= 0 && api->p >= 0 && api->e >= 0 && api->work != NULL &&
+           (api->m == 0 || api->order != NULL) && (api->version == 2 || api->version == 3) &&
+           (api->e == 0 || api->get_event_indicators != NULL);
 }
 
 /* Model exchange: y (T, p) and the states xs (T, n) from x (n; left at the last state) and u (T, m). */
@@ -112,7 +184,7 @@ int hypa_me_run(hypa_fmu *api, const double *u, long steps, double t0, double dt
     if (!fits(api)) return HYPA_FAILED;
     for (long k = 0; k < steps; k++) {
         api->at = k;
-        if (outputs(api, t0 + k * dt, x, u + k * m, y + k * p)) return HYPA_FAILED;
+        if (outputs(api, t0 + k * dt, x, u + k * m, y + k * p, indicators(api), k == 0)) return HYPA_FAILED;
         memcpy(xs + k * n, x, sizeof(double) * (size_t)n);
         if (k + 1 < steps) {
             const double *later = foh ? u + (k + 1) * m : u + k * m;
@@ -154,7 +226,7 @@ int hypa_me_sensitivities(hypa_fmu *api, const double *u, long steps, double t0,
             if (which < 2) {
                 double *target = which == 0 ? y_x + k * p * n : y_u + k * p * m;
                 const int width = which == 0 ? n : m;
-                if (outputs(api, t, moved[0], moved[1], y)) return HYPA_FAILED;
+                if (outputs(api, t, moved[0], moved[1], y, NULL, 0)) return HYPA_FAILED;
                 for (int r = 0; r < p; r++) target[r * width + column] = (y[r] - ys[k * p + r]) / delta;
             }
             if (stepped) {
@@ -173,21 +245,32 @@ int hypa_me_sensitivities(hypa_fmu *api, const double *u, long steps, double t0,
 int hypa_cs_run(hypa_fmu *api, const double *u, long steps, double t0, double dt, int foh, double *y) {
     const int m = api->m, p = api->p;
     int *order = api->order;
+    (void)p;
     double *slope = api->work;
     if (!fits(api)) return HYPA_FAILED;
     for (int j = 0; j < m; j++) order[j] = 1;
     for (long k = 0; k < steps; k++) {
         api->at = k;
-        if (m) {
-            CALL(api, api->set_real(api->component, api->inputs, (size_t)m, u + k * m), FAILED_SET_REAL);
-            if (foh && k + 1 < steps) {
-                for (int j = 0; j < m; j++) slope[j] = (u[(k + 1) * m + j] - u[k * m + j]) / dt;
-                CALL(api, api->set_input_derivatives(api->component, api->inputs, (size_t)m, order, slope),
-                     FAILED_SET_INPUT_DERIVATIVES);
+        if (set_inputs(api, u + k * m)) return HYPA_FAILED;
+        if (m && foh && k + 1 < steps) { /* FMI 2.0 only: FMI 3.0 has no input derivatives (refused before) */
+            for (int j = 0; j < m; j++) slope[j] = (u[(k + 1) * m + j] - u[k * m + j]) / dt;
+            CALL(api, ((set_input_derivatives_t)api->set_input_derivatives)(api->component, api->inputs, (size_t)m,
+                                                                            order, slope),
+                 FAILED_SET_INPUT_DERIVATIVES);
+        }
+        if (get_outputs(api, y + k * p)) return HYPA_FAILED;
+        if (k + 1 < steps) {
+            if (api->version == 3) {
+                bool event = false, terminate = false, early = false;
+                double reached = 0.0;
+                CALL(api, ((do_step3_t)api->do_step)(api->component, t0 + k * dt, dt, true, &event, &terminate,
+                                                     &early, &reached),
+                     FAILED_DO_STEP);
+                if (terminate || early) STOP(api, terminate ? EVENT_TERMINATE : EVENT_CO_SIMULATION);
+            } else {
+                CALL(api, ((do_step2_t)api->do_step)(api->component, t0 + k * dt, dt, 1), FAILED_DO_STEP);
             }
         }
-        CALL(api, api->get_real(api->component, api->outputs, (size_t)p, y + k * p), FAILED_GET_REAL);
-        if (k + 1 < steps) CALL(api, api->do_step(api->component, t0 + k * dt, dt, 1), FAILED_DO_STEP);
     }
     return 0;
 }
