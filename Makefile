@@ -65,7 +65,7 @@ timing: $(STAMP) ## how fast: the physics blocks (ratios) and the time to name c
 
 timing-fmu: $(STAMP) ## an FMU block's speed (C loop against Python) on the tests' single-track FMU, built here with cc
 	mkdir -p .cache && $(BIN)/python -c "import sys; sys.path.insert(0, 'tests'); from pathlib import Path; from fmu_fixtures import build_fmu; print(build_fmu('single_track', Path('$(CURDIR)/.cache/timing-fmu')))" > .cache/timing-fmu.path
-	$(BIN)/hypa timing fmu --fmu "$$(cat .cache/timing-fmu.path)" $(ARGS)
+	$(BIN)/hypa timing fmu --fmu "$$(cat .cache/timing-fmu.path)" --reference single_track $(ARGS)
 
 speed bench: ## the former names of make timing (deprecated, go in the next release)
 	@echo "make $@ is deprecated: use make timing" >&2

@@ -19,9 +19,10 @@ def test_it_prints_each_interface_s_time_per_sample_and_the_ratio(tmp_path, caps
     from fmu_fixtures import build_fmu
 
     path = build_fmu("single_track", tmp_path)
-    assert main(["--fmu", str(path), "--samples", "200", "--repeat", "1"]) == 0
+    assert main(["--fmu", str(path), "--samples", "200", "--repeat", "1", "--reference", "single_track"]) == 0
     out = capsys.readouterr().out
     for row in ("model exchange: free run", "model exchange: sensitivities", "co simulation: free run",
-                "an identification step (8 parameters), per record"):
+                "an identification step (8 parameters), per record",
+                "hypa's single-track class: free run, 32 record(s) at once"):
         assert row in out, out
     assert "goal: model exchange, Python loop / C loop" in out

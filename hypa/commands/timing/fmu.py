@@ -1,16 +1,16 @@
 """Benchmark: an FMU as a physics block, its sample loops in C against the same loops in Python.
 
-    hypa timing fmu --fmu PATH [--samples 2000] [--repeat 3]
+    hypa timing fmu --fmu PATH [--samples 2000] [--repeat 3] [--reference single_track]
 
-Runs the FMU over ``--samples`` samples of a smooth random input on each of its interfaces (model
-exchange: hypa's RK4, and the sensitivities a gradient through it needs; co-simulation: its own
-steps), with the C loops (``hypa.physics.fmu_loop``) and with the Python loops, and prints the time
-per sample of each (the best of ``--repeat`` runs) and the ratios measured in this one run; then the
-time of one identification step (one free run per trainable parameter and one more) on that record,
-taking all the FMU's Real parameters as trainable. The goal: the C loop at least 20x faster than the
-Python loop in model exchange. Where no FMU is given the part says so and ends (``make timing`` runs it
-without one: give ``--fmu`` with an FMU of yours; ``make timing-fmu`` builds the tests' single-track FMU
-and times it).
+Runs the FMU over ``--samples`` samples of a smooth random input on each of its interfaces (model exchange:
+hypa's RK4, and the sensitivities a gradient through it needs; co-simulation: its own steps), with the C loops
+(``hypa.physics.fmu_loop``) and with the Python loops, and prints the time per sample of each (the best of
+``--repeat`` runs) and the ratios measured in this one run; then the time of one identification step (one free
+run per trainable parameter and one more) on that record, taking all the FMU's Real parameters as trainable;
+with ``--reference single_track``, hypa's own single-track class (the tests' FMU's physics) over the same
+samples, one record and 32 at once. The goal: the C loop at least 20x faster than the Python loop in model
+exchange. Where no FMU is given the part says so and ends (``make timing`` runs it without one: give ``--fmu``
+with an FMU of yours; ``make timing-fmu`` builds the tests' single-track FMU and times it).
 """
 
 from __future__ import annotations
@@ -70,11 +70,32 @@ def measure(path: str, samples: int, repeat: int) -> list[tuple[str, float, floa
     return rows
 
 
+def single_track_class(samples: int, repeat: int) -> list[tuple[str, float, float | None]]:
+    """hypa's own single-track class (``hypa.vehicle``, the physics of the tests' FMU) over the same samples: a
+    free run of one record and of 32 at once, per sample and record."""
+    import torch
+
+    from hypa.commands.timing.physics import _vehicle_block
+
+    block = _vehicle_block(samples, trainable=False)
+    rows = []
+    for batch in (1, 32):
+        x0, u = torch.zeros(batch, 2), torch.randn(batch, samples, 2)
+        with torch.no_grad():
+            block(x0, u)
+            seconds = _best(lambda: block(x0, u), repeat)  # noqa: B023
+        rows.append((f"hypa's single-track class: free run, {batch} record(s) at once", seconds / samples / batch,
+                     None))
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="hypa timing fmu", description=__doc__.split("\n\n")[0])
     parser.add_argument("--fmu", help="the FMU to time (FMI 2.0)")
     parser.add_argument("--samples", type=int, default=2000)
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--reference", choices=["single_track"],
+                        help="also time hypa's own class of the same physics (single_track: hypa.vehicle's)")
     args = parser.parse_args(argv)
     if not args.fmu:
         print("fmu: skipped: give an FMU to time, hypa timing fmu --fmu PATH (make timing-fmu times the tests' "
@@ -83,6 +104,8 @@ def main(argv: list[str] | None = None) -> int:
     from hypa.physics import fmu_loop
 
     rows = measure(args.fmu, args.samples, args.repeat)
+    if args.reference == "single_track":
+        rows += single_track_class(args.samples, args.repeat)
     print(f"FMU {args.fmu}, {args.samples} samples, the best of {args.repeat} runs; C loop: "
           f"{'yes' if fmu_loop.available() else 'no (no C compiler here)'}")
     print(f"  {'':<62} {'C loop':>12} {'Python loop':>12} {'ratio':>7}")
