@@ -18,6 +18,15 @@ Kinds (Linux x86-64 binaries built with the machine's gcc, in ``binaries/linux64
   independent variable ``time`` [s] (value reference 16) that FMI 3.0 requires; the same equations, RK4 per
   ``fmi3DoStep``, directional derivatives and FMU state. Every function of fmi3Functions.h is exported (fmpy
   binds them all); the unsupported ones log an error and return fmi3Error.
+* ``single_track_events``: model exchange only; ``single_track``'s model, variables and value references
+  (``n_sub`` kept, unused) and three more: the tunable parameters ``yaw_limit`` [rad/s] (start 1.0, out of reach
+  in ordinary driving), whose one event indicator is z = yaw_rate - yaw_limit (numberOfEventIndicators 1), and
+  ``request_event_at`` [s] (start -1: never), and the output ``completed_steps`` [1] (continuous: it changes
+  outside events; initial calculated; depends on no state or input), the fmi2CompletedIntegratorStep calls since
+  fmi2Instantiate or fmi2Reset. completedIntegratorStepNotNeeded is false; fmi2CompletedIntegratorStep returns
+  enterEventMode true where request_event_at >= 0 and the time >= it. No directional derivatives, no FMU state;
+  every fmi2Functions.h function is exported, the unsupported ones (co-simulation too) log an error and return
+  fmi2Error. Nothing discrete changes at an event.
 
 ``start`` overrides the start values by variable name (parameters, inputs, states: any variable with one),
 written into both modelDescription.xml and the generated ``sources/model.h``, so an FMU built with
@@ -120,12 +129,25 @@ def _fmi3(variables: list[dict], time_vr: int) -> list[dict]:
 
 
 VARIABLES["single_track_fmi3"] = _fmi3(VARIABLES["single_track"], 16)
+VARIABLES["single_track_events"] = [
+    *(v if v["name"] != "n_sub" else dict(v, description="unused (model exchange only): single_track's n_sub")
+      for v in VARIABLES["single_track"]),
+    _parameter("yaw_limit", 16, "rad/s", 1.0, "the event indicator is yaw_rate - yaw_limit"),
+    _parameter("request_event_at", 17, "s", -1.0, "fmi2CompletedIntegratorStep asks for an event from this time "
+               "on (negative: never)"),
+    # the one variable with "dependencies": "" (it depends on no state or input)
+    dict(_var("completed_steps", 18, "output", "continuous", "1", description="fmi2CompletedIntegratorStep calls "
+              "since fmi2Instantiate or fmi2Reset", initial="calculated"), dependencies=""),
+]
 KINDS = tuple(VARIABLES)
-FMI_VERSION = {"single_track": "2.0", "cosim_lag": "2.0", "single_track_fmi3": "3.0"}
+FMI_VERSION = {"single_track": "2.0", "cosim_lag": "2.0", "single_track_fmi3": "3.0", "single_track_events": "2.0"}
 INTERFACES = {"single_track": ("ModelExchange", "CoSimulation"), "cosim_lag": ("CoSimulation",),
-              "single_track_fmi3": ("ModelExchange", "CoSimulation")}
+              "single_track_fmi3": ("ModelExchange", "CoSimulation"), "single_track_events": ("ModelExchange",)}
 # directional derivatives and the FMU state
-OPTIONAL = {"single_track": True, "cosim_lag": False, "single_track_fmi3": True}
+OPTIONAL = {"single_track": True, "cosim_lag": False, "single_track_fmi3": True, "single_track_events": False}
+EVENT_INDICATORS = {"single_track_events": 1}  # FMI 2.0 numberOfEventIndicators; 0 where not given
+# FMI 2.0 <ModelExchange> completedIntegratorStepNotNeeded; "true" where not given
+COMPLETED_STEP_NOT_NEEDED = {"single_track_events": "false"}
 
 
 def start_values(kind: str) -> dict[str, float]:
@@ -256,11 +278,11 @@ def _model_description(kind: str, guid: str, variables: list[dict]) -> bytes:
     root = ElementTree.Element("fmiModelDescription", {
         "fmiVersion": "2.0", "modelName": kind, "guid": guid, "description": f"hypa test fixture {kind}",
         "generationTool": "tests/fmu_fixtures.py", "variableNamingConvention": "structured",
-        "numberOfEventIndicators": "0"})
+        "numberOfEventIndicators": str(EVENT_INDICATORS.get(kind, 0))})
     common = {"modelIdentifier": kind, "needsExecutionTool": "false", "canBeInstantiatedOnlyOncePerProcess": "false",
               "canNotUseMemoryManagementFunctions": "false", "canGetAndSetFMUstate": optional,
               "canSerializeFMUstate": "false", "providesDirectionalDerivative": optional}
-    own = {"ModelExchange": {"completedIntegratorStepNotNeeded": "true"},
+    own = {"ModelExchange": {"completedIntegratorStepNotNeeded": COMPLETED_STEP_NOT_NEEDED.get(kind, "true")},
            "CoSimulation": {"canHandleVariableCommunicationStepSize": "true", "canInterpolateInputs": "false",
                             "maxOutputDerivativeOrder": "0", "canRunAsynchronuously": "false"}}
     for interface in INTERFACES[kind]:
@@ -296,15 +318,18 @@ def _model_description(kind: str, guid: str, variables: list[dict]) -> bytes:
 
 
 def _model_structure(root: ElementTree.Element, variables: list[dict]) -> None:
-    """Outputs and Derivatives with their dependencies on the states and inputs (a state output on itself;
-    the others, being linear in all of them, on every state and input); InitialUnknowns: the derivatives and
-    the calculated outputs (dependencies not given: on everything)."""
+    """Outputs and Derivatives with their dependencies on the states and inputs (a variable's own
+    "dependencies" where it has them; a state output on itself; the others, being linear in all of them, on every
+    state and input); InitialUnknowns: the derivatives and the calculated outputs (dependencies not given: on
+    everything)."""
     index = {v["name"]: i + 1 for i, v in enumerate(variables)}
     states = [variables[v["derivative"] - 1]["name"] for v in variables if v["derivative"] is not None]
     inputs = [v["name"] for v in variables if v["causality"] == "input"]
     structure = ElementTree.SubElement(root, "ModelStructure")
 
     def dependencies(v: dict) -> str:
+        if "dependencies" in v:  # given
+            return v["dependencies"]
         if v["name"] in states:
             return str(index[v["name"]])
         if not states:  # co-simulation without declared states: the lag has no direct feedthrough

@@ -278,6 +278,36 @@ def test_an_fmi3_fmu_runs_as_its_fmi2_twin(single_track, tmp_path) -> None:
         simulator.close()
 
 
+def test_each_sample_completes_a_step_and_a_state_event_stops_the_run(tmp_path) -> None:
+    """Model exchange with an event indicator (z = yaw rate - yaw_limit) that hypa does not handle: a free run
+    calls fmi2CompletedIntegratorStep once a sample (the FMU counts them as an output) and runs while z keeps its
+    sign; where it crosses, or where the FMU asks for event mode, the run stops in one line with the time; in
+    the C loop and the Python loop alike."""
+    from fmu_fixtures import build_fmu
+
+    from hypa.physics import fmu_loop
+
+    fmu = read_fmu(build_fmu("single_track_events", tmp_path))
+    assert fmu.event_indicators == 1 and fmu.interface() == "model_exchange"
+    t = np.arange(300) * 0.01
+    u = (0.5 * np.sin(2 * np.pi * 0.5 * t))[:, None]
+    counter = fmu.output_names.index("completed_steps")
+    for native in (False, True) if fmu_loop.available() else (False,):
+        simulator = FMUSimulator(fmu, native=native)
+        try:
+            run = simulator.run({}, ("steering_wheel_angle",), u, 0.0, 0.01, np.zeros(2))
+            np.testing.assert_array_equal(run.y[:, counter], np.arange(len(t)))  # one completed step a sample
+            limit = 0.5 * float(np.abs(run.y[:, 0]).max())
+            crossing = t[int(np.argmax(run.y[:, 0] > limit))]
+            with pytest.raises(FMUError, match=rf"at t = {crossing:g} s, an event indicator changed sign: a state "
+                                               "event"):
+                simulator.run({"yaw_limit": limit}, ("steering_wheel_angle",), u, 0.0, 0.01, np.zeros(2))
+            with pytest.raises(FMUError, match=r"at t = 1\.5 s, it asked for event mode after a completed step"):
+                simulator.run({"request_event_at": 1.495}, ("steering_wheel_angle",), u, 0.0, 0.01, np.zeros(2))
+        finally:
+            simulator.close()
+
+
 def test_a_failing_call_or_a_non_finite_output_is_refused_in_one_line(single_track) -> None:
     """A call into the FMU that fails inside the C loop is named with its time; outputs that turn NaN are
     refused in both interfaces and both loops."""
