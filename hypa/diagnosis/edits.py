@@ -70,6 +70,17 @@ def set_free(spec: ModelSpec, names: Sequence[str]) -> ModelSpec:
                                                   for b in spec.blocks))
 
 
+def home(spec: ModelSpec, name: str) -> tuple[str | None, str]:
+    """Where a model config holds the value of the parameter ``name``: (its block, its local name) for a
+    block's own (``<block>/<name>``) and an FMU's (its block's ``parameters``, which win over the model's),
+    else (None, name): the model's shared ``parameters``."""
+    if "/" in name:
+        block, local = name.split("/", 1)
+        return block, local
+    owner = next((b.name for b in spec.blocks if b.kind == "fmu" and name in b.parameter_names), None)
+    return owner, name
+
+
 def applied(candidate: Candidate, values: Mapping[str, float]) -> ModelSpec:
     """The candidate's model with its fitted ``values`` written in and every parameter frozen again:
     the base of the next search round, and what the written model config holds."""
@@ -78,15 +89,12 @@ def applied(candidate: Candidate, values: Mapping[str, float]) -> ModelSpec:
         return dataclasses.replace(spec, sensor_offsets={**spec.sensor_offsets, candidate.target:
                                                          float(values[candidate.target])})
     shared, own = dict(spec.parameters), {}
-    fmu_owner = {name: b.name for b in spec.blocks if b.kind == "fmu" for name in b.parameter_names}
     for name, value in values.items():
-        if "/" in name:
-            block, local = name.split("/", 1)
-            own.setdefault(block, {})[local] = float(value)
-        elif name in fmu_owner:  # an FMU's parameter: its block's own (which win over the model's)
-            own.setdefault(fmu_owner[name], {})[name] = float(value)
-        else:
+        block, local = home(spec, name)
+        if block is None:
             shared[name] = float(value)
+        else:
+            own.setdefault(block, {})[local] = float(value)
     blocks = tuple(dataclasses.replace(b, parameters={**b.parameters, **own[b.name]}) if b.name in own else b
                    for b in spec.blocks)
     return dataclasses.replace(spec, blocks=blocks, parameters=shared)

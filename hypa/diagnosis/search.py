@@ -37,7 +37,7 @@ import torch
 
 from hypa.diagnosis.catalogue import Entry, catalogue_candidates, load_catalogue, state_blocks
 from hypa.diagnosis.cross_validation import evaluate_folds, evaluate_generic, pool, pooled_z
-from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, averaged, frozen, set_free
+from hypa.diagnosis.edits import AFFINE, GRADIENT, Candidate, applied, averaged, frozen, home, set_free
 from hypa.diagnosis.finding import ALTERNATIVE, SIMPLER, Finding, alternatives
 from hypa.diagnosis.fitting import fit_offsets
 from hypa.diagnosis.generic import MARGIN as GENERIC_MARGIN
@@ -438,10 +438,10 @@ def _knob_values(spec: ModelSpec, candidate: Candidate) -> dict[str, float] | No
     """The values ``spec`` holds for ``candidate``'s knobs (None where one is missing)."""
     values = {}
     for knob in candidate.knobs:
+        block, local = home(spec, knob)
         if candidate.fit == AFFINE:
             found = spec.sensor_offsets.get(knob)
-        elif "/" in knob:
-            block, local = knob.split("/", 1)
+        elif block is not None:
             found = spec.block(block).parameters.get(local)
         else:
             found = spec.parameters.get(knob)
