@@ -56,7 +56,8 @@ def with_correction(spec: ModelSpec, inputs: Sequence[str]) -> ModelSpec:
     blocks = []
     for b in spec.blocks:
         outputs = tuple(renamed.get(s, s) for s in b.outputs)
-        observe = {**b.observe, **{renamed[s]: s for s in b.outputs if s in renamed}} if b.kind == "physics" else {}
+        observe = ({**b.observe, **{renamed[s]: s for s in b.outputs if s in renamed}}
+                   if b.kind in ("physics", "fmu") else {})
         variable = {signal: name for name, signal in b.rename.items()}  # an FMU's outputs keep their variables
         rename = {**b.rename, **{variable.get(s, s): renamed[s] for s in b.outputs if s in renamed}} \
             if b.kind == "fmu" else b.rename

@@ -70,15 +70,14 @@ def set_free(spec: ModelSpec, names: Sequence[str]) -> ModelSpec:
                                                   for b in spec.blocks))
 
 
-def home(spec: ModelSpec, name: str) -> tuple[str | None, str]:
-    """Where a model config holds the value of the parameter ``name``: (its block, its local name) for a
-    block's own (``<block>/<name>``) and an FMU's (its block's ``parameters``, which win over the model's),
-    else (None, name): the model's shared ``parameters``."""
+def home(spec: ModelSpec, name: str) -> tuple[tuple[str, ...], str]:
+    """Where a model config holds the value of the parameter ``name``: (the blocks, its local name) for a
+    block's own (``<block>/<name>``) and for an FMU's that FMU blocks set in their own ``parameters`` (which
+    win over the model's: every such block), else ((), name): the model's shared ``parameters``."""
     if "/" in name:
         block, local = name.split("/", 1)
-        return block, local
-    owner = next((b.name for b in spec.blocks if b.kind == "fmu" and name in b.parameter_names), None)
-    return owner, name
+        return (block,), local
+    return tuple(b.name for b in spec.blocks if b.kind == "fmu" and name in b.parameters), name
 
 
 def applied(candidate: Candidate, values: Mapping[str, float]) -> ModelSpec:
@@ -90,10 +89,10 @@ def applied(candidate: Candidate, values: Mapping[str, float]) -> ModelSpec:
                                                          float(values[candidate.target])})
     shared, own = dict(spec.parameters), {}
     for name, value in values.items():
-        block, local = home(spec, name)
-        if block is None:
+        blocks, local = home(spec, name)
+        if not blocks:
             shared[name] = float(value)
-        else:
+        for block in blocks:
             own.setdefault(block, {})[local] = float(value)
     blocks = tuple(dataclasses.replace(b, parameters={**b.parameters, **own[b.name]}) if b.name in own else b
                    for b in spec.blocks)

@@ -22,6 +22,7 @@ from hypa.diagnosis.fitting import fit_affine, fit_gradient
 from hypa.diagnosis.problem import Problem, TooLittleData
 from hypa.models.spec import ModelSpecError
 from hypa.physics import SchedulingError, UnstablePhysicsError
+from hypa.physics.fmu import FMUError
 from hypa.reporting.numbers import quantity
 
 ALTERNATIVE = 0.95  # a candidate explaining this share of the named one's gain is reported beside it ...
@@ -82,7 +83,7 @@ class Finding:
 
 
 FIT_ERRORS = (UnstablePhysicsError, SchedulingError, ModelSpecError, ValueError, ArithmeticError,
-              torch.linalg.LinAlgError)  # a candidate that fails is reported, never ends the diagnosis
+              torch.linalg.LinAlgError, FMUError)  # a candidate that fails is reported, never ends the diagnosis
 
 
 def evaluate(candidate: Candidate, problem: Problem, windows: Mapping[str, torch.Tensor], base_score: float,

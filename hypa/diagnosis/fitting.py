@@ -14,6 +14,7 @@ import torch
 from hypa.diagnosis.edits import Candidate, set_free
 from hypa.diagnosis.problem import Problem, TooLittleData
 from hypa.models.spec import ModelSpec, ModelSpecError
+from hypa.physics.fmu import FMUError
 from hypa.physics.parameters import LOG, SIGNED
 from hypa.reporting.numbers import quantity
 
@@ -22,7 +23,7 @@ LM_WINDOWS_PER_BATCH = 2  # its fixed windows: this many batches' worth (256 by 
 LM_PROBE = 1e-5  # the finite-difference step on a raw knob (a relative 1e-5 for positive parameters)
 LM_TOLERANCE = 1e-3  # converged: a step lowered the error by less than this share
 LM_DAMPING = 1e-2  # the starting damping (relative to the normal matrix's diagonal)
-LM_ROUND_OFF = 1e-8  # a Jacobian column this small beside the largest is finite differences' round-off: no step
+LM_ROUND_OFF = 100.0  # a Jacobian column within this many times the finite differences' noise is round-off (_live)
 LM_MAX_STEP = 1.0  # the largest move of a raw knob per Levenberg-Marquardt step (a factor e for a positive one)
 SANE_DECADES = 3.0  # a positive knob more than this many decades from where its fit started has diverged
 SANE_SIGNED = 1e3  # so has a signed knob beyond this many times its nominal magnitude
@@ -161,6 +162,7 @@ class GradientFit:
             r0, jacobian = self._linearize()
         except (ArithmeticError, ValueError, torch.linalg.LinAlgError):
             return math.nan
+        jacobian, _ = _live(jacobian, r0)
         gradient = jacobian.T @ r0
         # gelsd (SVD): a knob whose column is 0 where the fit starts (a mode's time constant while its
         # weights are 0) must drop out, not zero the whole solution (gelsy, the default, did that)
@@ -179,12 +181,7 @@ class GradientFit:
         r0, jacobian = self._linearize()
         self._linearized = None  # the knobs move: the next step linearizes again
         cost = float(r0 @ r0)
-        # a knob whose column is round-off where the step starts (a lag's time constant while its gain is 0,
-        # through an FMU that reads the lag's zeros as a sum of tiny ones) does not move in this step: its
-        # noise would steer the whole step into the trust region's edge
-        norms = jacobian.norm(dim=0)
-        dead = norms <= LM_ROUND_OFF * norms.max()
-        jacobian = jacobian * (~dead).to(jacobian.dtype)
+        jacobian, dead = _live(jacobian, r0)
         normal, gradient = jacobian.T @ jacobian, jacobian.T @ r0
         normal = normal + torch.diag(dead.to(normal.dtype))
         while self.damping < 1e6:
@@ -192,7 +189,10 @@ class GradientFit:
             step = step * min(1.0, LM_MAX_STEP / max(float(step.abs().max()), 1e-300))  # a trust region
             for knob, delta in zip(self.knobs, step):
                 knob += delta
-            trial = self._residual()
+            try:  # a model that fails at the trial values (an FMU that refuses them) is a step rejected
+                trial = self._residual()
+            except FMUError:
+                trial = torch.full_like(r0, math.nan)
             if bool(torch.isfinite(trial).all()) and float(trial @ trial) < cost:
                 self.damping, self._last = max(self.damping / 3.0, 1e-6), trial
                 self.converged = float(trial @ trial) > (1.0 - LM_TOLERANCE) * cost
@@ -205,6 +205,16 @@ class GradientFit:
 
     def values(self) -> dict[str, float]:
         return {k: float(self.model.parameters_.value(k).detach()) for k in (*self.candidate.knobs, *self.refine)}
+
+
+def _live(jacobian: torch.Tensor, r0: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The Jacobian with the columns that are round-off zeroed, and which they are. A column is round-off where
+    it is no larger than the finite differences' own noise, ``LM_ROUND_OFF`` times ε / ``LM_PROBE`` times the
+    residual's norm (a lag's time constant while its gain is 0, through an FMU that reads the lag's zeros as a
+    sum of tiny ones): such a knob sits out the step, whose direction its noise would otherwise decide."""
+    noise = LM_ROUND_OFF * torch.finfo(jacobian.dtype).eps / LM_PROBE * float(torch.linalg.norm(r0))
+    dead = jacobian.norm(dim=0) <= noise
+    return jacobian * (~dead).to(jacobian.dtype), dead
 
 
 def fixed_windows(problem: Problem, windows: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:

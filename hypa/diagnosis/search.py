@@ -438,11 +438,11 @@ def _knob_values(spec: ModelSpec, candidate: Candidate) -> dict[str, float] | No
     """The values ``spec`` holds for ``candidate``'s knobs (None where one is missing)."""
     values = {}
     for knob in candidate.knobs:
-        block, local = home(spec, knob)
+        blocks, local = home(spec, knob)
         if candidate.fit == AFFINE:
             found = spec.sensor_offsets.get(knob)
-        elif block is not None:
-            found = spec.block(block).parameters.get(local)
+        elif blocks:
+            found = spec.block(blocks[0]).parameters.get(local)
         else:
             found = spec.parameters.get(knob)
         if found is None:

@@ -82,6 +82,10 @@ def collect_parameters(spec: ModelSpec, values: Mapping[str, float]
             given = {**{p.name: spec.parameters[p.name] for p in fmu.parameters if p.name in spec.parameters},
                      **{k.split("/", 1)[-1]: v for k, v in local.items()}}
             for s in fmu.parameter_specs(given):
+                if s.name in specs and specs[s.name].value != s.value:  # one model holds one value per name
+                    raise ModelSpecError(f"block {b.name!r}: the FMU parameter {s.name!r} is {s.value:g} here but "
+                                         f"{specs[s.name].value:g} in another block; a model holds one value per "
+                                         "name: give it once, in the model's parameters")
                 specs[s.name] = s
             trainable_of[b.name] = _fmu_trainable(b, fmu)
             continue
@@ -217,8 +221,10 @@ class BlockBuilder:
             raise ModelSpecError(f"{where}: an FMU's inputs are held by a zero- or first-order hold, not "
                                  f"{self.hold} (physics.hold=zoh or foh)")
         fmu_in, fmu_out = fmu_signals(fmu, b.rename, b.inputs, b.outputs, where)
-        measured_as = lambda variable: next((n for n in (b.rename.get(variable, variable), variable)  # noqa: E731
-                                             if n in self.measured), None)  # its signal, else its own name
+        def measured_as(variable: str) -> str | None:  # its signal, the measured one that observes, its own name
+            signal = b.rename.get(variable, variable)
+            return next((n for n in (signal, b.observe.get(signal), variable) if n and n in self.measured), None)
+
         measured = tuple(measured_as(s) for s in fmu.state_names)
         measured = measured if measured and None not in measured else ()
         # an output scaled as the measured output it is (by its signal's name or its FMU variable's), else SI

@@ -92,9 +92,9 @@ class BlockSpec:
         start: a pure network has no other way to know where a window starts).
     scheduling: physics only, parameters that vary per sample with a measured signal
         (``{velocity: velocity}``: parameter -> scheduling channel, SI units).
-    observe: physics only, which measured output each block output is (``{y_physics: y}``)
-        for the initial-state estimate; outputs named like a measured output
-        observe it without this.
+    observe: physics and FMU blocks, which measured output each block output is (``{y_physics: y}``)
+        for the initial-state estimate (an FMU's: its start state and its outputs' scale); outputs
+        named like a measured output observe it without this.
     table: physics scheduled by one signal only: where no gradient needs its matrices (a
         validation, an evaluation, a simulation), read them off an interpolation table over the
         signal's range, verified against the exact matrices to round-off
@@ -406,11 +406,12 @@ def parse_model_spec(config: Mapping[str, Any]) -> ModelSpec:
             interface=None if b.get("interface") is None else str(b["interface"]),
             rename=_signal_map(b.get("rename"), f"{block_name}.rename"),
         ))
-        if kind != "physics" and (blocks[-1].scheduling or blocks[-1].observe or blocks[-1].curved
-                                  or blocks[-1].limited or blocks[-1].depends or blocks[-1].driven
-                                  or blocks[-1].modes):
-            raise ModelSpecError(f"block {block_name!r}: only physics blocks take scheduling, observe, curved, "
-                                 "limited, depends, modes or driven")
+        if kind != "physics" and (blocks[-1].scheduling or blocks[-1].curved or blocks[-1].limited
+                                  or blocks[-1].depends or blocks[-1].driven or blocks[-1].modes):
+            raise ModelSpecError(f"block {block_name!r}: only physics blocks take scheduling, curved, limited, "
+                                 "depends, modes or driven")
+        if kind not in ("physics", "fmu") and blocks[-1].observe:
+            raise ModelSpecError(f"block {block_name!r}: only physics and FMU blocks take observe")
         if blocks[-1].table and len(blocks[-1].scheduling) != 1:
             raise ModelSpecError(f"block {block_name!r}: table: true needs a physics block scheduled by one signal, "
                                  f"got scheduling {dict(blocks[-1].scheduling) or 'none'}")

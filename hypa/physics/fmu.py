@@ -166,12 +166,12 @@ def read_fmu(path: Path | str) -> FMUDescription:
     path = Path(path)
     if not path.is_file():
         raise FMUError(f"FMU {path}: no such file")
-    stat = path.stat()
-    return _read_fmu(path.resolve(), stat.st_size, stat.st_mtime_ns)
+    stat = path.stat()  # a file replaced keeps neither its inode nor its change time
+    return _read_fmu(path.resolve(), (stat.st_size, stat.st_mtime_ns, stat.st_ctime_ns, stat.st_ino))
 
 
 @functools.lru_cache(maxsize=64)
-def _read_fmu(path: Path, size: int, modified: int) -> FMUDescription:
+def _read_fmu(path: Path, version: tuple[int, ...]) -> FMUDescription:
     from fmpy import read_model_description
 
     try:
@@ -198,6 +198,10 @@ def _read_fmu(path: Path, size: int, modified: int) -> FMUDescription:
     pick = lambda causality: tuple(_real(v) for v in reals if v.causality == causality)  # noqa: E731
     parameters = tuple(_real(v) for v in reals if v.causality == "parameter" and v.variability in ("fixed", "tunable"))
     derivatives = [u.variable for u in model.derivatives]
+    shaped = [v.name for d in derivatives for v in (d, d.derivative) if getattr(v, "dimensions", None)]
+    if shaped:  # an array state's elements would not be counted: refused before anything else reads them
+        raise FMUError(f"FMU {path}: its continuous state {shaped[0]!r} is an array; hypa runs FMUs with scalar "
+                       "states")
     exchange, cosim = model.modelExchange, model.coSimulation
     flag = lambda interface, name: bool(interface) and str(getattr(interface, name, False)).lower() in ("true", "1")  # noqa: E731
     directional = {"model_exchange": flag(exchange, "providesDirectionalDerivative"),
@@ -334,9 +338,31 @@ class FMUSimulator:
         self._cleanup()
 
     def run(self, parameters: Mapping[str, float], fed: Sequence[str], u: np.ndarray, t0: float, dt: float,
-            x0: np.ndarray | None = None, hold: str = "zoh") -> FMURun:
+            x0: np.ndarray | None = None, hold: str = "zoh", read: Sequence[str] | None = None) -> FMURun:
         """The FMU over u (T, len(fed)) [SI] on t_k = t0 + k dt from x0 (its states, SI; None: its own
-        initialization), ``parameters`` by name [SI]; the inputs not in ``fed`` keep their start values."""
+        initialization), ``parameters`` by name [SI]; the inputs not in ``fed`` keep their start values. Every
+        output is returned; those of ``read`` (None: all) must stay finite."""
+        with self._fmpy_calls():
+            run = self._run(parameters, fed, u, t0, dt, x0, hold)
+        d = self.description
+        columns = [i for i, v in enumerate(d.outputs) if read is None or v.name in read]
+        bad = ~np.isfinite(run.y[:, columns]).all(1)
+        if bad.any():
+            raise FMUError(f"FMU {d.path.name}: its outputs are not finite by t = {t0 + dt * int(np.argmax(bad)):g} s")
+        return run
+
+    @contextlib.contextmanager
+    def _fmpy_calls(self):
+        """A call that fails inside fmpy (the Python loops, the initialization) as ``FMUError`` in one line."""
+        from fmpy.fmi1 import FMICallException
+
+        try:
+            yield
+        except FMICallException as error:
+            raise FMUError(f"FMU {self.description.path.name}: {str(error).splitlines()[0][:200]}") from None
+
+    def _run(self, parameters: Mapping[str, float], fed: Sequence[str], u: np.ndarray, t0: float, dt: float,
+             x0: np.ndarray | None, hold: str) -> FMURun:
         d = self.description
         refs = {v.name: v.reference for v in (*d.inputs, *d.parameters)}
         self._start(parameters, refs, t0)
@@ -345,13 +371,8 @@ class FMUSimulator:
         inputs = [refs[n] for n in fed]
         outputs = [v.reference for v in d.outputs]
         if self.interface == "model_exchange":
-            run = self._exchange(inputs, outputs, u, t0, dt, hold, started)
-        else:
-            run = self._cosimulate(inputs, outputs, u, t0, dt, hold, started)
-        if not np.isfinite(run.y).all():
-            raise FMUError(f"FMU {self.description.path.name}: its outputs are not finite by t = "
-                           f"{t0 + dt * int(np.argmax(~np.isfinite(run.y).all(1))):g} s")
-        return run
+            return self._exchange(inputs, outputs, u, t0, dt, hold, started)
+        return self._cosimulate(inputs, outputs, u, t0, dt, hold, started)
 
     def _start(self, parameters: Mapping[str, float], refs: Mapping[str, int], t0: float) -> None:
         if not self._fresh:
@@ -429,6 +450,10 @@ class FMUSimulator:
         """The eigenvalues [1/s] of the state Jacobian at the FMU's own initial state and input start values
         (model exchange; its time scales, as a class's linear part gives them); empty without states or model
         exchange."""
+        with self._fmpy_calls():
+            return self._modes(parameters, t0)
+
+    def _modes(self, parameters: Mapping[str, float], t0: float) -> np.ndarray:
         if self.interface != "model_exchange" or not self.n:
             return np.zeros(0, dtype=complex)
         d = self.description
@@ -436,15 +461,19 @@ class FMUSimulator:
         self._initialize(None)
         self.fmu.get_states(self._x, self.n)
         x = np.frombuffer(self._x, dtype=float, count=self.n).copy()
-        return np.linalg.eigvals(self.jacobian(t0, x, [], np.zeros(0)))
+        return np.linalg.eigvals(self._finite_jacobian(t0, x, [], np.zeros(0)))
+
+    def _finite_jacobian(self, t: float, x: np.ndarray, refs: list[int], u: np.ndarray) -> np.ndarray:
+        jacobian = self.jacobian(t, x, refs, u)
+        if not np.isfinite(jacobian).all():
+            raise FMUError(f"FMU {self.description.path.name}: its state Jacobian is not finite at t = {t:g} s")
+        return jacobian
 
     def substeps(self, t: float, x: np.ndarray, refs: list[int], u: np.ndarray, dt: float) -> int:
         """RK4 substeps per sample: (ρ h)^5 / 120 <= LOCAL_ERROR with ρ the state Jacobian's spectral radius."""
         if not self.n:
             return 1
-        radius = float(np.abs(np.linalg.eigvals(self.jacobian(t, x, refs, u))).max())
-        if not math.isfinite(radius):
-            raise FMUError(f"FMU {self.description.path.name}: its state Jacobian is not finite at t = {t:g} s")
+        radius = float(np.abs(np.linalg.eigvals(self._finite_jacobian(t, x, refs, u))).max())
         longest = (120.0 * LOCAL_ERROR) ** 0.2 / radius if radius > 0 else math.inf
         return max(1, math.ceil(dt / longest)) if math.isfinite(longest) else 1
 
@@ -521,6 +550,11 @@ class FMUSimulator:
         and its next state x_k+1 = Φ(x_k, u_k, u_k+1) move with x_k, u_k and (first-order hold) u_k+1, by
         forward differences (steps √ε relative, errors of that order) from the run's own y_k and x_k+1: one
         output evaluation and one RK4 step per state and input."""
+        with self._fmpy_calls():
+            return self._sensitivities(fed, u, run, t0, dt, hold)
+
+    def _sensitivities(self, fed: Sequence[str], u: np.ndarray, run: FMURun, t0: float, dt: float,
+                       hold: str) -> Sensitivities:
         if self.interface != "model_exchange" or run.x is None:
             raise FMUError(f"FMU {self.description.path.name}: gradients through it need its model exchange "
                            "interface (hypa integrates it); its co-simulation steps alone")

@@ -121,7 +121,8 @@ class FMUBlock(nn.Module):
         ys, runs = [], []
         for b in range(si.shape[0]):
             start = None if x0 is None else x0[b].detach().double().cpu().numpy()
-            run = self.simulator.run(parameters, self.fmu_inputs, si[b], 0.0, self.dt, start, self.hold)
+            run = self.simulator.run(parameters, self.fmu_inputs, si[b], 0.0, self.dt, start, self.hold,
+                                     read=self.fmu_outputs)
             if x0 is not None and not run.started_from_data and not self._said_start:
                 log.info("block %r: the FMU does not let hypa set its states; it starts from its own "
                          "initialization", self.name)

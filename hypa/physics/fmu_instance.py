@@ -88,19 +88,21 @@ class Instance:
 
     def completed_step(self) -> tuple[bool, bool]:
         """fmi2/3CompletedIntegratorStep: (enter event mode, terminate)."""
-        event, terminate = self.fmu.completedIntegratorStep()[:2]
+        # hypa may set earlier states afterwards (the sensitivities): noSetFMUStatePriorToCurrentPoint is false
+        event, terminate = self.fmu.completedIntegratorStep(noSetFMUStatePriorToCurrentPoint=False)[:2]
         return bool(event), bool(terminate)
 
     def directional(self, unknowns: Sequence[int], knowns: Sequence[int], seed: Sequence[float]) -> np.ndarray:
         return np.asarray(self.fmu.getDirectionalDerivative(list(unknowns), list(knowns), list(seed)), dtype=float)
 
     def do_step(self, t: float, h: float) -> str:
-        """One co-simulation step; '' where it completed, else why not (an event inside it, an early return, a
-        request to terminate: FMI 3.0 says so)."""
+        """One co-simulation step; '' where it completed, else why not (an early return, a request to terminate:
+        FMI 3.0 says so), in ``hypa.physics.fmu_loop.EVENTS``' words."""
         if self.version == 3:
+            from hypa.physics.fmu_loop import EVENTS
+
             _, terminate, early, _ = self.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
-            return "it asked to terminate the simulation" if terminate else (
-                "it returned early from a co-simulation step (an event inside it)" if early else "")
+            return EVENTS[12] if terminate else EVENTS[13] if early else ""
         self.fmu.doStep(currentCommunicationPoint=t, communicationStepSize=h)
         return ""
 

@@ -66,15 +66,22 @@ def _library() -> ctypes.CDLL | None:
         log.info("no C compiler (cc, gcc, clang) on PATH: FMU blocks call their FMU through Python, about a "
                  "hundred times slower")
         return None
-    folder = Path(tempfile.mkdtemp(prefix="hypa-fmu-loop-"))  # private (0700): nothing else can swap the library
-    library = folder / "fmu_loop.so"
-    error = compile_c([cc, "-O2", "-std=c99", "-shared", "-fPIC", "-o", str(library), str(SOURCE), "-lm"], folder)
-    if error:
-        shutil.rmtree(folder, ignore_errors=True)
-        log.info("the FMU block's C loop does not compile here (%s): FMU blocks call their FMU through Python, about "
-                 "a hundred times slower", error)
+    folder: Path | None = None
+    try:
+        folder = Path(tempfile.mkdtemp(prefix="hypa-fmu-loop-"))  # private (0700): nothing else can swap it
+        library = folder / "fmu_loop.so"
+        # -ffp-contract=off: no fused multiply-adds (clang's default), so the C loops keep the Python loops' numbers
+        error = compile_c([cc, "-O2", "-std=c99", "-ffp-contract=off", "-shared", "-fPIC", "-o", str(library),
+                           str(SOURCE), "-lm"], folder)
+        loaded = None if error else ctypes.CDLL(str(library))
+    except OSError as failure:  # no temporary folder, or one mounted noexec
+        error, loaded = str(failure).splitlines()[0] if str(failure) else type(failure).__name__, None
+    if loaded is None:
+        if folder is not None:
+            shutil.rmtree(folder, ignore_errors=True)
+        log.info("the FMU block's C loop does not build or load here (%s): FMU blocks call their FMU through Python, "
+                 "about a hundred times slower", error)
         return None
-    loaded = ctypes.CDLL(str(library))
     weakref.finalize(loaded, shutil.rmtree, folder, True)
     for name in ("hypa_me_run", "hypa_me_sensitivities", "hypa_cs_run"):
         getattr(loaded, name).restype = ctypes.c_int

@@ -436,6 +436,39 @@ def test_a_renamed_fmu_feeds_a_correction_network_in_the_measured_scale(single_t
     np.testing.assert_allclose(y[0].numpy() * [0.2, 0.03] + [0.01, -0.002], expected, rtol=1e-9, atol=1e-12)
 
 
+def test_the_diagnosis_hybrid_of_a_renamed_fmu_keeps_its_measured_start_and_scale(single_track) -> None:
+    """An FMU whose variables are named otherwise than the channels (rename yaw_rate -> r, side_slip -> beta):
+    the diagnosis' hybrid (its outputs renamed r_physics, beta_physics, ``with_correction``) still starts the FMU
+    from the measured r, beta and scales its outputs as them (its ``observe``); a fitted FMU parameter is written
+    where each FMU block holds it, else among the model's shared values, which every block reads."""
+    from hypa.diagnosis.api import with_correction
+    from hypa.diagnosis.edits import Candidate, applied
+    from hypa.models.composed import ComposedModel
+    from hypa.models.spec import ModelSpecError, parse_model_spec
+
+    spec = parse_model_spec({"name": "car", "outputs": ["r", "beta"], "blocks": {
+        "car": {"kind": "fmu", "fmu": str(single_track), "inputs": ["steering_wheel_angle"], "outputs": ["r", "beta"],
+                "rename": {"yaw_rate": "r", "side_slip": "beta"}}}})
+    hybrid = with_correction(spec, ["steering_wheel_angle"])
+    measured = {"r": (0.01, 0.2), "beta": (-0.002, 0.03)}
+    model = ComposedModel(hybrid, None, ["steering_wheel_angle"], list(measured), {"steering_wheel_angle": (0.0, 0.5)},
+                          measured, 0.01, hold="zoh", ann_hparams={"hidden_size": 4})
+    car = model.blocks["car"]
+    assert car.measured_states == ("r", "beta")
+    assert car.output_mean.tolist() == [0.01, -0.002] and car.output_std.tolist() == [0.2, 0.03]
+    twice = parse_model_spec({"name": "two", "outputs": ["r"], "blocks": {
+        "a": {"kind": "fmu", "fmu": str(single_track), "inputs": ["steering_wheel_angle"], "outputs": ["r"],
+              "rename": {"yaw_rate": "r"}, "parameters": {"cf": 70000.0}},
+        "b": {"kind": "fmu", "fmu": str(single_track), "inputs": ["steering_wheel_angle"], "outputs": ["side_slip"]}}})
+    written = applied(Candidate("parameter_mismatch", "cf", twice, "gradient", ("cf", "cr")), {"cf": 81000.0,
+                                                                                            "cr": 91000.0})
+    assert written.block("a").parameters == {"cf": 81000.0} and "cf" not in written.block("b").parameters
+    assert written.parameters["cr"] == 91000.0 and "cr" not in written.block("a").parameters
+    with pytest.raises(ModelSpecError, match="the FMU parameter 'cf' is 80000 here but 81000 in another block"):
+        ComposedModel(written, None, ["steering_wheel_angle"], ["r"], {"steering_wheel_angle": (0.0, 0.5)},
+                      {"r": (0.01, 0.2)}, 0.01, hold="zoh")
+
+
 @pytest.mark.parametrize("hold", ["zoh", "foh"])
 def test_the_gradient_through_an_fmu_equals_differences_of_the_loss(single_track, hold: str) -> None:
     """A network feeding an FMU trains through it: dL/du from the FMU's per-sample sensitivities and the adjoint

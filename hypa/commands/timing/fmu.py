@@ -91,7 +91,7 @@ def single_track_class(samples: int, repeat: int) -> list[tuple[str, float, floa
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="hypa timing fmu", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--fmu", help="the FMU to time (FMI 2.0)")
+    parser.add_argument("--fmu", help="the FMU to time (FMI 2.0 or 3.0)")
     parser.add_argument("--samples", type=int, default=2000)
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--reference", choices=["single_track"],

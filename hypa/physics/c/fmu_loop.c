@@ -100,20 +100,21 @@ static int derivatives(hypa_fmu *api, double t, const double *x, const double *u
     return 0;
 }
 
-/* The sample's step is complete (the FMU at its time, states and inputs): fmi2/3CompletedIntegratorStep, and
+/* The sample's step is complete (the FMU at its time, states and inputs): fmi2/3CompletedIntegratorStep (with
+   noSetFMUStatePriorToCurrentPoint false: the sensitivities set earlier times and states afterwards), and
    the event indicators against the last sample's (`last`, e values; `first`: none yet), stopping at an event
    the loop does not handle. */
 static int completed(hypa_fmu *api, double *last, int first) {
     if (api->completed_step && !first) {
         if (api->version == 3) {
             bool event = false, terminate = false;
-            CALL(api, ((completed3_t)api->completed_step)(api->component, true, &event, &terminate),
+            CALL(api, ((completed3_t)api->completed_step)(api->component, false, &event, &terminate),
                  FAILED_COMPLETED_STEP);
             if (terminate) STOP(api, EVENT_TERMINATE);
             if (event) STOP(api, EVENT_STEP);
         } else {
             int event = 0, terminate = 0;
-            CALL(api, ((completed2_t)api->completed_step)(api->component, 1, &event, &terminate),
+            CALL(api, ((completed2_t)api->completed_step)(api->component, 0, &event, &terminate),
                  FAILED_COMPLETED_STEP);
             if (terminate) STOP(api, EVENT_TERMINATE);
             if (event) STOP(api, EVENT_STEP);
