@@ -51,6 +51,7 @@ def with_correction(spec: ModelSpec, inputs: Sequence[str]) -> ModelSpec:
     """The model with a correction network on its outputs (HyPA-Net): the physics writes
     ``<output>_physics``, the network reads the inputs and those and adds its correction."""
     from hypa.models.spec import BlockSpec
+    from hypa.physics.fmu_block import resignaled
 
     renamed = {o: f"{o}_physics" for o in spec.outputs}
     blocks = []
@@ -58,9 +59,8 @@ def with_correction(spec: ModelSpec, inputs: Sequence[str]) -> ModelSpec:
         outputs = tuple(renamed.get(s, s) for s in b.outputs)
         observe = ({**b.observe, **{renamed[s]: s for s in b.outputs if s in renamed}}
                    if b.kind in ("physics", "fmu") else {})
-        variable = {signal: name for name, signal in b.rename.items()}  # an FMU's outputs keep their variables
-        rename = {**b.rename, **{variable.get(s, s): renamed[s] for s in b.outputs if s in renamed}} \
-            if b.kind == "fmu" else b.rename
+        moves = {s: renamed[s] for s in b.outputs if s in renamed}  # an FMU's outputs keep their variables
+        rename = resignaled(b.rename, moves) if b.kind == "fmu" else b.rename
         blocks.append(dataclasses.replace(b, outputs=outputs, observe=observe, rename=rename)
                       if outputs != b.outputs else b)
     correction = BlockSpec(name="correction", kind="ann", inputs=(*inputs, *renamed.values()),

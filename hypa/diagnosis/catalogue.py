@@ -231,14 +231,14 @@ def apply_patch(spec: ModelSpec, patch: Mapping[str, Any], dt: float, where: str
     their names, at their current values)."""
     variables = {**(variables or {}), "dt": dt}
     from hypa.models.spec import spec_config
+    from hypa.physics.fmu_block import resignaled
 
     config = spec_config(spec)
     rewire = patch.get("rewire") or {}
     for block in config["blocks"].values():
         if block.get("fmu") is not None:  # an FMU's input keeps its variable, fed by the new signal
-            variable = {signal: fmu for fmu, signal in (block.get("rename") or {}).items()}
-            block["rename"] = {**(block.get("rename") or {}),
-                               **{variable.get(s, s): rewire[s] for s in block["inputs"] if s in rewire}}
+            block["rename"] = resignaled(block.get("rename") or {},
+                                         {s: rewire[s] for s in block["inputs"] if s in rewire})
         block["inputs"] = [rewire.get(s, s) for s in block["inputs"]]
     new = {}
     for name, fields in (patch.get("blocks") or {}).items():
@@ -391,11 +391,11 @@ def _fmu_inputs(spec: ModelSpec, inputs: Sequence[str]) -> Iterator[tuple[str, d
     variable), ``{fmu_input_id}`` (as an identifier), ``{channel}``, ``{block}``, ``{block_inputs}``; the
     target ``<variable> from <channel>`` (``<block>/...`` where several FMU blocks have one)."""
     from hypa.physics.fmu import read_fmu
+    from hypa.physics.fmu_block import fmu_variables
 
     blocks = [b for b in spec.blocks if b.kind == "fmu"]
     for b in blocks:
-        variable = {signal: name for name, signal in b.rename.items()}
-        fed = {variable.get(s, s) for s in b.inputs}
+        fed = set(fmu_variables(b.rename, b.inputs))
         for name in read_fmu(b.fmu or "").input_names:
             if name in fed:
                 continue

@@ -168,15 +168,26 @@ class _ThroughFMU(torch.autograd.Function):
         return ctx.block.input_gradient(y_bar, ctx.runs, ctx.si).to(y_bar.dtype), None, None
 
 
+def fmu_variables(rename: Mapping[str, str], signals: Sequence[str]) -> tuple[str, ...]:
+    """The FMU variable each signal is (``rename``: FMU variable -> signal; a signal it does not name is the
+    variable of its own name)."""
+    variable = {signal: fmu for fmu, signal in rename.items()}
+    return tuple(variable.get(s, s) for s in signals)
+
+
+def resignaled(rename: Mapping[str, str], moves: Mapping[str, str]) -> dict[str, str]:
+    """``rename`` with each signal of ``moves`` (old signal -> new signal) replaced, its FMU variable kept: a
+    block's input fed by a new signal, an output written under a new name."""
+    return {**rename, **dict(zip(fmu_variables(rename, list(moves)), moves.values()))}
+
+
 def fmu_signals(description: FMUDescription, rename: Mapping[str, str], inputs: Sequence[str],
                 outputs: Sequence[str], where: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """The FMU variables the block's ``inputs`` and ``outputs`` are (``rename``: FMU variable -> signal)."""
     unknown = sorted(set(rename) - {*description.input_names, *description.output_names, *description.state_names})
     if unknown:
         raise FMUError(f"{where}: rename names {unknown}, which are not the FMU's inputs, outputs or states")
-    variable = {signal: fmu for fmu, signal in rename.items()}
-    fmu_in = tuple(variable.get(s, s) for s in inputs)
-    fmu_out = tuple(variable.get(s, s) for s in outputs)
+    fmu_in, fmu_out = fmu_variables(rename, inputs), fmu_variables(rename, outputs)
     missing_in = [s for s, v in zip(inputs, fmu_in) if v not in description.input_names]
     missing_out = [s for s, v in zip(outputs, fmu_out) if v not in description.output_names]
     if missing_in or missing_out:
