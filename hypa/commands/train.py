@@ -187,6 +187,13 @@ def recorded_config(cfg: DictConfig, request: Request, prepared: Prepared) -> Di
     return recorded
 
 
+def selection_metric(config: TrainConfig) -> str:
+    """What chooses a run's epochs, its stages' best and its kept checkpoint: ``early_stopping.monitor``
+    (``val/loss``, the windows; ``val/free_run``, free runs of the whole validation records,
+    :mod:`hypa.training.free_run`; or any metric the module logs)."""
+    return str(config.early_stopping.get("monitor") or "val/loss")
+
+
 def lightning_trainer(request: Request, prepared: Prepared, stages: list[Any], cfg: DictConfig, logger: Any,
                       checkpoint: Any) -> L.Trainer:
     """The Lightning trainer of a run: its callbacks (finite losses, early stopping, the user's, the
@@ -199,18 +206,23 @@ def lightning_trainer(request: Request, prepared: Prepared, stages: list[Any], c
     from hypa.training.checkpoints import AtomicCheckpointIO
     from hypa.training.distributed import SameModelOnEveryRank, lightning_strategy
     from hypa.training.divergence import StopOnNonFiniteLoss
+    from hypa.training.free_run import FREE_RUN, FreeRunValidation
     from hypa.training.progress import EpochLines, wants_lines
 
     config, how = request.config, prepared.how
     lr, physics_lr = config.optimizer.lr, config.optimizer.physics_lr
+    monitor = selection_metric(config)
+    free_runs = [FreeRunValidation()] if monitor == FREE_RUN else []  # a diverged free run is a bad epoch, not the end
     callbacks: list[L.Callback] = [
         SameModelOnEveryRank(),
         StopOnNonFiniteLoss(hint=f"lower optimizer.lr={lr:g} or optimizer.physics_lr={physics_lr:g}"),
-        instantiate(config.early_stopping, patience=prepared.patience, min_delta=config.min_delta),
+        *free_runs,
+        instantiate(config.early_stopping, patience=prepared.patience, min_delta=config.min_delta,
+                    **({"check_finite": False} if free_runs else {})),
         *request.callbacks,
     ]
     if stages:
-        callbacks.append(StagedTraining(stages, max_epochs=prepared.epochs))
+        callbacks.append(StagedTraining(stages, max_epochs=prepared.epochs, monitor=monitor))
     if config.figures.enabled:
         figures = config.figures
         callbacks.append(ValidationFigures(figures.seconds, figures.start_s, figures.every_n_epochs))
@@ -218,7 +230,7 @@ def lightning_trainer(request: Request, prepared: Prepared, stages: list[Any], c
     trainer_args = OmegaConf.to_container(cfg.trainer, resolve=True)  # with any +trainer.<Lightning argument>
     if trainer_args.get("enable_progress_bar", True) and wants_lines():  # a log file or a pipe: lines, not a bar
         trainer_args["enable_progress_bar"] = False
-        callbacks.insert(0, EpochLines())  # before the stages: the epoch's line is of the stage it trained
+        callbacks.insert(0, EpochLines(monitor=monitor))  # before the stages: the line is of the stage it trained
     trainer_args["max_epochs"] = prepared.epochs * max(len(stages), 1)
     if how == "model" and request.distributed:  # no epochs: one process validates the identified model
         log.info("physics-only model: identified and validated in one process (trainer.strategy=%s is for "
@@ -251,19 +263,19 @@ def fit(request: Request, prepared: Prepared, cfg: DictConfig, folder: Any, logg
     elif how == "model" and not request.zero:  # started by torchrun or SLURM: rank 0 identifies alone, without epochs
         log.info("physics-only model: identified by rank 0 alone")
         return {"best_val_loss": math.nan}
-    checkpoint = RecordedCheckpoint(folder)
+    checkpoint = RecordedCheckpoint(folder, monitor=selection_metric(request.config))
     trainer = lightning_trainer(request, prepared, stages, cfg, logger, checkpoint)
     log.info("model %s", module.model.extra_repr())  # its wiring in one line; every module with its values:
     log.debug("model %s:\n%s", request.model_config["name"], module.model)
     if how == "model":
         result = fit_by_identification(trainer, module, dm, folder, request.identification, logger,
-                                       prepared.identified)
+                                       prepared.identified, monitor=checkpoint.monitor)
         result["ended"] = "identification"
     else:
         kept_start = how in ("stage", "first") and request.ckpt_path is None and not request.distributed
         if kept_start:
             start = checkpoint.keep_the_start(trainer, module, dm)  # the networks must beat the physics
-            log.info("before the networks' first epoch (the identified physics): val/loss %.5g", start)
+            log.info("before the networks' first epoch (the identified physics): %s %.5g", checkpoint.monitor, start)
         try:
             with warnings.catch_warnings():
                 if kept_start:  # Lightning's warning of a folder it did not write: best-start.ckpt is this run's
@@ -271,8 +283,8 @@ def fit(request: Request, prepared: Prepared, cfg: DictConfig, folder: Any, logg
                 trainer.fit(module, datamodule=dm, ckpt_path=request.ckpt_path, weights_only=True)
         except DivergedError as error:
             best = folder.record.get("best_checkpoint")
-            kept = (f"the best checkpoint before it (epoch {best['epoch']}, val/loss {best['val_loss']:.5g}) "
-                    "stays the run's record" if best else "no checkpoint was recorded")
+            kept = (f"the best checkpoint before it (epoch {best['epoch']}, {checkpoint.monitor} "
+                    f"{best['val_loss']:.5g}) stays the run's record" if best else "no checkpoint was recorded")
             folder.update_record(stopped=str(error), training_time_s=time.perf_counter() - started)
             raise DivergedError(f"{error}; {kept}") from None
         if trainer.interrupted:  # Ctrl-C: Lightning stops gracefully; the run is not finished, say how to go on
@@ -330,7 +342,7 @@ def train(cfg: DictConfig, out: Path | None = None) -> dict[str, Any]:
         logger.finalize("success")  # written now: after fit, nothing else flushes it before the process ends
     if not zero:
         return result
-    print(f"best val/loss {result['best_val_loss']:.5g} after {result['ended']}\n"
+    print(f"best {selection_metric(config)} {result['best_val_loss']:.5g} after {result['ended']}\n"
           f"checkpoint:  {result['checkpoint']}\n"
           f"tensorboard: tensorboard --logdir {result['tensorboard']}")
     return result

@@ -39,7 +39,8 @@ parameters by name, and for ``for_each: block`` of the block's states'
 ``<state>_level`` and ``<state>_spread`` (their operating point and spread); ``for_each: state`` adds
 ``level`` and ``spread``, the state's operating point and spread in the round's model's scaling,
 and ``low`` and ``high``, the 10th and 90th percentiles of the state in that model's free runs
-over the training data.
+over the training data, and ``bottom`` and ``top``, where a limit on it starts: the smallest and
+largest value the data show of a state a measured output reads alone, else ``low`` and ``high``.
 ``for_each: auxiliary`` visits each measured input no block reads (an auxiliary channel the
 diagnosis holds as an input, ``HypaDataModule(auxiliary_inputs=True)``) for each physics block with
 states: ``{channel}``, ``{block}``, ``{block_inputs}`` and ``{block_driven}`` (its inputs and driven
@@ -593,7 +594,7 @@ def catalogue_candidates(entries: Sequence[Entry], spec: ModelSpec, input_names:
                 if key.startswith(f"{target}/") for name, value in zip(("level", "spread"), scales)}
             variables = {**own, **_parameter_values(base, known, context.get("block")), "slowest": slowest,
                          **({"peak": channels[channel][0]} if channel in channels else {}),
-                         **(dict(zip(("level", "spread", "low", "high"), states[target]))
+                         **(dict(zip(("level", "spread", "low", "high", "bottom", "top"), states[target]))
                             if entry.for_each == "state" else {})}
             if "on" in context:  # the signal a parameter varies with: its operating point and spread
                 scales = _on_scales(context, states, channels)

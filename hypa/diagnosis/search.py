@@ -239,7 +239,7 @@ def _range(values: np.ndarray) -> tuple[float, float, float]:
 
 
 def _both_directions(candidate: Candidate, base: ModelSpec, ranges: Mapping[str, tuple[float, float, float]],
-                     states: Mapping[str, tuple[float, float, float, float]]) -> bool:
+                     states: Mapping[str, tuple[float, ...]]) -> bool:
     """False for a parameter made to differ with the direction of a signal that does not take both
     directions (a pump voltage, a tank's level: its 10th and 90th percentiles not on either side of
     zero by a tenth of its spread): on such a signal the dependence is a constant factor, a
@@ -253,7 +253,7 @@ def _both_directions(candidate: Candidate, base: ModelSpec, ranges: Mapping[str,
             if signal in ranges:
                 low, high, spread = ranges[signal]
             elif f"{block.name}/{signal}" in states:
-                _, spread, low, high = states[f"{block.name}/{signal}"]
+                _, spread, low, high = states[f"{block.name}/{signal}"][:4]
             else:
                 continue
             if not (low < -0.1 * spread and high > 0.1 * spread):

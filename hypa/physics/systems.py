@@ -23,7 +23,7 @@ from hypa.physics.limited import Limited, LimitedError
 from hypa.physics.lti import LTIModel
 from hypa.physics.mass_spring_damper import DuffingOscillator, MassSpringDamper
 from hypa.physics.modes import Moded
-from hypa.physics.tanks import CascadedTanks
+from hypa.physics.tanks import CascadedTanks, TorricelliTanks
 
 __all__ = ["PHYSICS_SYSTEMS", "SystemContractError", "build_system", "check_system", "is_import_path",
            "resolve_system"]
@@ -72,6 +72,7 @@ PHYSICS_SYSTEMS = SystemRegistry({
     "mass_with_coulomb_friction": lambda block: MassWithCoulombFriction(),  # the same + Fc sign(v) (nonlinear)
     "mass_with_cubic_friction": lambda block: MassWithCubicFriction(),  # + a partly cubic viscous friction
     "cascaded_tanks": lambda block: CascadedTanks(),  # pump -> lower level, outflows linear (cascaded tanks)
+    "torricelli_tanks": lambda block: TorricelliTanks(),  # the same through orifices, q = k h^a (nonlinear)
 })
 
 

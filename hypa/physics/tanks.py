@@ -1,4 +1,6 @@
-"""Cascaded tanks, linear: a pump fills an upper tank, which drains into a lower one, which drains away.
+"""Cascaded tanks: a pump fills an upper tank, which drains into a lower one, which drains away.
+
+Linear (``cascaded_tanks``), the outflows linearised about a level:
 
     d upper / dt = -k1 upper + gain pump
     d lower / dt =  k1 upper - k2 lower,        level = lower
@@ -10,6 +12,19 @@ Torricelli's √h, and the upper tank overflows at its rim: what ``hypa diagnose
 ``root_state`` entry bends a positive state's couplings towards √h, ``upper_state_limit`` lets a
 state spill over a level). The upper level is not measured: a window starts from the estimate
 over its past samples (``initial_state: estimate``).
+
+Through orifices (``torricelli_tanks``, :class:`TorricelliTanks`), Torricelli's law with the tanks
+alike (the flow out of the upper one is the flow into the lower one, both levels in the sensor's
+unit):
+
+    d upper / dt = -k1 upper^a + gain (pump - pump_offset)
+    d lower / dt =  k1 upper^a - k2 (lower - level_offset)^a,        level = lower
+
+a = 1/2 for an orifice; the pump's inflow is linear in its input from ``pump_offset`` on (its
+voltage at no flow), ``level_offset`` is what the sensor reads at the lower orifice's height (a
+level's root is taken above 0: an empty tank drains nothing). A tank that overflows is the model's
+``limited:`` key (``hypa.physics.limited``): the upper tank's spill, a share of it falling into the
+lower one; the lower tank's, lost.
 """
 
 from __future__ import annotations
@@ -21,6 +36,8 @@ from torch import Tensor
 
 from hypa.physics.parameters import ParameterSpec
 from hypa.physics.statespace import LTIModel, StateSpace
+
+FLOOR = 1e-6  # [sensor unit] a level's root is taken above it: an empty tank drains nothing, with a finite slope
 
 
 class CascadedTanks(LTIModel):
@@ -41,3 +58,34 @@ class CascadedTanks(LTIModel):
         a = torch.stack([torch.stack([-k1, zero]), torch.stack([k1, -k2])])
         return StateSpace(a, torch.stack([gain, zero]).reshape(2, 1), torch.stack([zero, one]).reshape(1, 2),
                           k1.new_zeros(1, 1))
+
+
+class TorricelliTanks(LTIModel):
+    """Two alike tanks in series draining through orifices, q = k h^a (module docstring)."""
+
+    state_names = ("upper", "lower")
+    input_names = ("pump",)
+    output_names = ("level",)
+    parameters = (
+        ParameterSpec("k1", 0.05, "V^0.5/s"),  # the upper orifice: its outflow, into the lower tank, per root of level
+        ParameterSpec("k2", 0.05, "V^0.5/s"),  # the lower orifice's
+        ParameterSpec("gain", 0.03, "1/s"),  # the pump's inflow per unit input, as a rise of the upper level
+        ParameterSpec("exponent", 0.5, "-"),  # a of q = k h^a: 1/2 through an orifice (Torricelli)
+        ParameterSpec("pump_offset", 0.0, "V", positive=False),  # the pump's input at no flow
+        ParameterSpec("level_offset", 0.0, "V", positive=False),  # what the sensor reads at the lower orifice
+    )
+
+    def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
+        gain = p["gain"]
+        zero, one = torch.zeros_like(gain), torch.ones_like(gain)
+        return StateSpace(torch.zeros(2, 2, dtype=gain.dtype), torch.stack([gain, zero]).reshape(2, 1),
+                          torch.stack([zero, one]).reshape(1, 2), gain.new_zeros(1, 1),
+                          torch.stack([-gain * p["pump_offset"], zero]))
+
+    def feedback(self, p: Mapping[str, Tensor]) -> Tensor:
+        k1, k2 = p["k1"], p["k2"]
+        return torch.stack([torch.stack([-k1, torch.zeros_like(k1)]), torch.stack([k1, -k2])])
+
+    def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
+        origin = torch.stack([torch.zeros_like(p["level_offset"]), p["level_offset"]])
+        return (x - origin).clamp_min(FLOOR) ** p["exponent"]

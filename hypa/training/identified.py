@@ -171,9 +171,9 @@ def _identify(module: HybridModule, dm: HypaDataModule, folder: RunFolder, setti
 
 def fit_by_identification(trainer: L.Trainer, module: HybridModule, dm: HypaDataModule, folder: RunFolder,
                           settings: IdentificationSettings, logger: Logger,
-                          result: Identification | None = None) -> dict[str, Any]:
-    """Identify (or report ``result``, done already), validate once, save the checkpoint and record it;
-    returns the run's result fields."""
+                          result: Identification | None = None, monitor: str = "val/loss") -> dict[str, Any]:
+    """Identify (or report ``result``, done already), validate once, save the checkpoint and record it
+    with its ``monitor`` (the run's selection metric); returns the run's result fields."""
     result = _identify(module, dm, folder, settings, logger, result)
     module.model.parameters_.set_trainable(None, False)  # the identified values are the run's
     try:
@@ -182,7 +182,7 @@ def fit_by_identification(trainer: L.Trainer, module: HybridModule, dm: HypaData
         raise IdentificationError(f"the identified model predicts non-finite values on the validation data "
                                   f"({', '.join(result.warnings) or 'no warning from the fit'}); its report: "
                                   f"{folder.path / 'identification.md'}") from None
-    val_loss = float(validated["val/loss"])
+    val_loss = float(validated[monitor] if monitor in validated else validated["val/loss"])
     best, last = folder.checkpoints / "best-identified.ckpt", folder.checkpoints / "last.ckpt"
     for path in (best, last):  # the full checkpoint (second argument: not weights only), as ModelCheckpoint writes it
         trainer.save_checkpoint(path, False)

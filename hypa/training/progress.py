@@ -39,12 +39,13 @@ def wants_lines(stream: TextIO | None = None) -> bool:
 class EpochLines(Callback):
     """One line per epoch at most every ``every_s`` seconds, on ``stream`` (stdout): the stage, the
     epoch of the run's budget, the losses and the best so far, the time an epoch takes and the
-    longest the rest may take (the epoch budget left; early stopping usually ends sooner)."""
+    longest the rest may take (the epoch budget left; early stopping usually ends sooner). The best is
+    of ``monitor``, the run's selection metric (shown after the losses where it is not one of them)."""
 
-    def __init__(self, every_s: float = 5.0, stream: TextIO | None = None) -> None:
+    def __init__(self, every_s: float = 5.0, stream: TextIO | None = None, monitor: str = "val/loss") -> None:
         if not every_s >= 0:
             raise ValueError(f"every_s must be >= 0, got {every_s}")
-        self.every_s, self.stream = float(every_s), stream
+        self.monitor, self.every_s, self.stream = monitor, float(every_s), stream
         self._started = self._last = -math.inf
         self._epochs = 0
         self._best: tuple[float, int] | None = None
@@ -64,7 +65,7 @@ class EpochLines(Callback):
             if self._unprinted is not None:
                 self._print(self._unprinted)
             self._best, self._unprinted = None, None
-        val = _metric(trainer, "val/loss")
+        val = _metric(trainer, self.monitor)
         if val is not None and (self._best is None or val < self._best[0]):
             self._best = (val, self._epoch(trainer, staged))
         now = time.perf_counter()
@@ -91,8 +92,8 @@ class EpochLines(Callback):
                            + (len(staged.stages) - staged.stage - 1) * staged.max_epochs)
             where = (f"stage {staged.stage + 1}/{len(staged.stages)} ({staged.current.name}), "
                      f"epoch {in_stage}/{staged.max_epochs}")
-        losses = [f"{name} {significant(value)}" for name in ("train/loss", "val/loss")
-                  if (value := _metric(trainer, name)) is not None]
+        shown = ("train/loss", "val/loss", *((self.monitor,) if self.monitor not in ("train/loss", "val/loss") else ()))
+        losses = [f"{name} {significant(value)}" for name in shown if (value := _metric(trainer, name)) is not None]
         if self._best is not None and losses:
             losses[-1] += f" (best {significant(self._best[0])} at epoch {self._best[1]})"
         timing = f"{elapsed(per_epoch_s)} an epoch"

@@ -11,6 +11,9 @@ and ``lower_state_limit`` entries, at two time scales and on two systems hypa ne
   diode, from above or from below: the state is the measured voltage, so the fitted limit must
   give back the diode's voltage.
 
+A limit on a state a sensor reads starts where the data stop (the sensor's plateau), one on a state
+no sensor reads where its free run passes it a tenth of the time (``hypa.diagnosis.states``).
+
 The truth comes from scipy's ODE solver; the nominal models carry the parameters' own mismatch
 (the tanks' values 10-30 % off, the RC's time constant 10 % off).
 
@@ -161,3 +164,32 @@ def test_a_hidden_limit_on_a_state_is_named_with_its_level(tmp_path: Path, user_
     assert f"voltage stops {'below' if truth['side'] == 'upper' else 'above'} " in found.describe()
     assert found.values["plant/voltage_limit"] == pytest.approx(truth["clamp"], rel=0.05), (found.describe(), truth)
     assert found.gain > 0.5, found.describe()
+
+
+def test_a_limit_starts_where_the_data_stop_a_measured_state_and_the_free_run_an_unmeasured_one(
+        user_systems: Path) -> None:
+    """The levels the limit entries start at (``top``, ``bottom``): for the measured lower tank the
+    largest and smallest level of the training data (on the real cascaded tanks the sensor's top,
+    10 V, held on 4.6 % of the samples: a start at the free run's 90th percentile clipped the model
+    where the data are higher, and the entry's first step promised nothing), for the upper tank that
+    no sensor reads its free run's 90th and 10th percentiles."""
+    from hypa.diagnosis.states import state_scales
+
+    record = tanks_truth(7, 600, 10.3, 0.5)
+    split = {name: {k: v[a:b] for k, v in record.items() if k != "upper"} for name, (a, b) in
+             (("train", (0, 480)), ("val", (480, 600)))}
+    _files(user_systems, split)
+    dm = _datamodule(user_systems, 4.0, {"pump": {"role": "input", "unit": "V"},
+                                         "level": {"role": "output", "unit": "V"}}, window=100, past=5)
+    values = {"k1": 0.05, "k2": 0.05, "k3": 0.05, "k4": 0.03}
+    spec = parse_model_spec({"name": "tanks", "hold": "zoh", "blocks": {"plant": {
+        "kind": "physics", "system": "tanks:Tanks", "inputs": ["pump"], "outputs": ["level"],
+        "initial_state": "estimate", "trainable": list(values)}}, "outputs": ["level"]})
+    problem = Problem(dm, values, hold="zoh", horizon=100, workers=1).scaled(spec)
+    scales = state_scales(problem.build(spec), problem.stretches("train"))
+    level = split["train"]["level"]
+    _, _, low, high, bottom, top = scales["plant/lower"]
+    assert (bottom, top) == pytest.approx((level.min(), level.max()), rel=1e-6)
+    assert abs(high - top) > 0.1 * (top - bottom)  # not the free run's (the nominal's k1..k4 are off)
+    _, _, low, high, bottom, top = scales["plant/upper"]
+    assert (bottom, top) == (low, high) and 0 < low < high

@@ -1,0 +1,79 @@
+"""The tanks through orifices (``torricelli_tanks``) against scipy's ODE solver on the law written out,
+second order in the sample time; with both tanks overflowing (``limited:``) the levels stop at their
+rims and the upper one's spill reaches the lower one."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.integrate import solve_ivp
+
+from hypa.physics import LTIBlock, PhysicalParameters
+from hypa.physics.limited import Limited
+from hypa.physics.tanks import TorricelliTanks
+
+VALUES = {"k1": 0.06, "k2": 0.05, "gain": 0.025, "exponent": 0.45, "pump_offset": 0.8, "level_offset": 0.6}
+
+
+def pump(t: np.ndarray) -> np.ndarray:
+    """[V] a slow multisine that fills the tanks to 9-11 V now and then."""
+    return 5.0 + 2.5 * np.sin(2 * np.pi * t / 900.0) + 1.0 * np.sin(2 * np.pi * t / 230.0 + 1.0)
+
+
+def reference(t: np.ndarray, u: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    """The law written out, the pump held over each sample (zero-order hold), integrated by scipy."""
+    v = VALUES
+
+    def rhs(_t: float, x: np.ndarray, level: float) -> list[float]:
+        out1 = v["k1"] * max(x[0], 1e-6) ** v["exponent"]
+        out2 = v["k2"] * max(x[1] - v["level_offset"], 1e-6) ** v["exponent"]
+        return [-out1 + v["gain"] * (level - v["pump_offset"]), out1 - out2]
+
+    states = [x0]
+    for k in range(len(t) - 1):
+        states.append(solve_ivp(rhs, (t[k], t[k + 1]), states[-1], args=(u[k],), rtol=1e-11, atol=1e-12).y[:, -1])
+    return np.array(states)
+
+
+def simulated(system, dt: float, seconds: float, x0: np.ndarray, **values: float) -> tuple[np.ndarray, ...]:
+    t = np.arange(0.0, seconds + dt / 2, dt)
+    u = pump(t)
+    sim = LTIBlock(system, PhysicalParameters(system.parameter_specs({**VALUES, **values})), dt=dt, horizon=64,
+                   hold="zoh")
+    with torch.no_grad():
+        x = sim.states(torch.tensor(x0, dtype=torch.float64)[None], torch.tensor(u, dtype=torch.float64)[None, :, None])
+    return t, u, np.concatenate([x0[None], x[0, :-1].numpy()])  # x_k at t_k: the last input's state is after t
+
+
+def test_against_scipy_and_second_order_in_the_sample_time() -> None:
+    x0 = np.array([4.0, 3.0])
+    errors = []
+    for dt in (4.0, 1.0, 0.5):
+        t, u, x = simulated(TorricelliTanks(), dt, 1200.0, x0)
+        ref = reference(t, u, x0)
+        errors.append(float(np.abs(x - ref).max() / np.abs(ref).max()))
+    assert errors[0] < 5e-3, errors  # the benchmark's 4 s
+    assert 3.2 < errors[1] / errors[2] < 4.8, errors
+
+
+def test_overflowing_tanks_stop_at_their_rims_and_the_upper_spill_falls_into_the_lower() -> None:
+    free = simulated(TorricelliTanks(), 4.0, 3000.0, np.array([4.0, 3.0]))[2]
+    assert free[:, 0].max() > 8.0 and free[:, 1].max() > 9.5  # unlimited, both would rise past their rims
+    limited = {"upper_limit": 7.0, "upper_limit_time": 4.0, "upper_limit_width": 0.02,
+               "lower_limit": 8.5, "lower_limit_time": 4.0, "lower_limit_width": 0.02}
+
+    def run(share: float) -> np.ndarray:
+        system = Limited(TorricelliTanks(), {"upper": "upper", "lower": "upper"})
+        return simulated(system, 4.0, 3000.0, np.array([4.0, 3.0]), **limited, spill_upper_to_lower=share,
+                         spill_lower_to_upper=1e-9)[2]
+
+    lost, caught = run(1e-9), run(0.8)
+    # a spill leaves within limit_time (4 s): a level settles above its rim by 4 s x its net inflow there
+    inflow = VALUES["gain"] * (pump(np.arange(0, 3000, 4.0)).max() - VALUES["pump_offset"])
+    over = 4.0 * (inflow - VALUES["k1"] * 7.0 ** VALUES["exponent"])
+    assert 0 < over < 0.5
+    for x in (lost, caught):
+        assert x[:, 0].max() < 7.0 + over + 0.05 and x[:, 1].max() < 8.5 + 4.0 * inflow + 0.05
+    overflowing = lost[:, 0] > 6.95
+    assert overflowing.sum() > 20
+    assert (caught[:, 1] - lost[:, 1]).max() > 0.3  # what spills over the upper rim raises the lower tank
