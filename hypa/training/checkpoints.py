@@ -120,7 +120,8 @@ class RecordedCheckpoint(ModelCheckpoint):
             return
         score = float(self.best_model_score) if self.best_model_score is not None else float("nan")
         self.folder.update_record(best_checkpoint={"path": self.folder.relative(path), "val_loss": score,
-                                                   "epoch": trainer.current_epoch, "sha256": sha256(path)},
+                                                   "monitor": self.monitor, "epoch": trainer.current_epoch,
+                                                   "sha256": sha256(path)},
                                   last_checkpoint=self.folder.relative(self.folder.checkpoints / "last.ckpt"))
         self._recorded = self.best_model_path
 

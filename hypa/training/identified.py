@@ -186,7 +186,8 @@ def fit_by_identification(trainer: L.Trainer, module: HybridModule, dm: HypaData
     best, last = folder.checkpoints / "best-identified.ckpt", folder.checkpoints / "last.ckpt"
     for path in (best, last):  # the full checkpoint (second argument: not weights only), as ModelCheckpoint writes it
         trainer.save_checkpoint(path, False)
-    folder.update_record(best_checkpoint={"path": folder.relative(best), "val_loss": val_loss, "epoch": 0,
+    folder.update_record(best_checkpoint={"path": folder.relative(best), "val_loss": val_loss,
+                                          "monitor": monitor if monitor in validated else "val/loss", "epoch": 0,
                                           "sha256": sha256(best)}, last_checkpoint=folder.relative(last))
     return {"best_val_loss": val_loss, "checkpoint": str(best), "last_checkpoint": str(last), "epochs": 0,
             "identification": result}
