@@ -162,6 +162,11 @@ def prepare(request: Request, cfg: DictConfig, folder: Any) -> Prepared:
 
     hold, stages = config.physics.hold, list(request.spec.stages)
     module, identified = build(hold), None
+    if not any(p.requires_grad for p in module.parameters()):  # no network, no physical parameter to fit
+        name = request.spec.name
+        raise UserError(f"model {name!r} has nothing to train (no network and no trainable physical parameter): "
+                        f"run it at its values with hypa simulate model={name}, or name the parameters to identify "
+                        "in a block's trainable:")
     how = plan(module, stages) if request.identification is not None and request.ckpt_path is None else None
     if how is not None and hold is None and request.spec.hold is None:  # no hold given: the data choose it
         if request.distributed:

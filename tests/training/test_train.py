@@ -136,6 +136,17 @@ def test_misspelled_model_lists_what_exists(tmp_path: Path) -> None:
     assert "v4" in result.stderr and all(name in result.stderr for name in ("v1", "v2", "v3", "physical", "blackbox"))
 
 
+def test_a_model_with_nothing_to_train_is_one_line(tmp_path: Path, hypa_cache: Path) -> None:
+    """Physics only, every parameter fixed: no identification and no epochs to run (it used to reach
+    Lightning and end in a traceback about tensors without gradients)."""
+    env = {**os.environ, "HYPA_CACHE_DIR": str(hypa_cache)}
+    fixed = ["model.blocks.rear_steering.trainable=[]", "model.blocks.single_track.trainable=[]"]
+    result = hypa_run(["train", "model=physical", *fixed, f"hydra.run.dir={tmp_path}", *SHORT_OVERRIDES], env=env)
+    assert result.returncode == 1 and "Traceback" not in result.stderr, result.stderr[-2000:]
+    assert "model 'physical' has nothing to train" in result.stderr.strip().splitlines()[-1]
+    assert "hypa simulate model=physical" in result.stderr
+
+
 def test_staged_training_checkpoints_the_stage_best_weights() -> None:
     """Resumed in stage 1, the switch to stage 2 must still start from stage 1's best weights."""
     from hypa.models import StageSpec
