@@ -194,9 +194,26 @@ def recorded_config(cfg: DictConfig, request: Request, prepared: Prepared) -> Di
 
 def selection_metric(config: TrainConfig) -> str:
     """What chooses a run's epochs, its stages' best and its kept checkpoint: ``early_stopping.monitor``
-    (``val/loss``, the windows; ``val/free_run``, free runs of the whole validation records,
-    :mod:`hypa.training.free_run`; or any metric the module logs)."""
+    (``val/loss``, the windows; ``val/free_run``, free runs of the whole validation records;
+    ``auto``, one of them chosen by a hybrid's identified physics, :mod:`hypa.training.free_run`; or any
+    metric the module logs)."""
     return str(config.early_stopping.get("monitor") or "val/loss")
+
+
+def resolved_monitor(request: Request, how: str | None, module: Any, dm: HypaDataModule) -> str:
+    """The run's selection metric: ``early_stopping.monitor``, where it is ``auto`` chosen by a hybrid's
+    identified physics (:func:`hypa.training.free_run.chosen_monitor`, said in one line), else ``val/loss``."""
+    from hypa.training.free_run import AUTO, WINDOWS, chosen_monitor
+
+    monitor = selection_metric(request.config)
+    if monitor != AUTO:
+        return monitor
+    if how not in ("stage", "first") or request.distributed or request.ckpt_path is not None:
+        return WINDOWS  # no identified physics to judge by here (across processes each rank would judge alone)
+    chosen, windows, free = chosen_monitor(module, dm)
+    print(f"epochs chosen by {chosen}: the identified physics' validation windows {windows:.3g} against its free "
+          f"runs {free:.3g} (early_stopping.monitor=auto)", flush=True)
+    return chosen
 
 
 def lightning_trainer(request: Request, prepared: Prepared, stages: list[Any], cfg: DictConfig, logger: Any,
@@ -216,13 +233,13 @@ def lightning_trainer(request: Request, prepared: Prepared, stages: list[Any], c
 
     config, how = request.config, prepared.how
     lr, physics_lr = config.optimizer.lr, config.optimizer.physics_lr
-    monitor = selection_metric(config)
+    monitor = checkpoint.monitor  # the run's selection metric (auto resolved in fit)
     free_runs = [FreeRunValidation()] if monitor == FREE_RUN else []  # a diverged free run is a bad epoch, not the end
     callbacks: list[L.Callback] = [
         SameModelOnEveryRank(),
         StopOnNonFiniteLoss(hint=f"lower optimizer.lr={lr:g} or optimizer.physics_lr={physics_lr:g}"),
         *free_runs,
-        instantiate(config.early_stopping, patience=prepared.patience, min_delta=config.min_delta,
+        instantiate(config.early_stopping, monitor=monitor, patience=prepared.patience, min_delta=config.min_delta,
                     **({"check_finite": False} if free_runs else {})),
         *request.callbacks,
     ]
@@ -268,7 +285,7 @@ def fit(request: Request, prepared: Prepared, cfg: DictConfig, folder: Any, logg
     elif how == "model" and not request.zero:  # started by torchrun or SLURM: rank 0 identifies alone, without epochs
         log.info("physics-only model: identified by rank 0 alone")
         return {"best_val_loss": math.nan}
-    checkpoint = RecordedCheckpoint(folder, monitor=selection_metric(request.config))
+    checkpoint = RecordedCheckpoint(folder, monitor=resolved_monitor(request, how, module, dm))
     trainer = lightning_trainer(request, prepared, stages, cfg, logger, checkpoint)
     log.info("model %s", module.model.extra_repr())  # its wiring in one line; every module with its values:
     log.debug("model %s:\n%s", request.model_config["name"], module.model)
@@ -303,7 +320,8 @@ def fit(request: Request, prepared: Prepared, cfg: DictConfig, folder: Any, logg
                   "interrupted": trainer.interrupted}
         if Path(checkpoint.best_model_path).name == START_CHECKPOINT:
             result["ended"] += "; no epoch beat the model it started from (the identified physics), which the run keeps"
-    result.update(tensorboard=str(request.out / "tensorboard"), training_time_s=time.perf_counter() - started)
+    result.update(tensorboard=str(request.out / "tensorboard"), training_time_s=time.perf_counter() - started,
+                  monitor=checkpoint.monitor)
     return result
 
 
@@ -347,7 +365,7 @@ def train(cfg: DictConfig, out: Path | None = None) -> dict[str, Any]:
         logger.finalize("success")  # written now: after fit, nothing else flushes it before the process ends
     if not zero:
         return result
-    print(f"best {selection_metric(config)} {result['best_val_loss']:.5g} after {result['ended']}\n"
+    print(f"best {result['monitor']} {result['best_val_loss']:.5g} after {result['ended']}\n"
           f"checkpoint:  {result['checkpoint']}\n"
           f"tensorboard: tensorboard --logdir {result['tensorboard']}")
     return result

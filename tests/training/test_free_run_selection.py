@@ -1,6 +1,7 @@
 """Epochs chosen by free runs of the validation records (``early_stopping.monitor=val/free_run``): the
 metric is the benchmark's own free-run error in val/loss's unit, a diverged free run is never the
-best epoch, and the run's stages, early stopping, kept checkpoint and printed best all follow it."""
+best epoch, and the run's stages, early stopping, kept checkpoint and printed best all follow it;
+``auto`` lets a hybrid's identified physics choose (the free runs where the windows err more)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ import torch
 from hypa.data import HypaDataModule
 from hypa.models.rollout import free_run, free_run_metrics
 from hypa.training import HybridModule
-from hypa.training.free_run import free_run_loss
+from hypa.training.free_run import FREE_RUN, WINDOWS, chosen_monitor, free_run_loss, windows_loss
 
 from cli_helpers import hypa_run
 from conftest import SHORT_OVERRIDES, compose_config
@@ -82,3 +83,33 @@ def test_a_run_chosen_by_its_free_runs(tmp_path: Path, hypa_cache: Path) -> None
     assert record["best_checkpoint"]["monitor"] == "val/free_run"
     best = record["best_checkpoint"]["val_loss"]
     assert best == pytest.approx(min(logged), rel=1e-6)  # the best epoch's, not the windows' best
+
+
+def test_auto_chooses_by_which_errs_more_at_the_identified_physics(bench) -> None:
+    """``windows_loss`` is val/loss outside a trainer (the module's own validation step over the same
+    windows), and ``chosen_monitor`` picks the free runs only where the windows err more."""
+    import lightning as L
+
+    dm, module = bench
+    logged = L.Trainer(logger=False, enable_progress_bar=False, enable_model_summary=False).validate(
+        module, datamodule=dm, verbose=False)[0]["val/loss"]
+    state = torch.random.get_rng_state()
+    windows = windows_loss(module, dm)
+    assert torch.equal(torch.random.get_rng_state(), state)  # the run's random stream is left as it was
+    assert windows == pytest.approx(logged, rel=1e-5)
+    chosen, w, free = chosen_monitor(module, dm)
+    assert (w, free) == (pytest.approx(windows), pytest.approx(free_run_loss(module.model, dm)))
+    assert chosen == (FREE_RUN if windows > free else WINDOWS)
+
+
+def test_auto_on_the_real_tanks_chooses_the_free_runs(tmp_path: Path) -> None:
+    """The cascaded tanks' hybrid: its identified physics errs 4 times more on the windows (their starts:
+    the upper level is not measured) than on the free run of the validation record, so ``auto`` chooses
+    ``val/free_run``, says so, and every stage of the run follows it."""
+    result = hypa_run(["train", "dataset=cascaded_tanks", "model=cascaded_tanks_hybrid", "ann=lstm",
+                       "ann.hidden_size=8", "trainer.max_epochs=2", "early_stopping.monitor=auto",
+                       "figures.enabled=false", f"hydra.run.dir={tmp_path}"])
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "epochs chosen by val/free_run: the identified physics' validation windows" in result.stdout
+    assert "best val/free_run " in result.stdout
+    assert json.loads((tmp_path / "run.json").read_text())["best_checkpoint"]["monitor"] == "val/free_run"
