@@ -24,6 +24,7 @@ from hypa.physics.lti import LTIModel
 from hypa.physics.mass_spring_damper import DuffingOscillator, MassSpringDamper
 from hypa.physics.modes import Moded
 from hypa.physics.tanks import CascadedTanks, TorricelliTanks
+from hypa.physics.wiener_hammerstein import WienerHammerstein
 
 __all__ = ["PHYSICS_SYSTEMS", "SystemContractError", "build_system", "check_system", "is_import_path",
            "resolve_system"]
@@ -73,6 +74,8 @@ PHYSICS_SYSTEMS = SystemRegistry({
     "mass_with_cubic_friction": lambda block: MassWithCubicFriction(),  # + a partly cubic viscous friction
     "cascaded_tanks": lambda block: CascadedTanks(),  # pump -> lower level, outflows linear (cascaded tanks)
     "torricelli_tanks": lambda block: TorricelliTanks(),  # the same through orifices, q = k h^a (nonlinear)
+    # a filter, a knee (a one-sided saturation), a filter: <block>/first_frequency_hz, ..., knee, notch_damping
+    "wiener_hammerstein": WienerHammerstein,
 })
 
 
