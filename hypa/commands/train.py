@@ -250,7 +250,7 @@ def lightning_trainer(request: Request, prepared: Prepared, stages: list[Any], c
         callbacks.append(ValidationFigures(figures.seconds, figures.start_s, figures.every_n_epochs))
     callbacks.append(checkpoint)
     trainer_args = OmegaConf.to_container(cfg.trainer, resolve=True)  # with any +trainer.<Lightning argument>
-    if trainer_args.get("enable_progress_bar", True) and wants_lines():  # a log file or a pipe: lines, not a bar
+    if not trainer_args.get("enable_progress_bar", True) or wants_lines():  # no bar (turned off; a file, a pipe): lines
         trainer_args["enable_progress_bar"] = False
         callbacks.insert(0, EpochLines(monitor=monitor))  # before the stages: the line is of the stage it trained
     trainer_args["max_epochs"] = prepared.epochs * max(len(stages), 1)

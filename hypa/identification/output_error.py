@@ -139,9 +139,13 @@ class _Stop(Exception):
     """Raised inside the residual to end the fit at its time limit."""
 
 
+def _silent(text: str) -> None:
+    """No progress lines (the default): only the work cap's line is logged."""
+
+
 def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | None = None,
              settings: IdentificationSettings = IdentificationSettings(),
-             progress: Callable[[str], None] = lambda text: None) -> Identification:
+             progress: Callable[[str], None] = _silent) -> Identification:
     """Fit ``names`` (default: the model's trainable physical parameters) to minimize the output
     error over ``stretches`` (see the module docstring): single shooting with one stretch per
     record, multiple shooting with several (:mod:`hypa.identification.shooting`). The model is
@@ -201,8 +205,7 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
         J = problem.jacobian(v, base, upper)
         if len(iterates) == 1 and fitting:  # the pace of one step: what the cap may cost, said once
             line = remaining(cap, time.perf_counter() - started, settings)
-            progress(f"identification: {line}")
-            log.info("identification: %s", line)
+            (log.info if progress is _silent else progress)(f"identification: {line}")  # said once, either way
         return J
 
     v, converged, message, evaluations, capped = v0, False, "", 0, None
@@ -266,7 +269,7 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
 
 def identify_records(model: ComposedModel, dm: HypaDataModule, records: Sequence[Record],
                      settings: IdentificationSettings = IdentificationSettings(),
-                     progress: Callable[[str], None] = lambda text: None) -> Identification:
+                     progress: Callable[[str], None] = _silent) -> Identification:
     """:func:`identify` over ``records`` of ``dm``: single shooting over whole records, or multiple
     shooting over stretches of ``settings.stretch_s``.
 
