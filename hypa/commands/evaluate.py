@@ -22,6 +22,7 @@ from hypa.commands.config import EvaluateConfig, hydra_command, typed
 from hypa.commands.output_folder import claim_output, holding_output
 from hypa.evaluation.api import Evaluation, evaluate_run, run_datamodule
 from hypa.evaluation.runs import load_run
+from hypa.reporting.numbers import r_squared
 
 __all__ = ["Evaluation", "evaluate_run", "main", "run_datamodule"]
 
@@ -45,7 +46,7 @@ def main(cfg: DictConfig) -> None:
     units, scale = evaluation.display_units, evaluation.display_factors
     for split, metrics in evaluation.metrics.splits.items():
         for mode in ("windowed", "free_run"):
-            parts = [f"{k} R² {v.r2:.4f}, RMSE {v.rmse * scale.get(k, 1.0):.3g} {units.get(k, '')}"
+            parts = [f"{k} R² {r_squared(v.r2)}, RMSE {v.rmse * scale.get(k, 1.0):.3g} {units.get(k, '')}"
                      for k, v in metrics.mode(mode)["all"].items() if k != "overall"]
             print(f"{run.label} {split} {mode}: {'; '.join(parts)}")
     for line in evaluation.warnings:

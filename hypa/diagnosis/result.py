@@ -24,7 +24,7 @@ from hypa.diagnosis.generic import GenericFit
 from hypa.diagnosis.scales import Scales, duration
 from hypa.diagnosis.structure import OutputStructure
 from hypa.reporting import markdown as md
-from hypa.reporting.numbers import change_text, share_text
+from hypa.reporting.numbers import change_text, r_squared, share_text
 
 WRITTEN = {"diagnosed": "the named causes at their fitted values, the uncertain ones trainable",
            "diagnosed_hybrid": "the same with a correction network on the outputs",
@@ -550,7 +550,7 @@ def _markdown(d: Diagnosis, units: Mapping[str, tuple[str, float]], min_gain: fl
     for o in outputs:
         shown, factor = unit(o)
         scores = [d.metrics[m][o] for m in models]
-        output_rows.append([o, *(f"{r.rmse * factor:.3g} {shown}" for r in scores), *(f"{r.r2:.4f}" for r in scores)])
+        output_rows.append([o, *(f"{r.rmse * factor:.3g} {shown}" for r in scores), *(r_squared(r.r2) for r in scores)])
     lines += ["", "## Per output (validation, free run)", "",
               *md.table(["output", *(f"{m} RMS" for m in models), *(f"{m} R²" for m in models)], output_rows)]
     trained = d.extended.trained

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from hypa.reporting import markdown as md
-from hypa.reporting.numbers import elapsed, percent_change
+from hypa.reporting.numbers import elapsed, percent_change, r_squared
 
 
 @dataclass(frozen=True)
@@ -208,9 +208,9 @@ def _r2_cell(s: Summary | None) -> str:
     if s is None:
         return "–"
     if len(s.seeds) == 1:
-        return f"{s.r2:.4f}"
+        return r_squared(s.r2)
     std = _spread(s.r2_std, s.r2)
-    return f"{s.r2:.4f} ± " + (f"{std:.4f}" if std >= 5e-5 or std == 0 else f"{std:.0e}")
+    return f"{r_squared(s.r2)} ± " + (f"{std:.4f}" if std >= 5e-5 or std == 0 else f"{std:.0e}")
 
 
 def _rms_cell(s: Summary | None, factor: float, unit: str) -> str:

@@ -23,6 +23,7 @@ import numpy as np
 
 from hypa.evaluation.transfer import TransferEstimate
 from hypa.reporting import markdown as md
+from hypa.reporting.numbers import r_squared
 
 OVERALL = "overall"  # the mean over the outputs, beside them
 
@@ -158,7 +159,7 @@ class RunMetrics:
                     for channel, m in outputs.items():
                         k, unit = scale.get(channel, 1.0), units.get(channel, "SI")
                         rows.append([mode, segment, channel, f"{m.mae * k:.3g} {unit}",
-                                     f"{np.sqrt(m.mse) * k:.3g} {unit}", f"{m.mape:.3g}", f"{m.r2:.4f}"])
+                                     f"{np.sqrt(m.mse) * k:.3g} {unit}", f"{m.mape:.3g}", r_squared(m.r2)])
             lines += [f"## {split}", "",
                       *md.table(["mode", "segment", "output", "MAE", "RMSE", "MAPE [%]", "R²"], rows)]
             for name, r in s.signals.items():

@@ -7,6 +7,7 @@
     share_text(0.015)                # '1.5 %'   (an error as a share of the output's variance)
     percent(0.42)                    # '42 %'    (a share or a gain, unsigned, two significant digits)
     elapsed(204.0)                   # '3.4 min'
+    r_squared(0.9999963)             # '0.9999963' (a fit's R²: never '1.0000' while it is not 1)
 
 A relative change of an error (new / old − 1) is written by :func:`change_text` everywhere: a fit
 that diverged reads "did not converge", never "-8.5e19 %". Tables are :mod:`hypa.reporting.markdown`'s.
@@ -25,6 +26,16 @@ def significant(value: float | None, digits: int = 3) -> str:
     if value is None or not math.isfinite(value):
         return "–"
     return f"{value:.{digits}g}"
+
+
+def r_squared(value: float | None) -> str:
+    """A coefficient of determination to 4 decimals, or as many more (at most 8) as show 1 − R² to two
+    significant digits (0.9842, 0.99934, 0.9999963): a near-perfect fit never reads 1.0000. ``–``
+    where missing or not finite."""
+    if value is None or not math.isfinite(value):
+        return "–"
+    decimals = 4 if value >= 1 or value < 0.999 else min(8, math.ceil(-math.log10(1 - value)) + 1)
+    return f"{value:.{decimals}f}"
 
 
 def quantity(value: float, unit: str, digits: int = 3) -> str:

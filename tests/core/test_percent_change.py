@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from hypa.reporting.markdown import json_ready
-from hypa.reporting.numbers import DIVERGED, change_text, percent_change, share_text
+from hypa.reporting.numbers import DIVERGED, change_text, percent_change, r_squared, share_text
 
 
 @pytest.mark.parametrize("change, text", [
@@ -62,3 +62,12 @@ def test_the_formats_markdown_re_exported_are_found_with_a_deprecation_warning()
         assert markdown.change_text is numbers.change_text
     with pytest.raises(AttributeError):
         markdown.no_such_format  # noqa: B018
+
+
+def test_r_squared_never_reads_one_while_it_is_not() -> None:
+    """4 decimals, or as many as show 1 - R² to two significant digits (a near-perfect fit of the
+    Wiener-Hammerstein circuit, 0.9999963, read 1.0000 in the benchmark's table)."""
+    assert [r_squared(v) for v in (0.9842, 0.99934, 0.9999963, 1.0, -3.2, 0.999)] == [
+        "0.9842", "0.99934", "0.9999963", "1.0000", "-3.2000", "0.9990"]
+    assert r_squared(float("nan")) == r_squared(None) == "–"
+    assert r_squared(1 - 1e-12) == "1.00000000"  # at most 8 decimals
