@@ -14,9 +14,9 @@ w e^((z - knee)/w) below the knee (the diode's exponential onset, w its thermal 
 ideality, in the circuit's unit) and as z - knee - w ln((z - knee)/w) above it (the resistance: its
 slope approaches 1 as w / (z - knee), slower than exponentially). So f'(z) goes from ``slope`` to
 ``slope + slope_change`` (``slope_change`` = -``slope``: a clamp; 0: a linear circuit). On the
-benchmark's circuit, identified from the first 20 000 samples of its estimation record, this shape
-leaves 0.571 mV of test error where a logistic slope (a softplus, the same four parameters) leaves
-0.728 mV.
+benchmark's circuit, identified from the first 20 000 samples of its estimation record (under a
+first-order hold), this shape leaves 0.571 mV of test error where a logistic slope (a softplus, the
+same four parameters) leaves 0.728 mV.
 
 - G1 = ω1² / (s² + 2ζ1ω1 s + ω1²) · a1 / (s + a1): a resonance (``first_frequency_hz``,
   ``first_damping``) and a real pole (``first_pole_hz``).
@@ -30,7 +30,7 @@ G2's low-passed v r1 and r2 = ṙ1/ω2, y. Written in Lur'e form (ẋ = A x + B 
 knee's term), the knee is the only nonlinear part: the linear filters run exactly under the
 model's hold and the knee's output is held linear over a sample (``hypa.physics.lure``). The
 benchmark's circuit (``../shared/data/wiener_hammerstein``) is driven by a smooth signal: its
-model (``wiener_hammerstein_grey``) sets ``hold: foh``.
+model (``wiener_hammerstein_grey``) sets ``hold: cubic``.
 
 Parameters are the block's own (``<block>/first_frequency_hz``, ...), so several such circuits can
 share a model; the class's nominal values are placeholders a model sets. The knee and its width are

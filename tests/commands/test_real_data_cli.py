@@ -176,8 +176,9 @@ def wiener_hammerstein_grey(tmp_path: Path, *overrides: str) -> tuple[float, dic
 def test_the_wiener_hammerstein_circuit_beats_the_published_lstm_sixfold(tmp_path: Path) -> None:
     """``wiener_hammerstein_grey`` (a filter, a diode's knee, a filter: hypa.physics.wiener_hammerstein),
     identified from round guesses on the first 20 000 samples of the estimation record: its free run of
-    the standard test set is under a sixth of the published LSTM's error (4.45 mV; 0.571 mV on
-    2026-11-29, 14 iterations, 50 s; the second-order filter scores 109 mV and its diagnosis 40.5 mV)."""
+    the standard test set is under a sixth of the published LSTM's error (4.45 mV; 0.469 mV on
+    2026-11-29, 14 iterations; 0.571 mV under a first-order hold; the second-order filter scores 109 mV
+    and its diagnosis 40.5 mV)."""
     rms, identified = wiener_hammerstein_grey(tmp_path)
     assert rms < 0.74e-3  # [V]
     assert identified["converged"], identified["message"]
