@@ -58,16 +58,18 @@ def knee(z: Tensor, slope_change: Tensor, at: Tensor, width: Tensor) -> Tensor:
     return slope_change * width * lambert_w_exp((z - at) / width)
 
 
-def lambert_w_exp(s: Tensor, iterations: int = 6) -> Tensor:
+def lambert_w_exp(s: Tensor, iterations: int = 3) -> Tensor:
     """W(e^s), the Lambert W function of e^s, for any s without overflow: L = ln W solves e^L + L = s
-    (Newton's method on a convex increasing function: from L0 = min(s, ln max(s, 1)) six steps reach
-    double precision), the last step taken with the graph, so the derivative is W / (1 + W) per unit s."""
+    (Newton's method on a convex increasing function: from L0 = min(s, ln max(s, 1)), ``iterations``
+    steps and a last one reach 4e-15 relative over s in [-60, 60]), the last step taken with the graph,
+    so the derivative is W / (1 + W) per unit s (to 1e-7)."""
     with torch.no_grad():
         level = torch.minimum(s, torch.log(s.clamp_min(1.0)))
         for _ in range(iterations):
-            level = level - (level.exp() + level - s) / (level.exp() + 1.0)
-    level = level - (level.exp() + level - s) / (level.exp() + 1.0)
-    return level.exp()
+            grown = level.exp()
+            level = level - (grown + level - s) / (grown + 1.0)
+    grown = level.exp()
+    return (level - (grown + level - s) / (grown + 1.0)).exp()
 
 
 class WienerHammerstein(LTIModel):

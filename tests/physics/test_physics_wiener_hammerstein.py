@@ -14,7 +14,7 @@ from scipy.special import lambertw
 
 from hypa.physics import LTIBlock, PhysicalParameters
 from hypa.physics.systems import resolve_system
-from hypa.physics.wiener_hammerstein import WienerHammerstein
+from hypa.physics.wiener_hammerstein import WienerHammerstein, lambert_w_exp
 
 VALUES = {"first_frequency_hz": 45.0, "first_damping": 0.3, "first_pole_hz": 27.0, "slope": 0.9,
           "slope_change": -0.8, "knee": 0.5, "knee_width": 0.08, "second_frequency_hz": 17.0,
@@ -98,3 +98,13 @@ def test_the_knee_bends_the_static_gain_as_a_diode_and_the_filters_pass_dc_uncha
         slopes.append(slope)
     assert math.isclose(slopes[0], VALUES["slope"], rel_tol=1e-9)
     assert slopes == sorted(slopes, reverse=True) and slopes[-1] < 0.15  # towards 0.9 - 0.8 above the knee
+
+
+def test_the_diode_s_lambert_w_matches_scipy_and_its_derivative_far_into_both_tails() -> None:
+    s = torch.linspace(-60.0, 60.0, 2401, dtype=torch.float64, requires_grad=True)
+    w = lambert_w_exp(s)
+    exact = lambertw(np.exp(s.detach().numpy())).real
+    np.testing.assert_allclose(w.detach().numpy(), exact, rtol=1e-13)
+    w.sum().backward()
+    np.testing.assert_allclose(s.grad.numpy(), exact / (1 + exact), rtol=1e-6, atol=1e-30)
+    assert lambert_w_exp(torch.tensor([800.0], dtype=torch.float64)).isfinite().all()  # e^800 overflows; W does not
