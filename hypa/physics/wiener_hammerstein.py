@@ -133,5 +133,5 @@ class WienerHammerstein(LTIModel):
         return torch.stack([o, o, o, o, w2, a2 * w2 * w2 / (wz * wz)]).reshape(6, 1)
 
     def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
-        v = self._values(p)
-        return knee(x[..., 2:3], v["slope_change"], v["knee"], v["knee_width"])
+        names = self._names  # twice a sample: read the knee's three values only, no dict of all twelve
+        return knee(x[..., 2:3], p[names["slope_change"]], p[names["knee"]], p[names["knee_width"]])
