@@ -186,35 +186,51 @@ def as_in_a_terminal() -> Iterator[None]:
         signal.signal(signal.SIGINT, handler)
 
 
+CTRL_C_IN_A_ROUND = """
+import os, signal, sys, time
+from hypa.diagnosis import race
+from hypa.commands.cli import main
+
+parent, advance = os.getpid(), race._Runner.advance
+
+def advance_after_ctrl_c(self, share, val):
+    if os.getpid() != parent and not os.environ.get("CTRL_C_SENT"):  # a forked worker's first task
+        os.environ["CTRL_C_SENT"] = "1"
+        os.killpg(0, signal.SIGINT)  # Ctrl-C: to the whole process group, while the round's workers fit
+        time.sleep(0.5)
+    return advance(self, share, val)
+
+race._Runner.advance = advance_after_ctrl_c
+sys.exit(main(sys.argv[1:]))
+"""
+
+
 def test_ctrl_c_ends_diagnose_and_its_workers_with_one_line_and_status_130(tmp_path: Path) -> None:
-    # long enough that the search is still fitting a second after its first line (30 s of data: it
-    # ended within that second on a quiet machine, and the Ctrl-C reached nothing to interrupt)
-    data = make_data_dir(tmp_path / "data", duration_s=150.0)
+    # The Ctrl-C comes from a worker at its first task, so it always arrives while a round fits
+    # (sent from the test a second after a line, it met a search that had already ended on a fast
+    # machine: the interpreter was finishing, and ended by the signal with status -2)
+    data = make_data_dir(tmp_path / "data", duration_s=30.0)
     environment = {k: v for k, v in os.environ.items() if k not in ("HYDRA_FULL_ERROR", "HYPA_FULL_ERROR")}
     environment.update(OMP_NUM_THREADS="1", PYTHONUNBUFFERED="1")
     with as_in_a_terminal():
-        process = subprocess.Popen([sys.executable, "-m", "hypa", "diagnose", "dataset=files", f"data.dir={data}",
-                                    "plot=false", "diagnosis.workers=2", f"hydra.run.dir={tmp_path / 'run'}"],
+        process = subprocess.Popen([sys.executable, "-c", CTRL_C_IN_A_ROUND, "diagnose", "dataset=files",
+                                    f"data.dir={data}", "plot=false", "diagnosis.workers=2",
+                                    f"hydra.run.dir={tmp_path / 'run'}"],
                                    cwd=ROOT, env=environment, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                    start_new_session=True)  # its own process group: the signal reaches the workers too
     try:
-        lines = []
-        for line in process.stdout:  # the search's rounds (on the forked workers) start after this line
-            lines.append(line)
-            if "nominal model: cross-validated error" in line:
-                break
-        assert process.poll() is None, "".join(lines) + process.stderr.read()
-        time.sleep(1.0)  # the first round's workers forked and fitting
-        assert process.poll() is None, "the diagnosis ended before the Ctrl-C: the test needs more data"
-        os.killpg(process.pid, signal.SIGINT)  # what Ctrl-C in a terminal does
-        _, stderr = process.communicate(timeout=60)
+        stdout, stderr = process.communicate(timeout=120)
     finally:
         if process.poll() is None:
             os.killpg(process.pid, signal.SIGKILL)
             process.wait()
-    assert process.returncode == 130, stderr[-3000:]
+    assert process.returncode == 130, stdout[-2000:] + stderr[-3000:]
+    assert "round 1:" not in stdout, stdout[-2000:]  # the first round did not end
     assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr[-3000:]
     assert stderr.strip().splitlines() == ["hypa diagnose: interrupted"], stderr[-3000:]
+    time.sleep(0.5)
+    with pytest.raises(ProcessLookupError):  # the workers ended with it: nothing left in its process group
+        os.killpg(process.pid, 0)
 
 
 IDLE_WORKERS = """
