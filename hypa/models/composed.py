@@ -19,6 +19,7 @@ from torch import Tensor, nn
 
 from hypa.data.signature import DataSignature
 from hypa.models.building import ESTIMATE, MEASURED, STEADY, BlockBuilder, collect_parameters, model_hold
+from hypa.models.memo import FrozenMemo
 from hypa.models.spec import ELEMENT_PARAMETER, BlockSpec, ModelSpec, ModelSpecError, parse_model_spec
 
 if TYPE_CHECKING:
@@ -92,6 +93,7 @@ class ComposedModel(nn.Module):
             raise ModelSpecError(f"model outputs {list(spec.outputs)} must be the measured outputs "
                                  f"{list(self.output_names)}, in that order")
         self.bypassed: set[str] = set()
+        self.memo: FrozenMemo | None = None  # the frozen blocks' outputs by window, while networks train
         self.set_stage(None)
 
     @classmethod
@@ -232,8 +234,47 @@ class ComposedModel(nn.Module):
         ``initial``: block name -> its normalized state x̂_P (B, n) at the window start, used instead
         of the measured or estimated one (multiple shooting estimates them); ``states``, when given,
         receives block name -> x̂_{P..L-1} (B, L-P, n), the start and the states it ran through, for
-        each block of :meth:`started_blocks`.
+        each block of :meth:`started_blocks`. With a :attr:`memo` (set while networks train), the
+        :meth:`frozen_blocks`' signals of a window seen before are the ones kept for it.
         """
+        y_past = y_past[:, None] if y_past.dim() == 2 else y_past
+        given: dict[str, Signal] = {}
+        if self.memo is not None and initial is None and states is None:
+            frozen = self.frozen_blocks()
+            if len(frozen) < len(self.order) and any(self._runs_steps(n) for n in frozen):
+                values = torch.cat([p.detach().flatten().double() for p in self.parameters_.parameters()]
+                                   or [torch.zeros(0, dtype=torch.float64)])
+                run = lambda u_, y_, s_: self._signals(u_, y_, s_, None, None, {}, set(frozen))  # noqa: E731
+                given = self.memo.signals((frozen, u.dtype, u.device), values, u, y_past, s, run)
+        return self._signals(u, y_past, s, initial, states, given, None)
+
+    def frozen_blocks(self) -> tuple[str, ...]:
+        """The blocks whose outputs nothing being trained can change (:mod:`hypa.models.memo`), in
+        order: none while a physical parameter trains; else the physics, FMU and element blocks
+        without a state encoder, and the bypassed networks, fed only by measured signals and other
+        such blocks."""
+        if any(p.requires_grad for p in self.parameters_.parameters()):
+            return ()
+        fed, frozen = {*self.input_names, *self.scheduling_names}, []
+        for b in self.order:
+            fixed = b.name in self.bypassed if b.kind == "ann" else b.name not in self.encoders
+            if fixed and all(n in fed for n in (*b.inputs, *b.residual_of)):
+                frozen.append(b.name)
+                fed |= set(b.outputs)
+        return tuple(frozen)
+
+    def _runs_steps(self, name: str) -> bool:
+        """A block that simulates sample by sample (a physics block with states, an FMU): what is
+        worth keeping; a gain or a delay costs less than finding its outputs in the memo."""
+        kind = self.spec.block(name).kind
+        return kind == "fmu" or (kind != "ann" and kind not in ELEMENT_PARAMETER
+                                 and self.blocks[name].model.n_states > 0)
+
+    def _signals(self, u: Tensor, y_past: Tensor, s: Tensor | None, initial: Mapping[str, Tensor] | None,
+                 states: dict[str, Tensor] | None, given: Mapping[str, Signal], only: set[str] | None
+                 ) -> dict[str, Signal]:
+        """:meth:`signals`, the outputs in ``given`` taken as they are (their blocks not run) and, with
+        ``only``, those blocks run alone: their outputs returned, no measured signal."""
         y_past = y_past[:, None] if y_past.dim() == 2 else y_past
         if self.has_offsets:  # the true signals behind the biased sensors
             u = u - self.input_offset.to(u.dtype)
@@ -247,7 +288,10 @@ class ComposedModel(nn.Module):
                 mean, std = self.scales[name]
                 physical[name] = s[..., i].to(u.dtype)
                 signals[name] = (((s[..., i : i + 1] - mean) / std).to(u.dtype), 0)
+        signals.update(given)
         for b in self.order:
+            if (only is not None and b.name not in only) or (b.outputs and all(n in given for n in b.outputs)):
+                continue
             names = (*b.inputs, *b.residual_of)
             start = max(signals[n][1] for n in names)
             end = min(signals[n][1] + signals[n][0].shape[1] for n in names)
@@ -268,6 +312,8 @@ class ComposedModel(nn.Module):
                                              None if initial is None else initial.get(b.name), states)
             for i, name in enumerate(b.outputs):
                 signals[name] = (y[..., i : i + 1], out_start)
+        if only is not None:
+            return {name: signals[name] for b in self.order if b.name in only for name in b.outputs}
         return signals
 
     def _ann(self, b: BlockSpec, aligned, y_past: Tensor, start: int) -> Tensor:

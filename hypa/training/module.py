@@ -13,6 +13,7 @@ from torchmetrics import MeanAbsoluteError, MeanSquaredError, MetricCollection, 
 from hypa.data import DataSignature, HypaDataModule
 from hypa.models import ComposedModel, ModelSpec, ModelSpecError, parse_model_spec, spec_config
 from hypa.models.building import model_hold
+from hypa.models.memo import FrozenMemo
 from hypa.training.baseline import NETWORK_LR, PHYSICS_LR
 
 
@@ -135,6 +136,14 @@ class HybridModule(L.LightningModule):
                 raise ModelSpecError(f"block {name!r} estimates its {states} states from {seen} measured value(s) "
                                      f"(data.past={self.past}): too few to determine them; set data.past to at least "
                                      f"{past} (more for noisy data)")
+
+    def on_fit_start(self) -> None:
+        # while a stage trains networks only, the frozen physics' outputs of each window are kept
+        # (hypa.models.memo): computed in the first epoch, read in the later ones
+        self.model.memo = FrozenMemo()
+
+    def on_fit_end(self) -> None:
+        self.model.memo = None
 
     def forward(self, u: Tensor, y_past: Tensor, s: Tensor | None = None) -> Tensor:
         """Normalized predicted outputs (B, L-P-1, p) from inputs (B, L, m), measured outputs

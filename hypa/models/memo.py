@@ -1,0 +1,111 @@
+"""What the frozen blocks of a composition computed, kept per window while networks train.
+
+In a hybrid's later stages the physics is identified and frozen: only the networks train. The
+physics blocks then compute, every epoch, the same outputs from the same windows: on a nonlinear
+block run step by step (a Lur'e loop, a diode) that is most of an epoch (the Wiener-Hammerstein
+circuit: 85 % of a training step). :class:`FrozenMemo` keeps them.
+
+What is frozen is read from the model at each call (:meth:`ComposedModel.frozen_blocks`): no
+physical parameter trains, and the block is a physics, FMU or element block (or a bypassed network)
+fed only by measured signals and other frozen blocks. An entry is found by the window's contents
+(a digest of its inputs, past outputs and scheduling signals, bytes and shape), never by its
+position in a data set, and belongs to the parameters' values it was computed with: another value
+(the best epoch's weights restored, a later identification), another frozen set, dtype or device
+empties the memo. So a memo can only return what the blocks would compute now.
+
+It is bounded (``budget`` bytes of kept outputs, a sixteenth of the machine's memory unless
+given): windows past it are computed each time, as without a memo.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Callable, Sequence
+
+import torch
+from torch import Tensor
+
+Signal = tuple[Tensor, int]
+Run = Callable[[Tensor, Tensor, Tensor | None], dict[str, Signal]]  # the frozen blocks on some windows
+
+
+def default_budget() -> int:
+    """A sixteenth of the machine's physical memory [bytes] (1 GiB where it cannot be read)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 16
+    except (AttributeError, ValueError, OSError):
+        return 1 << 30
+
+
+class FrozenMemo:
+    """Frozen blocks' output signals by window contents (module docstring). ``hits`` and
+    ``misses`` count windows; ``kept`` is the bytes held."""
+
+    def __init__(self, budget: int | None = None) -> None:
+        self.budget = default_budget() if budget is None else int(budget)
+        self.entries: dict[bytes, dict[str, Signal]] = {}
+        self.kept, self.hits, self.misses = 0, 0, 0
+        self._version: tuple | None = None
+        self._values: Tensor | None = None
+
+    def clear(self) -> None:
+        self.entries.clear()
+        self.kept = 0
+
+    def signals(self, version: tuple, values: Tensor, u: Tensor, y_past: Tensor, s: Tensor | None,
+                run: Run) -> dict[str, Signal]:
+        """The frozen blocks' signals of each window of the batch (B rows): those kept, and ``run`` on
+        the others (whose results are kept while the budget allows). ``version``: what else the
+        results depend on (the frozen blocks, dtype, device); ``values``: the parameters' values."""
+        if version != self._version or self._values is None or not torch.equal(values, self._values):
+            self.clear()
+            self._version, self._values = version, values.detach().clone()
+        keys = _digests(u, y_past, s)
+        missing = [i for i, k in enumerate(keys) if k not in self.entries]
+        self.hits += len(keys) - len(missing)
+        self.misses += len(missing)
+        computed: dict[str, Signal] = {}
+        if missing:
+            rows = torch.as_tensor(missing, device=u.device)
+            pick = lambda t: None if t is None else t.index_select(0, rows)  # noqa: E731
+            with torch.no_grad():
+                computed = run(pick(u), pick(y_past), pick(s))
+            if len(missing) == len(keys):  # nothing kept for this batch: as computed
+                self._keep(keys, missing, computed)
+                return computed
+            self._keep(keys, missing, computed)
+        names = list(computed) if computed else list(self.entries[keys[0]])
+        out: dict[str, Signal] = {}
+        position = {i: j for j, i in enumerate(missing)}
+        for name in names:
+            rows_ = [computed[name][0][position[i]] if i in position else self.entries[k][name][0]
+                     for i, k in enumerate(keys)]
+            start = computed[name][1] if computed else self.entries[keys[0]][name][1]
+            out[name] = (torch.stack(rows_), start)
+        return out
+
+    def _keep(self, keys: Sequence[bytes], missing: Sequence[int], computed: dict[str, Signal]) -> None:
+        for j, i in enumerate(missing):
+            entry = {name: (values[j].clone(), start) for name, (values, start) in computed.items()}
+            size = sum(v.numel() * v.element_size() for v, _ in entry.values())
+            if self.kept + size > self.budget:
+                return
+            self.entries[keys[i]] = entry
+            self.kept += size
+
+
+def _digests(u: Tensor, y_past: Tensor, s: Tensor | None) -> list[bytes]:
+    """One digest per window (row) of its inputs, past outputs and scheduling signals: their
+    dtypes, shapes and bytes."""
+    parts = [t.detach().contiguous().cpu() for t in (u, y_past, s) if t is not None]
+    head = repr([(str(t.dtype), tuple(t.shape[1:])) for t in parts]).encode()
+    arrays = [t.reshape(t.shape[0], -1).view(torch.uint8).numpy() if t.numel() else None for t in parts]
+    keys = []
+    for i in range(u.shape[0]):
+        digest = hashlib.blake2b(head, digest_size=20)
+        for a in arrays:
+            if a is not None:
+                digest.update(a[i].tobytes())
+        keys.append(digest.digest())
+    return keys
