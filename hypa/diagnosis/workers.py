@@ -147,6 +147,15 @@ def _serve(pipe, runners: Sequence[Any], val: Any) -> None:
     if hasattr(signal, "pthread_sigmask"):
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # held while forking (_sigint_held)
     torch.set_num_threads(1)
+    try:
+        _serve_tasks(pipe, runners, val)
+    finally:  # a worker ends by os._exit: no finalizer removes what it extracted
+        from hypa.physics.fmu import remove_extracted_here
+
+        remove_extracted_here()
+
+
+def _serve_tasks(pipe, runners: Sequence[Any], val: Any) -> None:
     while True:
         try:
             task = pipe.recv()

@@ -33,6 +33,7 @@ import dataclasses
 import functools
 import logging
 import math
+import os
 import shutil
 import tempfile
 import weakref
@@ -269,13 +270,33 @@ class Sensitivities:
         return u_bar
 
 
+_EXTRACTED: dict[Path, int] = {}  # folders this process (or the one it was forked from) extracted -> by which pid
+
+
 def _extracted(path: Path) -> Path:
-    """The FMU unzipped into a private temporary folder (0700; the caller removes it)."""
+    """The FMU unzipped into a private temporary folder (0700; :func:`_remove` removes it)."""
     from fmpy import extract
 
     folder = Path(tempfile.mkdtemp(prefix="hypa-fmu-"))
+    _EXTRACTED[folder] = os.getpid()
     extract(str(path), str(folder))
     return folder
+
+
+def _remove(folder: Path) -> None:
+    """An extracted folder removed, by the process that extracted it only: a forked worker that lets
+    go of a simulator it inherited leaves the folder to its parent, which still runs from it."""
+    if _EXTRACTED.get(folder) == os.getpid():
+        shutil.rmtree(folder, ignore_errors=True)
+        del _EXTRACTED[folder]
+
+
+def remove_extracted_here() -> None:
+    """Every folder this process extracted, removed: what a forked worker does before it ends (it
+    ends by ``os._exit``, where no finalizer runs; the diagnosis' workers build the candidates'
+    FMU blocks themselves)."""
+    for folder in [f for f, pid in _EXTRACTED.items() if pid == os.getpid()]:
+        _remove(folder)
 
 
 class FMUSimulator:
@@ -291,7 +312,7 @@ class FMUSimulator:
         self.description, self.interface = description, description.interface(interface)
         identifier = description.exchange if self.interface == "model_exchange" else description.cosimulation
         self.folder = _extracted(description.path)
-        self._cleanup = weakref.finalize(self, shutil.rmtree, self.folder, True)
+        self._cleanup = weakref.finalize(self, _remove, self.folder)
         try:
             self.fmu = Instance(description.version, self.interface, description.guid, str(self.folder),
                                 identifier or "", instance)

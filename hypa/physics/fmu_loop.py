@@ -18,7 +18,6 @@ import logging
 import shutil
 import sys
 import tempfile
-import weakref
 from pathlib import Path
 from typing import Any
 
@@ -76,13 +75,13 @@ def _library() -> ctypes.CDLL | None:
         loaded = None if error else ctypes.CDLL(str(library))
     except OSError as failure:  # no temporary folder, or one mounted noexec
         error, loaded = str(failure).splitlines()[0] if str(failure) else type(failure).__name__, None
-    if loaded is None:
+    finally:  # loaded, the library is mapped: its file is not needed (nor left behind by a forked worker)
         if folder is not None:
             shutil.rmtree(folder, ignore_errors=True)
+    if loaded is None:
         log.info("the FMU block's C loop does not build or load here (%s): FMU blocks call their FMU through Python, "
                  "about a hundred times slower", error)
         return None
-    weakref.finalize(loaded, shutil.rmtree, folder, True)
     for name in ("hypa_me_run", "hypa_me_sensitivities", "hypa_cs_run"):
         getattr(loaded, name).restype = ctypes.c_int
     return loaded

@@ -3,6 +3,7 @@ exchange (hypa integrates) or co-simulation (it steps itself), against fmpy's ow
 
 import dataclasses
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -580,10 +581,19 @@ def test_the_diagnosis_names_an_input_the_fmu_is_not_fed_and_its_wrong_parameter
     assert learned["blocks"]["diagnosed_rear_wheel_angle"]["kind"] == "ann"  # V1's shape: a network in its place
 
 
-def test_the_diagnosis_names_a_dead_time_in_front_of_an_fmu(single_track, tmp_path) -> None:
+def test_the_diagnosis_names_a_dead_time_in_front_of_an_fmu(single_track, tmp_path, monkeypatch) -> None:
     """A car steered 60 ms after its logged steering angle and an FMU that reads the angle at once: the diagnosis
-    names the dead time on the FMU's input (rewired through its rename) with its value."""
+    names the dead time on the FMU's input (rewired through its rename) with its value. Its forked workers, which
+    extract the candidates' FMUs themselves, leave no extracted folder behind (they end by os._exit)."""
+    import gc
+    import tempfile
+
     import yaml
+
+    from hypa.physics import fmu
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "scratch"))
+    (tmp_path / "scratch").mkdir()
 
     conf = tmp_path / "conf"
     (conf / "model").mkdir(parents=True)
@@ -598,3 +608,6 @@ def test_the_diagnosis_names_a_dead_time_in_front_of_an_fmu(single_track, tmp_pa
     car = yaml.safe_load((tmp_path / "out" / "conf" / "model" / "diagnosed.yaml").read_text())["blocks"]["car"]
     assert car["inputs"] == ["steering_wheel_angle__delayed"]
     assert car["rename"] == {"steering_wheel_angle": "steering_wheel_angle__delayed"}
+    gc.collect()
+    left = set((tmp_path / "scratch").glob("hypa-fmu-*"))
+    assert left <= {f for f, pid in fmu._EXTRACTED.items() if pid == os.getpid()}, left  # only live simulators' here
