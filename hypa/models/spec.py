@@ -110,10 +110,11 @@ class BlockSpec:
         share ``spill_<state>_to_<row>`` of it into each other state (``hypa.physics.limited``;
         named by ``hypa diagnose``'s ``upper_state_limit`` and ``lower_state_limit``).
     depends: physics only, parameters that vary per sample with a direction or a state, parameter
-        -> {by: a state or input of the system, kind: direction | state}: p (1 + d tanh(s / w)) or
-        p (1 + a (s - μ) / σ), with the block's own parameters ``<p>_direction_<s>`` d and
-        ``<p>_direction_<s>_width`` w, or ``<p>_slope_<s>`` a, ``<p>_slope_<s>_level`` μ and
-        ``<p>_slope_<s>_spread`` σ (``hypa.physics.dependent``; named by ``hypa diagnose``'s
+        -> {by: a state or input of the system, kind: direction | state | cubic}: p (1 + d tanh(s / w)),
+        p (1 + a z) or p (1 + a z + b z² + c z³) with z = (s - μ) / σ, with the block's own parameters
+        ``<p>_direction_<s>`` d and ``<p>_direction_<s>_width`` w, or ``<p>_slope_<s>`` a,
+        ``<p>_slope_<s>_level`` μ and ``<p>_slope_<s>_spread`` σ (and ``<p>_square_<s>`` b,
+        ``<p>_cube_<s>`` c) (``hypa.physics.dependent``; named by ``hypa diagnose``'s
         ``direction_parameter`` and ``state_parameter``).
     modes: physics only, inputs of the system (its own names) that each drive a first-order mode
         the system lacks, added into its outputs: the block's own ``mode_<input>_tau_s``,
@@ -339,14 +340,14 @@ def _sides(value: Any, where: str) -> dict[str, str]:
 
 
 def _dependences(value: Any, where: str) -> dict[str, dict[str, str]]:
-    """A mapping parameter -> {by: signal, kind: direction | state} (None: empty)."""
+    """A mapping parameter -> {by: signal, kind: direction | state | cubic} (None: empty)."""
     if value is None:
         return {}
     if not isinstance(value, Mapping) or not all(
-            isinstance(v, Mapping) and set(v) == {"by", "kind"} and v["kind"] in ("direction", "state")
+            isinstance(v, Mapping) and set(v) == {"by", "kind"} and v["kind"] in ("direction", "state", "cubic")
             for v in value.values()):
-        raise ModelSpecError(f"{where} must map parameters to {{by: <state or input>, kind: direction | state}} "
-                             f"(e.g. {{R0: {{by: current, kind: direction}}}}), got {value!r}")
+        raise ModelSpecError(f"{where} must map parameters to {{by: <state or input>, kind: direction | state | "
+                             f"cubic}} (e.g. {{R0: {{by: current, kind: direction}}}}), got {value!r}")
     return {str(k): {"by": str(v["by"]), "kind": str(v["kind"])} for k, v in value.items()}
 
 

@@ -1,19 +1,21 @@
 """Dependent parameters: any system's parameter made to depend on a direction or on a state.
 
-A physics block's ``depends: {parameter: {by: signal, kind: direction | state}}`` wraps its
+A physics block's ``depends: {parameter: {by: signal, kind: direction | state | cubic}}`` wraps its
 system (:class:`Dependent`): the parameter p takes, at every sample, the value
 
     p (1 + d tanh(s / w))            (direction: a friction by the direction of motion, a
                                       resistance that differs in charge and discharge)
     p (1 + a (s - μ) / σ)            (state: a resistance rising at a low state of charge)
+    p (1 + a z + b z² + c z³),       (cubic: a force that varies over a stroke, bent at its
+       z = (s - μ) / σ                ends; the state kind's a, and b, c)
 
 where s is a state of the system or one of its inputs (by the system's own names), w a width
 over which the sign is smoothed (fixed: set from the signal's spread by whoever adds it) and μ,
-σ the state's operating point and spread (fixed: they set the scale of a). ``d = 0`` / ``a = 0``
-is the model as it was.
+σ the state's operating point and spread (fixed: they set the scale of a, b and c). ``d = 0`` /
+``a = 0`` (and ``b = c = 0``) is the model as it was.
 
 The parameter enters the user's ``matrices(p)`` in any way, so the wrapper evaluates them at
-p0 and p0 ± h (h = p0 √(d² + ε²), ε = 10⁻³: the modification's full size, ``d`` or ``a``) once
+p0 and p0 ± h (h = p0 √(d² + ε²), ε = 10⁻³: the modification's full size, ``d``, ``a`` or √(a² + b² + c²)) once
 per simulation and adds to dx/dt the quadratic through the three points,
 
     δ S [x; u; 1] + ½ δ² K [x; u; 1],    δ = p(s) - p0,
@@ -30,10 +32,10 @@ same quadratic in [C D] [x; u] as a nonlinear output h(x, u) (``output_nonlinear
 measured acceleration moves with the damping the dynamics use.
 
 The new parameters are the block's own (``<block>/...``): ``<p>_direction_<s>`` d and
-``<p>_direction_<s>_width`` w (in s's unit), or ``<p>_slope_<s>`` a, ``<p>_slope_<s>_level`` μ
-and ``<p>_slope_<s>_spread`` σ. The generic catalogue's ``direction_parameter`` and
-``state_parameter`` entries (``hypa/diagnosis/catalogue.yaml``) fit d and a for the uncertain
-parameters of any system.
+``<p>_direction_<s>_width`` w (in s's unit), or ``<p>_slope_<s>`` a, ``<p>_slope_<s>_level`` μ and
+``<p>_slope_<s>_spread`` σ, and for the cubic ``<p>_square_<s>`` b and ``<p>_cube_<s>`` c. The
+generic catalogue's ``direction_parameter`` and ``state_parameter`` entries
+(``hypa/diagnosis/catalogue.yaml``) fit d and a for the uncertain parameters of any system.
 """
 
 from __future__ import annotations
@@ -47,7 +49,7 @@ from hypa.physics.elements import local_name
 from hypa.physics.parameters import ParameterSpec
 from hypa.physics.statespace import LTIModel, StateSpace
 
-KINDS = ("direction", "state")
+KINDS = ("direction", "state", "cubic")
 EPSILON = 1e-3  # the smallest relative step h / p0 of the three evaluations (where d or a is 0)
 
 
@@ -56,10 +58,12 @@ class DependentError(ValueError):
 
 
 def dependence_names(parameter: str, on: str, kind: str) -> tuple[str, ...]:
-    """The local names of a dependence's own parameters: the fitted weight first, then the fixed ones."""
+    """The local names of a dependence's own parameters: the fitted weight first, then the fixed ones
+    (the cubic's: the state kind's three, then its fitted b and c)."""
     if kind == "direction":
         return f"{parameter}_direction_{on}", f"{parameter}_direction_{on}_width"
-    return f"{parameter}_slope_{on}", f"{parameter}_slope_{on}_level", f"{parameter}_slope_{on}_spread"
+    names = f"{parameter}_slope_{on}", f"{parameter}_slope_{on}_level", f"{parameter}_slope_{on}_spread"
+    return (*names, f"{parameter}_square_{on}", f"{parameter}_cube_{on}") if kind == "cubic" else names
 
 
 class Dependent(LTIModel):
@@ -97,6 +101,7 @@ class Dependent(LTIModel):
                 own.append(ParameterSpec(local[1], 1.0, ""))
             else:
                 own += [ParameterSpec(local[1], 0.0, "", positive=False), ParameterSpec(local[2], 1.0, "")]
+                own += [ParameterSpec(name, 0.0, "-", positive=False) for name in local[3:]]
         self.parameters = (*base.parameters, *own)
         self.added = frozenset(getattr(base, "added", frozenset())) | {s.name for s in own}
         nominal = {spec.name: torch.tensor(spec.value, dtype=torch.float64) for spec in base.parameters}
@@ -125,14 +130,12 @@ class Dependent(LTIModel):
         if self._in_outputs:
             middle, xu = self._outputs(p), torch.cat([x, u], -1)
             for qualified, kind, (where, j), local in self._terms:
-                p0, weight = p[qualified], p[local[0]]
-                h = p0 * torch.sqrt(weight * weight + EPSILON**2)
+                p0 = p[qualified]
+                h = p0 * _size(p, local)
                 up, down = self._outputs({**p, qualified: p0 + h}), self._outputs({**p, qualified: p0 - h})
                 slope, curvature = (up - down) / (2 * h), (up - 2 * middle + down) / (h * h)
                 signal = (x if where == "x" else u)[..., j]
-                shape = (torch.tanh(signal / p[local[1]]) if kind == "direction"
-                         else (signal - p[local[1]]) / p[local[2]])
-                delta = (p0 * weight * shape)[..., None]
+                delta = (p0 * _shape(kind, signal, *(p[n] for n in local)))[..., None]
                 own = own + delta * (xu @ slope.T.to(x.dtype) + 0.5 * delta * (xu @ curvature.T.to(x.dtype)))
         return own + self.base.output_nonlinearity(x, u, p) if self.base.has_nonlinear_output else own
 
@@ -156,25 +159,23 @@ class Dependent(LTIModel):
         terms = []
         middle = self._stacked(p)
         for qualified, kind, source, local in self._terms:
-            p0, weight = p[qualified], p[local[0]]
-            h = p0 * torch.sqrt(weight * weight + EPSILON**2)
+            p0 = p[qualified]
+            h = p0 * _size(p, local)
             up, down = self._stacked({**p, qualified: p0 + h}), self._stacked({**p, qualified: p0 - h})
             slope, curvature = (up - down) / (2 * h), (up - 2 * middle + down) / (h * h)
-            shape = (p[local[1]], p[local[1]].new_zeros(())) if kind == "direction" else (p[local[2]], p[local[1]])
             # S and ½K side by side, split by what they multiply (x, u, 1): one product each per step
             both = torch.cat([slope, 0.5 * curvature], 0).T  # (n + m + 1, 2n)
             n = slope.shape[0]
-            terms.append((kind, source, p0 * weight, *shape, both[:n], both[n:-1], both[-1]))
+            terms.append((kind, source, p0, [p[name] for name in local], both[:n], both[n:-1], both[-1]))
         prepared["_depends"] = terms
         return prepared
 
     def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
         # δ S [x; u; 1] + ½ δ² K [x; u; 1] = δ (a + δ b), [a b] = x S_x' + u S_u' + s_1 (the module docstring)
         u, n, own = u.to(x.dtype), x.shape[-1], None
-        for kind, (where, j), size, scale, level, on_x, on_u, constant in p["_depends"]:
+        for kind, (where, j), p0, own_values, on_x, on_u, constant in p["_depends"]:
             s = (x if where == "x" else u)[..., j]
-            shape = torch.tanh(s / scale) if kind == "direction" else (s - level) / scale
-            delta = (size * shape)[..., None]
+            delta = (p0 * _shape(kind, s, *own_values))[..., None]
             if x.dim() == 2:
                 both = torch.addmm(torch.addmm(constant, x, on_x), u, on_u)
             else:
@@ -183,6 +184,24 @@ class Dependent(LTIModel):
             own = term if own is None else own + term
         own = x.new_zeros(x.shape) if own is None else own
         return torch.cat([self.base.nonlinearity(x, u, p), own], -1) if self.base.is_nonlinear else own
+
+
+def _size(p: Mapping[str, Tensor], local: list[str]) -> Tensor:
+    """The relative step h / p0 of the three evaluations: the dependence's full size (module docstring)."""
+    weights = [p[local[0]], *(p[name] for name in local[3:])]  # d or a (and the cubic's b, c)
+    return torch.sqrt(sum(w * w for w in weights) + EPSILON**2)
+
+
+def _shape(kind: str, s: Tensor, weight: Tensor, scale_or_level: Tensor, spread: Tensor | None = None,
+           square: Tensor | None = None, cube: Tensor | None = None) -> Tensor:
+    """The relative change of the parameter at the signal's values ``s``: d tanh(s / w), a z, or
+    a z + b z² + c z³ with z = (s - μ) / σ (the module docstring; the arguments in ``dependence_names`` order)."""
+    if kind == "direction":
+        return weight * torch.tanh(s / scale_or_level)
+    z = (s - scale_or_level) / spread
+    if kind == "state":
+        return weight * z
+    return z * (weight + z * (square + z * cube))
 
 
 class Driven(LTIModel):

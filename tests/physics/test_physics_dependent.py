@@ -1,4 +1,4 @@
-"""Dependent parameters (``depends: {p: {by: s, kind: direction | state}}``, ``hypa.physics.dependent``):
+"""Dependent parameters (``depends: {p: {by: s, kind: direction | state | cubic}}``, ``hypa.physics.dependent``):
 the outputs follow the parameter too where it enters C or D (an accelerometer reads -c v / m), against
 scipy's ODE solver; a parameter of the state equation alone leaves the outputs linear."""
 
@@ -74,7 +74,55 @@ def test_a_parameter_of_the_state_equation_alone_leaves_the_outputs_linear() -> 
     assert not model.has_nonlinear_output
 
 
-@pytest.mark.parametrize("kind", ["direction", "state"])
+def test_a_stiffness_cubic_in_the_position_against_scipy() -> None:
+    """k(q) = K (1 + a z + b z² + c z³), z = (q - μ) / σ: a spring that stiffens at both ends of its stroke and
+    more at one; k enters A and C affinely, so the three evaluations are exact at any deflection."""
+    model = Dependent(Mount(), {"stiffness": {"by": "position", "kind": "cubic"}}, "mount")
+    check_system(model)
+    a, b, c, level, spread = 0.3, 0.8, -0.4, 0.01, 0.05
+    values = {"mount/stiffness_slope_position": a, "mount/stiffness_square_position": b,
+              "mount/stiffness_cube_position": c, "mount/stiffness_slope_position_level": level,
+              "mount/stiffness_slope_position_spread": spread}
+    block = LTIBlock(model, PhysicalParameters(model.parameter_specs(values)), dt=DT, horizon=100, hold="foh")
+    t = np.arange(0, 2, DT)
+    u = torch.tensor(force(t), dtype=torch.float64)[None, :, None]
+    with torch.no_grad():
+        states = block.states(torch.zeros(1, 2, dtype=torch.float64), u)[0]
+        y = block.output(states[None], u[:, 1:])[0].numpy()
+
+    def stiffness(q):
+        z = (q - level) / spread
+        return K * (1 + a * z + b * z**2 + c * z**3)
+
+    def rhs(time, x):
+        return [x[1], (force(time) - stiffness(x[0]) * x[0] - C * x[1]) / M]
+
+    ref = solve_ivp(rhs, (0, t[-1]), [0.0, 0.0], t_eval=t[1:], rtol=1e-10, atol=1e-12, max_step=DT).y
+    z = (ref[0] - level) / spread
+    assert np.abs(z).max() > 1.0  # the cubic's terms at full size: past one spread
+    acceleration = (force(t[1:]) - stiffness(ref[0]) * ref[0] - C * ref[1]) / M
+    for got, want in ((y[:, 0], ref[0]), (y[:, 1], acceleration)):
+        assert np.abs(got - want).max() < 2e-3 * np.abs(want).max(), np.abs(got - want).max() / np.abs(want).max()
+    # its linear part alone (the state kind's a) is another spring: the square and the cube are in the result
+    linear = K * (1 + a * z)
+    assert np.abs((stiffness(ref[0]) - linear) * ref[0]).max() > 0.2 * np.abs(stiffness(ref[0]) * ref[0]).max()
+
+
+def test_a_cubic_with_no_square_or_cube_is_the_state_kind() -> None:
+    cubic = Dependent(Mount(), {"stiffness": {"by": "position", "kind": "cubic"}}, "mount")
+    state = Dependent(Mount(), {"stiffness": {"by": "position", "kind": "state"}}, "mount")
+    values = {"mount/stiffness_slope_position": 0.3, "mount/stiffness_slope_position_level": 0.01,
+              "mount/stiffness_slope_position_spread": 0.05}
+    p_cubic = {s.name: torch.tensor(s.value, dtype=torch.float64) for s in cubic.parameter_specs(values)}
+    p_state = {s.name: torch.tensor(s.value, dtype=torch.float64) for s in state.parameter_specs(values)}
+    x, u = torch.randn(7, 2, dtype=torch.float64) * 0.1, torch.randn(7, 1, dtype=torch.float64)
+    torch.testing.assert_close(cubic.nonlinearity(x, u, cubic.prepare(p_cubic)),
+                               state.nonlinearity(x, u, state.prepare(p_state)), rtol=1e-12, atol=0)
+    torch.testing.assert_close(cubic.output_nonlinearity(x, u, p_cubic), state.output_nonlinearity(x, u, p_state),
+                               rtol=1e-12, atol=0)
+
+
+@pytest.mark.parametrize("kind", ["direction", "state", "cubic"])
 def test_zero_weight_is_the_system_itself(kind: str) -> None:
     model = Dependent(Mount(), {"damping": {"by": "velocity", "kind": kind}}, "mount")
     p = {s.name: torch.tensor(s.value, dtype=torch.float64) for s in model.parameter_specs({})}
