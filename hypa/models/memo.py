@@ -68,30 +68,25 @@ class FrozenMemo:
         computed: dict[str, Signal] = {}
         if missing:
             rows = torch.as_tensor(missing, device=u.device)
-            pick = lambda t: None if t is None else t.index_select(0, rows)  # noqa: E731
             with torch.no_grad():
-                computed = run(pick(u), pick(y_past), pick(s))
-            if len(missing) == len(keys):  # nothing kept for this batch: as computed
-                self._keep(keys, missing, computed)
+                computed = run(*(None if t is None else t.index_select(0, rows) for t in (u, y_past, s)))
+            self._keep([keys[i] for i in missing], computed)
+            if len(missing) == len(keys):
                 return computed
-            self._keep(keys, missing, computed)
-        names = list(computed) if computed else list(self.entries[keys[0]])
-        out: dict[str, Signal] = {}
-        position = {i: j for j, i in enumerate(missing)}
-        for name in names:
-            rows_ = [computed[name][0][position[i]] if i in position else self.entries[k][name][0]
-                     for i, k in enumerate(keys)]
-            start = computed[name][1] if computed else self.entries[keys[0]][name][1]
-            out[name] = (torch.stack(rows_), start)
-        return out
+        fresh = {i: j for j, i in enumerate(missing)}  # batch row -> row of `computed`
+        first = self.entries[keys[next(i for i in range(len(keys)) if i not in fresh)]]
+        return {name: (torch.stack([computed[name][0][fresh[i]] if i in fresh else self.entries[k][name][0]
+                                    for i, k in enumerate(keys)]), start)
+                for name, (_, start) in first.items()}
 
-    def _keep(self, keys: Sequence[bytes], missing: Sequence[int], computed: dict[str, Signal]) -> None:
-        for j, i in enumerate(missing):
+    def _keep(self, keys: Sequence[bytes], computed: dict[str, Signal]) -> None:
+        """Row j of ``computed`` kept under ``keys[j]``, while the budget allows."""
+        for j, key in enumerate(keys):
             entry = {name: (values[j].clone(), start) for name, (values, start) in computed.items()}
             size = sum(v.numel() * v.element_size() for v, _ in entry.values())
             if self.kept + size > self.budget:
                 return
-            self.entries[keys[i]] = entry
+            self.entries[key] = entry
             self.kept += size
 
 
