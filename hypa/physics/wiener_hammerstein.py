@@ -24,6 +24,10 @@ same four parameters) leaves 0.728 mV.
   (``second_frequency_hz``, ``second_damping``), a pair of zeros (``notch_frequency_hz``,
   ``notch_damping``: a notch where ζz is near 0, signed: negative puts the zeros in the right
   half-plane) and a real pole (``second_pole_hz``).
+- ``output_offset``: a constant added to y (the output stage's offset, in the signals' unit; 0 by
+  default). It enters as a constant a2 · offset in ẏ: y's state is the output with its offset,
+  exactly (nothing reads y back). On the benchmark's circuit the physics' free run has a mean error
+  of 0.15 mV on every part of the record.
 
 All six states are in the input's unit: G1's low-passed input q1 and its rate q2 = q̇1/ω1, z;
 G2's low-passed v r1 and r2 = ṙ1/ω2, y. Written in Lur'e form (ẋ = A x + B u + F w, w the
@@ -73,7 +77,7 @@ def lambert_w_exp(s: Tensor, iterations: int = 3) -> Tensor:
 
 
 class WienerHammerstein(LTIModel):
-    """u -> G1 -> knee -> G2 -> y (module docstring): six states, twelve parameters."""
+    """u -> G1 -> knee -> G2 -> y (module docstring): six states, thirteen parameters."""
 
     state_names = ("first_filtered", "first_rate", "first_out", "second_filtered", "second_rate", "output")
     input_names = ("input",)
@@ -91,6 +95,7 @@ class WienerHammerstein(LTIModel):
         ("second_pole_hz", 1.0, "Hz", True),  # G2's real pole
         ("notch_frequency_hz", 10.0, "Hz", True),  # G2's pair of zeros
         ("notch_damping", 1.0, "-", False),  # signed: < 0 right half-plane zeros
+        ("output_offset", 0.0, "signal", False),  # added to y [the signals' unit]
     )
 
     def __init__(self, prefix: str = "", unit: str = "V") -> None:
@@ -124,7 +129,8 @@ class WienerHammerstein(LTIModel):
         a = torch.stack([torch.stack(row) for row in rows])
         b = torch.stack([o, w1, o, o, o, o]).reshape(6, 1)
         c = torch.stack([o, o, o, o, o, torch.ones_like(w1)]).reshape(1, 6)
-        return StateSpace(a, b, c, w1.new_zeros(1, 1))
+        e = torch.stack([o, o, o, o, o, a2 * v["output_offset"]])  # y settles at its input plus the offset
+        return StateSpace(a, b, c, w1.new_zeros(1, 1), e)
 
     def feedback(self, p: Mapping[str, Tensor]) -> Tensor:
         v = self._values(p)

@@ -18,7 +18,8 @@ from hypa.physics.wiener_hammerstein import WienerHammerstein, lambert_w_exp
 
 VALUES = {"first_frequency_hz": 45.0, "first_damping": 0.3, "first_pole_hz": 27.0, "slope": 0.9,
           "slope_change": -0.8, "knee": 0.5, "knee_width": 0.08, "second_frequency_hz": 17.0,
-          "second_damping": 0.45, "second_pole_hz": 16.0, "notch_frequency_hz": 60.0, "notch_damping": -0.05}
+          "second_damping": 0.45, "second_pole_hz": 16.0, "notch_frequency_hz": 60.0, "notch_damping": -0.05,
+          "output_offset": 0.02}
 
 
 def drive(t: np.ndarray) -> np.ndarray:
@@ -49,7 +50,7 @@ def reference(t: np.ndarray, u: np.ndarray) -> np.ndarray:
 
     x = solve_ivp(rhs, (t[0], t[-1]), np.zeros(n1 + g2[0].shape[0]), t_eval=t, rtol=1e-10, atol=1e-12,
                   method="DOP853", max_step=float(t[1] - t[0])).y
-    return (g2[2] @ x[n1:])[0]
+    return (g2[2] @ x[n1:])[0] + v["output_offset"]
 
 
 def simulated(dt: float, seconds: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -58,9 +59,10 @@ def simulated(dt: float, seconds: float) -> tuple[np.ndarray, np.ndarray, np.nda
     u = drive(t)
     sim = LTIBlock(system, PhysicalParameters(system.parameter_specs(VALUES)), dt=dt, horizon=64, hold="foh")
     with torch.no_grad():
-        x = sim.states(torch.zeros(1, 6, dtype=torch.float64), torch.tensor(u, dtype=torch.float64)[None, :, None])
+        start = torch.tensor([[0, 0, 0, 0, 0, VALUES["output_offset"]]], dtype=torch.float64)  # at rest: y = offset
+        x = sim.states(start, torch.tensor(u, dtype=torch.float64)[None, :, None])
     # x_1 .. x_{T-1}: under a first-order hold the last input only ends the last sample
-    y = np.concatenate([[0.0], x[0, : len(t) - 1, 5].numpy()])  # x_k at t_k (the output is the last state)
+    y = np.concatenate([[VALUES["output_offset"]], x[0, : len(t) - 1, 5].numpy()])  # x_k at t_k (y: the last state)
     return t, u, y
 
 
@@ -86,10 +88,12 @@ def test_the_knee_bends_the_static_gain_as_a_diode_and_the_filters_pass_dc_uncha
     def steady_output(u: float) -> float:
         x = torch.tensor([[0, 0, u, 0, 0, 0]], dtype=torch.float64)  # φ reads z only
         w = system.nonlinearity(x, torch.tensor([[u]], dtype=torch.float64), p)[0]
-        state = -torch.linalg.solve(ss.a, ss.b[:, 0] * u + feedback @ w)
+        state = -torch.linalg.solve(ss.a, ss.b[:, 0] * u + feedback @ w + ss.e)
         assert math.isclose(float(state[2]), u, rel_tol=1e-9, abs_tol=1e-12)  # G1 passes DC unchanged
         return float(ss.c[0] @ state)
 
+    # far below the knee: the slope's line, shifted by the output's offset
+    assert math.isclose(steady_output(-3.0), -3.0 * VALUES["slope"] + VALUES["output_offset"], rel_tol=1e-9)
     slopes = []
     for level in (-2.0, 0.3, VALUES["knee"], 0.7, 3.0):
         slope = (steady_output(level + 1e-6) - steady_output(level - 1e-6)) / 2e-6
