@@ -309,6 +309,8 @@ def fit(request: Request, prepared: Prepared, cfg: DictConfig, folder: Any, logg
                     f"{best['val_loss']:.5g}) stays the run's record" if best else "no checkpoint was recorded")
             folder.update_record(stopped=str(error), training_time_s=time.perf_counter() - started)
             raise DivergedError(f"{error}; {kept}") from None
+        finally:  # what the fit kept of the frozen physics (hypa.models.memo) ends with it, however it ends
+            module.model.memo = None
         if trainer.interrupted:  # Ctrl-C: Lightning stops gracefully; the run is not finished, say how to go on
             folder.update_record(stopped=f"interrupted at epoch {trainer.current_epoch}")
             log.warning("interrupted at epoch %d; resume with ckpt_path=%s", trainer.current_epoch,

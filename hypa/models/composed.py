@@ -239,13 +239,17 @@ class ComposedModel(nn.Module):
         """
         y_past = y_past[:, None] if y_past.dim() == 2 else y_past
         given: dict[str, Signal] = {}
-        if self.memo is not None and initial is None and states is None:
+        inputs = [t for t in (u, y_past, s) if t is not None]
+        if (self.memo is not None and initial is None and states is None and u.shape[0]
+                and not any(t.requires_grad for t in inputs)):  # (a gradient to the inputs needs the blocks run)
             frozen = self.frozen_blocks()
             if len(frozen) < len(self.order) and any(self._runs_steps(n) for n in frozen):
                 values = torch.cat([p.detach().flatten().double() for p in self.parameters_.parameters()]
                                    or [torch.zeros(0, dtype=torch.float64)])
                 run = lambda u_, y_, s_: self._signals(u_, y_, s_, None, None, {}, set(frozen))  # noqa: E731
-                given = self.memo.signals((frozen, u.dtype, u.device), values, u, y_past, s, run)
+                given = self.memo.signals((frozen, u.device), values, u, y_past, s, run)
+            elif self.memo.entries:  # a stage that trains the physics: what was kept is of no use now
+                self.memo.clear()
         return self._signals(u, y_past, s, initial, states, given, None)
 
     def frozen_blocks(self) -> tuple[str, ...]:

@@ -10,11 +10,15 @@ physical parameter trains, and the block is a physics, FMU or element block (or 
 fed only by measured signals and other frozen blocks. An entry is found by the window's contents
 (a digest of its inputs, past outputs and scheduling signals, bytes and shape), never by its
 position in a data set, and belongs to the parameters' values it was computed with: another value
-(the best epoch's weights restored, a later identification), another frozen set, dtype or device
-empties the memo. So a memo can only return what the blocks would compute now.
+(the best epoch's weights restored, a later identification), another frozen set or device empties
+the memo. So a memo returns what the blocks compute now, to round-off: a window is computed once,
+without a graph and in the batch that first holds it (``hypa.physics.scan`` sums in another order
+without a graph; a float32 circuit's outputs differ by about 1e-4 of its spread).
 
-It is bounded (``budget`` bytes of kept outputs, a sixteenth of the machine's memory unless
-given): windows past it are computed each time, as without a memo.
+Entries are kept in the host's memory (moved to the model's device when read), bounded by
+``budget`` bytes: a sixteenth of what this process may still allocate (``hypa.core.machine``; a
+control group's limit counts), shared by the processes of one machine (``LOCAL_WORLD_SIZE`` under
+DDP). Windows past it are computed each time, as without a memo.
 """
 
 from __future__ import annotations
@@ -30,12 +34,20 @@ Signal = tuple[Tensor, int]
 Run = Callable[[Tensor, Tensor, Tensor | None], dict[str, Signal]]  # the frozen blocks on some windows
 
 
+ENTRY_OVERHEAD = 256  # bytes a kept tensor costs beyond its values (the object, its storage, the dict's slot)
+
+
 def default_budget() -> int:
-    """A sixteenth of the machine's physical memory [bytes] (1 GiB where it cannot be read)."""
+    """A sixteenth of the memory this process may still allocate [bytes], shared by the processes
+    of this machine (``LOCAL_WORLD_SIZE``); 1 GiB where the machine does not say."""
+    from hypa.core.machine import available_memory
+
     try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 16
-    except (AttributeError, ValueError, OSError):
-        return 1 << 30
+        processes = max(1, int(os.environ.get("LOCAL_WORLD_SIZE", "1")))
+    except ValueError:
+        processes = 1
+    room = available_memory()
+    return (1 << 30) // processes if room is None else room // 16 // processes
 
 
 class FrozenMemo:
@@ -75,15 +87,17 @@ class FrozenMemo:
                 return computed
         fresh = {i: j for j, i in enumerate(missing)}  # batch row -> row of `computed`
         first = self.entries[keys[next(i for i in range(len(keys)) if i not in fresh)]]
-        return {name: (torch.stack([computed[name][0][fresh[i]] if i in fresh else self.entries[k][name][0]
+        return {name: (torch.stack([computed[name][0][fresh[i]] if i in fresh
+                                    else self.entries[k][name][0].to(u.device, non_blocking=True)
                                     for i, k in enumerate(keys)]), start)
                 for name, (_, start) in first.items()}
 
     def _keep(self, keys: Sequence[bytes], computed: dict[str, Signal]) -> None:
         """Row j of ``computed`` kept under ``keys[j]``, while the budget allows."""
         for j, key in enumerate(keys):
-            entry = {name: (values[j].clone(), start) for name, (values, start) in computed.items()}
-            size = sum(v.numel() * v.element_size() for v, _ in entry.values())
+            entry = {name: (values[j].detach().to("cpu", copy=True), start)
+                     for name, (values, start) in computed.items()}
+            size = sum(v.numel() * v.element_size() + ENTRY_OVERHEAD for v, _ in entry.values())
             if self.kept + size > self.budget:
                 return
             self.entries[key] = entry

@@ -279,7 +279,11 @@ def _extracted(path: Path) -> Path:
 
     folder = Path(tempfile.mkdtemp(prefix="hypa-fmu-"))
     _EXTRACTED[folder] = os.getpid()
-    extract(str(path), str(folder))
+    try:
+        extract(str(path), str(folder))
+    except BaseException:
+        _remove(folder)
+        raise
     return folder
 
 
@@ -288,7 +292,7 @@ def _remove(folder: Path) -> None:
     go of a simulator it inherited leaves the folder to its parent, which still runs from it."""
     if _EXTRACTED.get(folder) == os.getpid():
         shutil.rmtree(folder, ignore_errors=True)
-        del _EXTRACTED[folder]
+        _EXTRACTED.pop(folder, None)
 
 
 def remove_extracted_here() -> None:

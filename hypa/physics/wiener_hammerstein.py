@@ -139,5 +139,5 @@ class WienerHammerstein(LTIModel):
         return torch.stack([o, o, o, o, w2, a2 * w2 * w2 / (wz * wz)]).reshape(6, 1)
 
     def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
-        names = self._names  # twice a sample: read the knee's three values only, no dict of all twelve
+        names = self._names  # twice a sample: read the knee's three values only, no dict of all of them
         return knee(x[..., 2:3], p[names["slope_change"]], p[names["knee"]], p[names["knee_width"]])

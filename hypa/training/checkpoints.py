@@ -346,12 +346,33 @@ def load_module(checkpoint: Path, trust: Collection[str] = ()) -> HybridModule:
     except (TypeError, ValueError, KeyError, IndexError, RuntimeError, AttributeError) as error:  # checked values
         raise UserError(f"{checkpoint}: its settings do not build a model ({type(error).__name__}: "  # that still
                         f"{one_line(error)[:300]})") from None  # do not fit together: the file's error, one line
+    weights = _with_added_parameters(checkpoint, module, weights)
     try:
         module.load_state_dict(weights)
     except RuntimeError as error:
         raise UserError(f"{checkpoint}: its weights do not fit its model ({one_line(error)[:300]})") from None
     module.eval()
     return module
+
+
+PHYSICAL = "model.parameters_.raw."  # the state-dict keys of the physical parameters
+
+
+def _with_added_parameters(checkpoint: Path, module: HybridModule, weights: dict) -> dict:
+    """``weights`` with the physical parameters a system gained after the checkpoint was saved (a
+    circuit's output offset) at their values in the model now, said in one warning: a system's new
+    parameter starts where the system is what it was (an offset of 0). Any other missing weight
+    stays missing (``load_state_dict`` refuses it)."""
+    own = module.state_dict()
+    added = sorted(k for k in own if k.startswith(PHYSICAL) and k not in weights)
+    if not added:
+        return weights
+    names = [k[len(PHYSICAL):] for k in added]
+    values = module.model.parameters_.as_floats()
+    log.warning("%s predates the physical parameter(s) %s of its model: they take the model's values (%s), as the "
+                "system was before it had them", checkpoint, ", ".join(names),
+                ", ".join(f"{n} = {values[n]:g}" for n in names))
+    return {**weights, **{k: own[k] for k in added}}
 
 
 def _warn_new_network_settings(checkpoint: Path, hparams: dict) -> None:

@@ -6,7 +6,7 @@ import copy
 import pytest
 import torch
 
-from hypa.models.memo import FrozenMemo
+from hypa.models.memo import ENTRY_OVERHEAD, FrozenMemo
 
 from test_models import build, load, normalized_window
 
@@ -75,7 +75,7 @@ def test_only_frozen_physics_is_kept_and_it_changes_nothing() -> None:
     torch.testing.assert_close(kept["yaw_rate"][0], fresh["yaw_rate"][0], **ROUND_OFF)
 
 
-@pytest.mark.parametrize("change", ["value", "one_sample", "bypass", "dtype"])
+@pytest.mark.parametrize("change", ["value", "one_sample", "bypass", "dtype", "trains"])
 def test_what_would_compute_otherwise_is_never_read_from_the_memo(change: str) -> None:
     model = build(hybrid()).eval()
     model.set_stage(["correction"])
@@ -90,6 +90,8 @@ def test_what_would_compute_otherwise_is_never_read_from_the_memo(change: str) -
             u[2, 30, 0] += 1e-3
         elif change == "bypass":
             model.set_stage(["correction"], ["correction"])
+        elif change == "trains":  # a stage that trains the physics again: nothing read, nothing kept
+            model.set_stage(None)
         else:
             model, u, y_past = model.double(), u.double(), y_past.double()
         kept = model.signals(u, y_past)
@@ -97,13 +99,28 @@ def test_what_would_compute_otherwise_is_never_read_from_the_memo(change: str) -
         fresh = model.signals(u, y_past)
     torch.testing.assert_close(kept["yaw_rate"][0], fresh["yaw_rate"][0], **ROUND_OFF)
     assert memo.hits == (3 if change == "one_sample" else 0)
+    if change == "trains":
+        assert not memo.entries and memo.kept == 0
+
+
+def test_inputs_that_need_a_gradient_run_the_blocks() -> None:
+    """A gradient to the inputs (a network in front of the data, an attack on the inputs) needs the blocks' graph."""
+    model = build(hybrid()).eval()
+    model.set_stage(["correction"])
+    model.memo = memo = FrozenMemo()
+    u, y_past = windows()
+    with torch.no_grad():
+        model.signals(u, y_past)
+    u = u.clone().requires_grad_(True)
+    model(u, y_past).sum().backward()
+    assert memo.hits == 0 and u.grad is not None and float(u.grad.abs().sum()) > 0
 
 
 def test_the_budget_bounds_what_is_kept_and_the_results_stay() -> None:
     model = build(hybrid()).eval()
     model.set_stage(["correction"])
     u, y_past = windows(batch=6)
-    one = 2 * (60 - 1) * 4 + 2 * 60 * 4  # bytes a window keeps: the physics' two outputs, the gains' two (float32)
+    one = 2 * (60 - 1) * 4 + 2 * 60 * 4 + 4 * ENTRY_OVERHEAD  # a window's: the physics' two outputs, the gains' two
     model.memo = memo = FrozenMemo(budget=2 * one + one // 2)
     with torch.no_grad():
         first = model.signals(u, y_past)["yaw_rate"][0]

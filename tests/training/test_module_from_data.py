@@ -121,6 +121,33 @@ def test_a_checkpoint_of_the_old_settings_loads(dm: HypaDataModule, tmp_path: Pa
         assert torch.allclose(predict(module, dm), expected)
 
 
+def test_a_checkpoint_from_before_a_system_gained_a_parameter_loads_with_its_value_now(
+        dm: HypaDataModule, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """A system that gains a parameter (a circuit's output offset, 0: the system as it was) still loads
+    the checkpoints saved before: the new parameter at the model's value, said in one warning; a
+    network's missing weight is still refused."""
+    import lightning
+
+    hparams = old_hparams(dm, HYBRID)
+    trained = HybridModule(**hparams)
+    with torch.no_grad():
+        trained.model.parameters_.raw["stiffness"].add_(0.1)
+    weights = {k: v for k, v in trained.state_dict().items() if k != "model.parameters_.raw.damping"}  # "new"
+    path = tmp_path / "before.ckpt"
+    torch.save({"state_dict": weights, "hyper_parameters": hparams,
+                "pytorch-lightning_version": lightning.__version__}, path)
+    with caplog.at_level("WARNING"):
+        loaded = load_module(path).model.parameters_.as_floats()
+    assert loaded["stiffness"] == pytest.approx(trained.model.parameters_.as_floats()["stiffness"])
+    assert loaded["damping"] == pytest.approx(HybridModule(**hparams).model.parameters_.as_floats()["damping"])
+    assert "predates the physical parameter(s) damping" in caplog.text
+    network = next(k for k in weights if k.startswith("model.blocks.") and "weight" in k)
+    torch.save({"state_dict": {k: v for k, v in weights.items() if k != network}, "hyper_parameters": hparams,
+                "pytorch-lightning_version": lightning.__version__}, path)
+    with pytest.raises(UserError, match="its weights do not fit its model"):
+        load_module(path)
+
+
 def test_the_hold_is_the_models_and_a_conflict_is_one_line(dm: HypaDataModule) -> None:
     assert HybridModule.from_data(dm, OSCILLATOR).model.hold == "foh"
     assert HybridModule.from_data(dm, OSCILLATOR, hold="foh").hparams.hold == "foh"
