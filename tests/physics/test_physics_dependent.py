@@ -35,17 +35,22 @@ def force(t):
     return 40 * np.sin(2 * np.pi * 3 * t) + 15 * np.sin(2 * np.pi * 7.7 * t + 0.5)
 
 
-def test_a_damping_by_direction_moves_the_accelerometer_too() -> None:
-    model = Dependent(Mount(), {"damping": {"by": "velocity", "kind": "direction"}}, "mount")
-    check_system(model)
-    assert model.has_nonlinear_output  # c enters C: the acceleration reads it
-    values = {"mount/damping_direction_velocity": D, "mount/damping_direction_velocity_width": WIDTH}
+def run(model: Dependent, values: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The mount at rest, driven by ``force`` for 2 s (first-order hold): the time and its outputs (T-1, 2)."""
     block = LTIBlock(model, PhysicalParameters(model.parameter_specs(values)), dt=DT, horizon=100, hold="foh")
     t = np.arange(0, 2, DT)
     u = torch.tensor(force(t), dtype=torch.float64)[None, :, None]
     with torch.no_grad():
         states = block.states(torch.zeros(1, 2, dtype=torch.float64), u)[0]
-        y = block.output(states[None], u[:, 1:])[0].numpy()
+        return t, block.output(states[None], u[:, 1:])[0].numpy()
+
+
+def test_a_damping_by_direction_moves_the_accelerometer_too() -> None:
+    model = Dependent(Mount(), {"damping": {"by": "velocity", "kind": "direction"}}, "mount")
+    check_system(model)
+    assert model.has_nonlinear_output  # c enters C: the acceleration reads it
+    values = {"mount/damping_direction_velocity": D, "mount/damping_direction_velocity_width": WIDTH}
+    t, y = run(model, values)
 
     def damping(v):
         return C * (1 + D * np.tanh(v / WIDTH))
@@ -83,12 +88,7 @@ def test_a_stiffness_cubic_in_the_position_against_scipy() -> None:
     values = {"mount/stiffness_slope_position": a, "mount/stiffness_square_position": b,
               "mount/stiffness_cube_position": c, "mount/stiffness_slope_position_level": level,
               "mount/stiffness_slope_position_spread": spread}
-    block = LTIBlock(model, PhysicalParameters(model.parameter_specs(values)), dt=DT, horizon=100, hold="foh")
-    t = np.arange(0, 2, DT)
-    u = torch.tensor(force(t), dtype=torch.float64)[None, :, None]
-    with torch.no_grad():
-        states = block.states(torch.zeros(1, 2, dtype=torch.float64), u)[0]
-        y = block.output(states[None], u[:, 1:])[0].numpy()
+    t, y = run(model, values)
 
     def stiffness(q):
         z = (q - level) / spread
