@@ -84,7 +84,8 @@ class LTIBlock(BlockSimulation, nn.Module):
             raise SchedulingError(f"{model.display_name}: a system with a nonlinear output cannot be scheduled yet")
         with torch.no_grad():  # feedthrough decides how many inputs a window takes (``extra_inputs``);
             # a nonlinear output h(x, u) may read its own sample's input
-            self.feedthrough = bool(model.n_states and (model.has_nonlinear_output
+            self.feedthrough = bool(model.n_states and ((model.has_nonlinear_output
+                                                         and model.nonlinear_output_reads_inputs)
                                                         or torch.count_nonzero(self.state_space().d)))
         n, m, p = model.n_states, len(model.input_names), len(model.output_names)
         scaling = scaling or Scaling.identity(n, m, p)

@@ -118,7 +118,7 @@ class BlockSimulation(LureSimulation):
         states, out = self._simulate(x0, u, scheduling, steps, before)
         if out is None:  # y = x: the outputs share the states' names and scaling
             return states, states
-        now = u[:, 1 : steps + 1] if self.feedthrough else None  # a nonlinear output's block always has them
+        now = u[:, 1 : steps + 1] if self.feedthrough else None  # an h(x, u)'s block always has them
         y = apply_output(*out, states, now)
         return (y + self.nonlinear_output(states, now) if self.model.has_nonlinear_output else y), states
 
@@ -143,15 +143,16 @@ class BlockSimulation(LureSimulation):
             return y + self.nonlinear_output(states, u) if self.model.has_nonlinear_output else y
         return apply_output(*self._output_rows(self._per_sample(rho)), states, u)
 
-    def nonlinear_output(self, states: Tensor, u: Tensor) -> Tensor:
+    def nonlinear_output(self, states: Tensor, u: Tensor | None) -> Tensor:
         """The nonlinear part of the outputs, ĥ = h(x, u) / σ_y (..., p), from normalized states (..., n)
-        and inputs of the same samples (..., m): what ``output`` adds to Ĉ x̂ + D̂ û + Ĝ for a system
-        with ``output_nonlinearity`` (the output's mean is in Ĝ already). Differentiable in the
-        states, the inputs and the trainable parameters."""
+        and inputs of the same samples (..., m; ``None`` for an h that reads none, ``output_reads_inputs``):
+        what ``output`` adds to Ĉ x̂ + D̂ û + Ĝ for a system with ``output_nonlinearity`` (the output's
+        mean is in Ĝ already). Differentiable in the states, the inputs and the trainable parameters."""
         dtype = states.dtype
         p = self.parameters_.values(self.model.parameter_names, dtype)
         x = states * self.state_std.to(dtype) + self.state_mean.to(dtype)
-        u_phys = u.to(dtype) * self.input_std.to(dtype) + self.input_mean.to(dtype)
+        u_phys = self.input_mean.to(dtype).expand(*states.shape[:-1], -1) if u is None else \
+            u.to(dtype) * self.input_std.to(dtype) + self.input_mean.to(dtype)
         return self.model.output_nonlinearity(x, u_phys, p) / self.output_std.to(dtype)
 
     def _linearised_output(self, norm: NormalizedLTI, dtype: torch.dtype) -> Output:

@@ -76,6 +76,7 @@ class LTIModel(ABC):
     input_names: tuple[str, ...] = ()
     output_names: tuple[str, ...] = ()
     parameters: tuple[ParameterSpec, ...] = ()  # nominal values, units, positivity / bounds
+    output_reads_inputs: bool = True  # h(x, u) reads its own sample's inputs (a feedthrough); False: h(x) only
 
     @abstractmethod
     def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
@@ -103,6 +104,15 @@ class LTIModel(ABC):
         if isinstance(base, LTIModel) and base.has_nonlinear_output:
             return base.output_nonlinearity(x, u, p)
         raise NotImplementedError(f"{type(self).__name__} has no output_nonlinearity")
+
+    @property
+    def nonlinear_output_reads_inputs(self) -> bool:
+        """Whether h reads the inputs of its own sample (``output_reads_inputs`` of the system that defines
+        h; a wrapper without an h of its own: its ``base``'s). An h(x) adds no feedthrough."""
+        base = getattr(self, "base", None)
+        if type(self).output_nonlinearity is LTIModel.output_nonlinearity and isinstance(base, LTIModel):
+            return base.nonlinear_output_reads_inputs
+        return self.output_reads_inputs
 
     @property
     def has_nonlinear_output(self) -> bool:

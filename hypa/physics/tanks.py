@@ -24,7 +24,12 @@ a = 1/2 for an orifice; the pump's inflow is linear in its input from ``pump_off
 voltage at no flow), ``level_offset`` is what the sensor reads at the lower orifice's height (a
 level's root is taken above 0: an empty tank drains nothing). A tank that overflows is the model's
 ``limited:`` key (``hypa.physics.limited``): the upper tank's spill, a share of it falling into the
-lower one; the lower tank's, lost.
+lower one; the lower tank's, lost. The sensor may read the level along a curve,
+
+    level = lower + sensor_curvature (lower - level_offset)^2
+
+(``sensor_curvature`` 0: a linear sensor; a capacitive or pressure sensor's reading bends with the
+level): the states stay in the linear scale, the outputs bend.
 """
 
 from __future__ import annotations
@@ -73,6 +78,7 @@ class TorricelliTanks(LTIModel):
         ParameterSpec("exponent", 0.5, "-"),  # a of q = k h^a: 1/2 through an orifice (Torricelli)
         ParameterSpec("pump_offset", 0.0, "V", positive=False),  # the pump's input at no flow
         ParameterSpec("level_offset", 0.0, "V", positive=False),  # what the sensor reads at the lower orifice
+        ParameterSpec("sensor_curvature", 0.0, "1/V", positive=False),  # the sensor's reading bends with the level
     )
 
     def matrices(self, p: Mapping[str, Tensor]) -> StateSpace:
@@ -89,3 +95,8 @@ class TorricelliTanks(LTIModel):
     def nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
         origin = torch.stack([torch.zeros_like(p["level_offset"]), p["level_offset"]])
         return (x - origin).clamp_min(FLOOR) ** p["exponent"]
+
+    output_reads_inputs = False  # the sensor's curve reads the level only
+
+    def output_nonlinearity(self, x: Tensor, u: Tensor, p: Mapping[str, Tensor]) -> Tensor:
+        return p["sensor_curvature"] * (x[..., 1:2] - p["level_offset"]) ** 2

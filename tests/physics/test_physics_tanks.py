@@ -77,3 +77,29 @@ def test_overflowing_tanks_stop_at_their_rims_and_the_upper_spill_falls_into_the
     overflowing = lost[:, 0] > 6.95
     assert overflowing.sum() > 20
     assert (caught[:, 1] - lost[:, 1]).max() > 0.3  # what spills over the upper rim raises the lower tank
+
+
+def test_the_sensor_reads_the_level_along_its_curve_and_the_levels_stay_as_they_were() -> None:
+    """``sensor_curvature`` c: the output is lower + c (lower - level_offset)^2 of the same states
+    (scipy's, the law written out), and the initial-state estimate reads the curve back."""
+    curvature, dt, x0 = 0.05, 1.0, np.array([4.0, 3.0])
+    t = np.arange(0.0, 600.0 + dt / 2, dt)
+    u = pump(t)
+    system = TorricelliTanks()
+    block = LTIBlock(system, PhysicalParameters(system.parameter_specs({**VALUES, "sensor_curvature": curvature})),
+                     dt=dt, horizon=64, hold="zoh")
+    with torch.no_grad():
+        y = block(torch.tensor(x0)[None], torch.tensor(u)[None, :, None])[0, :, 0].numpy()  # at t_1, t_2, ...
+    lower = reference(t, u, x0)[1:, 1]
+    expected = lower + curvature * (lower - VALUES["level_offset"]) ** 2
+    assert len(y) >= len(lower) - 1
+    n = min(len(y), len(lower))
+    np.testing.assert_allclose(y[:n], expected[:n], rtol=2e-4, atol=0)
+    assert np.abs(y[:n] - lower[:n]).max() > 0.5  # the curve is not small here
+    # both levels at sample 15 from the bent readings of samples 0..15 (the upper one unmeasured)
+    observed = torch.ones(1, dtype=torch.bool)
+    measured = np.concatenate([[x0[1] + curvature * (x0[1] - VALUES["level_offset"]) ** 2], expected[:15]])
+    with torch.no_grad():
+        x_hat = block.estimate_state(torch.tensor(u[:17], dtype=torch.float64)[None, :, None],
+                                     torch.tensor(measured, dtype=torch.float64)[None, :, None], observed)
+    np.testing.assert_allclose(x_hat[0].numpy(), reference(t[:16], u[:16], x0)[-1], rtol=2e-3)
