@@ -102,6 +102,7 @@ def diagnose_suite(dataset: str, nominal: str, overrides: list[str], folder: Pat
 def main(cfg: DictConfig) -> None:
     from hypa.commands.entry import data_dir_from_config, data_overrides, user_config_dirs
     from hypa.data import datamodule_from_config
+    from hypa.evaluation.benchmark import identified_only, reseeded
     from hypa.training.checkpoints import START_CHECKPOINT
 
     config = typed(cfg, BenchmarkConfig)  # every value checked (hypa.commands.config)
@@ -146,8 +147,16 @@ def main(cfg: DictConfig) -> None:
     extends = {"diagnosed": base[0]} if base and "diagnosed" in labels and folder is None else {}
     rows = Rows(dataset, labels, seeds, suite.published if suite is not None else {}, units, out, extends)
     jobs = [(label, seed) for label in labels for seed in seeds]
+    identified: dict[str, tuple[int, list, float, list[str]]] = {}  # physics-only row -> its seed's scores
     for i, (label, seed) in enumerate(jobs, 1):
         print(f"[{i}/{len(jobs)}] {dataset}: {label}" + (f", seed {seed}" if len(seeds) > 1 else ""), flush=True)
+        if label in identified:  # identified without randomness: another seed would give the same model
+            first, scores, seconds, caps = identified[label]
+            rows.add(label, seed, reseeded(scores, seed), seconds, kept=False, caps=caps)
+            print(f"[{i}/{len(jobs)}] {label}: physics only, identified (no seed enters): seed {first}'s model "
+                  f"({out / f'{label}-seed{first}'}) is seed {seed}'s", flush=True)
+            rows.write()
+            continue
         run_folder = out / label if len(seeds) == 1 else out / f"{label}-seed{seed}"
         model = list(suite_models[label]) if label in suite_models else [f"model={label}"]
         model = [model_file_override(model_files[o.removeprefix("model=")]) if o.removeprefix("model=") in model_files
@@ -173,6 +182,8 @@ def main(cfg: DictConfig) -> None:
         else:
             seconds = float(run.info.get("training_time_s", float("nan")))
             rows.add(label, seed, scores, seconds, kept=run.checkpoint.name == START_CHECKPOINT, caps=caps)
+            if identified_only(run):
+                identified[label] = (seed, scores, seconds, caps)
             print(f"[{i}/{len(jobs)}] {label}: trained in {elapsed(seconds)}"
                   + (f"; stopped at a cap: {'; '.join(caps)}" if caps else ""), flush=True)
         rows.write()

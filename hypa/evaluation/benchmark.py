@@ -10,7 +10,7 @@ free run of an integrating axis) one seed's figure says little.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -109,6 +109,18 @@ def stopped_at_caps(run: TrainedRun) -> list[str]:
     return notes
 
 
+def identified_only(run: TrainedRun) -> bool:
+    """Whether the run is physics alone, identified (``best-identified.ckpt``, no epochs): nothing random
+    enters it (``hypa.identification.output_error``), so every seed gives its model."""
+    best = run.info.get("best_checkpoint")
+    return isinstance(best, dict) and str(best.get("path", "")).endswith("best-identified.ckpt")
+
+
+def reseeded(scores: Sequence[Score], seed: int) -> list[Score]:
+    """``scores`` as another seed's (a model that no seed changes, :func:`identified_only`)."""
+    return [replace(s, seed=seed) for s in scores]
+
+
 def _staged(run: TrainedRun) -> bool:
     return len(getattr(run.module.model.spec, "stages", ()) or ()) > 1
 
@@ -118,11 +130,11 @@ def _epochs_at_cap(run: TrainedRun) -> int | None:
     from hypa.core.trust import inside
     from hypa.training.checkpoints import read_checkpoint
 
-    last, best = run.info.get("last_checkpoint"), run.info.get("best_checkpoint")
+    last = run.info.get("last_checkpoint")
     max_epochs = run.settings.max_epochs
     if not isinstance(last, str) or not isinstance(max_epochs, int) or max_epochs < 1:
         return None
-    if isinstance(best, dict) and str(best.get("path", "")).endswith("best-identified.ckpt"):
+    if identified_only(run):
         return None  # physics alone: identified, no epochs
     path = inside(run.folder, last, f"{run.folder}/run.json's last_checkpoint")
     if not path.is_file():
