@@ -26,6 +26,7 @@ PARALLEL_WIDTH = 16  # ... when it is this narrow (batch x states): the loop's s
 # (wider, the loop pays each operation's flops once per sample, Newton a few hundred times per iteration:
 # at 64 records of 2 states the loop is 2-3x faster, at 8 Newton is 1.7-2.5x faster, at 1 it is 3-8x)
 PARALLEL_BYTES = 2**30  # ... when its per-sample Jacobians and states take at most this memory (else the loop)
+HALVINGS = 3  # a span Newton does not solve is halved this many times at most (spans of an eighth; then the loop)
 
 
 class LureParts(NamedTuple):
@@ -73,31 +74,47 @@ class LureSimulation:
         if lure.drift is not None:
             forced = forced + lure.drift
         x = x0 * std_x + mean_x
-        if (steps >= PARALLEL_STEPS and x.numel() <= PARALLEL_WIDTH and dtype == torch.float64
-                and not torch.is_grad_enabled()):
-            # a long run in double precision, not trained through (an identification's, a diagnosis'):
-            # in single precision the loop's round-off (3e-5 of the spread over EMPS's 5 s validation
-            # record) is the free run's, and what an exported model's own steps reproduce
-            solved = self._solve_nonlinear(lure, x, u_phys, forced, std_x)
+        # a long run in double precision, not trained through (an identification's, a diagnosis'), is
+        # solved for every sample at once: in single precision the loop's round-off (3e-5 of the spread
+        # over EMPS's 5 s validation record) is the free run's, and what an exported model's own steps reproduce
+        parallel = (steps >= PARALLEL_STEPS and x.numel() <= PARALLEL_WIDTH and dtype == torch.float64
+                    and not torch.is_grad_enabled())
+        return (self._run_span(lure, x, u_phys, forced, std_x, 0, steps, parallel, HALVINGS) - mean_x) / std_x
+
+    def _run_span(self, lure: LureParts, x: Tensor, u_phys: Tensor, forced: Tensor, scale: Tensor, start: int,
+                  end: int, parallel: bool, halvings: int) -> Tensor:
+        """The states [SI] after samples ``start``..``end`` - 1 (B, end - start, n) from ``x``, the state at
+        ``start``: every sample at once where ``parallel`` and Newton solves the span (``_solve_nonlinear``);
+        where it does not (a first iterate that strays far over a long span: a position-dependent force
+        over a drifting axis), each half on its own, ``halvings`` times at most and down to
+        ``PARALLEL_STEPS`` samples; else step by step."""
+        if parallel and end - start >= PARALLEL_STEPS:
+            solved = self._solve_nonlinear(lure, x, u_phys, forced, scale, start, end)
             if solved is not None:
-                return (solved - mean_x) / std_x
+                return solved
+            if halvings and end - start >= 2 * PARALLEL_STEPS:
+                middle, more = (start + end) // 2, halvings - 1
+                first = self._run_span(lure, x, u_phys, forced, scale, start, middle, parallel, more)
+                return torch.cat([first, self._run_span(lure, first[:, -1], u_phys, forced, scale, middle, end,
+                                                        parallel, more)], 1)
         states = []
         samples, pushes = u_phys.unbind(1), forced.unbind(1)  # views made at once: no indexing op per step
-        for k in range(steps):
+        for k in range(start, end):
             x = self.lure_step(lure, x, samples[k], samples[min(k + 1, len(samples) - 1)], pushes[k])
             states.append(x)
-        return (torch.stack(states, 1) - mean_x) / std_x
+        return torch.stack(states, 1)
 
-    def _solve_nonlinear(self, lure: LureParts, x0: Tensor, u_phys: Tensor, forced: Tensor, scale: Tensor
-                         ) -> Tensor | None:
-        """``_simulate_nonlinear``'s states [SI] (B, S, n), every sample at once (``solve_recursion``:
+    def _solve_nonlinear(self, lure: LureParts, x0: Tensor, u_phys: Tensor, forced: Tensor, scale: Tensor,
+                         start: int, end: int) -> Tensor | None:
+        """``_run_span``'s states [SI] (B, end - start, n), every sample at once (``solve_recursion``:
         Newton over the sequence, the same fixed point as the loop), or ``None`` where it does not
-        converge. The first iterate is the linear part's run with the feedback held at its start."""
-        batch, steps, n = forced.shape
+        converge. The first iterate is the linear part's run with the feedback held at ``start``."""
+        batch, steps, n = forced.shape[0], end - start, forced.shape[2]
         if batch * steps * n * (n + 4) * forced.element_size() > PARALLEL_BYTES:
             return None  # the Jacobians of every sample would not fit: the loop's memory is one state
-        later = torch.arange(1, steps + 1, device=u_phys.device).clamp_max(u_phys.shape[1] - 1)
-        now, after = u_phys[:, :steps], u_phys[:, later]  # u_k and u_{k+1} (the last one held, as the loop)
+        later = torch.arange(start + 1, end + 1, device=u_phys.device).clamp_max(u_phys.shape[1] - 1)
+        now, after = u_phys[:, start:end], u_phys[:, later]  # u_k and u_{k+1} (the last one held, as the loop)
+        forced = forced[:, start:end]
 
         def step(x: Tensor) -> Tensor:
             rows = self.lure_step(lure, x.reshape(-1, n), now.reshape(-1, now.shape[-1]),

@@ -20,9 +20,14 @@ exact, and near the solution the error squares at every step, so a stable system
 few iterations.
 
 What it returns is the step-by-step recursion's own fixed point, not an approximation of the
-dynamics: it is accepted only where ``max_k |x_{k+1} - F_k(x_k)|`` (in units of the states'
-spread) has fallen to the dtype's round-off, and the caller falls back to the sample-by-sample
-loop otherwise (``None``: a chaotic or badly scaled system, a non-finite iterate).
+dynamics: it is accepted where ``max_k |x_{k+1} - F_k(x_k)|`` (in units of the states' spread) has
+fallen to the dtype's round-off, or where Newton stalls within ``STALLED`` epsilons of it: F sums
+terms larger than the states (EMPS: a motor force over the mass, a friction that switches with the
+speed), so its own evaluation's round-off can sit above the states' epsilon (there 5e-13 of the
+spread, 1e-8 of it on the training record's position had that defect accumulated over every sample);
+Newton then no longer halves the residual, and the loop would reach no closer. The caller falls back
+to the sample-by-sample loop otherwise (``None``: a chaotic or badly scaled system, a non-finite
+iterate).
 """
 
 from __future__ import annotations
@@ -37,6 +42,7 @@ from hypa.physics.scan import affine_scan
 MAX_ITERATIONS = 40  # Newton steps before giving up (each a few dozen whole-sequence operations)
 BACKTRACKS = 6  # halvings of a Newton step that does not lower the residual, before giving up
 ROUND_OFF = 64  # accepted: the equations' residual within this many epsilons of the states' size
+STALLED = 1e6  # ... or within this many epsilons of their spread where a Newton step no longer halves it
 
 
 def solve_recursion(step: Callable[[Tensor], Tensor], x0: Tensor, guess: Tensor, scale: Tensor,
@@ -73,9 +79,11 @@ def solve_recursion(step: Callable[[Tensor], Tensor], x0: Tensor, guess: Tensor,
                     break
                 share /= 2
             else:
-                return None
+                return x if residual <= STALLED * eps else None  # at the floor: no step lowers it
+            if trial[2] > residual / 2 and trial[2] <= STALLED * eps:
+                return candidate  # stalled at the evaluation's own round-off
             x, (before, value, residual) = candidate, trial
-    return None
+    return x if residual <= STALLED * eps else None
 
 
 def _residual(step: Callable[[Tensor], Tensor], x0: Tensor, x: Tensor, scale: Tensor) -> tuple[Tensor, Tensor, float]:

@@ -103,3 +103,50 @@ def test_inside_inference_mode_as_lightning_validates(monkeypatch) -> None:
         solved = block.states(x0, u)
     _, stepped = _runs(model, {}, u, 1e-3, monkeypatch)
     assert float(((solved - stepped).abs() / stepped.std(dim=(0, 1))).max()) < 1e-9
+
+
+def test_newton_that_stalls_at_the_steps_own_round_off_is_accepted() -> None:
+    """F sums terms far larger than the states (((a x + c) + B) - B, B = 1e4: its round-off is about 2e-12 of
+    states of size 1, above the 64 epsilons the states alone would allow). Newton reaches that floor and no
+    closer, as the loop itself; the solution is accepted and is the loop's to that floor, not refused."""
+    generator = torch.Generator().manual_seed(5)
+    steps, big = 3000, 1.0e4
+    c = torch.randn(1, steps, 1, generator=generator, dtype=torch.float64)
+
+    def step(x: torch.Tensor) -> torch.Tensor:
+        return ((0.9 * torch.tanh(x) + c) + big) - big
+
+    x0 = torch.zeros(1, 1, dtype=torch.float64)
+    one = torch.ones(1, dtype=torch.float64)
+    solved = solve_recursion(step, x0, torch.zeros(1, steps, 1, dtype=torch.float64), one)
+    assert solved is not None
+    x, loop = x0, []
+    for k in range(steps):
+        x = ((0.9 * torch.tanh(x) + c[:, k]) + big) - big
+        loop.append(x)
+    assert float((solved - torch.stack(loop, 1)).abs().max()) < 1e-9
+
+
+def test_a_run_newton_cannot_solve_whole_is_solved_in_halves_and_equals_the_loop(monkeypatch) -> None:
+    """Where Newton refuses a long span (here: any of more than 1 200 samples), its halves are solved
+    on their own, each from the end of the one before, at most ``HALVINGS`` times; what is left to the
+    loop is stepped. The states are the loop's to round-off."""
+    u = _force(5000, 80.0, 2)
+    spans = []
+    real = lure.solve_recursion
+
+    def refuse_long(step, x0, guess, scale, *args):
+        spans.append(guess.shape[1])
+        return None if guess.shape[1] > 1200 else real(step, x0, guess, scale, *args)
+
+    monkeypatch.setattr(lure, "solve_recursion", refuse_long)
+    solved, stepped = _runs(MassWithCubicFriction(), {"cubic_share": 0.6}, u, 1e-3, monkeypatch)
+    whole = spans[0]  # the run's steps (a first-order hold reads one input more)
+    assert spans[:3] == [whole, whole // 2, whole // 4]
+    assert sum(s for s in spans if s <= 1200) == whole and len(spans) == 1 + 2 + 4 + 8  # solved in eighths
+    assert float(((solved - stepped).abs() / stepped.std(dim=(0, 1))).max()) < 1e-9
+    spans.clear()
+    monkeypatch.setattr(lure, "HALVINGS", 1)  # halved once: the 2 500-sample halves are stepped
+    again, _ = _runs(MassWithCubicFriction(), {"cubic_share": 0.6}, u, 1e-3, monkeypatch)
+    assert spans == [whole, whole // 2, whole - whole // 2]
+    assert float(((again - stepped).abs() / stepped.std(dim=(0, 1))).max()) < 1e-9
