@@ -109,12 +109,14 @@ class IdentificationConfig:
     stretch_s: float | None = None  # [s] None: single shooting
     max_evaluations: int | None = None
     tolerance: float = 1.0e-8
+    resolution: float | None = 0.01
     max_seconds: float | None = None
 
     def __post_init__(self) -> None:
         checked("identification.stretch_s", self.stretch_s, float, optional=True, positive=True)
         checked("identification.max_evaluations", self.max_evaluations, int, optional=True, minimum=1)
         checked("identification.tolerance", self.tolerance, float, positive=True)
+        checked("identification.resolution", self.resolution, float, optional=True, positive=True)
         checked("identification.max_seconds", self.max_seconds, float, optional=True, positive=True)
 
     def settings(self) -> IdentificationSettings | None:
@@ -125,7 +127,8 @@ class IdentificationConfig:
             return None
         with settings("identification"):
             return IdentificationSettings(stretch_s=self.stretch_s, max_evaluations=self.max_evaluations,
-                                          tolerance=self.tolerance, max_seconds=self.max_seconds)
+                                          tolerance=self.tolerance, resolution=self.resolution,
+                                          max_seconds=self.max_seconds)
 
 
 @dataclass

@@ -15,6 +15,12 @@ in coordinates where a step means the same for every parameter (:func:`coordinat
 a positive parameter, a bounded one scaled to [0, 1] with those bounds, a signed one relative to
 its nominal value. Nothing is random: the same data give the same parameters.
 
+It stops at scipy's tolerances or, earlier, once it has settled at what the data can resolve:
+when the last ``SETTLE`` iterations together lowered the cost by less than ``resolution`` (1 %)
+of σ² τ, the rise in cost from moving the estimates by one standard deviation (σ² the residual
+variance, τ the output errors' correlation time, below). Parameters the data cannot tell apart
+otherwise creep along their valley for hundreds of iterations at an unchanged error.
+
 Each estimate gets ± 1σ from the Jacobian at the optimum: σ² (JᵀJ)⁻¹ with σ² the residual
 variance, its entries (i, j) scaled by √(τ_i τ_j). τ_j is the correlation time in samples
 (1 + 2 Σ ρ_k over the lags where the autocorrelation ρ_k is positive) of the terms that parameter
@@ -55,6 +61,7 @@ _MOVED = 1e-6  # a smaller change in the fit's coordinates: the parameter did no
 _AT_BOUND = 1e-4  # a bounded parameter this close to a bound (share of its interval): at its bound
 _JOINED = 1e-3  # continuity defects (RMS, state std) above this: the stretches do not join (multiple shooting)
 _DECADES = 4.0  # an unbounded parameter is searched within this many decades of its start (signed: 1e4 x |start|)
+SETTLE = 5  # accepted iterations over which the fit's progress is weighed against the data's resolution
 
 
 class IdentificationError(UserError):
@@ -69,7 +76,9 @@ class IdentificationSettings:
     initial state, joined by continuity (multiple shooting); ``None`` runs each training record
     free from its start (single shooting). ``max_evaluations``:
     model runs at most (``None``: scipy's 100 per parameter); ``tolerance``: scipy's ``ftol``,
-    ``xtol`` and ``gtol``; ``max_seconds``: stop after this long with the best point so far
+    ``xtol`` and ``gtol``; ``resolution``: converged once ``SETTLE`` iterations lower the cost by
+    less than this share of the data's resolution σ² τ (the module docstring; ``None``: scipy's
+    tolerances only); ``max_seconds``: stop after this long with the best point so far
     (``None``: no limit; a limit makes the result depend on the machine's speed);
     ``correlated``: |ρ| above which two parameters cannot be told apart.
     """
@@ -77,6 +86,7 @@ class IdentificationSettings:
     stretch_s: float | None = None
     max_evaluations: int | None = None
     tolerance: float = 1e-8
+    resolution: float | None = 0.01
     max_seconds: float | None = None
     correlated: float = 0.99
 
@@ -87,6 +97,8 @@ class IdentificationSettings:
             raise ValueError(f"identification.max_evaluations must be >= 1 or null, got {self.max_evaluations}")
         if not (math.isfinite(self.tolerance) and 0 < self.tolerance < 1):
             raise ValueError(f"identification.tolerance must lie in (0, 1), got {self.tolerance}")
+        if self.resolution is not None and not (math.isfinite(self.resolution) and self.resolution > 0):
+            raise ValueError(f"identification.resolution must be > 0 or null, got {self.resolution}")
         if self.max_seconds is not None and not self.max_seconds > 0:
             raise ValueError(f"identification.max_seconds must be > 0 or null, got {self.max_seconds}")
         if not 0 < self.correlated < 1:
@@ -139,6 +151,33 @@ class _Stop(Exception):
     """Raised inside the residual to end the fit at its time limit."""
 
 
+class _Settled(Exception):
+    """Raised at an iterate where the fit has settled at the data's resolution (``message`` says why)."""
+
+    def __init__(self, v: np.ndarray, message: str) -> None:
+        super().__init__(message)
+        self.v, self.message = v, message
+
+
+def settled(costs: Sequence[float], output: np.ndarray, problem: Shooting, share: float | None) -> str | None:
+    """Why the fit has settled (see the module docstring), or ``None`` while it still makes progress.
+
+    ``costs``: the cost at each accepted iterate so far (this continuity weight's); ``output``:
+    the output rows of the residual at the last one."""
+    if share is None or len(costs) <= SETTLE:
+        return None
+    gain = costs[-SETTLE - 1] - costs[-1]
+    sigma2 = float(output @ output) / max(output.size - problem.p, 1)
+    tau = problem.output_correlation_time(output)
+    resolution = sigma2 * tau
+    if not gain < share * resolution:
+        return None
+    return (f"converged at the data's resolution: the last {SETTLE} iterations lowered the cost by {gain:.2g}, "
+            f"under {share:g} of what moving the estimates by their σ costs ({resolution:.2g}: the residual "
+            f"variance {sigma2:.2g} times the errors' correlation time {tau:.3g} samples; "
+            "identification.resolution)")
+
+
 def _silent(text: str) -> None:
     """No progress lines (the default): only the work cap's line is logged."""
 
@@ -172,6 +211,8 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
     best: dict[str, object] = {"cost": math.inf, "v": v0.copy()}
     fitting = True
     failed = np.full(1, np.inf)
+    runs = [0]  # scipy's residual evaluations for the current continuity weight (its nfev, when it stops early)
+    costs: list[float] = []  # at each accepted iterate, for the current continuity weight
 
     def residual(v: np.ndarray) -> np.ndarray:
         if fitting and settings.max_seconds is not None and time.perf_counter() - started > settings.max_seconds:
@@ -185,6 +226,10 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
         if cost < best["cost"]:
             best.update(cost=cost, v=v.copy())
         return r
+
+    def counted(v: np.ndarray) -> np.ndarray:
+        runs[0] += 1
+        return residual(v)
 
     try:
         error_initial = problem.output_cost(v0)
@@ -202,6 +247,11 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
         progress(f"identification: iteration {len(iterates)}, output error "
                  f"{100 * problem.output_cost(v):.4g} % of the output variance"
                  + (f", continuity defects {problem.defect_rms(v):.2g} state std" if problem.junctions else ""))
+        if fitting:
+            costs.append(float(base @ base))
+            why = settled(costs, problem.simulate(v)[0], problem, settings.resolution)
+            if why is not None:
+                raise _Settled(v.copy(), why)
         J = problem.jacobian(v, base, upper)
         if len(iterates) == 1 and fitting:  # the pace of one step: what the cap may cost, said once
             line = remaining(cap, time.perf_counter() - started, settings)
@@ -213,8 +263,10 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
         if mu is not None:
             problem.mu = mu
             best.update(cost=math.inf)
+        costs.clear()
+        runs[0] = 0
         try:
-            result = least_squares(residual, v, jac=jacobian, bounds=(lower, upper), method="trf", x_scale="jac",
+            result = least_squares(counted, v, jac=jacobian, bounds=(lower, upper), method="trf", x_scale="jac",
                                    ftol=settings.tolerance, xtol=settings.tolerance, gtol=settings.tolerance,
                                    max_nfev=settings.max_evaluations)
             v, converged, message = result.x, result.status > 0, result.message
@@ -225,6 +277,9 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
                            "(identification.max_evaluations" + ("" if settings.max_evaluations else
                                                                 ": null, scipy's 100 per variable")
                            + "; not converged)")
+        except _Settled as at:
+            v, converged, message, capped = at.v, True, at.message, None
+            evaluations += runs[0]
         except _Stop:
             v, converged = np.asarray(best["v"]), False
             message, evaluations = (f"stopped at the cap of {settings.max_seconds:g} s (identification.max_seconds; "

@@ -189,6 +189,10 @@ class Shooting:
         columns = columns.toarray() if sparse.issparse(columns) else columns
         return np.array([correlation_time(self._by_stretch(e * columns[:, j])) for j in range(self.p)])
 
+    def output_correlation_time(self, rows: np.ndarray) -> float:
+        """τ [samples] (:func:`correlation_time`) of the output rows of a residual."""
+        return correlation_time(self._by_stretch(rows))
+
     def _by_stretch(self, rows: np.ndarray) -> list[np.ndarray]:
         """Output rows as arrays (stretches, samples, outputs), one per batch."""
         out, offset = [], 0

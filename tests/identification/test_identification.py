@@ -206,6 +206,57 @@ def test_the_first_iteration_says_what_the_work_cap_may_cost_and_the_cap_is_name
     assert result.error_final <= result.error_initial and all(e.std is not None for e in result.estimates)
 
 
+def test_the_fit_settles_at_the_datas_resolution() -> None:
+    """``settled``: converged once SETTLE iterations gained less than the share of σ² τ, the cost of
+    moving the estimates by their σ; coloured errors (τ > 1) resolve less, so the same gain settles."""
+    import numpy as np
+
+    from hypa.identification.output_error import SETTLE, settled
+    from hypa.identification.shooting import correlation_time
+
+    class Problem:  # the two things settled reads from the fit's problem
+        p = 3
+
+        def output_correlation_time(self, rows):
+            return correlation_time([rows.reshape(1, -1, 1)])
+
+    rng = np.random.default_rng(0)
+    white = 1e-3 * rng.standard_normal(20000)
+    coloured = np.convolve(white, np.ones(50) / np.sqrt(50), mode="same")
+    sigma2 = float(white @ white) / (white.size - 3)
+    gain = 0.5 * 0.01 * sigma2  # half the share of a white residual's resolution, over SETTLE iterations
+    costs = [1.0 + gain * (SETTLE - k) / SETTLE for k in range(SETTLE + 1)]
+    assert settled(costs[:-1], white, Problem(), 0.01) is None  # too few iterations to weigh
+    why = settled(costs, white, Problem(), 0.01)
+    assert why is not None and why.startswith(f"converged at the data's resolution: the last {SETTLE} iterations")
+    assert settled(costs, white, Problem(), 0.004) is None  # a finer share keeps going
+    assert settled(costs, white, Problem(), None) is None  # null: scipy's tolerances alone
+    assert settled([1.0 + 4 * gain * (SETTLE - k) / SETTLE for k in range(SETTLE + 1)], white, Problem(), 0.01) is None
+    coloured *= np.sqrt(float(white @ white) / float(coloured @ coloured))  # the same σ², τ about 50
+    assert correlation_time([coloured.reshape(1, -1, 1)]) > 20
+    big = [1.0 + 8 * gain * (SETTLE - k) / SETTLE for k in range(SETTLE + 1)]  # 4x a white residual's share
+    assert settled(big, white, Problem(), 0.01) is None
+    assert settled(big, coloured, Problem(), 0.01) is not None
+
+
+def test_a_fit_settled_by_the_resolution_says_so_and_keeps_its_iterate(data: Path) -> None:
+    """Through identify: a share so coarse that any five iterations settle it stops the fit there,
+    converged, its message naming the rule, its parameters the iterate's; null leaves scipy's rule."""
+    from hypa.identification import IdentificationSettings, identify
+    from hypa.identification.output_error import SETTLE
+
+    model, stretches = problem(data, list(TRUE), OFF)
+    coarse = identify(model, stretches, settings=IdentificationSettings(resolution=1e9))
+    assert coarse.converged and coarse.capped is None and coarse.warnings == ()
+    assert coarse.message.startswith(f"converged at the data's resolution: the last {SETTLE} iterations")
+    assert "identification.resolution" in coarse.message and coarse.iterations == SETTLE + 1
+    assert model.parameters_.as_floats()["torque_constant"] == pytest.approx(coarse.values()["torque_constant"])
+    assert coarse.error_final < 0.1 * coarse.error_initial
+    model, stretches = problem(data, list(TRUE), OFF)
+    plain = identify(model, stretches, settings=IdentificationSettings(resolution=None))
+    assert "resolution" not in plain.message and plain.iterations > coarse.iterations
+
+
 def test_a_parameter_the_data_cannot_determine_is_flagged(data: Path) -> None:
     """With the resistance free too, the speed alone cannot tell it from the others."""
     from hypa.identification import identify
@@ -335,6 +386,7 @@ def test_a_hybrid_whose_network_only_adds_error_keeps_its_identified_physics(dat
     ("identification.tolerance=0", "identification.tolerance=0 must be > 0"),
     ("identification.stretch_s=-1", "identification.stretch_s=-1 must be > 0"),
     ("identification.max_evaluations=0", "identification.max_evaluations=0 must be >= 1"),
+    ("identification.resolution=0", "identification.resolution=0 must be > 0"),
     ("identification.enabled=maybe", "identification.enabled=maybe is not true or false"),
 ])
 def test_bad_identification_settings_are_refused(override: str, message: str) -> None:
