@@ -12,6 +12,7 @@ that output's scale in the data (its operating point and spread).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -60,9 +61,11 @@ def model_hold(spec: ModelSpec, hold: str | None = None, setting: str = "hold") 
 
 
 def collect_parameters(spec: ModelSpec, values: Mapping[str, float]
-                       ) -> tuple[PhysicalParameters, dict[str, tuple[str, ...]], dict[str, LTIModel]]:
-    """One set of named parameters for all blocks, the trainable ones of each block, and each
-    physics block's system (built once here, for the builder too).
+                       ) -> tuple[PhysicalParameters, dict[str, tuple[str, ...]], dict[str, LTIModel], frozenset[str]]:
+    """One set of named parameters for all blocks, the trainable ones of each block, each physics
+    block's system (built once here, for the builder too), and the parameters the data's scale of a
+    signal sets (a wrapper's level, spread or width, :class:`~hypa.physics.statespace.SignalScaled`,
+    that neither ``values`` nor the spec gives).
 
     Shared parameters (the ``vehicle`` group, overridden by the spec's ``parameters``, else the
     system's nominal values) keep their names; each block's own are ``<block>/<name>``.
@@ -71,6 +74,7 @@ def collect_parameters(spec: ModelSpec, values: Mapping[str, float]
     specs: dict[str, ParameterSpec] = {}
     trainable_of: dict[str, tuple[str, ...]] = {}
     systems: dict[str, LTIModel] = {}
+    from_data: set[str] = set()
     for b in spec.blocks:
         if b.kind == "ann":
             continue
@@ -109,6 +113,8 @@ def collect_parameters(spec: ModelSpec, values: Mapping[str, float]
                 block_specs = system.parameter_specs(given)
             except ValueError as error:
                 raise ModelSpecError(f"block {b.name!r} ({b.system}): {error}") from None
+            from_data |= {n for scaled in system.signal_scaled() for n in (scaled.level, scaled.spread, scaled.width)
+                          if n is not None and n not in values and n not in local}
         resolved = {t: local_name(b.name, t) if local_name(b.name, t) in names else t for t in b.trainable}
         unknown = [t for t, full in resolved.items() if full not in names]
         if unknown:
@@ -127,7 +133,7 @@ def collect_parameters(spec: ModelSpec, values: Mapping[str, float]
                              f"read: {', '.join(specs)}")
     params = PhysicalParameters(specs.values())
     params.set_trainable({t for ts in trainable_of.values() for t in ts}, True)
-    return params, trainable_of, systems
+    return params, trainable_of, systems, frozenset(from_data)
 
 
 def _fmu_trainable(b: BlockSpec, fmu: FMUDescription) -> tuple[str, ...]:
@@ -165,8 +171,9 @@ class BlockBuilder:
 
     def __init__(self, params: PhysicalParameters, systems: Mapping[str, LTIModel], scales: Mapping[str, Scale],
                  measured: Mapping[str, Scale], scheduling: Sequence[str], dt: float, horizon: int, hold: str,
-                 ann: str, ann_hparams: Mapping) -> None:
+                 ann: str, ann_hparams: Mapping, from_data: frozenset[str] = frozenset()) -> None:
         self.params, self.systems, self.scales, self.measured = params, systems, dict(scales), dict(measured)
+        self.from_data = from_data  # parameters a signal's scale sets (collect_parameters)
         self.scheduling = tuple(scheduling)
         self.dt, self.horizon, self.hold, self.ann, self.ann_hparams = dt, horizon, hold, ann, dict(ann_hparams)
         self.starts: dict[str, PhysicsStart] = {}
@@ -269,12 +276,14 @@ class BlockBuilder:
                 states, read = self._observed_state_scales(ss, start, inputs, [(0.0, float(s)) for s in std],
                                                            _rows_read_nonlinearly(system, nominal))
                 unread, observed = [j for j in range(n) if j not in read], set(read)
-                if system.has_nonlinear_output:  # ... where the outputs are the data's means (a state of charge)
+                if system.is_nonlinear:  # the operating point of a state no output reads alone: where it settles
+                    settled = settled_state_scales(system, self.params, self.dt, inputs, states, unread)
+                    states, unread = (states, unread) if settled is states else (settled, [])
+                if system.has_nonlinear_output and unread:  # ... else where the outputs are the data's means
                     measured = [self.measured[m] if m is not None else None for m in start.observed or ()]
                     states = output_level_state_scales(system, self.params, inputs, measured, states, unread)
-                elif system.is_nonlinear:  # the operating point of a state no output reads alone: where it settles
-                    states = settled_state_scales(system, self.params, self.dt, inputs, states, unread)
         self.scales.update(zip(b.outputs, outputs))
+        self._signal_scaled(system, states, inputs)
         t = lambda pairs, i: torch.tensor([p[i] for p in pairs], dtype=torch.float64)  # noqa: E731
         scaling = Scaling(t(states, 0), t(states, 1), t(inputs, 0), t(inputs, 1), t(outputs, 0), t(outputs, 1))
         block = LTIBlock(system, self.params, self.dt, self.horizon, hold=self.hold if n else "zoh",
@@ -283,6 +292,23 @@ class BlockBuilder:
         if not b.scheduling:  # a scheduled block's stability depends on the signal
             block.check_stable()
         return block
+
+    def _signal_scaled(self, system: LTIModel, states: Sequence[Scale], inputs: Sequence[Scale]) -> None:
+        """A wrapper's level, spread and width that the model leaves to the data (``from_data``): the
+        block's scaling of the state or input they scale, its operating point, spread and a tenth of
+        it (a state's weight is then per spread of what the data show: a cubic over a stroke of
+        0.25 m needs no weights of 10³). The weights are 0 at the start, so the scaling the block
+        gets from its nominal physics does not depend on them."""
+        values = {}
+        for scaled in system.signal_scaled():
+            where, j = scaled.source
+            mean, std = (states if where == "x" else inputs)[j]
+            if not (std > 0 and math.isfinite(mean) and math.isfinite(std)):
+                continue  # no scale to take: the defaults (0 and 1 in the signal's unit) stay
+            for name, value in ((scaled.level, mean), (scaled.spread, std), (scaled.width, std / 10)):
+                if name in self.from_data:
+                    values[name] = float(value)
+        self.params.set_values(values)
 
     def _start(self, b: BlockSpec, system) -> PhysicsStart:
         if b.steady:

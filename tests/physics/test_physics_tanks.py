@@ -103,3 +103,46 @@ def test_the_sensor_reads_the_level_along_its_curve_and_the_levels_stay_as_they_
         x_hat = block.estimate_state(torch.tensor(u[:17], dtype=torch.float64)[None, :, None],
                                      torch.tensor(measured, dtype=torch.float64)[None, :, None], observed)
     np.testing.assert_allclose(x_hat[0].numpy(), reference(t[:16], u[:16], x0)[-1], rtol=2e-3)
+
+
+def test_the_unread_upper_level_is_scaled_where_it_settles_and_estimated_alike_in_either_precision() -> None:
+    """With the sensor's curve (a nonlinear output) the upper tank, which no output reads, is scaled
+    about the level it settles at under the mean pump input, (gain (ū - offset) / k1)^(1/a), not
+    at 0 V, where √h has no slope: a window's estimate started there stalled in float64 at an
+    upper level near 0 (the benchmark's test record: -0.08 V where float32 found 1.3 V, a free run
+    0.34 V off instead of 0.23 V). Both precisions now find the level the data were made with."""
+    from hypa.data import DataSignature, Normalization
+    from hypa.models import ComposedModel
+
+    dt, mean_pump, values = 4.0, 2.8, {**VALUES, "sensor_curvature": 0.2}
+    norm = Normalization(["pump", "level"], [mean_pump, 5.0], [1.0, 2.0])
+    data = DataSignature(("pump",), ("level",), norm, dt=dt, window=100, past=4)
+    spec = {"name": "tanks", "outputs": ["level"], "parameters": values, "hold": "zoh",
+            "blocks": {"tanks": {"kind": "physics", "system": "torricelli_tanks", "inputs": ["pump"],
+                                 "outputs": ["level"], "initial_state": "estimate"}}}
+    model = ComposedModel.from_data(data, spec)
+    settled = (VALUES["gain"] * (mean_pump - VALUES["pump_offset"]) / VALUES["k1"]) ** (1 / VALUES["exponent"])
+    assert abs(float(model.blocks["tanks"].state_mean[0]) - settled) < 1e-3 * settled
+    # five samples of a record whose upper tank starts at 1.6 V (the lower at 4 V), the pump at 1.2-1.6 V
+    t = np.arange(0.0, 5 * dt, dt)
+    u = 1.2 + 0.1 * np.arange(5)
+    x = [np.array([1.6, 4.0])]
+    v = values
+    for k in range(4):
+        def rhs(_t, s, level=u[k]):
+            out1 = v["k1"] * max(s[0], 1e-6) ** v["exponent"]
+            return [-out1 + v["gain"] * (level - v["pump_offset"]),
+                    out1 - v["k2"] * max(s[1] - v["level_offset"], 1e-6) ** v["exponent"]]
+        x.append(solve_ivp(rhs, (t[k], t[k + 1]), x[-1], rtol=1e-11, atol=1e-12).y[:, -1])
+    lower = np.array(x)[:, 1]
+    level = lower + v["sensor_curvature"] * (lower - v["level_offset"]) ** 2
+    starts = []
+    for dtype in (torch.float32, torch.float64):
+        block = model.to(dtype).blocks["tanks"]
+        un = torch.tensor((u - mean_pump) / 1.0, dtype=dtype)[None, :, None]
+        yn = torch.tensor((level - 5.0) / 2.0, dtype=dtype)[None, :, None]
+        with torch.no_grad():
+            x_hat = block.estimate_state(un, yn, torch.ones(1, dtype=torch.bool))
+        starts.append((x_hat[0].double() * block.state_std + block.state_mean).numpy())
+    np.testing.assert_allclose(starts[0], starts[1], atol=0.02)
+    np.testing.assert_allclose(starts[1], x[-1], atol=0.05)
