@@ -69,13 +69,13 @@ class ComposedModel(nn.Module):
         self.scheduling_names = tuple(scheduling_names)
         self.measured_scale = dict(output_scale)
         self.order = self._dependency_order(spec)
-        self.parameters_, self._trainable_of, systems = collect_parameters(spec, physical_values or {})
+        self.parameters_, self._trainable_of, systems, from_data = collect_parameters(spec, physical_values or {})
         self.trainable_physics = tuple(sorted({t for ts in self._trainable_of.values() for t in ts}))
         self.hold = model_hold(spec, hold)
         self._register_offsets(spec.sensor_offsets, input_scale)
         scales = {**input_scale, **(scheduling_scale or {})}
         builder = BlockBuilder(self.parameters_, systems, scales, self.measured_scale, self.scheduling_names, dt,
-                               horizon, self.hold, ann_name, ann_hparams or {})
+                               horizon, self.hold, ann_name, ann_hparams or {}, from_data)
         self.blocks = nn.ModuleDict({b.name: builder.build(b) for b in self.order})
         self.scales, self.starts, self.encoders = builder.scales, builder.starts, builder.encoders
         self._observed: dict[str, str] = {}  # block -> buffer: which of its outputs are measured (estimate)

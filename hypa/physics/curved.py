@@ -22,7 +22,8 @@ root through the same flow at the level μ_j, at ``w = 1`` (x_j is taken as at l
 root's slope stays finite at an empty tank).
 
 The new parameters are the block's own (``<block>/...``): ``<state>_level`` μ_j and
-``<state>_spread`` σ_j in the state's unit (fixed: they set the scale of w, not the physics), and
+``<state>_spread`` σ_j in the state's unit (fixed: they set the scale of w, not the physics; where
+the model does not give them, the block's scaling of the state: ``SignalScaled``), and
 one dimensionless ``curve_<state>_on_<row>`` w_r per state r (a row where A_rj is 0 has nothing
 to bend: its w does nothing). The generic catalogue's ``cubic_state`` and ``square_state`` entries
 (``hypa/diagnosis/catalogue.yaml``) fit them for any system the catalogue knows nothing
@@ -40,7 +41,7 @@ from torch import Tensor
 
 from hypa.physics.elements import local_name
 from hypa.physics.parameters import ParameterSpec
-from hypa.physics.statespace import LTIModel
+from hypa.physics.statespace import LTIModel, SignalScaled
 from hypa.physics.wrapped import StateFeedback
 
 ROOT = "root"  # the orifice's law, √(μ x)
@@ -74,6 +75,10 @@ class Curved(StateFeedback):
             own += [ParameterSpec(level, 0.0, "", positive=False), ParameterSpec(spread, 1.0, "")]
             own += [ParameterSpec(w, 0.0, "-", positive=False) for w in weights]
         self.add(own)
+
+    def signal_scaled(self) -> tuple[SignalScaled, ...]:
+        own = tuple(SignalScaled(("x", j), level=level, spread=spread) for j, _, level, spread, _ in self._columns)
+        return (*own, *super().signal_scaled())
 
     def own_feedback(self, p: Mapping[str, Tensor]) -> Tensor:
         a = self.base.matrices(p).a

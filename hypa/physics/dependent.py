@@ -10,9 +10,10 @@ system (:class:`Dependent`): the parameter p takes, at every sample, the value
        z = (s - μ) / σ                ends; the state kind's a, and b, c)
 
 where s is a state of the system or one of its inputs (by the system's own names), w a width
-over which the sign is smoothed (fixed: set from the signal's spread by whoever adds it) and μ,
-σ the state's operating point and spread (fixed: they set the scale of a, b and c). ``d = 0`` /
-``a = 0`` (and ``b = c = 0``) is the model as it was.
+over which the sign is smoothed and μ, σ the signal's operating point and spread (fixed: they set
+the scale of a, b and c). Where the model does not give them, the block's scaling of the signal
+sets them (the data's mean and standard deviation for a measured one; w a tenth of that spread:
+``SignalScaled``). ``d = 0`` / ``a = 0`` (and ``b = c = 0``) is the model as it was.
 
 The parameter enters the user's ``matrices(p)`` in any way, so the wrapper evaluates them at
 p0 and p0 ± h (h = p0 √(d² + ε²), ε = 10⁻³: the modification's full size, ``d``, ``a`` or √(a² + b² + c²)) once
@@ -47,7 +48,7 @@ from torch import Tensor
 
 from hypa.physics.elements import local_name
 from hypa.physics.parameters import ParameterSpec
-from hypa.physics.statespace import LTIModel, StateSpace
+from hypa.physics.statespace import LTIModel, SignalScaled, StateSpace
 
 KINDS = ("direction", "state", "cubic")
 EPSILON = 1e-3  # the smallest relative step h / p0 of the three evaluations (where d or a is 0)
@@ -111,6 +112,11 @@ class Dependent(LTIModel):
     @property
     def display_name(self) -> str:
         return f"{self.base.display_name} ({self.key} on {', '.join(self.depends)})"
+
+    def signal_scaled(self) -> tuple[SignalScaled, ...]:
+        own = tuple(SignalScaled(source, width=local[1]) if kind == "direction" else
+                    SignalScaled(source, level=local[1], spread=local[2]) for _, kind, source, local in self._terms)
+        return (*own, *super().signal_scaled())
 
     def _outputs(self, p: Mapping[str, Tensor]) -> Tensor:
         """[C D] (p, n + m) of the wrapped system at ``p``."""

@@ -31,6 +31,20 @@ class StateSpace:
     e: Tensor | None = None  # (n,)
 
 
+@dataclass(frozen=True)
+class SignalScaled:
+    """Fixed parameters of a wrapper (``depends``, ``curved``) that set the scale of its fitted
+    weights by a signal's size: ``level`` and ``spread`` its operating point and spread, ``width`` a
+    tenth of that spread (a sign smoothed over it), each a parameter name or None. ``source``:
+    ("x" | "u", index), the system's state or input. Where the model does not give them, the block's
+    scaling of that signal (the data's) sets them (``hypa.models.building``)."""
+
+    source: tuple[str, int]
+    level: str | None = None
+    spread: str | None = None
+    width: str | None = None
+
+
 class LTIModel(ABC):
     """A physical system: the contract a built-in or a user's system follows.
 
@@ -113,6 +127,12 @@ class LTIModel(ABC):
         if type(self).output_nonlinearity is LTIModel.output_nonlinearity and isinstance(base, LTIModel):
             return base.nonlinear_output_reads_inputs
         return self.output_reads_inputs
+
+    def signal_scaled(self) -> tuple[SignalScaled, ...]:
+        """The parameters a signal's scale sets (:class:`SignalScaled`), this wrapper's and its
+        ``base``'s; none for a plain system."""
+        base = getattr(self, "base", None)
+        return base.signal_scaled() if isinstance(base, LTIModel) else ()
 
     @property
     def has_nonlinear_output(self) -> bool:

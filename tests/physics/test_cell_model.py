@@ -335,7 +335,7 @@ def test_a_unit_of_another_kind_is_refused_in_one_line(tmp_path: Path) -> None:
             parse_model_spec(config)
         config["parameters"] = {"capacity": "2.5 Ah", "r0": {"value": 45, "unit": "mOhm"}, "r1": 0.03}
         spec = parse_model_spec(config)
-        params, _, _ = collect_parameters(spec, {})
+        params, *_ = collect_parameters(spec, {})
         assert params.as_floats()["capacity"] == pytest.approx(9000.0)
         assert params.as_floats()["r0"] == pytest.approx(0.045) and params.as_floats()["r1"] == pytest.approx(0.03)
         assert spec_config(spec)["parameters"] == {"capacity": "2.5 Ah", "r0": "45 mOhm", "r1": 0.03}  # as given

@@ -128,3 +128,34 @@ def test_zero_weight_is_the_system_itself(kind: str) -> None:
     p = {s.name: torch.tensor(s.value, dtype=torch.float64) for s in model.parameter_specs({})}
     x, u = torch.randn(5, 2, dtype=torch.float64), torch.randn(5, 1, dtype=torch.float64)
     assert torch.equal(model.output_nonlinearity(x, u, p), torch.zeros(5, 2, dtype=torch.float64))
+
+
+def test_levels_spreads_and_widths_the_model_leaves_open_come_from_the_data() -> None:
+    """A block's ``depends`` and ``curved`` without their level, spread or width: the block's scaling
+    of the signal sets them (the measured position's mean and standard deviation in the data, the
+    force's; a direction's width a tenth of the spread); one the model gives is kept."""
+    from hypa.data import DataSignature, Normalization
+    from hypa.models import ComposedModel
+
+    norm = Normalization(["force", "position"], [0.3, 0.021], [2.5, 0.0047])
+    data = DataSignature(("force",), ("position",), norm, dt=1e-3, window=50, past=4)
+    blocks = {"spring": {"kind": "physics", "system": "mass_spring_damper", "inputs": ["force"],
+                         "outputs": ["position"], "initial_state": "estimate",
+                         "depends": {"stiffness": {"by": "position", "kind": "cubic"},
+                                     "damping": {"by": "force", "kind": "direction"},
+                                     "mass": {"by": "force", "kind": "state"}},
+                         "curved": {"position": 3},
+                         "parameters": {"mass_slope_force_spread": 7.0}}}
+    spec = {"name": "springs", "outputs": ["position"], "blocks": blocks}
+    values = ComposedModel.from_data(data, spec).parameters_.as_floats()
+    assert values["spring/stiffness_slope_position_level"] == pytest.approx(0.021)
+    assert values["spring/stiffness_slope_position_spread"] == pytest.approx(0.0047)
+    assert values["spring/damping_direction_force_width"] == pytest.approx(0.25)
+    assert values["spring/mass_slope_force_level"] == pytest.approx(0.3)
+    assert values["spring/mass_slope_force_spread"] == pytest.approx(7.0)  # given: kept
+    assert values["spring/position_level"] == pytest.approx(0.021)  # curved
+    assert values["spring/position_spread"] == pytest.approx(0.0047)
+    spec["parameters"] = {"spring/stiffness_slope_position_level": 0.0}  # the model's parameters too
+    values = ComposedModel.from_data(data, spec).parameters_.as_floats()
+    assert values["spring/stiffness_slope_position_level"] == pytest.approx(0.0, abs=1e-12)
+    assert values["spring/stiffness_slope_position_spread"] == pytest.approx(0.0047)
