@@ -152,11 +152,11 @@ class _Stop(Exception):
 
 
 class _Settled(Exception):
-    """Raised at an iterate where the fit has settled at the data's resolution (``message`` says why)."""
+    """Raised at an iterate ``v`` where the fit has settled at the data's resolution (its text says why)."""
 
     def __init__(self, v: np.ndarray, message: str) -> None:
         super().__init__(message)
-        self.v, self.message = v, message
+        self.v = v
 
 
 def settled(costs: Sequence[float], output: np.ndarray, problem: Shooting, share: float | None) -> str | None:
@@ -167,7 +167,7 @@ def settled(costs: Sequence[float], output: np.ndarray, problem: Shooting, share
     if share is None or len(costs) <= SETTLE:
         return None
     gain = costs[-SETTLE - 1] - costs[-1]
-    sigma2 = float(output @ output) / max(output.size - problem.p, 1)
+    sigma2 = _residual_variance(float(output @ output), output.size, problem.p)
     tau = problem.output_correlation_time(output)
     resolution = sigma2 * tau
     if not gain < share * resolution:
@@ -278,7 +278,7 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
                                                                 ": null, scipy's 100 per variable")
                            + "; not converged)")
         except _Settled as at:
-            v, converged, message, capped = at.v, True, at.message, None
+            v, converged, message, capped = at.v, True, str(at), None
             evaluations += runs[0]
         except _Stop:
             v, converged = np.asarray(best["v"]), False
@@ -350,12 +350,17 @@ def identify_records(model: ComposedModel, dm: HypaDataModule, records: Sequence
     return result
 
 
+def _residual_variance(cost: float, m: int, p: int) -> float:
+    """σ² of ``m`` residuals whose squares sum to ``cost``, ``p`` parameters fitted to them."""
+    return cost / max(m - p, 1)
+
+
 def _covariance(J, cost: float, m: int) -> np.ndarray:
     """σ² (JᵀJ)⁻¹ in the fit's coordinates (J dense or sparse; m residuals of the output error);
     infinite variance along a direction J does not see."""
     J = J.toarray() if sparse.issparse(J) else J
     p = J.shape[1]
-    sigma2 = cost / max(m - p, 1)
+    sigma2 = _residual_variance(cost, m, p)
     _u, s, vt = np.linalg.svd(J, full_matrices=False)
     tiny = s <= s.max(initial=0.0) * 1e-10 if s.size else s
     with np.errstate(divide="ignore"):
