@@ -13,7 +13,11 @@ identification.shooting`). It is minimized by scipy's trust-region reflective le
 (``least_squares(method="trf")``) with a Jacobian from forward differences of float64 model runs,
 in coordinates where a step means the same for every parameter (:func:`coordinates`): the log of
 a positive parameter, a bounded one scaled to [0, 1] with those bounds, a signed one relative to
-its nominal value. Nothing is random: the same data give the same parameters.
+its nominal value. The trust region is measured in these coordinates, not rescaled by the
+Jacobian's columns (scipy's ``x_scale="jac"``): that rescaling gives a parameter the data barely
+see at one iterate (a tank's overflow level just above the levels reached) a step as large as its
+sensitivity is weak, which throws it out of the data's range, where its gradient is 0 for good.
+Nothing is random: the same data give the same parameters (to the round-off).
 
 It stops at scipy's tolerances or, earlier, once it has settled at what the data can resolve:
 when the last ``SETTLE`` iterations together lowered the cost by less than ``resolution`` (1 %)
@@ -266,7 +270,7 @@ def identify(model: ComposedModel, stretches: Stretches, names: Sequence[str] | 
         costs.clear()
         runs[0] = 0
         try:
-            result = least_squares(counted, v, jac=jacobian, bounds=(lower, upper), method="trf", x_scale="jac",
+            result = least_squares(counted, v, jac=jacobian, bounds=(lower, upper), method="trf", x_scale=1.0,
                                    ftol=settings.tolerance, xtol=settings.tolerance, gtol=settings.tolerance,
                                    max_nfev=settings.max_evaluations)
             v, converged, message = result.x, result.status > 0, result.message
