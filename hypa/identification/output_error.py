@@ -38,6 +38,7 @@ determine (σ larger than its value) and pairs that cannot be told apart (|ρ| >
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -335,23 +336,75 @@ def identify_records(model: ComposedModel, dm: HypaDataModule, records: Sequence
     Without ``stretch_s``, a model whose free run over a whole record is not finite at its start
     (an unstable model, or one that overflows) is fitted by multiple shooting instead, its
     stretches halved until every free run from the data is finite; the report says so.
+
+    A fit that leaves a parameter where the free runs never meet its effect (a limit the state
+    stays far inside of: :meth:`LTIModel.unreached`) has lost it for good, its gradient being 0
+    there; a second fit starts it where it acts (the state's extreme over the runs), the others at
+    the first fit's values, and the better of the two by the output error is kept (the report says
+    which, with both errors). A fit stopped at its time limit is not fitted again.
     """
     first, longest = dm.past + 1, max(len(r) for r in records)
-    if settings.stretch_s is not None:
-        return identify(model, Stretches.cut(dm, records, max(1, round(settings.stretch_s / dm.dt))),
-                        settings=settings, progress=progress)
     samples = longest
-    stretches = Stretches.cut(dm, records, samples)
-    while samples > 2 * first and not math.isfinite(stretches.to(torch.float64).score(model)):
-        samples //= 2
+    if settings.stretch_s is not None:
+        stretches = Stretches.cut(dm, records, max(1, round(settings.stretch_s / dm.dt)))
+    else:
         stretches = Stretches.cut(dm, records, samples)
+        while samples > 2 * first and not math.isfinite(stretches.to(torch.float64).score(model)):
+            samples //= 2
+            stretches = Stretches.cut(dm, records, samples)
     result = identify(model, stretches, settings=settings, progress=progress)
-    if samples < longest:
+    restart = {} if result.capped == "max_seconds" else unreached(model, stretches, result.values())
+    if restart:
+        result = _restarted(model, stretches, settings, progress, result, restart)
+    if settings.stretch_s is None and samples < longest:
         note = (f"the free run over whole records is not finite at the starting parameters: multiple shooting "
                 f"over stretches of {samples * dm.dt:.3g} s instead (identification.stretch_s sets them)")
         log.warning("identification: %s", note)
         result.warnings = (note, *result.warnings)
     return result
+
+
+def unreached(model: ComposedModel, stretches: Stretches, names: Sequence[str]) -> dict[str, float]:
+    """Those of ``names`` whose effect the model's runs over ``stretches`` never meet, each with a
+    value where it acts (every started physics block's :meth:`LTIModel.unreached`, from the lowest and
+    highest value of each of its states over the runs, in the states' units)."""
+    ran: list[dict[str, torch.Tensor]] = []
+    try:
+        stretches.to(torch.float64).predict(model, states=ran)
+    except Refused:
+        return {}
+    values, out = model.parameters_.as_floats(), {}
+    for name in model.started_blocks():
+        block = model.blocks[name]
+        x = torch.cat([batch[name].reshape(-1, batch[name].shape[-1]) for batch in ran]).double()
+        x = x * block.state_std.double() + block.state_mean.double()
+        lowest, highest = x.min(0).values.tolist(), x.max(0).values.tolist()
+        reach = {s: (lo, hi) for s, lo, hi in zip(block.model.state_names, lowest, highest)}
+        out.update(block.model.unreached(reach, values))
+    return {n: v for n, v in out.items() if n in names}
+
+
+def _restarted(model: ComposedModel, stretches: Stretches, settings: IdentificationSettings,
+               progress: Callable[[str], None], first: Identification, restart: dict[str, float]) -> Identification:
+    """The better of ``first`` and a fit from its values with ``restart``'s (see identify_records)."""
+    start = ", ".join(f"{n} = {first.values()[n]:.4g}" for n in restart)
+    progress(f"identification: {start} never reached by the free runs (no gradient there): a second fit from "
+             + ", ".join(f"{n} = {v:.4g}" for n, v in restart.items()) + ", where it acts")
+    model.parameters_.set_values(restart)
+    second = identify(model, stretches, settings=settings, progress=progress)
+    better = second.error_final < first.error_final
+    kept = second if better else first
+    if not better:
+        model.parameters_.set_values(first.values())
+    initial = {e.name: e.initial for e in first.estimates}
+    kept.estimates = tuple(dataclasses.replace(e, initial=initial[e.name]) for e in kept.estimates)
+    kept.seconds, kept.error_initial = first.seconds + second.seconds, first.error_initial
+    note = (f"{start} never reached by the free runs (no gradient there): a second fit from "
+            + ", ".join(f"{n} = {v:.4g}" for n, v in restart.items()) + f" reached {100 * second.error_final:.3g} % "
+            f"of the output variance against {100 * first.error_final:.3g} %: "
+            + ("the second is kept" if better else "the first is kept"))
+    kept.warnings = (note, *kept.warnings)
+    return kept
 
 
 def _residual_variance(cost: float, m: int, p: int) -> float:

@@ -37,6 +37,7 @@ from hypa.physics.statespace import LTIModel
 from hypa.physics.wrapped import StateFeedback
 
 SIDES = ("upper", "lower")
+UNREACHED = 15.0  # corner widths inside its limit: the state never reaches it (softplus(-15) = 3e-7)
 
 
 def spill_name(state: str, row: str) -> str:
@@ -74,6 +75,20 @@ class Limited(StateFeedback):
             one = p[time].new_ones(())
             columns.append(torch.stack([-one if r == j else p[spills[r]] for r in range(n)]) / p[time])
         return torch.stack(columns, 1)
+
+    def unreached(self, reach: Mapping[str, tuple[float, float]], values: Mapping[str, float]) -> dict[str, float]:
+        """A limit its state stays more than ``UNREACHED`` corner widths inside of over the run (its
+        spill and gradient under e^-15 of the width: 0 to a fit), restarted at the state's extreme,
+        where it spills (the wrapped system's too)."""
+        out = super().unreached(reach, values)
+        for j, sign, limit, _, width, _ in self._columns:
+            state = self.state_names[j]
+            if state not in reach:
+                continue
+            extreme = reach[state][1] if sign > 0 else reach[state][0]
+            if sign * (values[limit] - extreme) > UNREACHED * abs(values[width]):
+                out[limit] = extreme
+        return out
 
     def own_prepare(self, p: Mapping[str, Tensor]) -> list[tuple[Tensor, Tensor]]:
         return [(p[limit], p[width]) for _, _, limit, _, width, _ in self._columns]

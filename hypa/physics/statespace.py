@@ -134,6 +134,14 @@ class LTIModel(ABC):
         base = getattr(self, "base", None)
         return base.signal_scaled() if isinstance(base, LTIModel) else ()
 
+    def unreached(self, reach: Mapping[str, tuple[float, float]], values: Mapping[str, float]) -> dict[str, float]:
+        """Parameters whose effect the states never meet over a run (``reach``: state -> its lowest and
+        highest value in the state's unit; ``values``: the parameters'), each with a value where it
+        would act: a limit the state never reaches has no gradient, so no fit brings it back
+        (``hypa.physics.limited``). This wrapper's and its ``base``'s; none for a plain system."""
+        base = getattr(self, "base", None)
+        return base.unreached(reach, values) if isinstance(base, LTIModel) else {}
+
     @property
     def has_nonlinear_output(self) -> bool:
         """Whether the outputs have a nonlinear part h (``output_nonlinearity`` overridden, or a wrapped

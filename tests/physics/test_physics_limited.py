@@ -118,3 +118,25 @@ def test_the_model_config_checks_limited_and_keeps_it() -> None:
         parse_model_spec(_config({"level": "upper"})).block("plant").system_model()
     system = parse_model_spec(_config(None)).block("plant").system_model()
     assert not isinstance(system, Limited)
+
+
+def test_a_limit_its_state_never_reaches_is_named_with_where_it_acts() -> None:
+    """``unreached``: a limit more than UNREACHED corner widths beyond the state's reach has no
+    gradient; it comes back at the state's extreme (the highest for an upper limit, the lowest for a
+    lower one), through a wrapper around the limited system too; a reached limit is not named."""
+    from hypa.physics.curved import Curved
+    from hypa.physics.limited import UNREACHED
+
+    upper = Limited(TwoIntegrators(), {"top": "upper"}, block="b")
+    values = {"b/top_limit": 10.0, "b/top_limit_width": 0.1}
+    far = {"top": (-2.0, 10.0 - (UNREACHED + 1) * 0.1), "bottom": (0.0, 1.0)}
+    assert upper.unreached(far, values) == {"b/top_limit": pytest.approx(8.4)}
+    near = {"top": (-2.0, 10.0 - (UNREACHED - 1) * 0.1), "bottom": (0.0, 1.0)}
+    assert upper.unreached(near, values) == {}
+    assert upper.unreached({"bottom": (0.0, 1.0)}, values) == {}  # a state the run did not report
+    lower = Limited(TwoIntegrators(), {"top": "lower"})
+    assert lower.unreached({"top": (3.0, 5.0)}, {"top_limit": 1.0, "top_limit_width": 0.1}) == {"top_limit": 3.0}
+    assert lower.unreached({"top": (1.5, 5.0)}, {"top_limit": 1.0, "top_limit_width": 0.1}) == {}
+    wrapped = Curved(upper, {"top": "root"})
+    assert wrapped.unreached(far, values) == {"b/top_limit": pytest.approx(8.4)}
+    assert TwoIntegrators().unreached(far, values) == {}
