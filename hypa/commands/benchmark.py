@@ -50,6 +50,7 @@ from hypa.commands.config import BenchmarkConfig, hydra_command, typed
 from hypa.commands.launch import hypa_argv, run_hypa
 from hypa.commands.output_folder import holding_output
 from hypa.core.errors import INTERRUPTED, UserError, is_user_error, one_line
+from hypa.physics.discretization import HOLDS
 from hypa.reporting.numbers import elapsed
 
 if TYPE_CHECKING:
@@ -148,6 +149,7 @@ def main(cfg: DictConfig) -> None:
     rows = Rows(dataset, labels, seeds, suite.published if suite is not None else {}, units, out, extends)
     jobs = [(label, seed) for label in labels for seed in seeds]
     identified: dict[str, tuple[int, list, float, list[str]]] = {}  # physics-only row -> its seed's scores
+    started: dict[str, list[str]] = {}  # a hybrid row -> its later seeds' start: its first seed's identified physics
     for i, (label, seed) in enumerate(jobs, 1):
         print(f"[{i}/{len(jobs)}] {dataset}: {label}" + (f", seed {seed}" if len(seeds) > 1 else ""), flush=True)
         if label in identified:  # identified without randomness: another seed would give the same model
@@ -161,8 +163,11 @@ def main(cfg: DictConfig) -> None:
         model = list(suite_models[label]) if label in suite_models else [f"model={label}"]
         model = [model_file_override(model_files[o.removeprefix("model=")]) if o.removeprefix("model=") in model_files
                  else o for o in model]
+        if label in started:
+            print(f"[{i}/{len(jobs)}] {label}: its physics starts from seed {seeds[0]}'s identification (no seed "
+                  f"enters it): {' '.join(started[label])}", flush=True)
         overrides = [*searchpath, f"dataset={dataset}", *model, *asked, *config.budgets[config.budget],
-                     *config.train_overrides,
+                     *started.get(label, []), *config.train_overrides,
                      f"seed={seed}", f"data.seed={seed}"]  # the networks' start and the windows' order
         try:
             run, scores, caps = trained_row(label, seed, overrides, run_folder, config_dirs, expected)
@@ -184,6 +189,8 @@ def main(cfg: DictConfig) -> None:
             rows.add(label, seed, scores, seconds, kept=run.checkpoint.name == START_CHECKPOINT, caps=caps)
             if identified_only(run):
                 identified[label] = (seed, scores, seconds, caps)
+            elif label not in started and seed == seeds[0]:
+                started[label] = identified_start(run_folder, run.info)
             print(f"[{i}/{len(jobs)}] {label}: trained in {elapsed(seconds)}"
                   + (f"; stopped at a cap: {'; '.join(caps)}" if caps else ""), flush=True)
         rows.write()
@@ -192,6 +199,20 @@ def main(cfg: DictConfig) -> None:
     if rows.failed:
         raise UserError(f"{len(rows.failed)} of {len(labels)} models failed ({'; '.join(rows.failed)}); the table "
                         f"holds the others: {table}")
+
+
+def identified_start(run_folder: Path, info: dict) -> list[str]:
+    """The overrides that start a hybrid's later seeds from the physics its first seed's run (in
+    ``run_folder``, ``info`` its run.json) identified: ``identification.start`` and the hold the data
+    chose there, so the fit settles in a few iterations and no second hold is fitted; none for a run
+    that identified nothing."""
+    parameters = (info.get("identification") or {}).get("parameters") if isinstance(info, dict) else None
+    if not isinstance(parameters, dict) or not parameters:
+        return []
+    hold = info.get("hold")
+    chosen = [f"physics.hold={hold['chosen']}"] if isinstance(hold, dict) and hold.get("by") == "identification" \
+        and hold.get("chosen") in HOLDS else []
+    return [path_override("identification.start", run_folder), *chosen]
 
 
 def check_models(config: BenchmarkConfig, dataset: str, labels: list[str], configs: set[str],
@@ -295,14 +316,19 @@ def trust_of(overrides: list[str]) -> tuple[str, ...]:
 
 
 def model_file_override(path: Path) -> str:
-    """``model_file=PATH`` as one Hydra override (quoted where the path holds characters Hydra parses)."""
+    """``model_file=PATH`` as one Hydra override (:func:`path_override`)."""
+    return path_override("model_file", path)
+
+
+def path_override(key: str, path: Path) -> str:
+    """``KEY=PATH`` as one Hydra override (quoted where the path holds characters Hydra parses)."""
     text = str(path)
     if re.fullmatch(r"[\w/.@:+~-]+", text):
-        return f"model_file={text}"
+        return f"{key}={text}"
     if "'" in text or "\\" in text:
-        raise UserError(f"diagnose={path.parents[2]}: a path with a quote or backslash cannot be passed to hypa train; "
-                        "move or link the folder elsewhere")
-    return f"model_file='{text}'"
+        raise UserError(f"{path}: a path with a quote or backslash cannot be passed to hypa train as {key}; move or "
+                        "link the folder elsewhere")
+    return f"{key}='{text}'"
 
 
 def diagnosis_folder(value: str | None, configs: set[str]) -> Path | None:

@@ -111,8 +111,10 @@ class IdentificationConfig:
     tolerance: float = 1.0e-8
     resolution: float | None = 0.01
     max_seconds: float | None = None
+    start: str | None = None  # a hypa train run folder whose identified values start this identification
 
     def __post_init__(self) -> None:
+        checked("identification.start", self.start, str, optional=True)
         checked("identification.stretch_s", self.stretch_s, float, optional=True, positive=True)
         checked("identification.max_evaluations", self.max_evaluations, int, optional=True, minimum=1)
         checked("identification.tolerance", self.tolerance, float, positive=True)

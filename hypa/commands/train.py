@@ -107,6 +107,9 @@ def resolve(cfg: DictConfig, out: Path | None = None) -> Request:
                         "command line again, which would start the sweep again; train each configuration as "
                         "its own command")
     out, ckpt_path = Path(out if out is not None else HydraConfig.get().runtime.output_dir), None
+    if config.ckpt_path and config.identification.start:
+        raise UserError("identification.start with ckpt_path: a resumed run continues from its checkpoint's values; "
+                        "give one of them")
     if config.ckpt_path:
         ckpt_path = from_cwd(config.ckpt_path)
         if not ckpt_path.is_file():
@@ -127,11 +130,11 @@ def prepare(request: Request, cfg: DictConfig, folder: Any) -> Prepared:
     (``data.past`` null: chosen for it), the settings left null (an end-to-end network's from its
     training data, the fixed defaults otherwise), the module and, for a model that fixes no hold,
     the hold the data choose (identifying its physics under each)."""
-    from hypa.commands.entry import data_dir_from_config, model_datamodule
+    from hypa.commands.entry import data_dir_from_config, from_cwd, model_datamodule
     from hypa.core.metadata import run_metadata
     from hypa.training import HybridModule
     from hypa.training.baseline import network_defaults
-    from hypa.training.identified import choose_hold, plan
+    from hypa.training.identified import choose_hold, plan, start_values
 
     config = request.config
     with settings("testbench"):  # the test bench's settings build its data (files: a folder only)
@@ -153,12 +156,21 @@ def prepare(request: Request, cfg: DictConfig, folder: Any) -> Prepared:
     # the run was made from (code, packages, data checksums), so hypa evaluate notices other data
     folder.update_record(data_dir=str(data_dir.resolve()), **run_metadata(dm.files, data_dir))
 
+    start = None
+    if config.identification.start:
+        start = from_cwd(config.identification.start)
+        log.info("identification: starting from the values %s identified", start)
+
     def build(with_hold: str | None) -> HybridModule:  # channels, normalization, dt and past from the data module
-        return HybridModule.from_data(
+        module = HybridModule.from_data(
             dm, request.spec, physical_values=request.physical_values, horizon=config.horizon,
             hold=with_hold,  # physics.hold: for a model without its own hold (one that contradicts it is refused)
             ann_name=request.ann_name, ann_hparams=ann, lr=config.optimizer.lr,
             physics_lr=config.optimizer.physics_lr, weight_decay=weight_decay)
+        if start is not None:  # another run's identified values, read as data
+            parameters = module.model.parameters_
+            parameters.set_values(start_values(start, parameters))
+        return module
 
     hold, stages = config.physics.hold, list(request.spec.stages)
     module, identified = build(hold), None

@@ -22,6 +22,11 @@ physical parameters gets one of:
 The report goes to ``identification.md``, ``run.json`` (``identification``) and TensorBoard (text
 and the parameters as ``physics/<name>``).
 
+``identification.start=RUN`` starts the identification from the values another run identified
+(:func:`start_values`: its ``run.json``'s numbers, read as data): a fit started at its optimum
+settles in a few iterations (``hypa benchmark`` starts a hybrid's later seeds from its first
+seed's physics, which no seed enters).
+
 Across processes (``trainer.strategy=ddp``) rank 0 alone identifies; the other ranks take the
 same stage settings with :func:`identified_elsewhere` and receive rank 0's values when training
 starts (:class:`hypa.training.distributed.SameModelOnEveryRank`).
@@ -30,20 +35,24 @@ starts (:class:`hypa.training.distributed.SameModelOnEveryRank`).
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal
 
 import lightning as L
 from lightning.pytorch.loggers import Logger
 
+from hypa.core.errors import UserError
 from hypa.core.metadata import sha256
 from hypa.data import HypaDataModule
 from hypa.identification import Identification, IdentificationError, IdentificationSettings, identify_records
 from hypa.models.spec import StageSpec
+from hypa.physics.parameters import PhysicalParameters
 from hypa.training.divergence import DivergedError
 from hypa.training.module import HybridModule
-from hypa.training.run_folder import RunFolder, write_text_atomic
+from hypa.training.run_folder import RunFolder, read_record, write_text_atomic
 
 log = logging.getLogger(__name__)
 
@@ -83,6 +92,39 @@ def identify_physics(module: HybridModule, how: Plan, stages: Sequence[StageSpec
         return _identify(module, dm, folder, settings, logger, result)
     finally:
         model.set_stage(None)
+
+
+def start_values(folder: Path, parameters: PhysicalParameters) -> dict[str, float]:
+    """The values the run in ``folder`` identified (``run.json``'s ``identification.parameters``), to
+    start this run's identification from (``identification.start``). Data: finite numbers only, each
+    a trainable parameter of ``parameters`` (this model's) within its spec; anything else is refused
+    in one line. Parameters the run did not identify keep the model's values."""
+    where = f"identification.start={folder}"
+    if not Path(folder).is_dir():
+        raise UserError(f"{where}: not a folder (a hypa train run folder whose physics was identified)")
+    record = read_record(Path(folder))
+    identified = record.get("identification") if isinstance(record.get("identification"), dict) else {}
+    found = identified.get("parameters")
+    if not isinstance(found, dict) or not found:
+        raise UserError(f"{where}: its run.json holds no identified parameters (a hypa train run whose physics was "
+                        "identified)")
+    values = {}
+    for name, entry in found.items():
+        value = entry.get("value") if isinstance(entry, dict) else None
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise UserError(f"{where}: the identified value of {str(name)[:80]!r} is not a finite number")
+        values[str(name)] = float(value)
+    trainable = parameters.trainable_names
+    foreign = [name for name in values if name not in trainable]
+    if foreign:
+        raise UserError(f"{where}: that run identified {', '.join(foreign[:5])}, which this model does not train "
+                        f"(it trains {', '.join(trainable) or 'nothing'})")
+    try:
+        for name, value in values.items():
+            parameters.specs[name].check(value)
+    except ValueError as error:
+        raise UserError(f"{where}: {error}") from None
+    return values
 
 
 def _physics_only(module: HybridModule) -> None:

@@ -14,7 +14,14 @@ from types import SimpleNamespace
 
 import pytest
 
-from hypa.commands.benchmark import Rows, diagnosis_folder, model_file_override, reused_diagnosis, trust_of
+from hypa.commands.benchmark import (
+    Rows,
+    diagnosis_folder,
+    identified_start,
+    model_file_override,
+    reused_diagnosis,
+    trust_of,
+)
 from hypa.core.errors import UserError
 from hypa.evaluation.benchmark import Score, benchmark
 from hypa.evaluation.benchmark_result import Benchmark
@@ -174,3 +181,19 @@ def test_a_row_that_fails_leaves_the_others_in_the_table(tmp_path: Path) -> None
     assert "(capped) physical: identification stopped at identification.max_evaluations (not converged)" in table
     models = json.loads((tmp_path / "run" / "benchmark.json").read_text())["racecar"]["models"]
     assert models["physical"]["test_sets"]["test"]["yaw_rate"]["r2"] > 0.5 and models["broken"]["failed"]
+
+
+def test_a_hybrids_later_seeds_start_from_its_first_seeds_identified_physics(tmp_path: Path) -> None:
+    """``identified_start``: identification.start at the first seed's run, and the hold the data
+    chose there (so no second hold is fitted); nothing for a run that identified nothing, and a
+    hold the model fixed is not passed on."""
+    info = {"identification": {"parameters": {"k": {"value": 1.0}}}, "hold": {"chosen": "foh", "by": "identification"}}
+    assert identified_start(tmp_path, info) == [f"identification.start={tmp_path}", "physics.hold=foh"]
+    assert identified_start(tmp_path, {**info, "hold": {"chosen": "zoh", "by": "model"}}) == [
+        f"identification.start={tmp_path}"]
+    assert identified_start(tmp_path, {**info, "hold": {"chosen": "os.system", "by": "identification"}}) == [
+        f"identification.start={tmp_path}"]
+    assert identified_start(tmp_path, {"best_val_loss": 0.1}) == []
+    assert identified_start(tmp_path, {"identification": {"parameters": {}}}) == []
+    spaced = tmp_path / "a run"
+    assert identified_start(spaced, info)[0] == f"identification.start='{spaced}'"

@@ -329,6 +329,66 @@ def test_hypa_train_identifies_a_physics_only_model(data: Path, tmp_path: Path) 
     assert "## Identification" in (tmp_path / "eval" / "summary.md").read_text()  # the run's report says how
 
 
+def test_an_identification_started_from_another_runs_values_settles_at_once(data: Path, tmp_path: Path) -> None:
+    """``identification.start=RUN``: the fit starts from the values RUN identified (the report's
+    initial values are RUN's), settles in a few iterations and ends where RUN did."""
+    from hypa.identification.output_error import SETTLE
+
+    env = make_dc_motor_data(tmp_path / "unused", 1)
+    common = ["train", "--config-dir", str(USER_EXAMPLE / "conf"), "dataset=dc_motor", "model=dc_motor",
+              f"data.dir={data}", "trainer.enable_progress_bar=false", "figures.enabled=false"]
+    first = hypa_run([*common, "identification.resolution=null", f"hydra.run.dir={tmp_path / 'first'}"], env=env)
+    assert first.returncode == 0, first.stderr[-3000:]
+    again = hypa_run([*common, f"identification.start={tmp_path / 'first'}", f"hydra.run.dir={tmp_path / 'again'}"],
+                     env=env)
+    assert again.returncode == 0, again.stderr[-3000:]
+    before = json.loads((tmp_path / "first" / "run.json").read_text())["identification"]
+    after = json.loads((tmp_path / "again" / "run.json").read_text())["identification"]
+    assert after["converged"] and after["iterations"] <= SETTLE + 2, after
+    assert after["iterations"] < before["iterations"], (before, after)
+    for name, entry in after["parameters"].items():
+        assert entry["initial"] == pytest.approx(before["parameters"][name]["value"], rel=1e-12)
+        assert entry["value"] == pytest.approx(before["parameters"][name]["value"], rel=1e-3)
+    assert after["error"]["final"] == pytest.approx(before["error"]["final"], rel=1e-3)
+    resumed = hypa_run([*common, f"identification.start={tmp_path / 'first'}",
+                        f"ckpt_path={tmp_path / 'first' / 'checkpoints' / 'best-identified.ckpt'}",
+                        f"hydra.run.dir={tmp_path / 'resumed'}"], env=env)
+    assert resumed.returncode != 0 and "identification.start with ckpt_path" in resumed.stderr
+
+
+@pytest.mark.parametrize("record, message", [
+    (None, "not a folder"),
+    ({"best_val_loss": 1.0}, "holds no identified parameters"),
+    ({"identification": {"parameters": {"k": {"value": "os.system"}}}}, "the identified value of 'k' is not a finite"),
+    ({"identification": {"parameters": {"k": {"value": float("nan")}}}}, "is not a finite number"),
+    ({"identification": {"parameters": {"k": {"value": True}}}}, "is not a finite number"),
+    ({"identification": {"parameters": {"other": {"value": 1.0}}}}, "identified other, which this model does not"),
+    ({"identification": {"parameters": {"fixed": {"value": 1.0}}}}, "identified fixed, which this model does not"),
+    ({"identification": {"parameters": {"k": {"value": -2.0}}}}, "parameter 'k' must be positive"),
+])
+def test_a_start_that_is_not_an_identification_of_this_model_is_refused(tmp_path: Path, record, message) -> None:
+    """``start_values`` reads run.json as data: a folder, finite numbers, this model's trainable
+    parameters within their specs; anything else refused in one line naming identification.start."""
+    from hypa.core.errors import UserError
+    from hypa.physics import ParameterSpec
+    from hypa.physics.parameters import PhysicalParameters
+    from hypa.training.identified import start_values
+
+    parameters = PhysicalParameters([ParameterSpec("k", 1.0, "1/s"), ParameterSpec("fixed", 2.0, "s")])
+    parameters.set_trainable(None, False)
+    parameters.set_trainable(["k"], True)
+    folder = tmp_path / "run"
+    if record is not None:
+        folder.mkdir()
+        (folder / "run.json").write_text(json.dumps(record))
+    with pytest.raises(UserError, match=message) as error:
+        start_values(folder, parameters)
+    assert str(error.value).startswith(f"identification.start={folder}") and "\n" not in str(error.value)
+    folder.mkdir(exist_ok=True)
+    (folder / "run.json").write_text(json.dumps({"identification": {"parameters": {"k": {"value": 3.5}}}}))
+    assert start_values(folder, parameters) == {"k": 3.5}
+
+
 def train_hybrid(data: Path, tmp_path: Path, *overrides: str) -> tuple[subprocess.CompletedProcess, Path, dict]:
     """``hypa train`` on the DC motor's hybrid (a tiny LSTM correction); the result, the run
     folder and its run.json."""
