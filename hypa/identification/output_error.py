@@ -53,7 +53,7 @@ from scipy.optimize import least_squares
 from hypa.core.errors import UserError
 from hypa.data import HypaDataModule, Record
 from hypa.identification.result import Estimate, Identification
-from hypa.identification.shooting import CONTINUITY, Refused, Shooting
+from hypa.identification.shooting import CONTINUITY, REFUSED_ERRORS, Refused, Shooting
 from hypa.identification.stretches import Stretches
 from hypa.models import ComposedModel
 from hypa.physics.parameters import BOUNDED, LOG, ParameterSpec
@@ -371,7 +371,7 @@ def unreached(model: ComposedModel, stretches: Stretches, names: Sequence[str]) 
     ran: list[dict[str, torch.Tensor]] = []
     try:
         stretches.to(torch.float64).predict(model, states=ran)
-    except Refused:
+    except REFUSED_ERRORS:  # a run the physics refuses at these values: nothing to say about its reach
         return {}
     values, out = model.parameters_.as_floats(), {}
     for name in model.started_blocks():

@@ -49,7 +49,7 @@ PROBE = 1e-7  # forward-difference step in the fit's coordinates (relative for p
 CONTINUITY = (1.0, 1e2, 1e4)  # μ, raised in these steps (multiple shooting)
 _DENSE_BYTES = 2**28  # a Jacobian up to this size is dense (scipy's exact solver); larger ones sparse (LSMR)
 
-_REFUSED = (UnstablePhysicsError, SchedulingError, ValueError, ArithmeticError, torch.linalg.LinAlgError)
+REFUSED_ERRORS = (UnstablePhysicsError, SchedulingError, ValueError, ArithmeticError, torch.linalg.LinAlgError)
 
 
 def correlation_time(errors: Sequence[np.ndarray]) -> float:
@@ -168,7 +168,7 @@ class Shooting:
         states: list[dict[str, torch.Tensor]] | None = [] if self.n else None
         try:
             pairs = self.data.predict(self.model, self._initial(xi) if self.n else None, states)
-        except _REFUSED as error:  # a trial the physics refuses or cannot compute (an overflowing exponential)
+        except REFUSED_ERRORS as error:  # a trial the physics refuses or cannot compute (an overflowing exponential)
             raise Refused(str(error)) from error
         r = torch.cat([((p - y) * self.scale).reshape(-1) for p, y in pairs]).numpy()
         if not np.all(np.isfinite(r)):
