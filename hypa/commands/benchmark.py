@@ -206,7 +206,8 @@ def identified_start(run_folder: Path, info: dict) -> list[str]:
     ``run_folder``, ``info`` its run.json) identified: ``identification.start`` and the hold the data
     chose there, so the fit settles in a few iterations and no second hold is fitted; none for a run
     that identified nothing."""
-    parameters = (info.get("identification") or {}).get("parameters") if isinstance(info, dict) else None
+    identification = info.get("identification") if isinstance(info, dict) else None
+    parameters = identification.get("parameters") if isinstance(identification, dict) else None
     if not isinstance(parameters, dict) or not parameters:
         return []
     hold = info.get("hold")
@@ -323,11 +324,11 @@ def model_file_override(path: Path) -> str:
 def path_override(key: str, path: Path) -> str:
     """``KEY=PATH`` as one Hydra override (quoted where the path holds characters Hydra parses)."""
     text = str(path)
-    if re.fullmatch(r"[\w/.@:+~-]+", text):
+    if re.fullmatch(r"[A-Za-z0-9_/.@:+-]+", text):
         return f"{key}={text}"
-    if "'" in text or "\\" in text:
-        raise UserError(f"{path}: a path with a quote or backslash cannot be passed to hypa train as {key}; move or "
-                        "link the folder elsewhere")
+    if "'" in text or "\\" in text or "${" in text:
+        raise UserError(f"{path}: a path with a quote, a backslash or ${{ cannot be passed to hypa train as {key}; "
+                        "move or link the folder elsewhere")
     return f"{key}='{text}'"
 
 

@@ -115,6 +115,8 @@ class IdentificationConfig:
 
     def __post_init__(self) -> None:
         checked("identification.start", self.start, str, optional=True)
+        if self.start is not None and not self.start.strip():
+            raise UserError("identification.start is empty: give a hypa train run folder, or null")
         checked("identification.stretch_s", self.stretch_s, float, optional=True, positive=True)
         checked("identification.max_evaluations", self.max_evaluations, int, optional=True, minimum=1)
         checked("identification.tolerance", self.tolerance, float, positive=True)

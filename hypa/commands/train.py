@@ -156,7 +156,7 @@ def prepare(request: Request, cfg: DictConfig, folder: Any) -> Prepared:
     # the run was made from (code, packages, data checksums), so hypa evaluate notices other data
     folder.update_record(data_dir=str(data_dir.resolve()), **run_metadata(dm.files, data_dir))
 
-    start = None
+    start, started = None, {}
     if config.identification.start:
         start = from_cwd(config.identification.start)
         log.info("identification: starting from the values %s identified", start)
@@ -167,9 +167,11 @@ def prepare(request: Request, cfg: DictConfig, folder: Any) -> Prepared:
             hold=with_hold,  # physics.hold: for a model without its own hold (one that contradicts it is refused)
             ann_name=request.ann_name, ann_hparams=ann, lr=config.optimizer.lr,
             physics_lr=config.optimizer.physics_lr, weight_decay=weight_decay)
-        if start is not None:  # another run's identified values, read as data
+        if start is not None:  # another run's identified values, read once as data, checked against this model
             parameters = module.model.parameters_
-            parameters.set_values(start_values(start, parameters))
+            if not started:
+                started.update(start_values(start, parameters))
+            parameters.set_values(started)
         return module
 
     hold, stages = config.physics.hold, list(request.spec.stages)

@@ -50,7 +50,7 @@ import torch
 from scipy import sparse
 from scipy.optimize import least_squares
 
-from hypa.core.errors import UserError
+from hypa.core.errors import UserError, one_line
 from hypa.data import HypaDataModule, Record
 from hypa.identification.result import Estimate, Identification
 from hypa.identification.shooting import CONTINUITY, REFUSED_ERRORS, Refused, Shooting
@@ -67,6 +67,7 @@ _AT_BOUND = 1e-4  # a bounded parameter this close to a bound (share of its inte
 _JOINED = 1e-3  # continuity defects (RMS, state std) above this: the stretches do not join (multiple shooting)
 _DECADES = 4.0  # an unbounded parameter is searched within this many decades of its start (signed: 1e4 x |start|)
 SETTLE = 5  # accepted iterations over which the fit's progress is weighed against the data's resolution
+KEEP = 0.01  # a second fit (a limit out of reach started where it acts) is kept if it lowers the error by this share
 
 
 class IdentificationError(UserError):
@@ -341,7 +342,8 @@ def identify_records(model: ComposedModel, dm: HypaDataModule, records: Sequence
     stays far inside of: :meth:`LTIModel.unreached`) has lost it for good, its gradient being 0
     there; a second fit starts it where it acts (the state's extreme over the runs), the others at
     the first fit's values, and the better of the two by the output error is kept (the report says
-    which, with both errors). A fit stopped at its time limit is not fitted again.
+    which, with both errors; kept only where it gains more than ``KEEP`` of the error). A fit
+    stopped at its time limit is not fitted again; the second fit has what is left of it.
     """
     first, longest = dm.past + 1, max(len(r) for r in records)
     samples = longest
@@ -386,23 +388,40 @@ def unreached(model: ComposedModel, stretches: Stretches, names: Sequence[str]) 
 
 def _restarted(model: ComposedModel, stretches: Stretches, settings: IdentificationSettings,
                progress: Callable[[str], None], first: Identification, restart: dict[str, float]) -> Identification:
-    """The better of ``first`` and a fit from its values with ``restart``'s (see identify_records)."""
+    """The better of ``first`` and a fit from its values with ``restart``'s (see identify_records):
+    the second is kept only where it lowers the output error by more than ``KEEP`` of the first's,
+    so a limit the data never reach is not moved to their edge for a gain at the noise's level. The
+    second fit has what is left of ``max_seconds``; the report counts both fits' iterations, model
+    runs and time, and keeps the user's initial values and error."""
     start = ", ".join(f"{n} = {first.values()[n]:.4g}" for n in restart)
-    progress(f"identification: {start} never reached by the free runs (no gradient there): a second fit from "
-             + ", ".join(f"{n} = {v:.4g}" for n, v in restart.items()) + ", where it acts")
+    again = ", ".join(f"{n} = {v:.4g}" for n, v in restart.items())
+    lost = f"{start} never reached by the free runs (no gradient there): a second fit from {again}"
+    left = None if settings.max_seconds is None else settings.max_seconds - first.seconds
+    if left is not None and left <= 0:
+        return first
+    progress(f"identification: {lost}, where it acts")
     model.parameters_.set_values(restart)
-    second = identify(model, stretches, settings=settings, progress=progress)
-    better = second.error_final < first.error_final
+    try:
+        second = identify(model, stretches, settings=dataclasses.replace(settings, max_seconds=left),
+                          progress=progress)
+    except (IdentificationError, *REFUSED_ERRORS) as error:  # the first fit stands
+        model.parameters_.set_values(first.values())
+        first.warnings = (f"{lost} could not run ({one_line(error)}): the first is kept", *first.warnings)
+        return first
+    better = second.error_final < (1 - KEEP) * first.error_final
     kept = second if better else first
     if not better:
         model.parameters_.set_values(first.values())
+    else:  # its own start was the first fit's end: "did not move from" would name that, not the user's start
+        second.warnings = tuple(w for w in second.warnings if " did not move from " not in w)
     initial = {e.name: e.initial for e in first.estimates}
     kept.estimates = tuple(dataclasses.replace(e, initial=initial[e.name]) for e in kept.estimates)
     kept.seconds, kept.error_initial = first.seconds + second.seconds, first.error_initial
-    note = (f"{start} never reached by the free runs (no gradient there): a second fit from "
-            + ", ".join(f"{n} = {v:.4g}" for n, v in restart.items()) + f" reached {100 * second.error_final:.3g} % "
-            f"of the output variance against {100 * first.error_final:.3g} %: "
-            + ("the second is kept" if better else "the first is kept"))
+    kept.iterations = first.iterations + second.iterations
+    kept.evaluations = -1 if -1 in (first.evaluations, second.evaluations) else first.evaluations + second.evaluations
+    note = (f"{lost} reached {100 * second.error_final:.3g} % of the output variance against "
+            f"{100 * first.error_final:.3g} %: " + ("the second is kept" if better else
+                                                    f"the first is kept (the second must gain more than {KEEP:.0%})"))
     kept.warnings = (note, *kept.warnings)
     return kept
 

@@ -111,11 +111,13 @@ def start_values(folder: Path, parameters: PhysicalParameters) -> dict[str, floa
     values = {}
     for name, entry in found.items():
         value = entry.get("value") if isinstance(entry, dict) else None
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        number = float(value) if isinstance(value, float) or (isinstance(value, int) and not isinstance(value, bool)
+                                                              and abs(value) < 2**1023) else math.nan
+        if not math.isfinite(number):
             raise UserError(f"{where}: the identified value of {str(name)[:80]!r} is not a finite number")
-        values[str(name)] = float(value)
+        values[str(name)] = number
     trainable = parameters.trainable_names
-    foreign = [name for name in values if name not in trainable]
+    foreign = [name[:80] for name in values if name not in trainable]
     if foreign:
         raise UserError(f"{where}: that run identified {', '.join(foreign[:5])}, which this model does not train "
                         f"(it trains {', '.join(trainable) or 'nothing'})")

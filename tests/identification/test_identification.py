@@ -337,7 +337,7 @@ def test_an_identification_started_from_another_runs_values_settles_at_once(data
     env = make_dc_motor_data(tmp_path / "unused", 1)
     common = ["train", "--config-dir", str(USER_EXAMPLE / "conf"), "dataset=dc_motor", "model=dc_motor",
               f"data.dir={data}", "trainer.enable_progress_bar=false", "figures.enabled=false"]
-    first = hypa_run([*common, "identification.resolution=null", f"hydra.run.dir={tmp_path / 'first'}"], env=env)
+    first = hypa_run([*common, f"hydra.run.dir={tmp_path / 'first'}"], env=env)
     assert first.returncode == 0, first.stderr[-3000:]
     again = hypa_run([*common, f"identification.start={tmp_path / 'first'}", f"hydra.run.dir={tmp_path / 'again'}"],
                      env=env)
@@ -365,6 +365,8 @@ def test_an_identification_started_from_another_runs_values_settles_at_once(data
     ({"identification": {"parameters": {"other": {"value": 1.0}}}}, "identified other, which this model does not"),
     ({"identification": {"parameters": {"fixed": {"value": 1.0}}}}, "identified fixed, which this model does not"),
     ({"identification": {"parameters": {"k": {"value": -2.0}}}}, "parameter 'k' must be positive"),
+    ({"identification": {"parameters": {"k": {"value": 10**400}}}}, "is not a finite number"),
+    ({"identification": {"parameters": {"x" * 10**5: {"value": 1.0}}}}, "identified x{80}, which this model does not"),
 ])
 def test_a_start_that_is_not_an_identification_of_this_model_is_refused(tmp_path: Path, record, message) -> None:
     """``start_values`` reads run.json as data: a folder, finite numbers, this model's trainable
@@ -384,9 +386,73 @@ def test_a_start_that_is_not_an_identification_of_this_model_is_refused(tmp_path
     with pytest.raises(UserError, match=message) as error:
         start_values(folder, parameters)
     assert str(error.value).startswith(f"identification.start={folder}") and "\n" not in str(error.value)
+    assert len(str(error.value)) < 400
     folder.mkdir(exist_ok=True)
     (folder / "run.json").write_text(json.dumps({"identification": {"parameters": {"k": {"value": 3.5}}}}))
     assert start_values(folder, parameters) == {"k": 3.5}
+
+
+def test_a_start_whose_run_json_links_out_of_its_folder_is_refused(tmp_path: Path) -> None:
+    from hypa.core.errors import UserError
+    from hypa.physics import ParameterSpec
+    from hypa.physics.parameters import PhysicalParameters
+    from hypa.training.identified import start_values
+
+    (tmp_path / "elsewhere.json").write_text(json.dumps({"identification": {"parameters": {"k": {"value": 3.5}}}}))
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "run.json").symlink_to(tmp_path / "elsewhere.json")
+    with pytest.raises(UserError):
+        start_values(tmp_path / "run", PhysicalParameters([ParameterSpec("k", 1.0, "1/s")]))
+
+
+def _identification(error: float, value: float, initial: float, warnings: tuple[str, ...] = ()):
+    from hypa.identification.result import Estimate, Identification
+
+    return Identification((Estimate("limit", "V", initial, value, 0.1),), [[1.0]], True, "converged", 5, 6, 0.0,
+                          1.0 if initial == 10.0 else error * 3, error, 1, 100, 2.0, warnings)
+
+
+@pytest.mark.parametrize("second_error, kept", [(0.5, "second"), (0.995, "first"), (None, "first")])
+def test_a_second_fit_from_where_a_limit_acts_is_kept_only_where_it_gains(monkeypatch, second_error, kept) -> None:
+    """``_restarted``: the second fit kept where it gains more than KEEP of the first's error, its
+    "did not move" warnings (about its own start) dropped; otherwise (or where it cannot run) the
+    first fit's values back in the model. Either way the report keeps the user's start and error
+    and counts both fits' work."""
+    from types import SimpleNamespace
+
+    import hypa.identification.output_error as oe
+    from hypa.physics import ParameterSpec
+    from hypa.physics.parameters import PhysicalParameters
+
+    model = SimpleNamespace(parameters_=PhysicalParameters([ParameterSpec("limit", 10.0, "V", positive=False)]))
+    model.parameters_.set_values({"limit": 40.0})  # where the first fit left it, out of reach
+    first = _identification(1.0, 40.0, 10.0, ("limit is not determined by the data",))
+    started = {}
+
+    def second_fit(model_, stretches, settings, progress):
+        started.update(model_.parameters_.as_floats())
+        if second_error is None:
+            raise oe.IdentificationError("the free run is not finite")
+        model_.parameters_.set_values({"limit": 6.0})
+        return _identification(second_error, 6.0, 5.0, ("limit did not move from 5 V: ...",))
+
+    monkeypatch.setattr(oe, "identify", second_fit)
+    result = oe._restarted(model, None, oe.IdentificationSettings(), lambda text: None, first, {"limit": 5.0})
+    assert started == {"limit": 5.0}
+    note = result.warnings[0]
+    assert note.startswith("limit = 40 never reached by the free runs (no gradient there): a second fit from limit = 5")
+    assert result.estimates[0].initial == 10.0 and result.error_initial == 1.0
+    if kept == "second":
+        assert note.endswith("the second is kept") and model.parameters_.as_floats()["limit"] == pytest.approx(6.0)
+        assert result.error_final == 0.5 and not any("did not move" in w for w in result.warnings)
+    else:
+        ending = "could not run (the free run is not finite): the first is kept" if second_error is None \
+            else "the first is kept (the second must gain more than 1%)"
+        assert note.endswith(ending), note
+        assert model.parameters_.as_floats()["limit"] == pytest.approx(40.0) and result.error_final == 1.0
+        assert "limit is not determined by the data" in result.warnings
+    if second_error is not None:
+        assert result.iterations == 10 and result.evaluations == 12 and result.seconds == 4.0
 
 
 def train_hybrid(data: Path, tmp_path: Path, *overrides: str) -> tuple[subprocess.CompletedProcess, Path, dict]:
