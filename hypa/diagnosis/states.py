@@ -54,17 +54,7 @@ def state_scales(model: ComposedModel, stretches: Stretches | None = None,
     started = [n for n in model.started_blocks() if blocks is None or n in blocks]
     if stretches is None or not started:
         return out
-    runs: dict[str, list[np.ndarray]] = {n: [] for n in started}
-    ran: list[dict[str, torch.Tensor]] = []
-    with torch.no_grad():
-        stretches.predict(model, states=ran)
-    for states in ran:
-        for name in started:
-            block = model.blocks[name]
-            physical = states[name].double() * block.state_std + block.state_mean
-            runs[name].append(physical.reshape(-1, physical.shape[-1]).numpy())
-    for name, parts in runs.items():
-        values = np.concatenate(parts)
+    for name, values in stretches.physical_states(model, started).items():
         for j, state in enumerate(model.blocks[name].model.state_names):
             finite = values[:, j][np.isfinite(values[:, j])]
             low, high = np.percentile(finite, [10, 90]) if finite.size else (0.0, 0.0)

@@ -370,19 +370,15 @@ def unreached(model: ComposedModel, stretches: Stretches, names: Sequence[str]) 
     """Those of ``names`` whose effect the model's runs over ``stretches`` never meet, each with a
     value where it acts (every started physics block's :meth:`LTIModel.unreached`, from the lowest and
     highest value of each of its states over the runs, in the states' units)."""
-    ran: list[dict[str, torch.Tensor]] = []
     try:
-        stretches.to(torch.float64).predict(model, states=ran)
+        states = stretches.to(torch.float64).physical_states(model)
     except REFUSED_ERRORS:  # a run the physics refuses at these values: nothing to say about its reach
         return {}
     values, out = model.parameters_.as_floats(), {}
-    for name in model.started_blocks():
-        block = model.blocks[name]
-        x = torch.cat([batch[name].reshape(-1, batch[name].shape[-1]) for batch in ran]).double()
-        x = x * block.state_std.double() + block.state_mean.double()
-        lowest, highest = x.min(0).values.tolist(), x.max(0).values.tolist()
-        reach = {s: (lo, hi) for s, lo, hi in zip(block.model.state_names, lowest, highest)}
-        out.update(block.model.unreached(reach, values))
+    for name, x in states.items():
+        system = model.blocks[name].model
+        reach = {s: (lo, hi) for s, lo, hi in zip(system.state_names, x.min(0).tolist(), x.max(0).tolist())}
+        out.update(system.unreached(reach, values))
     return {n: v for n, v in out.items() if n in names}
 
 

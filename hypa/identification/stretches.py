@@ -94,6 +94,22 @@ class Stretches:
             out.append((pred.double(), b["y"][:, self.first :].double()))
         return out
 
+    @torch.no_grad()
+    def physical_states(self, model: ComposedModel, blocks: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+        """The states each started physics block (of ``blocks``; all by default) runs through over the
+        stretches from the data's starts, in the states' units: block name -> (samples, n) float64,
+        the stretches one after the other."""
+        ran: list[dict[str, torch.Tensor]] = []
+        self.predict(model, states=ran)
+        out = {}
+        for name in model.started_blocks():
+            if blocks is None or name in blocks:
+                block = model.blocks[name]
+                parts = [(states[name].double() * block.state_std.double() + block.state_mean.double())
+                         .reshape(-1, states[name].shape[-1]) for states in ran]
+                out[name] = torch.cat(parts).numpy()
+        return out
+
     def weights(self) -> torch.Tensor:
         """1 / the variance of each (normalized) output over the predicted samples (or ``scale``
         where given: the variance over a larger set, so that scores of its parts add up)."""
